@@ -1,0 +1,63 @@
+"""vpr-uncertainty: how much to doubt each answer of a visual place recognition system, and how good that doubt is.
+
+Uncertainties are arrays of shape (Q,) where higher = less trustworthy; scores are top-k similarities of shape
+(Q, K), higher = more similar, sorted descending.
+
+>>> import numpy as np
+>>> from vpr_uncertainty import statistical_uncertainty
+>>> statistical_uncertainty(np.array([[0.9, 0.5, 0.4], [0.6, 0.59, 0.58]]), k=3).round(3)
+array([0.5  , 0.983])
+"""
+
+from vpr_uncertainty.evaluation import (
+    Evaluation,
+    auc_pr,
+    aurc,
+    average_precision,
+    correct_at_n,
+    evaluate,
+    recall_at_n,
+    rejection_curve,
+)
+from vpr_uncertainty.inputs import read_results
+from vpr_uncertainty.methods import available_methods, get_method, register_method
+from vpr_uncertainty.retrieval import Retrieval, load_retrieval, save_retrieval, top_k_from_similarity
+from vpr_uncertainty.scores import (
+    StatisticalUncertainty,
+    best_match,
+    l2_distance,
+    margin,
+    perceptual_aliasing,
+    ratio_spread,
+    similarity_distribution,
+    statistical_uncertainty,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Evaluation",
+    "Retrieval",
+    "StatisticalUncertainty",
+    "auc_pr",
+    "aurc",
+    "available_methods",
+    "average_precision",
+    "best_match",
+    "correct_at_n",
+    "evaluate",
+    "get_method",
+    "l2_distance",
+    "load_retrieval",
+    "margin",
+    "perceptual_aliasing",
+    "ratio_spread",
+    "read_results",
+    "recall_at_n",
+    "register_method",
+    "rejection_curve",
+    "save_retrieval",
+    "similarity_distribution",
+    "statistical_uncertainty",
+    "top_k_from_similarity",
+]

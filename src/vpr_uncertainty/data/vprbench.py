@@ -1,0 +1,88 @@
+"""Readers for the legacy files of the VPR-Bench benchmark (Zaffar et al., IJCV 2021).
+
+VPR-Bench stores its ground truth and its precomputed matches as NumPy *object* arrays, which can only be read
+with pickle. Unpickling a file can run arbitrary code: these two readers are the only places in the toolkit
+that do it, they say so with a warning, and they should only be given files from a source you trust.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy import sparse
+
+from vpr_uncertainty.data.ground_truth import positives_from_lists
+
+__all__ = ["PickleWarning", "load_vprbench_ground_truth", "load_vprbench_similarity"]
+
+
+class PickleWarning(UserWarning):
+    """Issued when a legacy file is read with pickle."""
+
+
+def _load_object_array(path: Path) -> np.ndarray:
+    warnings.warn(
+        f"reading the legacy VPR-Bench file {path} with pickle; only open files from a source you trust",
+        PickleWarning,
+        stacklevel=3,
+    )
+    return np.load(path, allow_pickle=True, encoding="latin1")
+
+
+def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = None) -> sparse.csr_array:
+    """Read VPR-Bench's ``ground_truth_new.npy``: rows of [query index, list of positive database indices].
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.npy`` file.
+    n_database : int, optional
+        Number of database images; by default the largest positive index + 1.
+
+    Returns
+    -------
+    scipy.sparse.csr_array of shape (Q, D), dtype bool
+    """
+    path = Path(path)
+    rows = _load_object_array(path)
+    if rows.ndim != 2 or rows.shape[1] != 2:
+        raise ValueError(
+            f"{path}: expected VPR-Bench ground truth of shape (n_queries, 2) = [query index, positives], "
+            f"got shape {rows.shape}"
+        )
+    query_ids = np.asarray(rows[:, 0], dtype=np.int64)
+    if not np.array_equal(np.sort(query_ids), np.arange(len(rows))):
+        raise ValueError(f"{path}: query indices must be a permutation of 0..{len(rows) - 1}")
+    lists: list[list[int]] = [[] for _ in range(len(rows))]
+    for query, positives in zip(query_ids, rows[:, 1], strict=True):
+        lists[query] = [int(index) for index in np.atleast_1d(positives)]
+    if n_database is None:
+        n_database = max((max(item) for item in lists if item), default=-1) + 1
+    return positives_from_lists(lists, n_database)
+
+
+def load_vprbench_similarity(path: str | Path) -> np.ndarray:
+    """Read the full similarity matrix from VPR-Bench's ``precomputed_data_corrected.npy``.
+
+    The file holds [query indices, top-1 indices, top-1 scores, similarity matrix, encoding time, matching
+    time]; the matrix has one row per query and one column per database image, higher = more similar.
+
+    Returns
+    -------
+    ndarray of shape (Q, D), float32
+    """
+    path = Path(path)
+    content = _load_object_array(path)
+    if content.shape != (6,):
+        raise ValueError(
+            f"{path}: expected VPR-Bench precomputed matches (an object array of 6 items), got shape {content.shape}"
+        )
+    similarity = np.asarray(content[3], dtype=np.float32)
+    if similarity.ndim != 2:
+        raise ValueError(f"{path}: item 3 should be the (queries × database) similarity matrix")
+    order = np.asarray(content[0]).astype(np.int64)
+    if not np.array_equal(order, np.arange(len(order))) or len(order) != similarity.shape[0]:
+        raise ValueError(f"{path}: expected query indices 0..{similarity.shape[0] - 1} in order")
+    return similarity

@@ -1,0 +1,463 @@
+"""Uncertainty from the top-k similarity scores of a VPR system.
+
+Direction
+---------
+Every function here returns an array of shape (Q,) in which **higher means less trustworthy**: rank queries by
+it to reject the most doubtful answers first. Inputs are similarities, higher = more similar, one row per query,
+sorted in descending order (``sort=True`` sorts them for you).
+
+The paper's metrics (training-free, from the top-k scores alone)
+    * :func:`ratio_spread` RS = 1/(k−1) Σ_{i=2..k} s_i / s_1
+    * :func:`similarity_distribution` SD = median(s_1 … s_k) / s_1
+    * :func:`statistical_uncertainty` SU = α·RS + (1−α)·SD
+
+Score-only baselines
+    * :func:`best_match` BM = −s_1
+    * :func:`l2_distance` L2 = d_1, the top-1 descriptor distance
+    * :func:`perceptual_aliasing` PA = d_1 / d_2
+    * :func:`margin` = s_2 − s_1 (the negated margin between the two best matches)
+
+Hard input, defined once for all of them
+    * **Missing candidates.** ``-inf`` marks a missing candidate at the end of a row (a query for which fewer
+      than k database images were retrieved). Such a row, like an array with fewer than k columns, is scored on
+      the n candidates it has, with n in place of k. A row needs at least two candidates; otherwise a
+      ``ValueError`` names it.
+    * **Best similarity s_1 ≤ 0.** Cosine similarities can be negative, and the ratio s_i / s_1 then flips its
+      meaning. With ``on_nonpositive="most_uncertain"`` (the default) such a row gets the uncertainty
+      ``1 − s_1``: ≥ 1, so above every row with s_1 > 0 (whose RS, SD and SU are ≤ 1 because s_i ≤ s_1), and
+      ordered among themselves by their best similarity. ``on_nonpositive="raise"`` rejects such input.
+    * **NaN, +inf, unsorted rows, fewer than 2 columns, k < 2, α outside [0, 1], non-2-D input**: a
+      ``ValueError`` (or ``TypeError``) that names the argument, what was found and what was expected.
+    * **No queries** (shape (0, K)): an empty array of shape (0,).
+
+Implementation note: with sorted rows, the mean of the runners-up and the median are both fixed linear
+combinations of the columns, so RS, SD and SU are each one matrix-vector product divided by s_1. No per-row
+sort or median is computed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from vpr_uncertainty._validation import check_alpha, check_k, check_top_k_scores
+
+__all__ = [
+    "StatisticalUncertainty",
+    "best_match",
+    "l2_distance",
+    "margin",
+    "perceptual_aliasing",
+    "ratio_spread",
+    "similarity_distribution",
+    "squared_distances_from_similarities",
+    "statistical_uncertainty",
+]
+
+_NONPOSITIVE_POLICIES = ("most_uncertain", "raise")
+
+
+def _combination_weights(n: int, rs_weight: float, sd_weight: float, dtype: np.dtype) -> np.ndarray:
+    """Weights w of shape (n,) such that ``sorted_scores @ w == rs_weight·mean(s_2..s_n) + sd_weight·median``."""
+    weights = np.zeros(n, dtype=np.float64)
+    weights[1:] += rs_weight / (n - 1)
+    weights[(n - 1) // 2] += sd_weight / 2
+    weights[n // 2] += sd_weight / 2
+    return weights.astype(dtype)
+
+
+def _candidates_per_row(top: np.ndarray) -> np.ndarray | None:
+    """Number of finite candidates in each row, or None when every row is full (the common case)."""
+    if np.isfinite(top[:, -1]).all():
+        return None
+    return np.isfinite(top).sum(axis=1)
+
+
+def _raise_for_short_rows(n_candidates: np.ndarray, needed: int = 2) -> None:
+    short = np.flatnonzero(n_candidates < needed)
+    if short.size:
+        shown = ", ".join(str(r) for r in short[:5]) + (", ..." if short.size > 5 else "")
+        what = "its best match" if needed == 1 else "its best match and at least one runner-up"
+        raise ValueError(
+            f"scores has {short.size} row(s) with fewer than {needed} candidates (rows {shown}); each query "
+            f"needs {what} (-inf marks a missing candidate)"
+        )
+
+
+def _check_policy(on_nonpositive: str) -> None:
+    if on_nonpositive not in _NONPOSITIVE_POLICIES:
+        raise ValueError(f"on_nonpositive must be one of {_NONPOSITIVE_POLICIES}, got {on_nonpositive!r}")
+
+
+def _divide_by_best(numerator: np.ndarray, best: np.ndarray, on_nonpositive: str) -> np.ndarray:
+    nonpositive = best <= 0
+    if not nonpositive.any():
+        result = numerator / best
+    elif on_nonpositive == "raise":
+        row = int(np.flatnonzero(nonpositive)[0])
+        raise ValueError(
+            f"scores has {int(nonpositive.sum())} row(s) whose best similarity is <= 0 (first: row {row}, "
+            f"s_1 = {best[row]!r}); the ratios s_i / s_1 need s_1 > 0. Use on_nonpositive='most_uncertain' "
+            "to rank such queries as the most uncertain"
+        )
+    else:
+        result = numerator / np.where(nonpositive, 1, best)
+        result[nonpositive] = 1 - best[nonpositive]
+    if not np.isfinite(result).all():
+        row = int(np.flatnonzero(~np.isfinite(result))[0])
+        raise ValueError(
+            f"scores overflow {result.dtype} in row {row} (s_1 = {best[row]!r}); cast the scores to float64"
+        )
+    return result
+
+
+def _ratio_metric(
+    scores: object, k: object, rs_weight: float, sd_weight: float, sort: bool, on_nonpositive: str
+) -> np.ndarray:
+    """(rs_weight·RS + sd_weight·SD) for every row, computed as one weighted sum divided by s_1."""
+    k = check_k(k)
+    _check_policy(on_nonpositive)
+    scores = check_top_k_scores(scores, sort=sort)
+    if scores.shape[0] == 0:
+        return np.empty(0, dtype=scores.dtype)
+    n = min(k, scores.shape[1])
+    top = scores[:, :n]
+    n_candidates = _candidates_per_row(top)
+    if n_candidates is None:
+        if n < 2:
+            _raise_for_short_rows(np.full(len(top), n))
+        numerator = top @ _combination_weights(n, rs_weight, sd_weight, top.dtype)
+    else:
+        _raise_for_short_rows(n_candidates)
+        numerator = np.empty(len(top), dtype=top.dtype)
+        for count in np.unique(n_candidates):
+            rows = n_candidates == count
+            weights = _combination_weights(int(count), rs_weight, sd_weight, top.dtype)
+            numerator[rows] = top[rows, :count] @ weights
+    return _divide_by_best(numerator, top[:, 0], on_nonpositive)
+
+
+def ratio_spread(
+    scores: object, k: int = 10, *, sort: bool = False, on_nonpositive: str = "most_uncertain"
+) -> np.ndarray:
+    """Ratio Spread: how closely the runners-up compete with the best match.
+
+    RS = 1/(k−1) Σ_{i=2..k} s_i / s_1. Close to 1 when the runners-up are as similar as the best match.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, higher = more similar, sorted descending along axis 1.
+    k : int, default=10
+        Number of candidates used (the first ``min(k, K)`` columns). Must be >= 2.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+    on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
+        What to do with rows whose best similarity is <= 0 (see the module docstring).
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ratio_spread(np.array([[0.8, 0.4, 0.2], [0.5, 0.5, 0.5]]), k=3)
+    array([0.375, 1.   ])
+    """
+    return _ratio_metric(scores, k, 1.0, 0.0, sort, on_nonpositive)
+
+
+def similarity_distribution(
+    scores: object, k: int = 10, *, sort: bool = False, on_nonpositive: str = "most_uncertain"
+) -> np.ndarray:
+    """Similarity Distribution: how far the best match stands from the bulk of the top-k.
+
+    SD = median(s_1 … s_k) / s_1 (for even k the median is the mean of the two middle values).
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, higher = more similar, sorted descending along axis 1.
+    k : int, default=10
+        Number of candidates used (the first ``min(k, K)`` columns). Must be >= 2.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+    on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
+        What to do with rows whose best similarity is <= 0 (see the module docstring).
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> similarity_distribution(np.array([[0.8, 0.4, 0.2], [0.8, 0.6, 0.4, 0.2]]), k=4)
+    array([0.5  , 0.625])
+    """
+    return _ratio_metric(scores, k, 0.0, 1.0, sort, on_nonpositive)
+
+
+def statistical_uncertainty(
+    scores: object,
+    k: int = 10,
+    alpha: float = 0.5,
+    *,
+    sort: bool = False,
+    on_nonpositive: str = "most_uncertain",
+) -> np.ndarray:
+    """Statistical Uncertainty: SU = α·RS + (1−α)·SD, the paper's training-free default.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, higher = more similar, sorted descending along axis 1.
+    k : int, default=10
+        Number of candidates used (the first ``min(k, K)`` columns). Must be >= 2.
+    alpha : float in [0, 1], default=0.5
+        Weight of RS; ``alpha=1`` gives RS and ``alpha=0`` gives SD.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+    on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
+        What to do with rows whose best similarity is <= 0 (see the module docstring).
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> statistical_uncertainty(np.array([[0.8, 0.4, 0.2]]), k=3, alpha=0.5)
+    array([0.4375])
+    """
+    alpha = check_alpha(alpha)
+    return _ratio_metric(scores, k, alpha, 1.0 - alpha, sort, on_nonpositive)
+
+
+class StatisticalUncertainty:
+    """SU for one query at a time, with the options checked once: the low-latency path for a running robot.
+
+    Parameters
+    ----------
+    k : int, default=10
+        Number of candidates used.
+    alpha : float in [0, 1], default=0.5
+        Weight of RS against SD.
+    on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
+        What to do when the best similarity is <= 0 (see the module docstring).
+
+    Examples
+    --------
+    >>> su = StatisticalUncertainty(k=3)
+    >>> su([0.8, 0.4, 0.2])
+    0.4375
+    """
+
+    __slots__ = ("_alpha", "_k", "_raise_nonpositive")
+
+    def __init__(self, k: int = 10, alpha: float = 0.5, *, on_nonpositive: str = "most_uncertain") -> None:
+        self._k = check_k(k)
+        self._alpha = check_alpha(alpha)
+        _check_policy(on_nonpositive)
+        self._raise_nonpositive = on_nonpositive == "raise"
+
+    def __call__(self, scores: Sequence[float] | np.ndarray) -> float:
+        """Return SU of one query.
+
+        Parameters
+        ----------
+        scores : sequence of float or ndarray of shape (K,)
+            That query's top-K similarities, sorted descending; ``-inf`` marks missing candidates at the end.
+        """
+        if getattr(scores, "ndim", 1) != 1:
+            raise ValueError(f"scores must be 1-D (one query's top-k), got shape {np.shape(scores)}")
+        values = scores.tolist() if isinstance(scores, np.ndarray) else list(scores)
+        if len(values) > self._k:
+            values = values[: self._k]
+        while values and values[-1] == -math.inf:
+            values.pop()
+        n = len(values)
+        if n < 2:
+            raise ValueError(f"scores needs at least 2 finite candidates, got {n}")
+        previous = values[0]
+        for value in values:
+            if not value <= previous:  # also catches NaN
+                raise ValueError(f"scores must be finite and sorted in descending order, got {values}")
+            previous = value
+        best = values[0]
+        if best == math.inf:
+            raise ValueError(f"scores must be finite, got {values}")
+        if best <= 0:
+            if self._raise_nonpositive:
+                raise ValueError(f"the best similarity must be > 0, got {best}")
+            return 1.0 - best
+        median = 0.5 * (values[(n - 1) // 2] + values[n // 2])
+        runners_up = (sum(values) - best) / (n - 1)
+        return (self._alpha * runners_up + (1.0 - self._alpha) * median) / best
+
+    def batch(self, scores: object) -> np.ndarray:
+        """SU of many queries at once (see :func:`statistical_uncertainty`)."""
+        policy = "raise" if self._raise_nonpositive else "most_uncertain"
+        return statistical_uncertainty(scores, self._k, self._alpha, on_nonpositive=policy)
+
+
+def squared_distances_from_similarities(scores: np.ndarray) -> np.ndarray:
+    """Squared L2 distances of L2-normalised descriptors from their cosine similarities: d² = 2 − 2s.
+
+    Values are clipped at 0 so that rounding (s slightly above 1) never gives a negative square.
+
+    Examples
+    --------
+    >>> squared_distances_from_similarities(np.array([[1.0, 0.5, -1.0]]))
+    array([[0., 1., 4.]])
+    """
+    return np.maximum(2 - 2 * scores, 0)
+
+
+def _top_distances(scores: np.ndarray, distances: object, n: int) -> np.ndarray:
+    """First ``n`` columns of the L2 distances (not squared), from ``distances`` or from the similarities."""
+    if distances is None:
+        return np.sqrt(squared_distances_from_similarities(scores[:, :n]))
+    squared = np.asarray(distances)
+    if squared.ndim != 2 or squared.shape[0] != scores.shape[0] or squared.shape[1] < n:
+        raise ValueError(f"distances must have shape ({scores.shape[0]}, >= {n}) to match scores, got {squared.shape}")
+    squared = squared[:, :n].astype(scores.dtype, copy=False)
+    if not (np.isfinite(squared).all() and (squared >= 0).all()):
+        raise ValueError("distances must be finite squared L2 distances >= 0 in the columns used")
+    if n > 1 and (squared[:, 1:] < squared[:, :-1]).any():
+        raise ValueError("distances must be sorted in ascending order along axis 1 (nearest first)")
+    return np.sqrt(squared)
+
+
+def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
+    check_k(k)
+    scores = check_top_k_scores(scores, sort=sort)
+    if scores.shape[0] and scores.shape[1] < columns:
+        raise ValueError(f"scores must have at least {columns} columns, got shape {scores.shape}")
+    if scores.shape[0] and not np.isfinite(scores[:, :columns]).all():
+        _raise_for_short_rows(np.isfinite(scores[:, :columns]).sum(axis=1), needed=columns)
+    return scores
+
+
+def best_match(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
+    """BM: the negated top-1 similarity, −s_1.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, sorted descending along axis 1.
+    k : int, default=10
+        Accepted so every method shares one signature; only the best match is read.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> best_match(np.array([[0.8, 0.4], [0.3, 0.1]]))
+    array([-0.8, -0.3])
+    """
+    return -_prepare(scores, k, sort, 1)[:, 0]
+
+
+def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
+    """L2: the descriptor distance d_1 between the query and its best match.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, sorted descending along axis 1.
+    k : int, default=10
+        Accepted so every method shares one signature; only the best match is read.
+    distances : array-like of shape (Q, K), optional
+        Squared L2 distances of the same candidates, ascending. Without them the similarities are taken as
+        cosine similarities of L2-normalised descriptors, d² = 2 − 2s; L2 then ranks queries exactly as BM.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> l2_distance(np.array([[0.5, 0.0]]))
+    array([1.])
+    """
+    scores = _prepare(scores, k, sort, 1)
+    if distances is not None and sort:
+        distances = np.sort(np.asarray(distances), axis=1)
+    return _top_distances(scores, distances, 1)[:, 0]
+
+
+def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
+    """PA: the ratio d_1 / d_2 of the two nearest-neighbour distances (Lowe's ratio for places).
+
+    Close to 1 when a second place matches as well as the first. Two candidates at distance 0 give 1.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, sorted descending along axis 1.
+    k : int, default=10
+        Accepted so every method shares one signature; only the two best matches are read.
+    distances : array-like of shape (Q, K), optional
+        Squared L2 distances of the same candidates, ascending; by default d² = 2 − 2s.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> perceptual_aliasing(np.array([[0.5, -1.0], [1.0, 1.0]]))
+    array([0.5, 1. ])
+    """
+    scores = _prepare(scores, k, sort, 2)
+    if distances is not None and sort:
+        distances = np.sort(np.asarray(distances), axis=1)
+    top2 = _top_distances(scores, distances, 2)
+    first, second = top2[:, 0], top2[:, 1]
+    both_zero = second == 0
+    return np.divide(first, second, out=np.ones_like(first), where=~both_zero)
+
+
+def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
+    """Margin baseline: s_2 − s_1, the negated gap between the best match and the runner-up.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, sorted descending along axis 1.
+    k : int, default=10
+        Accepted so every method shares one signature; only the two best matches are read.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy (0 when the two best matches tie).
+
+    Examples
+    --------
+    >>> margin(np.array([[0.9, 0.5], [0.6, 0.6]]))
+    array([-0.4,  0. ])
+    """
+    scores = _prepare(scores, k, sort, 2)
+    return scores[:, 1] - scores[:, 0]
