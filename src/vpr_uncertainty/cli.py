@@ -1,104 +1,20 @@
-"""Command line: ``vpr-uncertainty <command> --help`` explains each command."""
+"""Command line: ``vpr-uncertainty <command> --help`` explains each command.
+
+Thin by design: each command lives in :mod:`vpr_uncertainty.commands` and calls the library functions.
+"""
 
 from __future__ import annotations
 
 import argparse
-import json
+import importlib
 import sys
 import warnings
 from collections.abc import Sequence
-from pathlib import Path
 
-from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
-from vpr_uncertainty.inputs import INPUT_FORMATS, read_results
-from vpr_uncertainty.methods import available_methods, get_method
-from vpr_uncertainty.reports import format_table, plot_rejection_curves
+__all__ = ["COMMANDS", "build_parser", "main"]
 
-__all__ = ["main"]
-
-
-def _method_list(text: str) -> list[str]:
-    names = [name.strip() for name in text.split(",") if name.strip()]
-    if not names:
-        raise argparse.ArgumentTypeError("expected a comma-separated list of method names, e.g. SU,PA,BM")
-    for name in names:
-        try:
-            get_method(name)
-        except KeyError as error:
-            raise argparse.ArgumentTypeError(str(error.args[0])) from None
-    return names
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 2, got {text}")
-    return value
-
-
-def _method_help() -> str:
-    return "\n".join(f"  {name:<8} {get_method(name).description}" for name in available_methods())
-
-
-def _add_evaluate(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "evaluate",
-        help="evaluate uncertainty methods on precomputed VPR results",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=(
-            "Compute each uncertainty method on precomputed results and measure how well it predicts a correct\n"
-            "top-1 answer: AUC-PR (trapezoid, the convention of the VPR uncertainty tables), average precision,\n"
-            "AURC, recall at 100 % precision and the time per query.\n\n"
-            "SCORES is one of:\n"
-            "  retrieval.npz                a retrieval file (scores, indices, optionally the ground truth)\n"
-            "  matrix.npy                   a full similarity matrix, queries x database, higher = more similar\n"
-            "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy; read with pickle)\n\n"
-            "Uncertainty methods:\n" + _method_help()
-        ),
-        epilog=(
-            "example:\n  vpr-uncertainty evaluate \\\n"
-            "      precomputed_matches/corridor/NetVLAD/precomputed_data_corrected.npy \\\n"
-            "      --gt corridor/ground_truth_new.npy --json results.json --plot pr.png"
-        ),
-    )
-    parser.add_argument("scores", type=Path, metavar="SCORES", help="results file (see above)")
-    parser.add_argument(
-        "--gt",
-        type=Path,
-        help="ground truth: VPR-Bench ground_truth_new.npy, boolean (Q x D) .npy, .json list of lists, "
-        ".txt with one line of positive indices per query, or .npz; required unless SCORES holds it",
-    )
-    parser.add_argument(
-        "--format", choices=INPUT_FORMATS, default="auto", help="how to read SCORES (default: from its name)"
-    )
-    parser.add_argument("--k", type=_positive_int, default=10, help="candidates per query for RS/SD/SU (default 10)")
-    parser.add_argument("--alpha", type=float, default=0.5, help="weight of RS in SU, in [0, 1] (default 0.5)")
-    parser.add_argument(
-        "--methods",
-        type=_method_list,
-        default=list(DEFAULT_METHODS),
-        help=f"comma-separated uncertainty methods (default {','.join(DEFAULT_METHODS)})",
-    )
-    parser.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
-    parser.add_argument("--plot", type=Path, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)")
-    parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
-    parser.set_defaults(handler=_run_evaluate)
-
-
-def _run_evaluate(args: argparse.Namespace) -> int:
-    if not 0.0 <= args.alpha <= 1.0:
-        raise ValueError(f"--alpha must lie in [0, 1], got {args.alpha}")
-    retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format)
-    evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha)
-    print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(evaluation.to_dict(), indent=2) + "\n")
-        print(f"wrote {args.json}")
-    if args.plot:
-        plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)
-        print(f"wrote {args.plot}")
-    return 0
+#: Command modules in :mod:`vpr_uncertainty.commands`, in the order ``--help`` lists them.
+COMMANDS: tuple[str, ...] = ("evaluate",)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -108,7 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
         "doubt is. Uncertainty is higher for answers to trust less.",
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    _add_evaluate(subparsers)
+    for name in COMMANDS:
+        importlib.import_module(f"vpr_uncertainty.commands.{name.replace('-', '_')}").add_parser(subparsers)
     return parser
 
 
