@@ -6,7 +6,7 @@ Uncertainties are arrays of shape (Q,) where higher = less trustworthy; scores a
 >>> import numpy as np
 >>> from vpr_uncertainty import statistical_uncertainty
 >>> statistical_uncertainty(np.array([[0.9, 0.5, 0.4], [0.6, 0.59, 0.58]]), k=3).round(3)
-array([0.5  , 0.983])
+array([0.528, 0.979])
 """
 
 from vpr_uncertainty.evaluation import (

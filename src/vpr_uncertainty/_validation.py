@@ -9,7 +9,15 @@ import numbers
 
 import numpy as np
 
-__all__ = ["check_alpha", "check_k", "check_top_k_scores"]
+__all__ = [
+    "BLOCK_ROWS",
+    "as_score_array",
+    "check_alpha",
+    "check_best_scores",
+    "check_block",
+    "check_k",
+    "check_top_k_scores",
+]
 
 
 def check_k(k: object, *, name: str = "k") -> int:
@@ -31,11 +39,74 @@ def check_alpha(alpha: object) -> float:
     return alpha
 
 
-def _first_bad_row(scores: np.ndarray) -> tuple[int, int]:
-    """Locate the first (row, column) whose value breaks the descending order (slow; errors only)."""
-    bad = ~(scores[:, 1:] <= scores[:, :-1])
-    row, col = np.argwhere(bad)[0]
-    return int(row), int(col) + 1
+#: Rows validated (and, in the metrics, computed) at once: small enough for the block to stay in cache.
+BLOCK_ROWS = 32768
+
+
+def as_score_array(scores: object, *, name: str = "scores", sort: bool = False) -> np.ndarray:
+    """Check type and shape of top-k scores and return a C-contiguous float array (values not yet checked).
+
+    See :func:`check_top_k_scores` for the parameters; ``sort=True`` sorts each row in descending order.
+    """
+    array = np.asarray(scores)
+    if array.dtype == object or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise TypeError(f"{name} must be a numeric array, got dtype {array.dtype}")
+    if array.ndim != 2:
+        raise ValueError(
+            f"{name} must be 2-D with shape (n_queries, k) (one row of top-k similarities per query), "
+            f"got {array.ndim}-D with shape {array.shape}"
+        )
+    if array.shape[1] == 0:
+        raise ValueError(f"{name} must have at least 2 columns (candidates per query), got shape {array.shape}")
+    dtype = np.result_type(array.dtype, np.float32)
+    if sort:
+        _raise_for_nan(array, name, 0)
+        array = -np.sort(-array.astype(dtype, copy=False), axis=1)
+    return np.ascontiguousarray(array, dtype=dtype)
+
+
+def _raise_for_nan(block: np.ndarray, name: str, offset: int) -> None:
+    nan = np.isnan(block)
+    if nan.any():
+        row = offset + int(np.argwhere(nan)[0, 0])
+        raise ValueError(f"{name} contains NaN (first in row {row}); expected finite similarities")
+
+
+def check_block(block: np.ndarray, *, name: str = "scores", offset: int = 0, check_first_column: bool = True) -> None:
+    """Check the values of rows ``offset ...`` of top-k scores: descending order, no NaN, no +inf.
+
+    ``block`` must come from :func:`as_score_array`. ``-inf`` (a missing candidate) is allowed after the finite
+    values of a row. With ``check_first_column=False`` the caller checks the first column for +inf itself
+    (with :func:`check_best_scores`), which is faster on a contiguous copy of it.
+    """
+    n_rows, n_columns = block.shape
+    if n_rows == 0:
+        return
+    if n_columns > 1:
+        # One contiguous comparison over the flattened block checks the order of every row; comparisons across
+        # row boundaries are masked. NaN fails every comparison, so it is caught here too.
+        flat = block.ravel()
+        in_order = flat[1:] <= flat[:-1]
+        across_rows = in_order[n_columns - 1 :: n_columns]
+        if np.count_nonzero(in_order) - np.count_nonzero(across_rows) != in_order.size - across_rows.size:
+            _raise_for_nan(block, name, offset)
+            bad = ~(block[:, 1:] <= block[:, :-1])
+            row, col = np.argwhere(bad)[0]
+            raise ValueError(
+                f"{name} must be sorted in descending order along axis 1, but row {offset + row} has "
+                f"{float(block[row, col]):g} before {float(block[row, col + 1]):g}; pass sort=True to sort it for you"
+            )
+    else:
+        _raise_for_nan(block, name, offset)
+    if check_first_column:
+        check_best_scores(block[:, 0], name=name, offset=offset)
+
+
+def check_best_scores(best: np.ndarray, *, name: str = "scores", offset: int = 0) -> None:
+    """Reject +inf in the first column of sorted, NaN-free scores (the only place +inf can then sit)."""
+    if best.size and best.max() == np.inf:
+        row = offset + int(np.flatnonzero(best == np.inf)[0])
+        raise ValueError(f"{name} contains +inf (first in row {row}); expected finite similarities")
 
 
 def check_top_k_scores(scores: object, *, name: str = "scores", sort: bool = False) -> np.ndarray:
@@ -59,48 +130,12 @@ def check_top_k_scores(scores: object, *, name: str = "scores", sort: bool = Fal
 
     Raises
     ------
+    TypeError
+        For non-numeric input.
     ValueError
         For a wrong number of dimensions, no columns, NaN or +inf, or rows that are not sorted.
     """
-    array = np.asarray(scores)
-    if array.dtype == object or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
-        raise TypeError(f"{name} must be a numeric array, got dtype {array.dtype}")
-    if array.ndim != 2:
-        raise ValueError(
-            f"{name} must be 2-D with shape (n_queries, k) (one row of top-k similarities per query), "
-            f"got {array.ndim}-D with shape {array.shape}"
-        )
-    if array.shape[1] == 0:
-        raise ValueError(f"{name} must have at least 2 columns (candidates per query), got shape {array.shape}")
-    dtype = np.result_type(array.dtype, np.float32)
-    if sort:
-        if np.isnan(array).any():
-            row = int(np.argwhere(np.isnan(array))[0, 0])
-            raise ValueError(f"{name} contains NaN (first in row {row}); expected finite similarities")
-        array = -np.sort(-array.astype(dtype, copy=False), axis=1)
-    array = np.ascontiguousarray(array, dtype=dtype)
-    n_queries, n_columns = array.shape
-    if n_queries == 0:
-        return array
-    if n_columns == 1 and np.isnan(array).any():
-        row = int(np.argwhere(np.isnan(array))[0, 0])
-        raise ValueError(f"{name} contains NaN (first in row {row}); expected finite similarities")
-    # One contiguous comparison over the flattened array checks the order of every row at once;
-    # comparisons across row boundaries are masked. NaN fails every comparison, so it is caught here too.
-    flat = array.ravel()
-    in_order = flat[1:] <= flat[:-1]
-    in_order[n_columns - 1 :: n_columns] = True
-    if not in_order.all():
-        if np.isnan(array).any():
-            row = int(np.argwhere(np.isnan(array))[0, 0])
-            raise ValueError(f"{name} contains NaN (first in row {row}); expected finite similarities")
-        row, col = _first_bad_row(array)
-        raise ValueError(
-            f"{name} must be sorted in descending order along axis 1, but row {row} has "
-            f"{array[row, col - 1]!r} before {array[row, col]!r}; pass sort=True to sort it for you"
-        )
-    # Sorted and NaN-free: +inf can only sit in the first column and -inf in the last.
-    if np.isposinf(array[:, 0]).any():
-        row = int(np.flatnonzero(np.isposinf(array[:, 0]))[0])
-        raise ValueError(f"{name} contains +inf (first in row {row}); expected finite similarities")
+    array = as_score_array(scores, name=name, sort=sort)
+    for start in range(0, array.shape[0], BLOCK_ROWS):
+        check_block(array[start : start + BLOCK_ROWS], name=name, offset=start)
     return array

@@ -211,7 +211,7 @@ def rejection_curve(correct: object, uncertainty: object, *, n_answerable: int |
 
     Examples
     --------
-    >>> curve = rejection_curve([True, False, True], [0.1, 0.5, 0.2])
+    >>> curve = rejection_curve([True, False, True], [0.1, 0.5, 0.2], n_answerable=2)
     >>> curve.precision, curve.recall
     (array([1.        , 1.        , 0.66666667]), array([0.5, 1. , 1. ]))
     """

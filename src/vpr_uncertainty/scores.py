@@ -42,7 +42,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from vpr_uncertainty._validation import check_alpha, check_k, check_top_k_scores
+from vpr_uncertainty._validation import (
+    BLOCK_ROWS,
+    as_score_array,
+    check_alpha,
+    check_best_scores,
+    check_block,
+    check_k,
+    check_top_k_scores,
+)
 
 __all__ = [
     "StatisticalUncertainty",
@@ -68,13 +76,6 @@ def _combination_weights(n: int, rs_weight: float, sd_weight: float, dtype: np.d
     return weights.astype(dtype)
 
 
-def _candidates_per_row(top: np.ndarray) -> np.ndarray | None:
-    """Number of finite candidates in each row, or None when every row is full (the common case)."""
-    if np.isfinite(top[:, -1]).all():
-        return None
-    return np.isfinite(top).sum(axis=1)
-
-
 def _raise_for_short_rows(n_candidates: np.ndarray, needed: int = 2) -> None:
     short = np.flatnonzero(n_candidates < needed)
     if short.size:
@@ -94,49 +95,69 @@ def _check_policy(on_nonpositive: str) -> None:
 def _divide_by_best(numerator: np.ndarray, best: np.ndarray, on_nonpositive: str) -> np.ndarray:
     nonpositive = best <= 0
     if not nonpositive.any():
-        result = numerator / best
+        with np.errstate(over="ignore"):  # overflow is reported below with the offending row
+            result = numerator / best
     elif on_nonpositive == "raise":
         row = int(np.flatnonzero(nonpositive)[0])
         raise ValueError(
             f"scores has {int(nonpositive.sum())} row(s) whose best similarity is <= 0 (first: row {row}, "
-            f"s_1 = {best[row]!r}); the ratios s_i / s_1 need s_1 > 0. Use on_nonpositive='most_uncertain' "
+            f"s_1 = {float(best[row]):g}); the ratios s_i / s_1 need s_1 > 0. Use on_nonpositive='most_uncertain' "
             "to rank such queries as the most uncertain"
         )
     else:
-        result = numerator / np.where(nonpositive, 1, best)
+        with np.errstate(over="ignore"):
+            result = numerator / np.where(nonpositive, 1, best)
         result[nonpositive] = 1 - best[nonpositive]
     if not np.isfinite(result).all():
         row = int(np.flatnonzero(~np.isfinite(result))[0])
         raise ValueError(
-            f"scores overflow {result.dtype} in row {row} (s_1 = {best[row]!r}); cast the scores to float64"
+            f"scores overflow {result.dtype} in row {row} (s_1 = {float(best[row]):g}); cast the scores to float64"
         )
     return result
+
+
+def _block_sums(
+    scores: np.ndarray, start: int, n: int, weights: np.ndarray, numerator: np.ndarray, best: np.ndarray
+) -> bool:
+    """Validate one block of rows, write its weighted sums and best scores; return whether it has -inf."""
+    block = scores[start : start + BLOCK_ROWS]
+    check_block(block, offset=start, check_first_column=False)
+    stop = start + len(block)
+    best[start:stop] = block[:, 0]
+    if n >= 2:
+        np.matmul(block[:, :n], weights, out=numerator[start:stop])
+    return bool(block.min() == -np.inf)
 
 
 def _ratio_metric(
     scores: object, k: object, rs_weight: float, sd_weight: float, sort: bool, on_nonpositive: str
 ) -> np.ndarray:
-    """(rs_weight·RS + sd_weight·SD) for every row, computed as one weighted sum divided by s_1."""
+    """(rs_weight·RS + sd_weight·SD) for every row, computed as one weighted sum divided by s_1.
+
+    Validation and computation run block by block, so that each block is read from memory once while it is
+    in cache.
+    """
     k = check_k(k)
     _check_policy(on_nonpositive)
-    scores = check_top_k_scores(scores, sort=sort)
-    if scores.shape[0] == 0:
-        return np.empty(0, dtype=scores.dtype)
+    scores = as_score_array(scores, sort=sort)
+    n_queries = scores.shape[0]
     n = min(k, scores.shape[1])
-    top = scores[:, :n]
-    n_candidates = _candidates_per_row(top)
-    if n_candidates is None:
-        if n < 2:
-            _raise_for_short_rows(np.full(len(top), n))
-        numerator = top @ _combination_weights(n, rs_weight, sd_weight, top.dtype)
-    else:
+    numerator = np.empty(n_queries, dtype=scores.dtype)
+    best = np.empty(n_queries, dtype=scores.dtype)
+    weights = _combination_weights(max(n, 2), rs_weight, sd_weight, scores.dtype)
+    has_missing = [_block_sums(scores, start, n, weights, numerator, best) for start in range(0, n_queries, BLOCK_ROWS)]
+    if n_queries == 0:
+        return numerator
+    check_best_scores(best)
+    if any(has_missing) or n < 2:
+        # Rows with missing candidates (-inf) are scored on the n candidates they have.
+        n_candidates = np.isfinite(scores[:, :n]).sum(axis=1)
         _raise_for_short_rows(n_candidates)
-        numerator = np.empty(len(top), dtype=top.dtype)
-        for count in np.unique(n_candidates):
+        for count in np.unique(n_candidates[n_candidates < n]):
             rows = n_candidates == count
-            weights = _combination_weights(int(count), rs_weight, sd_weight, top.dtype)
-            numerator[rows] = top[rows, :count] @ weights
-    return _divide_by_best(numerator, top[:, 0], on_nonpositive)
+            count_weights = _combination_weights(int(count), rs_weight, sd_weight, scores.dtype)
+            numerator[rows] = scores[rows, :count] @ count_weights
+    return _divide_by_best(numerator, best, on_nonpositive)
 
 
 def ratio_spread(
@@ -197,8 +218,10 @@ def similarity_distribution(
     Examples
     --------
     >>> import numpy as np
-    >>> similarity_distribution(np.array([[0.8, 0.4, 0.2], [0.8, 0.6, 0.4, 0.2]]), k=4)
+    >>> similarity_distribution(np.array([[0.8, 0.4, 0.2, -np.inf], [0.8, 0.6, 0.4, 0.2]]), k=4)
     array([0.5  , 0.625])
+
+    The first query has only three candidates (``-inf`` marks the missing one), so its median is 0.4.
     """
     return _ratio_metric(scores, k, 0.0, 1.0, sort, on_nonpositive)
 

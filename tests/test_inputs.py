@@ -1,0 +1,61 @@
+"""Top-k from a full similarity matrix, and reading precomputed results from files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vpr_uncertainty import read_results, top_k_from_similarity
+from vpr_uncertainty.retrieval import Retrieval, save_retrieval
+
+
+def reference_top_k(similarity, k):
+    order = np.array([sorted(range(len(row)), key=lambda j: (-row[j], j))[:k] for row in similarity])
+    return np.take_along_axis(similarity, order, axis=1), order
+
+
+@pytest.mark.parametrize("k", [1, 5, 30, 60])
+def test_top_k_matches_reference_with_ties(k):
+    rng = np.random.default_rng(0)
+    similarity = rng.integers(0, 6, size=(50, 30)).astype(np.float32) / 5  # many ties
+    scores, indices = top_k_from_similarity(similarity, k, chunk_size=7)
+    expected_scores, expected_indices = reference_top_k(similarity, k)
+    np.testing.assert_array_equal(indices, expected_indices)
+    np.testing.assert_array_equal(scores, expected_scores)
+    assert scores.shape == (50, min(k, 30))
+
+
+def test_top_k_rejects_bad_input():
+    with pytest.raises(ValueError, match="NaN .* query 1, database image 2"):
+        top_k_from_similarity(np.array([[0.1, 0.2, 0.3], [0.1, 0.2, np.nan]]), 2)
+    with pytest.raises(ValueError, match="2-D"):
+        top_k_from_similarity(np.ones(3), 2)
+    with pytest.raises(ValueError, match="positive integer"):
+        top_k_from_similarity(np.ones((2, 3)), 0)
+
+
+def test_read_matrix_with_ground_truth(tmp_path):
+    rng = np.random.default_rng(1)
+    similarity = rng.uniform(size=(20, 40)).astype(np.float32)
+    np.save(tmp_path / "sim.npy", similarity)
+    (tmp_path / "gt.txt").write_text("\n".join(str(int(np.argmax(row))) for row in similarity) + "\n")
+    retrieval = read_results(tmp_path / "sim.npy", ground_truth=tmp_path / "gt.txt")
+    assert retrieval.positives.shape == (20, 40)  # sized by the matrix, not by the largest positive index
+    np.testing.assert_array_equal(retrieval.indices[:, 0], similarity.argmax(axis=1))
+    with pytest.raises(ValueError, match="without ground truth"):
+        read_results(tmp_path / "sim.npy")
+    np.save(tmp_path / "objects.npy", np.array([1, "a"], dtype=object), allow_pickle=True)
+    with pytest.raises(ValueError, match="--format vprbench"):
+        read_results(tmp_path / "objects.npy", ground_truth=tmp_path / "gt.txt")
+
+
+def test_read_retrieval_file_and_override_ground_truth(tmp_path):
+    retrieval = Retrieval(
+        scores=np.array([[0.9, 0.5], [0.8, 0.7]]), indices=np.array([[0, 1], [1, 0]]), positives=np.eye(2, dtype=bool)
+    )
+    path = save_retrieval(retrieval, tmp_path / "r.npz")
+    loaded = read_results(path)
+    assert (loaded.positives != retrieval.positives).nnz == 0
+    np.save(tmp_path / "gt.npy", np.array([[False, True], [True, False]]))
+    overridden = read_results(path, ground_truth=tmp_path / "gt.npy")
+    assert overridden.positives.toarray().tolist() == [[False, True], [True, False]]
