@@ -3,6 +3,9 @@
 VPR-Bench stores its ground truth and its precomputed matches as NumPy *object* arrays, which can only be read
 with pickle. Unpickling a file can run arbitrary code: these two readers are the only places in the toolkit
 that do it, they say so with a warning, and they should only be given files from a source you trust.
+
+:func:`load_vprbench_dataset` reads a whole VPR-Bench image dataset (``query/``, ``ref/``, ground truth) into a
+:class:`~vpr_uncertainty.data.dataset.Dataset`.
 """
 
 from __future__ import annotations
@@ -13,9 +16,10 @@ from pathlib import Path
 import numpy as np
 from scipy import sparse
 
+from vpr_uncertainty.data.dataset import Dataset
 from vpr_uncertainty.data.ground_truth import positives_from_lists
 
-__all__ = ["PickleWarning", "load_vprbench_ground_truth", "load_vprbench_similarity"]
+__all__ = ["PickleWarning", "load_vprbench_dataset", "load_vprbench_ground_truth", "load_vprbench_similarity"]
 
 
 class PickleWarning(UserWarning):
@@ -86,3 +90,59 @@ def load_vprbench_similarity(path: str | Path) -> np.ndarray:
     if not np.array_equal(order, np.arange(len(order))) or len(order) != similarity.shape[0]:
         raise ValueError(f"{path}: expected query indices 0..{similarity.shape[0] - 1} in order")
     return similarity
+
+
+def load_vprbench_dataset(root: str | Path, *, name: str | None = None) -> Dataset:
+    """Read a VPR-Bench image dataset: ``query/``, ``ref/`` and ``ground_truth_new.npy``.
+
+    The ground truth is an explicit list of positives per query (no positions), read with pickle: see
+    :func:`load_vprbench_ground_truth`, which warns with :class:`PickleWarning`.
+
+    Parameters
+    ----------
+    root : str or Path
+        The dataset folder, e.g. ``VPR-Bench/datasets/corridor``.
+    name : str, optional
+        Dataset name; by default the folder name.
+
+    Returns
+    -------
+    Dataset
+        Database = ``ref/`` images, queries = ``query/`` images, each sorted by name; names relative to
+        ``root`` (``ref/0000000.jpg``); no positions.
+
+    Raises
+    ------
+    FileNotFoundError
+        When a folder or the ground truth is missing.
+    ValueError
+        When the ground truth does not match the number of images.
+    """
+    from vpr_uncertainty.data.folder import list_images
+
+    root = Path(root)
+    paths = {}
+    for folder in ("query", "ref"):
+        if not (root / folder).is_dir():
+            raise FileNotFoundError(f"{root} is not a VPR-Bench dataset: no {folder}/ folder (expected query/, ref/)")
+        paths[folder] = list_images(root / folder)
+        if not paths[folder]:
+            raise FileNotFoundError(f"no image found under {root / folder}")
+    ground_truth = root / "ground_truth_new.npy"
+    if not ground_truth.is_file():
+        raise FileNotFoundError(f"{root} is not a VPR-Bench dataset: no ground_truth_new.npy")
+    positives = load_vprbench_ground_truth(ground_truth, n_database=len(paths["ref"]))
+    if positives.shape[0] != len(paths["query"]):
+        raise ValueError(
+            f"{ground_truth} has ground truth for {positives.shape[0]} queries but {root / 'query'} holds "
+            f"{len(paths['query'])} images"
+        )
+    return Dataset(
+        name=name or root.name,
+        root=root,
+        positives=positives,
+        database_paths=paths["ref"],
+        query_paths=paths["query"],
+        source_format="vprbench",
+        info={"ground_truth": ground_truth.name},
+    )
