@@ -190,3 +190,43 @@ def test_time_per_query_uses_the_median_of_repeats():
     calls = []
     result, seconds = time_per_query(lambda: calls.append(1) or "done", 10, repeats=3)
     assert result == "done" and len(calls) == 3 and seconds >= 0
+
+
+def test_method_with_its_own_retrieval_is_judged_by_its_own_top1():
+    from vpr_uncertainty.methods import _REGISTRY, OwnRetrievalUncertainty, register_method
+
+    shared = Retrieval(
+        scores=np.array([[0.9, 0.5], [0.8, 0.7], [0.6, 0.1]]),
+        indices=np.array([[0, 1], [0, 1], [0, 1]]),
+        positives=np.array([[True, False], [False, True], [True, False]]),
+    )
+    own = Retrieval(scores=shared.scores, indices=np.array([[1, 0], [1, 0], [0, 1]]), positives=shared.positives)
+
+    def own_method(retrieval):
+        return OwnRetrievalUncertainty(uncertainty=np.array([0.3, 0.1, 0.2]), retrieval=own)
+
+    register_method("OWN-TEST", own_method, description="test")
+    try:
+        result = evaluate(shared, ["OWN-TEST", "BM"])
+    finally:
+        del _REGISTRY["OWN-TEST"]
+    own_correct = np.array([False, True, True])
+    assert result.methods["OWN-TEST"].auc_pr == pytest.approx(auc_pr(own_correct, [0.3, 0.1, 0.2]))
+    assert result.methods["BM"].auc_pr == pytest.approx(auc_pr([True, False, True], -shared.scores[:, 0]))
+    as_json = result.to_dict()["methods"]
+    assert as_json["OWN-TEST"]["correctness_from"] == "own retrieval"
+    assert as_json["OWN-TEST"]["own_recall@1"] == pytest.approx(2 / 3)
+    assert "correctness_from" not in as_json["BM"]
+    assert any("OWN-TEST retrieves with its own embeddings" in note for note in result.notes)
+
+
+def test_method_returning_nan_is_an_error():
+    from vpr_uncertainty.methods import _REGISTRY, register_method
+
+    register_method("NAN-TEST", lambda retrieval: np.full(retrieval.n_queries, np.nan), description="test")
+    retrieval = Retrieval(scores=np.array([[0.9, 0.5]]), indices=np.array([[0, 1]]), positives=np.eye(1, 2, dtype=bool))
+    try:
+        with pytest.raises(RuntimeError, match="NaN"):
+            evaluate(retrieval, ["NAN-TEST"])
+    finally:
+        del _REGISTRY["NAN-TEST"]

@@ -30,7 +30,7 @@ import numpy as np
 from scipy import sparse
 from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
-from vpr_uncertainty.methods import get_method
+from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
@@ -298,6 +298,7 @@ class MethodEvaluation:
     curve: RejectionCurve
     recall_at_full_precision: float
     precision_at_recall: dict[float, float | None]
+    own_recall_at_1: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -307,6 +308,11 @@ class MethodEvaluation:
             "time_per_query_ms": self.time_per_query_ms,
             "recall_at_100_precision": self.recall_at_full_precision,
             "precision_at_recall": {f"{level:g}": value for level, value in self.precision_at_recall.items()},
+            **(
+                {"correctness_from": "own retrieval", "own_recall@1": self.own_recall_at_1}
+                if self.own_recall_at_1 is not None
+                else {}
+            ),
         }
 
 
@@ -389,21 +395,35 @@ def evaluate(
         evaluation.notes.append("AUC-PR and AP are undefined: every top-1 answer is correct, or none is")
         warnings.warn(evaluation.notes[-1], RuntimeWarning, stacklevel=2)
     for entry in entries:
-        uncertainty, seconds = time_per_query(
+        result, seconds = time_per_query(
             lambda entry=entry: entry(retrieval, k=k, alpha=alpha, **options),
             retrieval.n_queries,
             repeats=timing_repeats,
         )
-        curve = rejection_curve(correct, uncertainty, n_answerable=evaluation.n_answerable)
+        method_correct, method_both, own_recall = correct, both_classes, None
+        if isinstance(result, OwnRetrievalUncertainty):
+            uncertainty = result.uncertainty
+            own = result.retrieval
+            method_correct = correct_at_n(own.indices, own.positives if own.positives is not None else positives, 1)
+            method_both = bool(method_correct.any() and not method_correct.all())
+            own_recall = float(method_correct[answerable].mean())
+            evaluation.notes.append(
+                f"{entry.name} retrieves with its own embeddings: its correctness labels come from its own top-1 "
+                f"(recall@1 {own_recall:.3f})"
+            )
+        else:
+            uncertainty = result
+        curve = rejection_curve(method_correct, uncertainty, n_answerable=evaluation.n_answerable)
         evaluation.methods[entry.name] = MethodEvaluation(
             name=entry.name,
             uncertainty=uncertainty,
-            auc_pr=auc_pr(correct, uncertainty) if both_classes else None,
-            average_precision=average_precision(correct, uncertainty) if both_classes else None,
-            aurc=aurc(correct, uncertainty),
+            auc_pr=auc_pr(method_correct, uncertainty) if method_both else None,
+            average_precision=average_precision(method_correct, uncertainty) if method_both else None,
+            aurc=aurc(method_correct, uncertainty),
             time_per_query_ms=seconds * 1e3,
             curve=curve,
             recall_at_full_precision=recall_at_full_precision(curve),
             precision_at_recall={level: precision_at_recall(curve, level) for level in recall_levels},
+            own_recall_at_1=own_recall,
         )
     return evaluation

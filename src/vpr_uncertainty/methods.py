@@ -22,9 +22,28 @@ import numpy as np
 from vpr_uncertainty import scores as _scores
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["UncertaintyMethod", "available_methods", "get_method", "register_method"]
+__all__ = ["OwnRetrievalUncertainty", "UncertaintyMethod", "available_methods", "get_method", "register_method"]
 
-MethodFunction = Callable[..., np.ndarray]
+MethodFunction = Callable[..., "np.ndarray | OwnRetrievalUncertainty"]
+
+
+@dataclass
+class OwnRetrievalUncertainty:
+    """What a method returns when it answers the queries with its own retrieval (e.g. BTL's mean embeddings).
+
+    The evaluation then judges correctness by the top-1 of ``retrieval``, not by the shared retrieval, and says
+    so in its notes.
+
+    Attributes
+    ----------
+    uncertainty : ndarray of shape (Q,)
+        Higher = less trustworthy.
+    retrieval : Retrieval
+        The method's own top-k for the same queries, with the same ground truth.
+    """
+
+    uncertainty: np.ndarray
+    retrieval: Retrieval
 
 
 @dataclass
@@ -76,20 +95,25 @@ class UncertaintyMethod:
             return None
         return {parameter.name for parameter in parameters if parameter.kind is not inspect.Parameter.POSITIONAL_ONLY}
 
-    def __call__(self, retrieval: Retrieval, **options: Any) -> np.ndarray:
+    def __call__(self, retrieval: Retrieval, **options: Any) -> np.ndarray | OwnRetrievalUncertainty:
         missing = [name for name in self.requires if getattr(retrieval, name, None) is None]
         if missing:
             raise ValueError(f"uncertainty method {self.name!r} needs {', '.join(missing)} in the retrieval")
         accepted = self.accepted_options()
         if accepted is not None:
             options = {key: value for key, value in options.items() if key in accepted}
-        uncertainty = np.asarray(self.function(retrieval, **options))
+        result = self.function(retrieval, **options)
+        uncertainty = np.asarray(result.uncertainty if isinstance(result, OwnRetrievalUncertainty) else result)
+        if isinstance(result, OwnRetrievalUncertainty) and result.retrieval.n_queries != retrieval.n_queries:
+            raise RuntimeError(f"uncertainty method {self.name!r} answered a different number of queries")
         if uncertainty.shape != (retrieval.n_queries,):
             raise RuntimeError(
                 f"uncertainty method {self.name!r} returned shape {uncertainty.shape}, "
                 f"expected ({retrieval.n_queries},)"
             )
-        return uncertainty
+        if not np.isfinite(uncertainty).all():
+            raise RuntimeError(f"uncertainty method {self.name!r} returned NaN or inf")
+        return result
 
 
 _REGISTRY: dict[str, UncertaintyMethod] = {}
@@ -185,3 +209,10 @@ register_method("PA", _perceptual_aliasing, description="Perceptual aliasing: d_
 register_method("margin", _margin, description="Negated margin s_2 − s_1")
 
 SCORE_ONLY_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "BM", "L2", "PA", "margin")
+
+register_method(
+    "SUE",
+    "vpr_uncertainty.spatial:sue_from_retrieval",
+    description="Spatial uncertainty: weighted spread of the top-k database positions (Zaffar et al. 2024)",
+    requires=("database_positions",),
+)
