@@ -1,0 +1,171 @@
+"""``vpr-uncertainty extract``: global descriptors of a dataset's images into a resumable HDF5 file."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from vpr_uncertainty.features.extract import ON_ERROR
+from vpr_uncertainty.features.models import DEFAULT_MODEL, available_models, get_model_spec
+
+__all__ = ["IMAGE_SUFFIXES", "SPLIT_FOLDERS", "add_parser", "dataset_images"]
+
+#: Image files a dataset folder scan picks up (case-insensitive).
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".ppm", ".pgm", ".tif", ".tiff", ".webp")
+#: (database folder, queries folder) pairs a dataset folder may have: VPR-Bench, then VPR-methods-evaluation.
+SPLIT_FOLDERS = (("ref", "query"), ("database", "queries"))
+
+
+def _scan(folder: Path, root: Path) -> tuple[list[Path], list[str]]:
+    paths = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+    if not paths:
+        raise FileNotFoundError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
+    return paths, [path.relative_to(root).as_posix() for path in paths]
+
+
+def _scan_dataset(folder: Path) -> dict[str, tuple[list[Path], list[str]]] | None:
+    for database, queries in SPLIT_FOLDERS:
+        if (folder / database).is_dir() and (folder / queries).is_dir():
+            return {"database": _scan(folder / database, folder), "queries": _scan(folder / queries, folder)}
+    return None
+
+
+def dataset_images(dataset: str | Path) -> dict[str, tuple[list[Path], list[str]]]:
+    """Image paths and names of both splits: ``{"database": (paths, names), "queries": (paths, names)}``.
+
+    Reads the dataset with ``vpr_uncertainty.data.load_dataset`` (any format or registered name it knows) when
+    that is available; a folder it cannot read (e.g. images without ground truth) with ``ref/`` and ``query/``
+    (VPR-Bench) or ``database/`` and ``queries/`` subfolders is scanned for images. Names are POSIX paths
+    relative to the dataset folder, e.g. ``ref/0000000.jpg``.
+    """
+    try:
+        from vpr_uncertainty.data import load_dataset
+    except ImportError:
+        load_dataset = None
+    folder = Path(dataset)
+    if load_dataset is not None:
+        try:
+            loaded = load_dataset(dataset)
+        except (FileNotFoundError, ValueError):
+            scanned = _scan_dataset(folder) if folder.is_dir() else None
+            if scanned is None:
+                raise
+            return scanned
+        if loaded.database_paths is None or loaded.query_paths is None:
+            raise ValueError(f"dataset {dataset} has no image files (positions only); extraction needs images")
+        return {
+            "database": (list(loaded.database_paths), list(loaded.database_names)),
+            "queries": (list(loaded.query_paths), list(loaded.query_names)),
+        }
+    if not folder.is_dir():
+        raise FileNotFoundError(f"dataset folder not found: {folder}")
+    scanned = _scan_dataset(folder)
+    if scanned is None:
+        expected = " or ".join(f"{d}/ and {q}/" for d, q in SPLIT_FOLDERS)
+        raise FileNotFoundError(f"{folder} has no image subfolders {expected}")
+    return scanned
+
+
+def _model_help() -> str:
+    lines = []
+    for name in available_models():
+        spec = get_model_spec(name)
+        lines.append(f"  {name:<24}{spec.description}")
+    return "\n".join(lines)
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register the ``extract`` command."""
+    parser = subparsers.add_parser(
+        "extract",
+        help="compute global image descriptors of a dataset (HDF5, resumable)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Compute an L2-normalised global descriptor for every database and query image of a dataset and\n"
+            "store them in an HDF5 file keyed by image name. A rerun resumes an interrupted extraction; a file\n"
+            "made by another model or preprocessing is recomputed.\n\n"
+            "Models (torch.hub models download code and weights into the torch.hub cache on first use):\n"
+            + _model_help()
+            + f"\n  {'FILE.pt':<24}your own TorchScript model: normalised images (B, 3, H, W) -> (B, D)"
+        ),
+        epilog=(
+            "example:\n  vpr-uncertainty extract --dataset corridor/ --model efficientnet-lite0-gem "
+            "--out runs/corridor/descriptors.h5"
+        ),
+    )
+    parser.add_argument(
+        "--dataset",
+        required=True,
+        help="dataset path or registered name (any format of vpr_uncertainty.data), or a folder with ref/ and "
+        "query/ (VPR-Bench) or database/ and queries/ image subfolders",
+    )
+    parser.add_argument(
+        "--model", default=DEFAULT_MODEL, help=f"model name (see above) or TorchScript file (default {DEFAULT_MODEL})"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="HDF5 file to write (resumed if it exists)")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+    parser.add_argument("--batch-size", type=_positive, default=16, help="images per forward pass (default 16)")
+    parser.add_argument("--half", action="store_true", help="store descriptors as float16 instead of float32")
+    parser.add_argument(
+        "--on-error",
+        choices=ON_ERROR,
+        default="fail",
+        help="images that cannot be decoded: stop with an error naming them, or skip them (default fail)",
+    )
+    parser.add_argument(
+        "--image-size",
+        type=_positive,
+        help="resize so that the shorter image side has this many pixels (default: the model's own setting)",
+    )
+    parser.add_argument("--workers", type=int, help="image decoding threads (default min(4, CPUs); 0 = none)")
+    parser.add_argument(
+        "--threads",
+        type=_positive,
+        help="CPU threads of the model (torch.set_num_threads; default torch's choice). On a CPU shared with "
+        "other jobs, 1 can be several times faster",
+    )
+    parser.add_argument("--overwrite", action="store_true", help="recompute everything, ignoring the file")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=_run_extract)
+
+
+def _run_extract(args: argparse.Namespace) -> int:
+    from vpr_uncertainty.features.extract import extract_descriptors
+    from vpr_uncertainty.features.models import load_model
+
+    splits = dataset_images(args.dataset)
+    if args.threads is not None:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    model = load_model(args.model, device=args.device)
+    if args.image_size is not None:
+        model.preprocessing = model.preprocessing.replace(image_size=args.image_size)
+    for split in ("database", "queries"):
+        paths, names = splits[split]
+        kept, descriptors = extract_descriptors(
+            model,
+            paths,
+            names,
+            args.out,
+            split,
+            batch_size=args.batch_size,
+            device=args.device,
+            half=args.half,
+            on_error=args.on_error,
+            num_workers=args.workers,
+            overwrite=args.overwrite and split == "database",
+            progress=not args.no_progress,
+        )
+        skipped = len(names) - len(kept)
+        note = f", {skipped} skipped (could not be decoded)" if skipped else ""
+        print(f"{split}: {len(kept)} descriptors of size {descriptors.shape[1]}{note}")
+    print(f"wrote {args.out}")
+    return 0

@@ -1,0 +1,311 @@
+"""HDF5 descriptor cache: one row per image name, resumable, invalidated when the model or preprocessing changes.
+
+Layout (format version 1), read by :func:`read_descriptors`::
+
+    /                   attrs: format = "vpr-uncertainty descriptors", format_version = 1,
+                               fingerprint (JSON: model name, weights identity, preprocessing, storage dtype),
+                               model (name), dtype ("float32" or "float16")
+    /database           attrs: complete (bool), failed (JSON list of {"name", "path", "error"} of skipped images)
+        names           (N,) variable-length UTF-8 strings, unique
+        descriptors     (N, D) float32 or float16, L2-normalised rows, row i belongs to names[i]
+    /queries            same as /database
+
+Rows are appended and flushed batch by batch, so a killed extraction loses at most the batch in flight and a
+rerun computes only the missing names. When extraction of a split completes, its rows are put in the order of
+the requested image list (skipped images left out) and ``complete`` is set. A cache whose fingerprint differs
+from the current model's is recomputed from scratch, never mixed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "SPLITS", "DescriptorCache", "cache_info", "read_descriptors"]
+
+FORMAT = "vpr-uncertainty descriptors"
+FORMAT_VERSION = 1
+SPLITS = ("database", "queries")
+DTYPES = ("float32", "float16")
+_CHUNK_ROWS = 256
+
+
+def _check_split(split: str) -> str:
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    return split
+
+
+def _import_h5py() -> Any:
+    import h5py
+
+    return h5py
+
+
+def _valid_length(group: Any) -> int:
+    """Rows present in both datasets (a kill between the two writes leaves at most one batch unmatched)."""
+    if "names" not in group or "descriptors" not in group:
+        return 0
+    return min(group["names"].shape[0], group["descriptors"].shape[0])
+
+
+def read_descriptors(
+    path: str | Path, split: str, *, names: Sequence[str] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Read the descriptors of one split from a descriptor cache.
+
+    Parameters
+    ----------
+    path : str or Path
+        The HDF5 file written by :func:`~vpr_uncertainty.features.extract.extract_descriptors`.
+    split : {"database", "queries"}
+    names : sequence of str, optional
+        Return exactly these images, in this order (KeyError naming the missing ones otherwise). By default
+        every row, in file order (the dataset's order once extraction completed).
+
+    Returns
+    -------
+    names : ndarray of shape (N,), str
+    descriptors : ndarray of shape (N, D), float32
+    """
+    _check_split(split)
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"descriptor file not found: {path}")
+    h5py = _import_h5py()
+    try:
+        handle = h5py.File(path, "r")
+    except OSError as error:
+        raise ValueError(f"{path} is not a readable HDF5 descriptor file: {error}") from error
+    with handle:
+        if handle.attrs.get("format") != FORMAT:
+            raise ValueError(f"{path} is not a vpr-uncertainty descriptor file (no format attribute {FORMAT!r})")
+        if split not in handle:
+            raise KeyError(f"{path} holds no {split!r} descriptors (it has: {', '.join(handle) or 'none'})")
+        group = handle[split]
+        count = _valid_length(group)
+        if not group.attrs.get("complete", False):
+            warnings.warn(
+                f"{path}: the {split!r} descriptors are incomplete (interrupted extraction?); reading {count} rows",
+                stacklevel=2,
+            )
+        if count == 0:
+            return np.empty(0, dtype=str), np.empty((0, 0), dtype=np.float32)
+        stored_names = np.array(group["names"].asstr()[:count], dtype=str)
+        descriptors = np.asarray(group["descriptors"][:count], dtype=np.float32)
+    if names is None:
+        return stored_names, descriptors
+    index = {name: row for row, name in enumerate(stored_names)}
+    missing = [name for name in names if name not in index]
+    if missing:
+        shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        raise KeyError(f"{path}: no {split!r} descriptors for {len(missing)} image(s): {shown}")
+    rows = np.array([index[name] for name in names], dtype=np.int64)
+    return np.array(list(names), dtype=str), descriptors[rows]
+
+
+def cache_info(path: str | Path) -> dict[str, Any]:
+    """Summary of a descriptor file: fingerprint, dtype, and per split the row count, size D, completeness."""
+    h5py = _import_h5py()
+    with h5py.File(path, "r") as handle:
+        info: dict[str, Any] = {
+            "format_version": int(handle.attrs.get("format_version", 0)),
+            "model": str(handle.attrs.get("model", "")),
+            "dtype": str(handle.attrs.get("dtype", "")),
+            "fingerprint": json.loads(handle.attrs.get("fingerprint", "{}")),
+        }
+        for split in SPLITS:
+            if split in handle:
+                group = handle[split]
+                info[split] = {
+                    "count": _valid_length(group),
+                    "dim": int(group["descriptors"].shape[1]) if "descriptors" in group else 0,
+                    "complete": bool(group.attrs.get("complete", False)),
+                    "failed": json.loads(group.attrs.get("failed", "[]")),
+                }
+    return info
+
+
+class DescriptorCache:
+    """Writer side of the cache, used by the extraction. Open with ``with DescriptorCache(...) as cache``.
+
+    Parameters
+    ----------
+    path : str or Path
+    fingerprint : dict
+        What produced the descriptors (JSON-serialisable). A file with another fingerprint is recreated.
+    dtype : {"float32", "float16"}
+    model_name : str
+    overwrite : bool
+        Recreate the file even when the fingerprint matches.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        fingerprint: dict[str, Any],
+        *,
+        dtype: str = "float32",
+        model_name: str = "",
+        overwrite: bool = False,
+    ) -> None:
+        if dtype not in DTYPES:
+            raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
+        self.path = Path(path)
+        self.dtype = dtype
+        self.model_name = model_name
+        self.fingerprint = json.dumps({**fingerprint, "dtype": dtype}, sort_keys=True)
+        self.overwrite = overwrite
+        self.invalidated = False
+        self._handle: Any = None
+
+    def __enter__(self) -> DescriptorCache:
+        self.open()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def open(self) -> None:
+        h5py = _import_h5py()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.path.exists() and not self.overwrite:
+            reason = self._stale_reason(h5py)
+            if reason is None:
+                self._handle = h5py.File(self.path, "a")
+                return
+            warnings.warn(f"descriptor cache {self.path}: {reason}; recomputing all descriptors", stacklevel=3)
+            self.invalidated = True
+        if self.path.exists():
+            os.remove(self.path)
+        self._handle = h5py.File(self.path, "w")
+        self._handle.attrs["format"] = FORMAT
+        self._handle.attrs["format_version"] = FORMAT_VERSION
+        self._handle.attrs["fingerprint"] = self.fingerprint
+        self._handle.attrs["model"] = self.model_name
+        self._handle.attrs["dtype"] = self.dtype
+        self._handle.flush()
+
+    def _stale_reason(self, h5py: Any) -> str | None:
+        try:
+            with h5py.File(self.path, "r") as handle:
+                if handle.attrs.get("format") != FORMAT:
+                    if len(handle) or len(handle.attrs):
+                        raise ValueError(
+                            f"{self.path} exists and is not a vpr-uncertainty descriptor file; "
+                            "choose another path or delete it"
+                        )
+                    return "empty file"
+                if int(handle.attrs.get("format_version", 0)) != FORMAT_VERSION:
+                    return f"format version {handle.attrs.get('format_version')} instead of {FORMAT_VERSION}"
+                stored = handle.attrs.get("fingerprint", "")
+        except OSError as error:
+            if "lock" in str(error).lower():
+                raise ValueError(
+                    f"{self.path} is open for writing in another process (HDF5 file lock); wait for it to finish "
+                    "or choose another path"
+                ) from error
+            if self.path.stat().st_size == 0 or _looks_like_hdf5(self.path):
+                return f"unreadable ({error})"
+            raise ValueError(f"{self.path} exists and is not an HDF5 file; choose another path or delete it") from error
+        if stored != self.fingerprint:
+            return f"made by another model or preprocessing ({_describe_change(stored, self.fingerprint)})"
+        return None
+
+    def close(self) -> None:
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+    def names(self, split: str) -> list[str]:
+        """Names already stored for ``split``."""
+        _check_split(split)
+        if split not in self._handle:
+            return []
+        group = self._handle[split]
+        return list(group["names"].asstr()[: _valid_length(group)]) if "names" in group else []
+
+    def append(self, split: str, names: Sequence[str], descriptors: np.ndarray) -> None:
+        """Append rows and flush them to disk."""
+        _check_split(split)
+        descriptors = np.asarray(descriptors)
+        if descriptors.ndim != 2 or descriptors.shape[0] != len(names):
+            raise ValueError(f"expected descriptors of shape ({len(names)}, D), got {descriptors.shape}")
+        if not len(names):
+            return
+        group = self._handle.require_group(split)
+        group.attrs["complete"] = False
+        if "descriptors" not in group:
+            self._create(group, descriptors.shape[1])
+        stored = group["descriptors"]
+        if stored.shape[1] != descriptors.shape[1]:
+            raise ValueError(
+                f"descriptor size changed from {stored.shape[1]} to {descriptors.shape[1]} within {self.path}"
+            )
+        start = _valid_length(group)
+        stop = start + len(names)
+        # Descriptors first, names second: a name on disk always has its descriptor.
+        stored.resize((stop, stored.shape[1]))
+        stored[start:stop] = descriptors.astype(self.dtype)
+        group["names"].resize((stop,))
+        group["names"][start:stop] = np.asarray(list(names), dtype=object)
+        self._handle.flush()
+
+    def _create(self, group: Any, dim: int) -> None:
+        h5py = _import_h5py()
+        for key in ("names", "descriptors"):
+            if key in group:
+                del group[key]
+        group.create_dataset(
+            "descriptors", shape=(0, dim), maxshape=(None, dim), dtype=self.dtype, chunks=(_CHUNK_ROWS, dim)
+        )
+        group.create_dataset(
+            "names", shape=(0,), maxshape=(None,), dtype=h5py.string_dtype("utf-8"), chunks=(_CHUNK_ROWS,)
+        )
+
+    def finalize(self, split: str, names: Sequence[str], failed: Sequence[dict[str, str]] = ()) -> None:
+        """Mark ``split`` complete, its rows exactly ``names`` in this order (rows of other names dropped)."""
+        _check_split(split)
+        group = self._handle.require_group(split)
+        count = _valid_length(group)
+        stored = list(group["names"].asstr()[:count]) if count else []
+        if stored != list(names):
+            index = {name: row for row, name in enumerate(stored)}
+            missing = [name for name in names if name not in index]
+            if missing:
+                raise RuntimeError(f"cannot finalise {split!r}: {len(missing)} names were never written")
+            if names:
+                rows = np.array([index[name] for name in names], dtype=np.int64)
+                descriptors = np.asarray(group["descriptors"][:count])[rows]
+                self._create(group, descriptors.shape[1])
+                group["descriptors"].resize((len(names), descriptors.shape[1]))
+                group["descriptors"][:] = descriptors
+                group["names"].resize((len(names),))
+                group["names"][:] = np.asarray(list(names), dtype=object)
+            else:
+                for key in ("names", "descriptors"):
+                    if key in group:
+                        del group[key]
+        group.attrs["failed"] = json.dumps(list(failed))
+        group.attrs["complete"] = True
+        self._handle.flush()
+
+
+def _looks_like_hdf5(path: Path) -> bool:
+    with open(path, "rb") as handle:
+        return handle.read(8) == b"\x89HDF\r\n\x1a\n"
+
+
+def _describe_change(stored: str, current: str) -> str:
+    try:
+        old, new = json.loads(stored or "{}"), json.loads(current)
+    except json.JSONDecodeError:
+        return "unreadable fingerprint"
+    changed = sorted(key for key in set(old) | set(new) if old.get(key) != new.get(key))
+    return "changed: " + ", ".join(changed) if changed else "fingerprint differs"

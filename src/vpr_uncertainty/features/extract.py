@@ -1,0 +1,239 @@
+"""Batched descriptor extraction from image files, on CPU or CUDA, with a resumable HDF5 cache.
+
+:func:`extract_descriptors` decodes images in worker threads (the next batch while the model runs on the current
+one), runs the model batch by batch and appends each batch to the cache (see :mod:`vpr_uncertainty.features.cache`)
+before starting the next, so an interrupted run resumes where it stopped. Images that cannot be decoded either
+stop the extraction with an error naming them (``on_error="fail"``) or are skipped with a warning and recorded
+in the cache (``on_error="skip"``).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vpr_uncertainty.features.cache import SPLITS, DescriptorCache
+from vpr_uncertainty.features.images import ImageDecodeError, load_image, to_model_input
+from vpr_uncertainty.features.models import DEFAULT_MODEL, DescriptorModel, load_model
+
+__all__ = ["ON_ERROR", "extract_descriptors"]
+
+ON_ERROR = ("fail", "skip")
+
+_Item = tuple[int, str, Path]
+
+
+def _validate(
+    image_paths: Sequence[str | Path], names: Sequence[str] | None, split: str, batch_size: int, on_error: str
+) -> tuple[list[Path], list[str]]:
+    paths = [Path(path) for path in image_paths]
+    if names is None:
+        names = [path.name for path in paths]
+        duplicated = len(set(names)) != len(names)
+        hint = "; pass names= (e.g. paths relative to the dataset folder)" if duplicated else ""
+    else:
+        names = [str(name) for name in names]
+        hint = ""
+        if len(names) != len(paths):
+            raise ValueError(f"got {len(paths)} image paths but {len(names)} names")
+    if len(set(names)) != len(names):
+        seen: set[str] = set()
+        duplicates = sorted({name for name in names if name in seen or seen.add(name)})
+        raise ValueError(f"image names must be unique, repeated: {', '.join(duplicates[:5])}{hint}")
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    if on_error not in ON_ERROR:
+        raise ValueError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
+    return paths, names
+
+
+def _decode(item: _Item, model: DescriptorModel) -> tuple[_Item, np.ndarray | ImageDecodeError]:
+    _, name, path = item
+    try:
+        return item, load_image(path, model.preprocessing, name=name)
+    except ImageDecodeError as error:
+        return item, error
+
+
+def _decoded_batches(
+    batches: Sequence[Sequence[_Item]], model: DescriptorModel, workers: int
+) -> Iterator[list[tuple[_Item, np.ndarray | ImageDecodeError]]]:
+    if workers <= 0:
+        for batch in batches:
+            yield [_decode(item, model) for item in batch]
+        return
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="vpr-decode") as pool:
+        pending = None
+        for batch in batches:
+            futures = [pool.submit(_decode, item, model) for item in batch]
+            if pending is not None:
+                yield [future.result() for future in pending]
+            pending = futures
+        if pending is not None:
+            yield [future.result() for future in pending]
+
+
+def _forward(model: DescriptorModel, images: list[np.ndarray]) -> np.ndarray:
+    """Descriptors (B, D) float32 of decoded images; images of different sizes run in separate sub-batches."""
+    groups: dict[tuple[int, ...], list[int]] = {}
+    for position, image in enumerate(images):
+        groups.setdefault(image.shape, []).append(position)
+    output: np.ndarray | None = None
+    for positions in groups.values():
+        batch = to_model_input([images[p] for p in positions], model.preprocessing, model.device)
+        descriptors = model(batch).cpu().numpy()
+        if output is None:
+            output = np.empty((len(images), descriptors.shape[1]), dtype=np.float32)
+        output[positions] = descriptors
+    assert output is not None
+    if not np.isfinite(output).all():
+        raise FloatingPointError(f"model {model.name!r} produced non-finite descriptors")
+    return output
+
+
+def extract_descriptors(
+    model: Any,
+    image_paths: Sequence[str | Path],
+    names: Sequence[str] | None = None,
+    cache_path: str | Path | None = None,
+    split: str = "database",
+    *,
+    batch_size: int = 16,
+    device: Any = "cpu",
+    half: bool = False,
+    on_error: str = "fail",
+    num_workers: int | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+    on_batch: Callable[[list[str]], None] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Global descriptors of images, cached by image name in an HDF5 file.
+
+    Parameters
+    ----------
+    model : str, Path, DescriptorModel or callable
+        A registered model name (default model: ``"efficientnet-lite0-gem"``), a TorchScript file, a loaded
+        :class:`~vpr_uncertainty.features.models.DescriptorModel`, or a callable (see
+        :func:`~vpr_uncertainty.features.models.load_model`).
+    image_paths : sequence of str or Path, length N
+    names : sequence of str, length N, optional
+        Unique key of each image in the cache (default: the file names, which must then be unique).
+    cache_path : str or Path, optional
+        HDF5 file to read from and write to; None computes everything in memory.
+    split : {"database", "queries"}
+        Group of the file the descriptors go to.
+    batch_size : int
+        Images per forward pass (and per flush of the cache).
+    device : str or torch.device
+        ``"cpu"``, ``"cuda"``, ``"cuda:1"``...
+    half : bool
+        Store float16 instead of float32 (the model still computes in float32).
+    on_error : {"fail", "skip"}
+        What to do with an image that cannot be decoded: raise
+        :class:`~vpr_uncertainty.features.images.ImageDecodeError` naming it, or warn and leave it out.
+    num_workers : int, optional
+        Threads that decode images ahead of the model (default: min(4, CPU count); 0 decodes in this thread).
+    overwrite : bool
+        Recompute everything even if the cache holds descriptors of the same model and preprocessing.
+    progress : bool
+        Show a tqdm progress bar.
+    on_batch : callable, optional
+        Called with the names of each batch after it has been written to the cache.
+
+    Returns
+    -------
+    names : ndarray of shape (M,), str
+        The requested names in the requested order, without the skipped ones (M = N unless images were skipped).
+    descriptors : ndarray of shape (M, D), float32
+        L2-normalised rows (rounded to float16 precision when ``half``).
+
+    Examples
+    --------
+    >>> def tiny(images):  # any callable: (B, 3, H, W) -> (B, D)
+    ...     return images.mean(dim=(2, 3))
+    >>> import tempfile, numpy as np
+    >>> from PIL import Image
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> Image.fromarray(np.full((8, 8, 3), 200, np.uint8)).save(folder / "a.png")
+    >>> names, descriptors = extract_descriptors(tiny, [folder / "a.png"], progress=False)
+    >>> names, descriptors.shape
+    (array(['a.png'], dtype='<U5'), (1, 3))
+    """
+    paths, names = _validate(image_paths, names, split, batch_size, on_error)
+    if not isinstance(model, DescriptorModel):
+        model = load_model(model if model is not None else DEFAULT_MODEL, device=device)
+    else:
+        model.to(device)
+    workers = min(4, os.cpu_count() or 1) if num_workers is None else int(num_workers)
+    dtype = "float16" if half else "float32"
+
+    cache = (
+        DescriptorCache(cache_path, model.fingerprint, dtype=dtype, model_name=model.name, overwrite=overwrite)
+        if cache_path is not None
+        else None
+    )
+    memory: dict[str, np.ndarray] = {}
+    failed: list[dict[str, str]] = []
+    try:
+        if cache is not None:
+            cache.open()
+            done = set(cache.names(split))
+        else:
+            done = set()
+        todo = [(index, name, path) for index, (name, path) in enumerate(zip(names, paths, strict=True))]
+        todo = [item for item in todo if item[1] not in done]
+        batches = [todo[start : start + batch_size] for start in range(0, len(todo), batch_size)]
+        from tqdm.auto import tqdm
+
+        with tqdm(
+            total=len(names),
+            initial=len(names) - len(todo),
+            desc=f"{model.name} {split}",
+            unit="img",
+            disable=not progress,
+            leave=False,
+        ) as bar:
+            for decoded in _decoded_batches(batches, model, workers):
+                good_names: list[str] = []
+                images: list[np.ndarray] = []
+                for (_, name, path), result in decoded:
+                    if isinstance(result, ImageDecodeError):
+                        if on_error == "fail":
+                            raise result
+                        warnings.warn(f"skipping {result}", stacklevel=2)
+                        failed.append({"name": name, "path": str(path), "error": result.reason})
+                        continue
+                    good_names.append(name)
+                    images.append(result)
+                if images:
+                    descriptors = _forward(model, images)
+                    if cache is not None:
+                        cache.append(split, good_names, descriptors)
+                    else:
+                        for name, row in zip(good_names, descriptors.astype(dtype), strict=True):
+                            memory[name] = row
+                bar.update(len(decoded))
+                if on_batch is not None:
+                    on_batch(good_names)
+        failed_names = {entry["name"] for entry in failed}
+        kept = [name for name in names if name not in failed_names]
+        if cache is not None:
+            cache.finalize(split, kept, failed)
+            cache.close()
+            from vpr_uncertainty.features.cache import read_descriptors
+
+            return read_descriptors(cache_path, split)  # type: ignore[arg-type]
+        dim = next(iter(memory.values())).shape[0] if memory else 0
+        stacked = np.stack([memory[name] for name in kept]).astype(np.float32) if kept else np.empty((0, dim))
+        return np.array(kept, dtype=str), stacked.astype(np.float32)
+    finally:
+        if cache is not None:
+            cache.close()

