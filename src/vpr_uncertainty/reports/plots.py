@@ -32,9 +32,18 @@ def plot_rejection_curves(evaluation: Evaluation, path: str | Path, *, title: st
     path = Path(path)
     figure, axes = plt.subplots(figsize=(6.4, 4.8), dpi=120)
     try:
-        for method in evaluation.methods.values():
+        # Methods can rank queries identically (BM and L2 for normalised descriptors): vary the line style so
+        # that overlapping curves stay visible.
+        styles = ("-", "--", "-.", ":")
+        for index, method in enumerate(evaluation.methods.values()):
             label = method.name if method.auc_pr is None else f"{method.name} (AUC-PR {method.auc_pr:.3f})"
-            axes.plot(method.curve.recall, method.curve.precision, label=label, linewidth=1.5)
+            axes.plot(
+                method.curve.recall,
+                method.curve.precision,
+                label=label,
+                linewidth=1.5,
+                linestyle=styles[(index // 10 + index) % len(styles)],
+            )
         accept_all = float(evaluation.correct.mean())
         axes.axhline(accept_all, color="grey", linestyle=":", linewidth=1, label=f"accept all ({accept_all:.3f})")
         axes.set_xlabel("recall (correct accepted / answerable queries)")

@@ -1,0 +1,104 @@
+"""``vpr-uncertainty run``: images → descriptors → retrieval → uncertainties → evaluation, cached stage by stage."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from vpr_uncertainty.commands.evaluate import method_list, positive_int
+
+if TYPE_CHECKING:
+    from vpr_uncertainty.pipeline import RunResult
+
+__all__ = ["add_common_run_options", "add_parser", "print_summary"]
+
+
+def add_common_run_options(parser: argparse.ArgumentParser, *, default_out: Path | None = None) -> None:
+    """Options shared by ``run`` and ``demo``."""
+    parser.add_argument(
+        "--out", type=Path, required=default_out is None, default=default_out, help="run directory (reused on rerun)"
+    )
+    parser.add_argument(
+        "--methods",
+        type=method_list,
+        help="comma-separated uncertainty methods (default: every score-only method, plus SUE with metric positions)",
+    )
+    parser.add_argument("--k", type=positive_int, default=10, help="candidates per query for RS/SD/SU (default 10)")
+    parser.add_argument("--alpha", type=float, default=0.5, help="weight of RS in SU, in [0, 1] (default 0.5)")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (extraction and Faiss search)")
+    parser.add_argument("--batch-size", type=int, default=16, help="images per forward pass (default 16)")
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register the ``run`` command."""
+    parser = subparsers.add_parser(
+        "run",
+        help="evaluate uncertainty end to end on a dataset of images with a VPR model",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Extract global descriptors of every image, retrieve the top-k database images of each query with\n"
+            "Faiss, compute every requested uncertainty and evaluate it. Each stage is cached in the run directory\n"
+            "(descriptors.h5, retrieval.npz), so a rerun reuses it; the run writes uncertainties.npz, results.json\n"
+            "(the schema of `evaluate --json`), results.md and pr_curves.png."
+        ),
+        epilog=(
+            "examples:\n"
+            "  vpr-uncertainty run --dataset data/vprbench/corridor --out runs/corridor\n"
+            "  vpr-uncertainty run --dataset st_lucia --root ~/vpr-data --model cosplace --device cuda --out runs/stl"
+        ),
+    )
+    parser.add_argument(
+        "--dataset",
+        required=True,
+        help="dataset folder (any supported format) or a name from `vpr-uncertainty datasets`",
+    )
+    parser.add_argument(
+        "--model",
+        default="efficientnet-lite0-gem",
+        help="descriptor model: a registered name (`vpr-uncertainty extract --help` lists them) or a TorchScript file "
+        "(default efficientnet-lite0-gem, which works offline)",
+    )
+    parser.add_argument("--root", type=Path, help="data root for dataset names (default VPR_UNCERTAINTY_DATA)")
+    parser.add_argument("--split", help="dataset split (default: the dataset's test split)")
+    parser.add_argument("--radius", type=float, help="positives within this many metres (default 25)")
+    parser.add_argument("--index", default="Flat", help="Faiss index-factory string (default Flat = exact search)")
+    parser.add_argument("--half", action="store_true", help="store descriptors as float16")
+    parser.add_argument("--on-error", choices=("fail", "skip"), default="fail", help="images that fail to decode")
+    add_common_run_options(parser)
+    parser.set_defaults(handler=_handle)
+
+
+def print_summary(result: RunResult) -> None:
+    """Print the table, the time per stage and where the files are."""
+    from vpr_uncertainty.reports import format_table
+
+    print(format_table(result.evaluation))
+    stages = ", ".join(f"{stage} {seconds:.1f} s" for stage, seconds in result.stage_seconds.items())
+    print(f"time per stage: {stages}")
+    print(f"report: {result.paths['table']}  plot: {result.paths['plot']}  json: {result.paths['results']}")
+
+
+def _handle(args: argparse.Namespace) -> int:
+    from vpr_uncertainty.pipeline import RunConfig, run
+
+    if not 0.0 <= args.alpha <= 1.0:
+        raise ValueError(f"--alpha must lie in [0, 1], got {args.alpha}")
+    config = RunConfig(
+        dataset=args.dataset,
+        out=args.out,
+        model=args.model,
+        methods=args.methods,
+        k=args.k,
+        alpha=args.alpha,
+        index=args.index,
+        device=args.device,
+        batch_size=args.batch_size,
+        half=args.half,
+        on_error=args.on_error,
+        root=args.root,
+        split=args.split,
+        radius=args.radius,
+    )
+    print_summary(run(config))
+    return 0

@@ -1,0 +1,227 @@
+"""Local-feature files in hloc's HDF5 layout, and the cache that extracts each image once.
+
+Layout (the one ``hloc.extract_features`` writes, so hloc and this package read each other's files)::
+
+    <image name>/            one group per image; the name is the path relative to the image root, with "/"
+        keypoints            (N, 2) float32, (x, y) pixels of the original image
+        descriptors          (D, N), as hloc stores them (a file holding (N, D) is read as well)
+        scores               (N,) float32
+        image_size           (2,) (width, height) of the original image
+
+The cache writes one file per extractor configuration, ``<extractor>-<hash of its config>.h5``, and records the
+configuration in the file's ``config`` attribute: changing the extractor, its options, its weights or ``max_side``
+starts a new file, while the same configuration reuses (and resumes) the old one. Each group also records the
+image file's size and modification time; an image that changed on disk is extracted again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from vpr_uncertainty.geometric.features import Extractor, LocalFeatures
+
+__all__ = [
+    "CACHE_FORMAT_VERSION",
+    "ExtractionStats",
+    "cache_path",
+    "extract_features",
+    "image_names",
+    "read_features",
+    "write_features",
+]
+
+CACHE_FORMAT_VERSION = 1
+
+
+def image_names(paths: Sequence[str | Path], root: str | Path | None = None) -> list[str]:
+    """hloc-style names: each path relative to ``root`` (default: the deepest folder holding all paths), "/"-joined.
+
+    Examples
+    --------
+    >>> image_names(["/d/query/0.jpg", "/d/ref/0.jpg"])
+    ['query/0.jpg', 'ref/0.jpg']
+    """
+    resolved = [Path(path).absolute() for path in paths]
+    if not resolved:
+        return []
+    if root is None:
+        parents = [path.parent for path in resolved]
+        root = parents[0]
+        while not all(parent == root or root in parent.parents for parent in parents):
+            root = root.parent
+    root = Path(root).absolute()
+    return [path.relative_to(root).as_posix() for path in resolved]
+
+
+def config_hash(config: Mapping[str, Any]) -> str:
+    text = json.dumps({"cache_format": CACHE_FORMAT_VERSION, **config}, sort_keys=True, default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:12]
+
+
+def cache_path(cache_dir: str | Path, extractor: Extractor) -> Path:
+    """The cache file of an extractor's configuration inside ``cache_dir``."""
+    return Path(cache_dir) / f"{extractor.name}-{config_hash(extractor.config())}.h5"
+
+
+def _source_stamp(path: str | Path) -> tuple[int, int]:
+    stat = Path(path).stat()
+    return int(stat.st_size), int(stat.st_mtime_ns)
+
+
+def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
+    """Read one image's features from an hloc-layout HDF5 file (an open file or its path).
+
+    ``descriptors`` stored as (D, N), hloc's layout, are transposed to (N, D) (also when D == N: a square array
+    is taken to be hloc's); (N, D) is read as it is. float16 is widened to float32.
+    A file without ``image_size`` gets the extent of the keypoints.
+    """
+    if not isinstance(file, h5py.File):
+        with h5py.File(file, "r") as handle:
+            return read_features(handle, name)
+    if name not in file:
+        example = next(iter(_group_names(file)), None)
+        raise KeyError(
+            f"{file.filename} has no features for image {name!r}"
+            + (f" (its names look like {example!r})" if example else " (it holds no image)")
+        )
+    group = file[name]
+    if "keypoints" not in group or "descriptors" not in group:
+        raise KeyError(f"{file.filename}:{name} lacks 'keypoints' or 'descriptors' (not hloc's local-feature layout)")
+    keypoints = np.asarray(group["keypoints"][()], np.float32).reshape(-1, 2)
+    descriptors = np.asarray(group["descriptors"][()])
+    n = len(keypoints)
+    if descriptors.ndim != 2:
+        raise ValueError(f"{file.filename}:{name}/descriptors must be 2-D, got shape {descriptors.shape}")
+    if descriptors.shape[1] == n:
+        descriptors = descriptors.T  # hloc's (D, N); a square array (D == N) is read as hloc's too
+    elif descriptors.shape[0] != n:
+        raise ValueError(f"{file.filename}:{name}: {n} keypoints but descriptors of shape {descriptors.shape}")
+    if descriptors.dtype == np.float16:
+        descriptors = descriptors.astype(np.float32)
+    scores = np.asarray(group["scores"][()], np.float32).reshape(-1) if "scores" in group else None
+    if "image_size" in group:
+        image_size = np.asarray(group["image_size"][()]).reshape(2)
+    else:
+        image_size = np.ceil(keypoints.max(axis=0) + 1) if n else np.ones(2)
+    return LocalFeatures(keypoints, np.ascontiguousarray(descriptors), scores, image_size)
+
+
+def write_features(file: h5py.File, name: str, features: LocalFeatures, *, source: str | Path | None = None) -> None:
+    """Write one image's features in hloc's layout, replacing an existing group of that name."""
+    if name in file:
+        del file[name]
+    group = file.create_group(name)
+    group.create_dataset("keypoints", data=features.keypoints)
+    group.create_dataset("descriptors", data=np.ascontiguousarray(features.descriptors.T))
+    group.create_dataset("scores", data=features.scores)
+    group.create_dataset("image_size", data=features.image_size)
+    if source is not None:
+        group.attrs["source_size"], group.attrs["source_mtime_ns"] = _source_stamp(source)
+
+
+def _group_names(file: h5py.File) -> list[str]:
+    names: list[str] = []
+
+    def visit(name: str, item: Any) -> None:
+        if isinstance(item, h5py.Group) and "keypoints" in item:
+            names.append(name)
+
+    file.visititems(visit)
+    return names
+
+
+def _open_cache(path: Path) -> h5py.File:
+    try:
+        return h5py.File(path, "a")
+    except OSError as error:  # e.g. a run killed while writing
+        warnings.warn(f"feature cache {path} is unreadable ({error}); extracting again", RuntimeWarning, stacklevel=3)
+        path.unlink()
+        return h5py.File(path, "a")
+
+
+@dataclass
+class ExtractionStats:
+    """What :func:`extract_features` did: images extracted, images read from the cache, seconds spent."""
+
+    extracted: int = 0
+    cached: int = 0
+    seconds: float = 0.0
+
+
+def extract_features(
+    paths: Sequence[str | Path],
+    extractor: Extractor,
+    *,
+    names: Sequence[str] | None = None,
+    cache_dir: str | Path | None = None,
+    workers: int | None = None,
+) -> tuple[dict[str, LocalFeatures], ExtractionStats]:
+    """Features of every image, extracted once: read from the cache when there, else extracted and written.
+
+    Parameters
+    ----------
+    paths : sequence of path
+        Image files; duplicates are extracted once.
+    extractor : Extractor
+    names : sequence of str, optional
+        Cache keys (hloc names) of the images; by default :func:`image_names` of ``paths``.
+    cache_dir : path, optional
+        Folder of the HDF5 caches; without it nothing is written and everything is extracted.
+    workers : int, optional
+        Threads that read images (and run OpenCV extractors).
+
+    Returns
+    -------
+    features : dict
+        Image name -> :class:`LocalFeatures`.
+    stats : ExtractionStats
+    """
+    start = time.perf_counter()
+    names = image_names(paths) if names is None else [str(name) for name in names]
+    if len(names) != len(paths):
+        raise ValueError(f"got {len(names)} names for {len(paths)} images")
+    unique = dict(zip(names, paths, strict=True))
+    features: dict[str, LocalFeatures] = {}
+    stats = ExtractionStats()
+    handle: h5py.File | None = None
+    try:
+        if cache_dir is not None:
+            file_path = cache_path(cache_dir, extractor)
+            file_path.parent.mkdir(parents=True, exist_ok=True)
+            handle = _open_cache(file_path)
+            config = json.dumps(extractor.config(), sort_keys=True, default=str)
+            if handle.attrs.get("config", config) != config:  # hash collision or a file edited by hand
+                handle.close()
+                file_path.unlink()
+                handle = h5py.File(file_path, "a")
+            handle.attrs["config"] = config
+            for name, path in unique.items():
+                if name in handle and "image_size" in handle[name]:
+                    stamp = (handle[name].attrs.get("source_size"), handle[name].attrs.get("source_mtime_ns"))
+                    if stamp == _source_stamp(path):
+                        features[name] = read_features(handle, name)
+        todo = [name for name in unique if name not in features]
+        stats.cached = len(features)
+        for position, result in extractor.extract([unique[name] for name in todo], workers=workers):
+            name = todo[position]
+            features[name] = result
+            if handle is not None:
+                write_features(handle, name, result, source=unique[name])
+                if (position + 1) % 32 == 0:
+                    handle.flush()  # an interrupted run keeps (and a rerun resumes from) what was extracted
+        stats.extracted = len(todo)
+    finally:
+        if handle is not None:
+            handle.close()
+    stats.seconds = time.perf_counter() - start
+    return features, stats

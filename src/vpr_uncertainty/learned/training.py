@@ -1,0 +1,379 @@
+"""Training the BTL head on frozen descriptors: triplet mining, early stopping, the training curve.
+
+Data: the descriptors of the anchors (the training queries) and of the database, and the positives of each
+anchor (within 25 m of its position, or explicit lists such as VPR-Bench's frame-tolerance ground truth). When
+only one set of images is given (a training database with positions), every image is an anchor and its
+positives are the other images within the radius.
+
+Procedure (deterministic for a given ``seed`` on CPU):
+
+1. The anchors with at least one positive are split at random into training and validation anchors
+   (``val_fraction``, 20 % by default).
+2. Triplets are mined once for each split (:func:`~vpr_uncertainty.learned.mining.mine_triplets`): the most
+   similar positives × the hardest negatives (nearest non-positives in descriptor space).
+3. Adam(W) on the Bayesian triplet loss, shuffled mini-batches of triplets; after every epoch the loss of the
+   validation triplets (in eval mode, same loss with its KL term). Epoch 0 is the untrained head.
+4. Early stopping: training stops when the validation loss has not improved for ``patience`` epochs, and the
+   head of the best epoch is returned.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from scipy import sparse
+
+from vpr_uncertainty.learned.loss import (
+    DEFAULT_KL_WEIGHT,
+    DEFAULT_MARGIN,
+    DEFAULT_PRIOR_VARIANCE,
+    bayesian_triplet_loss,
+)
+from vpr_uncertainty.learned.mining import Triplets, mine_triplets
+from vpr_uncertainty.learned.model import BTLHead
+
+__all__ = ["BTLTrainingConfig", "TrainingHistory", "resolve_device", "save_training_curve", "train_btl_head"]
+
+
+@dataclass
+class BTLTrainingConfig:
+    """Settings of :func:`train_btl_head` (all stored in the head file's metadata).
+
+    ``embedding_dim=None`` means min(descriptor dimension, 2048): up to 2048-D descriptors the head starts as a
+    rotation and retrieves exactly like the descriptors before training.
+    """
+
+    embedding_dim: int | None = None
+    hidden_dim: int = 256
+    margin: float = DEFAULT_MARGIN
+    kl_weight: float = DEFAULT_KL_WEIGHT
+    prior_variance: float = DEFAULT_PRIOR_VARIANCE
+    n_negatives: int = 10
+    max_positives: int = 10
+    epochs: int = 100
+    batch_size: int = 256
+    learning_rate: float = 3e-4
+    weight_decay: float = 1e-4
+    val_fraction: float = 0.2
+    patience: int = 10
+    min_delta: float = 1e-4
+    seed: int = 0
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        if self.embedding_dim is not None and (
+            isinstance(self.embedding_dim, bool)
+            or not isinstance(self.embedding_dim, (int, np.integer))
+            or self.embedding_dim < 1
+        ):
+            raise ValueError(f"embedding_dim must be a positive integer or None, got {self.embedding_dim!r}")
+        for name in ("hidden_dim", "n_negatives", "max_positives", "epochs", "batch_size"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if isinstance(self.patience, bool) or not isinstance(self.patience, (int, np.integer)) or self.patience < 1:
+            raise ValueError(f"patience must be a positive integer, got {self.patience!r}")
+        if not 0.0 < self.val_fraction < 1.0:
+            raise ValueError(
+                f"val_fraction must lie in (0, 1): early stopping needs a validation split, got {self.val_fraction}"
+            )
+        for name in ("learning_rate", "prior_variance"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("kl_weight", "weight_decay", "min_delta"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not math.isfinite(self.margin):
+            raise ValueError(f"margin must be finite, got {self.margin}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class TrainingHistory:
+    """Training curve: one entry per epoch, epoch 0 being the untrained head.
+
+    ``train_loss`` of epoch e ≥ 1 is the mean over that epoch's mini-batches (in train mode, while the head
+    changes); ``val_loss`` is measured after the epoch. Losses include the weighted KL term; ``*_nll`` are the
+    −log P parts alone.
+    """
+
+    epoch: list[int] = field(default_factory=list)
+    train_loss: list[float] = field(default_factory=list)
+    train_nll: list[float] = field(default_factory=list)
+    val_loss: list[float] = field(default_factory=list)
+    val_nll: list[float] = field(default_factory=list)
+    best_epoch: int = 0
+    stopped_early: bool = False
+    n_train_anchors: int = 0
+    n_val_anchors: int = 0
+    n_train_triplets: int = 0
+    n_val_triplets: int = 0
+
+    @property
+    def initial_val_loss(self) -> float:
+        return self.val_loss[0]
+
+    @property
+    def best_val_loss(self) -> float:
+        return self.val_loss[self.epoch.index(self.best_epoch)]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def summary(self) -> dict[str, Any]:
+        """The numbers worth keeping in the head file."""
+        return {
+            "best_epoch": self.best_epoch,
+            "epochs_run": self.epoch[-1],
+            "stopped_early": self.stopped_early,
+            "initial_val_loss": self.initial_val_loss,
+            "best_val_loss": self.best_val_loss,
+            "n_train_anchors": self.n_train_anchors,
+            "n_val_anchors": self.n_val_anchors,
+            "n_train_triplets": self.n_train_triplets,
+            "n_val_triplets": self.n_val_triplets,
+        }
+
+
+def resolve_device(device: str | torch.device) -> torch.device:
+    """A torch device, with a clear error when CUDA is asked for and not available."""
+    try:
+        resolved = torch.device(device)
+    except (RuntimeError, TypeError) as error:
+        raise ValueError(f"invalid device {device!r}: expected 'cpu', 'cuda' or 'cuda:N'") from error
+    if resolved.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"device {device!r} requested but PyTorch sees no CUDA GPU; use --device cpu")
+        if resolved.index is not None and resolved.index >= torch.cuda.device_count():
+            raise ValueError(f"device {device!r} requested but only {torch.cuda.device_count()} GPU(s) are visible")
+    elif resolved.type != "cpu":
+        raise ValueError(f"unsupported device {device!r}: expected 'cpu', 'cuda' or 'cuda:N'")
+    return resolved
+
+
+def _as_descriptors(values: object, name: str) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float32)
+    if array.ndim != 2 or array.shape[0] == 0 or array.shape[1] == 0:
+        raise ValueError(f"{name} must be a non-empty 2-D array (n_images, dimension), got shape {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name} contain NaN or inf")
+    return np.ascontiguousarray(array)
+
+
+def _split_anchors(positives: sparse.csr_array, same_set: bool, fraction: float, seed: int) -> tuple[np.ndarray, ...]:
+    counts = np.diff(positives.indptr)
+    if same_set:  # an image is not its own positive
+        counts = counts - positives.diagonal().astype(np.int64)
+    usable = np.flatnonzero(counts > 0)
+    if usable.size < 2:
+        raise ValueError(
+            f"only {usable.size} anchor(s) have a positive; training needs at least 2 (one for validation). "
+            "Check the positions / positive radius or the positive lists."
+        )
+    order = np.random.default_rng(seed).permutation(usable)
+    n_val = min(max(1, round(fraction * usable.size)), usable.size - 1)
+    return np.sort(order[n_val:]), np.sort(order[:n_val])
+
+
+def _batches(triplets: Triplets, batch_size: int, generator: torch.Generator | None) -> list[np.ndarray]:
+    if generator is None:
+        order = np.arange(len(triplets))
+    else:
+        order = torch.randperm(len(triplets), generator=generator).numpy()
+    return [order[start : start + batch_size] for start in range(0, len(order), batch_size)]
+
+
+class _TripletLoss:
+    """Loss of index triplets, with the descriptors on the training device."""
+
+    def __init__(self, anchors: torch.Tensor, database: torch.Tensor, config: BTLTrainingConfig) -> None:
+        self.anchors = anchors
+        self.database = database
+        self.config = config
+
+    def __call__(self, head: BTLHead, triplets: Triplets, rows: np.ndarray) -> Any:
+        # Each image goes through the head once per batch, however many triplets it is part of.
+        device = self.anchors.device
+        anchors, anchor_of = np.unique(triplets.anchor[rows], return_inverse=True)
+        images, image_of = np.unique(
+            np.concatenate([triplets.positive[rows], triplets.negative[rows]]), return_inverse=True
+        )
+        mean_q, var_q = head(self.anchors[torch.as_tensor(anchors, device=device)])
+        mean_d, var_d = head(self.database[torch.as_tensor(images, device=device)])
+        a = torch.as_tensor(anchor_of, device=device)
+        p = torch.as_tensor(image_of[: rows.size], device=device)
+        n = torch.as_tensor(image_of[rows.size :], device=device)
+        mean_a, var_a = mean_q[a], var_q[a]
+        mean_p, var_p = mean_d[p], var_d[p]
+        mean_n, var_n = mean_d[n], var_d[n]
+        return bayesian_triplet_loss(
+            mean_a,
+            var_a,
+            mean_p,
+            var_p,
+            mean_n,
+            var_n,
+            margin=self.config.margin,
+            kl_weight=self.config.kl_weight,
+            prior_variance=self.config.prior_variance,
+        )
+
+    @torch.no_grad()
+    def evaluate(self, head: BTLHead, triplets: Triplets) -> tuple[float, float]:
+        """Mean loss and NLL over all the triplets, in eval mode."""
+        head.eval()
+        total = nll = 0.0
+        for rows in _batches(triplets, 4096, None):
+            terms = self(head, triplets, rows)
+            total += float(terms.loss) * rows.size
+            nll += float(terms.nll) * rows.size
+        return total / len(triplets), nll / len(triplets)
+
+
+def train_btl_head(
+    database_descriptors: object,
+    positives: object,
+    *,
+    query_descriptors: object = None,
+    config: BTLTrainingConfig | None = None,
+    progress: bool = True,
+    **settings: Any,
+) -> tuple[BTLHead, TrainingHistory]:
+    """Train a BTL head on frozen descriptors with early stopping on a validation split of the anchors.
+
+    Parameters
+    ----------
+    database_descriptors : array-like of shape (D, dim)
+        Descriptors of the database images (positives and negatives are taken from them).
+    positives : sparse or dense bool matrix of shape (Q, D)
+        Positives of each query; with no ``query_descriptors``, shape (D, D): the positives of each database
+        image among the others (its own entry is ignored).
+    query_descriptors : array-like of shape (Q, dim), optional
+        Descriptors of the anchors (training queries). Default: the database images are the anchors.
+    config : BTLTrainingConfig, optional
+        Training settings; ``**settings`` override single fields (``epochs=20``, ``device="cuda"``, ...).
+    progress : bool, default True
+        Show a tqdm progress bar over the epochs with the current losses.
+
+    Returns
+    -------
+    head : BTLHead
+        The head of the epoch with the lowest validation loss, in eval mode, on the training device.
+    history : TrainingHistory
+        The training curve; ``head.metadata`` holds the config and a summary.
+    """
+    config = replace(config or BTLTrainingConfig(), **settings)
+    device = resolve_device(config.device)
+    database = _as_descriptors(database_descriptors, "database descriptors")
+    same_set = query_descriptors is None
+    queries = database if same_set else _as_descriptors(query_descriptors, "query descriptors")
+    if queries.shape[1] != database.shape[1]:
+        raise ValueError(
+            f"query and database descriptors must have the same dimension, got {queries.shape[1]} and "
+            f"{database.shape[1]}"
+        )
+    positives = sparse.csr_array(positives, dtype=bool)
+    if positives.shape != (len(queries), len(database)):
+        what = "database × database" if same_set else "queries × database"
+        raise ValueError(f"positives must have shape ({len(queries)}, {len(database)}) ({what}), got {positives.shape}")
+
+    train_anchors, val_anchors = _split_anchors(positives, same_set, config.val_fraction, config.seed)
+    mining = {"n_negatives": config.n_negatives, "max_positives": config.max_positives, "same_set": same_set}
+    train_triplets = mine_triplets(queries, database, positives, anchors=train_anchors, **mining)
+    val_triplets = mine_triplets(queries, database, positives, anchors=val_anchors, **mining)
+    if len(train_triplets) == 0 or len(val_triplets) == 0:
+        raise ValueError("no triplet could be mined (every anchor lacks a positive or a negative)")
+
+    torch.manual_seed(config.seed)
+    head = BTLHead(database.shape[1], config.embedding_dim, config.hidden_dim).to(device)
+    config = replace(config, embedding_dim=head.embedding_dim)
+    anchors_on_device = torch.from_numpy(queries).to(device)
+    database_on_device = anchors_on_device if same_set else torch.from_numpy(database).to(device)
+    loss = _TripletLoss(anchors_on_device, database_on_device, config)
+    optimiser = torch.optim.AdamW(head.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    generator = torch.Generator().manual_seed(config.seed)
+
+    history = TrainingHistory(
+        n_train_anchors=train_triplets.n_anchors,
+        n_val_anchors=val_triplets.n_anchors,
+        n_train_triplets=len(train_triplets),
+        n_val_triplets=len(val_triplets),
+    )
+
+    def record(epoch: int, train: tuple[float, float]) -> float:
+        val = loss.evaluate(head, val_triplets)
+        history.epoch.append(epoch)
+        history.train_loss.append(train[0])
+        history.train_nll.append(train[1])
+        history.val_loss.append(val[0])
+        history.val_nll.append(val[1])
+        return val[0]
+
+    best = record(0, loss.evaluate(head, train_triplets))
+    best_state = copy.deepcopy(head.state_dict())
+    waited = 0
+    from tqdm.auto import tqdm
+
+    with tqdm(range(1, config.epochs + 1), desc="train BTL head", unit="epoch", disable=not progress) as bar:
+        for epoch in bar:
+            head.train()
+            total = nll = 0.0
+            for rows in _batches(train_triplets, config.batch_size, generator):
+                terms = loss(head, train_triplets, rows)
+                if not torch.isfinite(terms.loss):
+                    raise FloatingPointError(
+                        f"the BTL loss became {float(terms.loss)} at epoch {epoch}; lower --lr or check the inputs"
+                    )
+                optimiser.zero_grad(set_to_none=True)
+                terms.loss.backward()
+                optimiser.step()
+                total += float(terms.loss.detach()) * rows.size
+                nll += float(terms.nll.detach()) * rows.size
+            val_loss = record(epoch, (total / len(train_triplets), nll / len(train_triplets)))
+            bar.set_postfix(train=f"{history.train_loss[-1]:.4f}", val=f"{val_loss:.4f}", best=history.best_epoch)
+            if val_loss < best - config.min_delta:
+                best, waited = val_loss, 0
+                history.best_epoch = epoch
+                best_state = copy.deepcopy(head.state_dict())
+            else:
+                waited += 1
+                if waited >= config.patience:
+                    history.stopped_early = epoch < config.epochs
+                    break
+    head.load_state_dict(best_state)
+    head.eval()
+    head.metadata = {"training": config.to_dict(), "history": history.summary()}
+    return head, history
+
+
+def save_training_curve(history: TrainingHistory, json_path: str | Path, png_path: str | Path | None = None) -> None:
+    """Write the training curve as JSON (every epoch's losses) and, optionally, as a PNG plot."""
+    json_path = Path(json_path)
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(history.to_dict(), indent=2) + "\n")
+    if png_path is None:
+        return
+    from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global state
+
+    figure = Figure(figsize=(6, 4), layout="constrained")
+    axes = figure.add_subplot()
+    axes.plot(history.epoch[1:], history.train_loss[1:], label="training (mean over the epoch)")
+    axes.plot(history.epoch, history.val_loss, label="validation", marker=".")
+    best = f"best epoch {history.best_epoch}"
+    axes.axvline(history.best_epoch, color="grey", linestyle="--", linewidth=1, label=best)
+    axes.set_xlabel("epoch")
+    axes.set_ylabel("Bayesian triplet loss")
+    axes.set_title("BTL head training")
+    axes.legend()
+    png_path = Path(png_path)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(png_path, dpi=120)

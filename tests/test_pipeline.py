@@ -1,0 +1,96 @@
+"""The end-to-end pipeline (`run`, `demo`) on the real corridor images with the offline default model."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import urllib.error
+
+import numpy as np
+import pytest
+
+from vpr_uncertainty.cli import main
+from vpr_uncertainty.data import download
+from vpr_uncertainty.methods import SCORE_ONLY_METHODS
+
+pytest.importorskip("torch")
+pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
+
+
+@pytest.fixture(scope="module")
+def demo_run(data_dir, tmp_path_factory):
+    """One demo run shared by the tests of this module (extraction is the slow part)."""
+    out = tmp_path_factory.mktemp("demo")
+    status = main(["demo", "--data-dir", str(data_dir), "--no-download", "--out", str(out)])
+    assert status == 0
+    return out
+
+
+def test_demo_evaluates_every_score_only_method_on_every_query(demo_run):
+    results = json.loads((demo_run / "results.json").read_text())
+    assert results["n_queries"] == 111
+    # 111 database images with about 4 positives each: chance recall@1 is below 0.05
+    assert results["recall@1"] > 0.4
+    assert set(results["methods"]) == set(SCORE_ONLY_METHODS)  # no SUE: the corridor has no positions
+    uncertainties = np.load(demo_run / "uncertainties.npz")
+    for name in SCORE_ONLY_METHODS:
+        assert uncertainties[name].shape == (111,) and np.isfinite(uncertainties[name]).all()
+    assert uncertainties["correct"].mean() == pytest.approx(results["recall@1"])
+    for stage in ("extraction", "retrieval", "uncertainty_and_evaluation"):
+        assert results["stage_seconds"][stage] >= 0
+    assert (demo_run / "results.md").read_text().startswith("# corridor")
+    assert (demo_run / "pr_curves.png").stat().st_size > 10_000
+
+
+def test_rerun_reuses_descriptors_and_retrieval(demo_run, data_dir, monkeypatch):
+    from vpr_uncertainty.features import extract
+
+    calls = []
+    original = extract._forward
+    monkeypatch.setattr(extract, "_forward", lambda *args: calls.append(1) or original(*args))
+    retrieval_mtime = (demo_run / "retrieval.npz").stat().st_mtime_ns
+    before = json.loads((demo_run / "results.json").read_text())
+    assert main(["demo", "--data-dir", str(data_dir), "--no-download", "--out", str(demo_run)]) == 0
+    after = json.loads((demo_run / "results.json").read_text())
+    assert calls == []  # no image went through the model again
+    assert (demo_run / "retrieval.npz").stat().st_mtime_ns == retrieval_mtime
+    assert after["methods"]["SU"]["auc_pr"] == before["methods"]["SU"]["auc_pr"]
+
+
+def test_run_with_unknown_method_fails_before_any_work(tmp_path, corridor_dir, capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "--dataset", str(corridor_dir), "--out", str(tmp_path / "run"), "--methods", "SU,XX"])
+    assert "unknown uncertainty method 'XX'" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+def test_corridor_checksums_match_the_real_data(corridor_dir):
+    assert download.verify_corridor(corridor_dir) == []
+    assert download.ensure_corridor(corridor_dir.parent.parent, download=False) == corridor_dir
+
+
+def test_missing_corridor_says_where_to_put_it(tmp_path, monkeypatch):
+    with pytest.raises(FileNotFoundError, match=r"223 corridor files are missing.*Put the VPR-Bench corridor"):
+        download.ensure_corridor(tmp_path, download=False)
+
+    def offline(*args, **kwargs):
+        raise urllib.error.URLError("no network")
+
+    monkeypatch.setattr(download.urllib.request, "urlopen", offline)
+    with pytest.raises(FileNotFoundError, match=r"may be offline.*VPR_UNCERTAINTY_DATA"):
+        download.ensure_corridor(tmp_path)
+
+
+def test_download_verifies_checksums(tmp_path, corridor_dir, monkeypatch):
+    served = tmp_path / "served"
+    shutil.copytree(corridor_dir, served)
+    monkeypatch.setattr(download, "CORRIDOR_URL", served.as_uri())
+    target = tmp_path / "data"
+    folder = download.ensure_corridor(target)
+    assert folder == target / "vprbench" / "corridor" and download.verify_corridor(folder) == []
+
+    (folder / "query" / "0000005.jpg").write_bytes(b"corrupt")  # repaired on the next call
+    (served / "query" / "0000005.jpg").write_bytes(b"tampered")  # and the source is bad too
+    with pytest.raises(FileNotFoundError, match=r"checksum mismatch for query/0000005\.jpg"):
+        download.ensure_corridor(target)
+    assert (folder / "query" / "0000005.jpg").read_bytes() == b"corrupt"  # a bad download never lands
