@@ -22,7 +22,7 @@ def test_lists_and_mask_agree():
 
 
 def test_out_of_range_positive_is_named():
-    with pytest.raises(ValueError, match="query 1 .* got 7"):
+    with pytest.raises(ValueError, match=r"query 1 .* got 7"):
         positives_from_lists([[0], [7]], n_database=4)
     with pytest.raises(ValueError, match="boolean"):
         positives_from_mask(np.array([[0, 2]]))
@@ -51,7 +51,7 @@ def test_file_errors(tmp_path):
         load_ground_truth(tmp_path / "missing.npy")
     bad = tmp_path / "gt.txt"
     bad.write_text("0 2\nfoo\n")
-    with pytest.raises(ValueError, match="gt.txt:2: expected integer"):
+    with pytest.raises(ValueError, match=r"gt.txt:2: expected integer"):
         load_ground_truth(bad)
     other = tmp_path / "gt.xml"
     other.write_text("<gt/>")

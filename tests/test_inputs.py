@@ -26,7 +26,7 @@ def test_top_k_matches_reference_with_ties(k):
 
 
 def test_top_k_rejects_bad_input():
-    with pytest.raises(ValueError, match="NaN .* query 1, database image 2"):
+    with pytest.raises(ValueError, match=r"NaN .* query 1, database image 2"):
         top_k_from_similarity(np.array([[0.1, 0.2, 0.3], [0.1, 0.2, np.nan]]), 2)
     with pytest.raises(ValueError, match="2-D"):
         top_k_from_similarity(np.ones(3), 2)

@@ -171,7 +171,7 @@ def test_nonpositive_best_is_ranked_most_uncertain(metric):
     assert np.isfinite(result).all()
     np.testing.assert_allclose(result[1:3], [1.0, 1.2])
     assert result[2] > result[1] >= result[0] >= result[3]
-    with pytest.raises(ValueError, match="best similarity is <= 0.*row 1"):
+    with pytest.raises(ValueError, match=r"best similarity is <= 0.*row 1"):
         metric(scores, k=4, on_nonpositive="raise")
     with pytest.raises(ValueError, match="on_nonpositive"):
         metric(scores, k=4, on_nonpositive="ignore")
@@ -193,10 +193,10 @@ def test_row_without_runner_up_is_rejected(metric):
     scores = np.array([[0.9, 0.5], [0.8, -np.inf]])
     if metric in (best_match, l2_distance):
         assert np.isfinite(metric(scores)).all()
-        with pytest.raises(ValueError, match="fewer than 1 candidates.*rows 0"):
+        with pytest.raises(ValueError, match=r"fewer than 1 candidates.*rows 0"):
             metric(np.array([[-np.inf, -np.inf]]))
     else:
-        with pytest.raises(ValueError, match="fewer than 2 candidates.*rows 1"):
+        with pytest.raises(ValueError, match=r"fewer than 2 candidates.*rows 1"):
             metric(scores)
 
 

@@ -65,6 +65,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--index", default="Flat", help="Faiss index-factory string (default Flat = exact search)")
     parser.add_argument("--half", action="store_true", help="store descriptors as float16")
     parser.add_argument("--on-error", choices=("fail", "skip"), default="fail", help="images that fail to decode")
+    parser.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: head written by train-btl")
     add_common_run_options(parser)
     parser.set_defaults(handler=_handle)
 
@@ -99,6 +100,7 @@ def _handle(args: argparse.Namespace) -> int:
         root=args.root,
         split=args.split,
         radius=args.radius,
+        method_options={} if args.btl_head is None else {"btl_head": args.btl_head},
     )
     print_summary(run(config))
     return 0

@@ -45,8 +45,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "the queries when they have descriptors and ground truth, else the database images themselves.\n"
             "A random --val-fraction of the anchors is held out for early stopping; the best head is written to\n"
             "--out, the training curve beside it (OUT.curve.json and OUT.curve.png).\n\n"
-            "Use the head with `vpr-uncertainty evaluate ... --methods BTL` options btl_head, query_descriptors\n"
-            "and database_descriptors (see vpr_uncertainty.learned.method)."
+            "Use the head with `vpr-uncertainty evaluate RETRIEVAL --methods BTL,SU --btl-head HEAD.pt\n"
+            "--descriptors descriptors.h5` or `vpr-uncertainty run ... --methods BTL,SU --btl-head HEAD.pt`."
         ),
         epilog=(
             "examples:\n"
