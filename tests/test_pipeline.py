@@ -94,3 +94,32 @@ def test_download_verifies_checksums(tmp_path, corridor_dir, monkeypatch):
     with pytest.raises(FileNotFoundError, match=r"checksum mismatch for query/0000005\.jpg"):
         download.ensure_corridor(target)
     assert (folder / "query" / "0000005.jpg").read_bytes() == b"corrupt"  # a bad download never lands
+
+
+def test_cuda_extraction_searches_on_cpu_without_gpu_faiss(monkeypatch, tmp_path, corridor_dir, capsys):
+    """Regression: --device cuda was passed on to faiss-cpu, which rejects it."""
+    from vpr_uncertainty import pipeline, retrieval
+
+    seen = {}
+    real_retrieve = retrieval.retrieve
+
+    def spy(*args, **kwargs):
+        seen["device"] = kwargs["device"]
+        return real_retrieve(*args, **kwargs)
+
+    def fake_extract(model, paths, names, cache_path, split, **options):
+        seen.setdefault("extraction_devices", []).append(options["device"])
+        rng = np.random.default_rng(len(split))
+        descriptors = rng.normal(size=(len(names), 8)).astype(np.float32)
+        return np.asarray(names), descriptors / np.linalg.norm(descriptors, axis=1, keepdims=True)
+
+    import vpr_uncertainty.features as features
+
+    monkeypatch.setattr(retrieval, "retrieve", spy)
+    monkeypatch.setattr(retrieval, "faiss_gpu_available", lambda: False)
+    monkeypatch.setattr(features, "extract_descriptors", fake_extract)
+    monkeypatch.setattr(features, "load_model", lambda name, device: type("M", (), {"name": name})())
+    result = pipeline.run(pipeline.RunConfig(dataset=corridor_dir, out=tmp_path / "run", device="cuda", methods=["SU"]))
+    assert seen == {"device": "cpu", "extraction_devices": ["cuda", "cuda"]}
+    assert "searching on the CPU" in capsys.readouterr().out
+    assert result.evaluation.methods["SU"].auc_pr is not None

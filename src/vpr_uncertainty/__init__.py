@@ -21,7 +21,15 @@ from vpr_uncertainty.evaluation import (
 )
 from vpr_uncertainty.inputs import read_results
 from vpr_uncertainty.methods import available_methods, get_method, register_method
-from vpr_uncertainty.retrieval import Retrieval, load_retrieval, save_retrieval, top_k_from_similarity
+from vpr_uncertainty.retrieval import (
+    Retrieval,
+    load_descriptors,
+    load_retrieval,
+    retrieve,
+    save_retrieval,
+    search_descriptors,
+    top_k_from_similarity,
+)
 from vpr_uncertainty.scores import (
     StatisticalUncertainty,
     best_match,
@@ -32,6 +40,7 @@ from vpr_uncertainty.scores import (
     similarity_distribution,
     statistical_uncertainty,
 )
+from vpr_uncertainty.spatial import spatial_uncertainty
 
 __version__ = "0.1.0"
 
@@ -48,6 +57,7 @@ __all__ = [
     "evaluate",
     "get_method",
     "l2_distance",
+    "load_descriptors",
     "load_retrieval",
     "margin",
     "perceptual_aliasing",
@@ -56,8 +66,11 @@ __all__ = [
     "recall_at_n",
     "register_method",
     "rejection_curve",
+    "retrieve",
     "save_retrieval",
+    "search_descriptors",
     "similarity_distribution",
+    "spatial_uncertainty",
     "statistical_uncertainty",
     "top_k_from_similarity",
 ]

@@ -40,7 +40,7 @@ def check_alpha(alpha: object) -> float:
 
 
 #: Rows validated (and, in the metrics, computed) at once: small enough for the block to stay in cache.
-BLOCK_ROWS = 32768
+BLOCK_ROWS = 65536
 
 
 def as_score_array(scores: object, *, name: str = "scores", sort: bool = False) -> np.ndarray:

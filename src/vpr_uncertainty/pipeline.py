@@ -130,7 +130,7 @@ def run(config: RunConfig) -> RunResult:
     """
     from vpr_uncertainty.data import load_dataset
     from vpr_uncertainty.features import extract_descriptors, load_model
-    from vpr_uncertainty.retrieval import retrieve
+    from vpr_uncertainty.retrieval import faiss_gpu_available, retrieve
 
     if config.retrieval_k < config.k:
         raise ValueError(f"retrieval_k ({config.retrieval_k}) must be >= k ({config.k})")
@@ -195,12 +195,16 @@ def run(config: RunConfig) -> RunResult:
         if all(cached.config.get(key) == value for key, value in wanted.items()):
             retrieval = cached
     if retrieval is None:
+        # --device picks the device of the model; Faiss searches on the GPU only where GPU Faiss is installed.
+        search_device = "cuda" if config.device.startswith("cuda") and faiss_gpu_available() else "cpu"
+        if search_device != config.device.split(":")[0]:
+            print(f"note: Faiss has no GPU support here; searching on the CPU (descriptors came from {config.device})")
         retrieval = retrieve(
             database,
             queries,
             config.retrieval_k,
             index=config.index,
-            device=config.device,
+            device=search_device,
             positives=positives,
             database_names=database_names,
             query_names=query_names,

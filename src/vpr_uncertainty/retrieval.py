@@ -323,6 +323,15 @@ GPU_MAX_K = 2048
 _PROGRESS_WORK = 5e10
 
 
+def faiss_gpu_available() -> bool:
+    """Whether the installed Faiss has GPU support and sees at least one GPU."""
+    try:
+        faiss = _import_faiss()
+    except ImportError:
+        return False
+    return hasattr(faiss, "StandardGpuResources") and faiss.get_num_gpus() > 0
+
+
 def _import_faiss() -> Any:
     try:
         import faiss

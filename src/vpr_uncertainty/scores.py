@@ -31,8 +31,8 @@ Hard input, defined once for all of them
     * **No queries** (shape (0, K)): an empty array of shape (0,).
 
 Implementation note: with sorted rows, the mean of the runners-up and the median are both fixed linear
-combinations of the columns, so RS, SD and SU are each one matrix-vector product divided by s_1. No per-row
-sort or median is computed.
+combinations of the columns, so RS, SD and SU are each one matrix product divided by s_1. No per-row sort or
+median is computed; the input is read twice (an order check, then the product).
 """
 
 from __future__ import annotations
@@ -116,47 +116,50 @@ def _divide_by_best(numerator: np.ndarray, best: np.ndarray, on_nonpositive: str
     return result
 
 
-def _block_sums(
-    scores: np.ndarray, start: int, n: int, weights: np.ndarray, numerator: np.ndarray, best: np.ndarray
-) -> bool:
-    """Validate one block of rows, write its weighted sums and best scores; return whether it has -inf."""
-    block = scores[start : start + BLOCK_ROWS]
-    check_block(block, offset=start, check_first_column=False)
-    stop = start + len(block)
-    best[start:stop] = block[:, 0]
-    if n >= 2:
-        np.matmul(block[:, :n], weights, out=numerator[start:stop])
-    return bool(block.min() == -np.inf)
-
-
 def _ratio_metric(
     scores: object, k: object, rs_weight: float, sd_weight: float, sort: bool, on_nonpositive: str
 ) -> np.ndarray:
     """(rs_weight·RS + sd_weight·SD) for every row, computed as one weighted sum divided by s_1.
 
-    Validation and computation run block by block, so that each block is read from memory once while it is
-    in cache.
+    One pass checks the order of every row (block by block, in cache). One matrix product with three weight
+    columns then gives, for every row, the weighted sum, s_1 (weights e_1) and the plain sum of the candidates.
+    That sum is finite unless the row holds ±inf (NaN was excluded by the order check), so it flags, without
+    another pass, the rows with missing candidates (-inf), +inf or overflow, which are redone one by one.
     """
     k = check_k(k)
     _check_policy(on_nonpositive)
     scores = as_score_array(scores, sort=sort)
     n_queries = scores.shape[0]
-    n = min(k, scores.shape[1])
-    numerator = np.empty(n_queries, dtype=scores.dtype)
-    best = np.empty(n_queries, dtype=scores.dtype)
-    weights = _combination_weights(max(n, 2), rs_weight, sd_weight, scores.dtype)
-    has_missing = [_block_sums(scores, start, n, weights, numerator, best) for start in range(0, n_queries, BLOCK_ROWS)]
+    for start in range(0, n_queries, BLOCK_ROWS):
+        check_block(scores[start : start + BLOCK_ROWS], offset=start, check_first_column=False)
     if n_queries == 0:
-        return numerator
-    check_best_scores(best)
-    if any(has_missing) or n < 2:
-        # Rows with missing candidates (-inf) are scored on the n candidates they have.
-        n_candidates = np.isfinite(scores[:, :n]).sum(axis=1)
-        _raise_for_short_rows(n_candidates)
-        for count in np.unique(n_candidates[n_candidates < n]):
-            rows = n_candidates == count
+        return np.empty(0, dtype=scores.dtype)
+    n = min(k, scores.shape[1])
+    if n < 2:
+        _raise_for_short_rows(np.full(n_queries, n))
+    top = scores[:, :n]
+    weights = np.zeros((3, n), dtype=scores.dtype)
+    weights[0] = _combination_weights(n, rs_weight, sd_weight, scores.dtype)
+    weights[1, 0] = 1
+    weights[2] = 1
+    with np.errstate(invalid="ignore", over="ignore"):  # ±inf rows are redone below
+        sums = weights @ top.T  # (3, Q): each result is a contiguous row
+    numerator, best = sums[0], sums[1]
+    unusual = np.flatnonzero(~np.isfinite(sums[2]))
+    if unusual.size:
+        numerator, best = numerator.copy(), top[:, 0].copy()
+        check_best_scores(best)
+        # Rows with missing candidates (-inf) are scored on the candidates they have.
+        n_candidates = np.isfinite(top[unusual]).sum(axis=1)
+        if (n_candidates < 2).any():
+            every_row = np.full(n_queries, n)
+            every_row[unusual] = n_candidates
+            _raise_for_short_rows(every_row)
+        for count in np.unique(n_candidates):
+            rows = unusual[n_candidates == count]
             count_weights = _combination_weights(int(count), rs_weight, sd_weight, scores.dtype)
-            numerator[rows] = scores[rows, :count] @ count_weights
+            with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported by _divide_by_best
+                numerator[rows] = top[rows, :count] @ count_weights
     return _divide_by_best(numerator, best, on_nonpositive)
 
 
