@@ -6,12 +6,13 @@ import argparse
 import json
 from pathlib import Path
 
+from vpr_uncertainty.commands._arguments import candidate_count
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
 from vpr_uncertainty.inputs import INPUT_FORMATS, read_results
 from vpr_uncertainty.methods import available_methods, get_method
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
 
-__all__ = ["add_parser", "method_list", "positive_int"]
+__all__ = ["add_parser", "method_list"]
 
 
 def method_list(text: str) -> list[str]:
@@ -24,13 +25,6 @@ def method_list(text: str) -> list[str]:
         except KeyError as error:
             raise argparse.ArgumentTypeError(str(error.args[0])) from None
     return names
-
-
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 2, got {text}")
-    return value
 
 
 def _method_help() -> str:
@@ -69,7 +63,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--format", choices=INPUT_FORMATS, default="auto", help="how to read SCORES (default: from its name)"
     )
-    parser.add_argument("--k", type=positive_int, default=10, help="candidates per query for RS/SD/SU (default 10)")
+    parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query for RS/SD/SU (default 10)")
     parser.add_argument("--alpha", type=float, default=0.5, help="weight of RS in SU, in [0, 1] (default 0.5)")
     parser.add_argument(
         "--methods",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from vpr_uncertainty.commands._arguments import positive_int
 from vpr_uncertainty.features.extract import ON_ERROR
 from vpr_uncertainty.features.models import DEFAULT_MODEL, available_models, get_model_spec
 
@@ -74,13 +75,6 @@ def _model_help() -> str:
     return "\n".join(lines)
 
 
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
-
-
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``extract`` command."""
     parser = subparsers.add_parser(
@@ -111,7 +105,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--out", type=Path, required=True, help="HDF5 file to write (resumed if it exists)")
     parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
-    parser.add_argument("--batch-size", type=_positive, default=16, help="images per forward pass (default 16)")
+    parser.add_argument("--batch-size", type=positive_int, default=16, help="images per forward pass (default 16)")
     parser.add_argument("--half", action="store_true", help="store descriptors as float16 instead of float32")
     parser.add_argument(
         "--on-error",
@@ -121,13 +115,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--image-size",
-        type=_positive,
+        type=positive_int,
         help="resize so that the shorter image side has this many pixels (default: the model's own setting)",
     )
     parser.add_argument("--workers", type=int, help="image decoding threads (default min(4, CPUs); 0 = none)")
     parser.add_argument(
         "--threads",
-        type=_positive,
+        type=positive_int,
         help="CPU threads of the model (torch.set_num_threads; default torch's choice). On a CPU shared with "
         "other jobs, 1 can be several times faster",
     )

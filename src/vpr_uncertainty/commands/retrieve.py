@@ -6,27 +6,9 @@ import argparse
 import time
 from pathlib import Path
 
+from vpr_uncertainty.commands._arguments import non_negative_float, positive_int
+
 __all__ = ["add_parser"]
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value >= 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -56,7 +38,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--database", type=Path, required=True, metavar="DB", help="database descriptors (.npy, .h5)")
     parser.add_argument("--queries", type=Path, required=True, metavar="Q", help="query descriptors (.npy, .h5)")
     parser.add_argument("--out", type=Path, required=True, metavar="FILE", help="retrieval file to write (.npz)")
-    parser.add_argument("--k", type=_positive_int, default=10, help="candidates kept per query (default 10)")
+    parser.add_argument("--k", type=positive_int, default=10, help="candidates kept per query (default 10)")
     parser.add_argument(
         "--index",
         default="Flat",
@@ -66,14 +48,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--search-params", metavar="PARAMS", help='search parameters of an approximate index, e.g. "nprobe=32"'
     )
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cuda needs GPU Faiss (default cpu)")
-    parser.add_argument(
-        "--batch-size", type=_positive_int, default=4096, help="queries searched at once (default 4096)"
-    )
+    parser.add_argument("--batch-size", type=positive_int, default=4096, help="queries searched at once (default 4096)")
     parser.add_argument("--database-positions", type=Path, metavar="P.npy", help="database positions (D x 2, metres)")
     parser.add_argument("--query-positions", type=Path, metavar="P.npy", help="query positions (Q x 2, metres)")
     parser.add_argument(
         "--radius",
-        type=_non_negative_float,
+        type=non_negative_float,
         default=25.0,
         help="positives: database images within this distance of the query, inclusive (default 25)",
     )

@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from vpr_uncertainty.commands.evaluate import method_list, positive_int
+from vpr_uncertainty.commands._arguments import candidate_count, positive_int
+from vpr_uncertainty.commands.evaluate import method_list
 
 if TYPE_CHECKING:
     from vpr_uncertainty.pipeline import RunResult
@@ -24,10 +25,10 @@ def add_common_run_options(parser: argparse.ArgumentParser, *, default_out: Path
         type=method_list,
         help="comma-separated uncertainty methods (default: every score-only method, plus SUE with metric positions)",
     )
-    parser.add_argument("--k", type=positive_int, default=10, help="candidates per query for RS/SD/SU (default 10)")
+    parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query for RS/SD/SU (default 10)")
     parser.add_argument("--alpha", type=float, default=0.5, help="weight of RS in SU, in [0, 1] (default 0.5)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (extraction and Faiss search)")
-    parser.add_argument("--batch-size", type=int, default=16, help="images per forward pass (default 16)")
+    parser.add_argument("--batch-size", type=positive_int, default=16, help="images per forward pass (default 16)")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -8,27 +8,9 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.commands._arguments import non_negative_float, positive_int
+
 __all__ = ["add_parser", "read_training_inputs"]
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -79,32 +61,32 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     source.add_argument(
         "--radius",
-        type=_non_negative_float,
+        type=non_negative_float,
         default=25.0,
         help="positives: images within this distance, in the unit of the positions (default 25)",
     )
     parser.add_argument("--out", type=Path, required=True, metavar="FILE", help="head file to write (e.g. head.pt)")
     model = parser.add_argument_group("model and loss")
     model.add_argument(
-        "--embedding-dim", type=_positive_int, help="dimension of the mean embedding (default min(dim, 2048))"
+        "--embedding-dim", type=positive_int, help="dimension of the mean embedding (default min(dim, 2048))"
     )
-    model.add_argument("--hidden-dim", type=_positive_int, default=256, help="width of the variance branch (256)")
+    model.add_argument("--hidden-dim", type=positive_int, default=256, help="width of the variance branch (256)")
     model.add_argument("--margin", type=float, default=0.0, help="m in P(|a-p|^2 < |a-n|^2 + m) (default 0)")
-    model.add_argument("--kl-weight", type=_non_negative_float, default=1e-6, help="weight of the KL term (1e-6)")
+    model.add_argument("--kl-weight", type=non_negative_float, default=1e-6, help="weight of the KL term (1e-6)")
     model.add_argument("--prior-variance", type=float, default=1.0, help="variance of the Gaussian prior (1)")
     training = parser.add_argument_group("training")
-    training.add_argument("--negatives", type=_positive_int, default=10, help="hard negatives per anchor (10)")
-    training.add_argument("--max-positives", type=_positive_int, default=10, help="positives per anchor (10)")
-    training.add_argument("--epochs", type=_positive_int, default=100, help="maximum number of epochs (100)")
-    training.add_argument("--batch-size", type=_positive_int, default=256, help="triplets per step (256)")
+    training.add_argument("--negatives", type=positive_int, default=10, help="hard negatives per anchor (10)")
+    training.add_argument("--max-positives", type=positive_int, default=10, help="positives per anchor (10)")
+    training.add_argument("--epochs", type=positive_int, default=100, help="maximum number of epochs (100)")
+    training.add_argument("--batch-size", type=positive_int, default=256, help="triplets per step (256)")
     training.add_argument("--lr", type=float, default=3e-4, help="AdamW learning rate (3e-4)")
-    training.add_argument("--weight-decay", type=_non_negative_float, default=1e-4, help="AdamW weight decay (1e-4)")
+    training.add_argument("--weight-decay", type=non_negative_float, default=1e-4, help="AdamW weight decay (1e-4)")
     training.add_argument("--val-fraction", type=float, default=0.2, help="anchors held out for validation (0.2)")
-    training.add_argument("--patience", type=_positive_int, default=10, help="epochs without improvement (10)")
+    training.add_argument("--patience", type=positive_int, default=10, help="epochs without improvement (10)")
     training.add_argument("--seed", type=int, default=0, help="random seed of the split, init and shuffling (0)")
     training.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
     training.add_argument(
-        "--threads", type=_positive_int, help="CPU threads of PyTorch (default: its own choice; 1 on a busy machine)"
+        "--threads", type=positive_int, help="CPU threads of PyTorch (default: its own choice; 1 on a busy machine)"
     )
     training.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(handler=_run_train_btl)
