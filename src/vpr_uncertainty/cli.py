@@ -14,7 +14,7 @@ from collections.abc import Sequence
 __all__ = ["COMMANDS", "build_parser", "main"]
 
 #: Command modules in :mod:`vpr_uncertainty.commands`, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("demo", "run", "evaluate", "datasets", "extract", "retrieve", "train-btl")
+COMMANDS: tuple[str, ...] = ("demo", "run", "evaluate", "reproduce", "datasets", "extract", "retrieve", "train-btl")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,6 +1,23 @@
 """Tables and figures of evaluation results."""
 
+from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablation
+from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
+from vpr_uncertainty.reports.html import write_report
 from vpr_uncertainty.reports.plots import plot_rejection_curves
+from vpr_uncertainty.reports.qualitative import plot_qualitative
+from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_latex, table1_markdown
 from vpr_uncertainty.reports.tables import format_table
 
-__all__ = ["format_table", "plot_rejection_curves"]
+__all__ = [
+    "build_table1",
+    "format_table",
+    "plot_alpha_ablation",
+    "plot_delta_heatmaps",
+    "plot_k_ablation",
+    "plot_qualitative",
+    "plot_rejection_curves",
+    "table1_csv",
+    "table1_latex",
+    "table1_markdown",
+    "write_report",
+]

@@ -1,0 +1,77 @@
+"""One self-contained HTML report: tables inline, figures embedded as base64 PNG; opens offline."""
+
+from __future__ import annotations
+
+import base64
+from collections.abc import Sequence
+from html import escape
+from pathlib import Path
+
+__all__ = ["Section", "embed_png", "render_report", "write_report"]
+
+_STYLE = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;padding:0 1em;color:#222}
+table{border-collapse:collapse;margin:1em 0;font-size:0.9em}th,td{border:1px solid #ccc;padding:3px 8px}
+td{text-align:right}thead th{background:#f0f0f0}figure{margin:1em 0}img{max-width:100%;height:auto}
+figcaption{font-size:0.85em;color:#555}.note{font-size:0.85em;color:#555}
+"""
+
+
+#: After loading, appends ``<p id="render-check">figures rendered: N/M</p>``: N of the M figures decoded (used by
+#: the headless-browser test; harmless offline).
+_RENDER_CHECK = (
+    '<script>window.addEventListener("load",function(){var all=document.querySelectorAll("img.figure"),n=0;'
+    "all.forEach(function(e){if(e.complete&&e.naturalWidth>0)n++;});"
+    'var p=document.createElement("p");p.id="render-check";p.className="note";'
+    'p.textContent="figures rendered: "+n+"/"+all.length;document.body.appendChild(p);});</script>'
+)
+
+
+class Section:
+    """A report section: a title, optional HTML (tables, text) and figures as (caption, PNG path)."""
+
+    def __init__(self, title: str, html: str = "", figures: Sequence[tuple[str, str | Path]] = ()) -> None:
+        self.title = title
+        self.html = html
+        self.figures = list(figures)
+
+
+def embed_png(path: str | Path) -> str:
+    """A ``data:`` URI of a PNG file."""
+    data = Path(path).read_bytes()
+    if not data.startswith(b"\x89PNG\r\n\x1a\n"):
+        raise ValueError(f"{path} is not a PNG file")
+    return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+
+
+def render_report(title: str, sections: Sequence[Section], *, intro: str = "") -> str:
+    """The HTML text; every ``<img>`` has the class ``figure`` and an inline PNG."""
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{escape(title)}</title><style>{_STYLE}</style></head><body>",
+        f"<h1>{escape(title)}</h1>",
+    ]
+    if intro:
+        parts.append(f'<p class="note">{intro}</p>')
+    parts.append("<ul>" + "".join(f'<li><a href="#s{i}">{escape(s.title)}</a></li>' for i, s in enumerate(sections)))
+    parts.append("</ul>")
+    for number, section in enumerate(sections):
+        parts.append(f'<section id="s{number}"><h2>{escape(section.title)}</h2>{section.html}')
+        for caption, path in section.figures:
+            parts.append(
+                f'<figure><img class="figure" alt="{escape(caption)}" src="{embed_png(path)}">'
+                f"<figcaption>{escape(caption)}</figcaption></figure>"
+            )
+        parts.append("</section>")
+    parts.append(_RENDER_CHECK)
+    parts.append("</body></html>")
+    return "\n".join(parts) + "\n"
+
+
+def write_report(path: str | Path, title: str, sections: Sequence[Section], *, intro: str = "") -> Path:
+    """Write :func:`render_report` to ``path`` (UTF-8) and return it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(render_report(title, sections, intro=intro), encoding="utf-8")
+    return path

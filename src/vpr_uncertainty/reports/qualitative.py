@@ -1,0 +1,104 @@
+"""Qualitative figure (the study's Figures 2 and 4): queries, their top-4 answers, and RS, SD, SU.
+
+Four queries are chosen automatically by SU among the cell's answers: the most confident correct one, the most
+confident wrong one, the most uncertain correct one and the most uncertain wrong one (a category without any
+query is left out). Each row shows the query, with RS, SD and SU under it, then its top-4 database images with
+their similarity scores, in a green frame when the image is a positive and red otherwise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from vpr_uncertainty import scores as _scores
+
+__all__ = ["CATEGORIES", "DPI", "TOP", "choose_queries", "plot_qualitative", "qualitative_figsize"]
+
+CATEGORIES: tuple[str, ...] = ("confident correct", "confident wrong", "uncertain correct", "uncertain wrong")
+TOP = 4
+DPI = 100
+
+
+def qualitative_figsize(n_rows: int) -> tuple[float, float]:
+    """Figure size in inches for ``n_rows`` queries (``DPI`` pixels per inch)."""
+    return (2.0 * (TOP + 1), 2.2 * n_rows)
+
+
+def choose_queries(correct: np.ndarray, uncertainty: np.ndarray) -> dict[str, int]:
+    """Category -> query index; confident = lowest uncertainty, uncertain = highest (ties: lowest index).
+
+    Examples
+    --------
+    >>> choose_queries(np.array([True, False, True, False]), np.array([0.1, 0.2, 0.9, 0.8]))
+    {'confident correct': 0, 'confident wrong': 1, 'uncertain correct': 2, 'uncertain wrong': 3}
+    """
+    correct = np.asarray(correct, dtype=bool)
+    uncertainty = np.asarray(uncertainty, dtype=np.float64)
+    chosen = {}
+    for category in CATEGORIES:
+        pool = np.flatnonzero(correct if category.endswith("correct") else ~correct)
+        if pool.size:
+            values = uncertainty[pool]
+            pick = np.argmin(values) if category.startswith("confident") else np.argmax(values)
+            chosen[category] = int(pool[pick])
+    return chosen
+
+
+def _image(path: str) -> np.ndarray:
+    from matplotlib.image import imread
+
+    return imread(path)
+
+
+def plot_qualitative(cell, path: str | Path, *, k: int = 10, alpha: float = 0.5) -> Path | None:
+    """Draw the figure for one grid cell (:class:`vpr_uncertainty.reproduce.Cell`); None without image paths."""
+    if not cell.query_paths or not cell.database_paths:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    scores = np.asarray(cell.scores, dtype=np.float64)
+    k = min(k, scores.shape[1])
+    rs = _scores.ratio_spread(scores, k)
+    sd = _scores.similarity_distribution(scores, k)
+    su = _scores.statistical_uncertainty(scores, k, alpha)
+    correct = np.asarray(cell.evaluation.correct, dtype=bool)
+    chosen = choose_queries(correct, su)
+    if not chosen:
+        return None
+    path = Path(path)
+    figure, axes = plt.subplots(len(chosen), TOP + 1, figsize=qualitative_figsize(len(chosen)), dpi=DPI, squeeze=False)
+    try:
+        for row, (category, query) in enumerate(chosen.items()):
+            axis = axes[row][0]
+            axis.imshow(_image(cell.query_paths[query]))
+            axis.set_title(f"{category}\nquery {query}", fontsize=8)
+            axis.set_xlabel(f"RS {rs[query]:.3f}  SD {sd[query]:.3f}\nSU {su[query]:.3f}", fontsize=8)
+            for column in range(1, TOP + 1):
+                axis = axes[row][column]
+                rank = column - 1
+                index = int(cell.indices[query, rank]) if rank < cell.indices.shape[1] else -1
+                if index < 0:
+                    axis.set_axis_off()
+                    continue
+                axis.imshow(_image(cell.database_paths[index]))
+                hit = bool(cell.hits[query, rank])
+                colour = "tab:green" if hit else "tab:red"
+                for spine in axis.spines.values():
+                    spine.set_edgecolor(colour)
+                    spine.set_linewidth(4)
+                axis.set_title(f"#{rank + 1}  db {index}  s={scores[query, rank]:.3f}", fontsize=8)
+            for axis in axes[row]:
+                axis.set_xticks([])
+                axis.set_yticks([])
+        figure.suptitle(f"{cell.vpr_method} on {cell.dataset}: answers ranked by SU (k={k}, α={alpha:g})", fontsize=10)
+        figure.tight_layout()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        figure.savefig(path, dpi=DPI)
+    finally:
+        plt.close(figure)
+    return path

@@ -1,0 +1,288 @@
+"""The reproduction grid on the ten real VPR-Bench corridor matrices: same numbers as `evaluate`, ablations,
+caching, figures of the expected size, report.html rendered in headless Chromium, config validation."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import re
+import struct
+import subprocess
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vpr_uncertainty import evaluate
+from vpr_uncertainty.commands import reproduce as reproduce_command
+from vpr_uncertainty.inputs import read_results
+from vpr_uncertainty.reports.ablations import ABLATION_SIZE
+from vpr_uncertainty.reports.ablations import DPI as ABLATION_DPI
+from vpr_uncertainty.reports.heatmaps import DPI as HEATMAP_DPI
+from vpr_uncertainty.reports.heatmaps import heatmap_figsize
+from vpr_uncertainty.reports.qualitative import DPI as QUALITATIVE_DPI
+from vpr_uncertainty.reports.qualitative import qualitative_figsize
+from vpr_uncertainty.reproduce import load_config, run_grid, write_reports, write_results
+
+METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+def _ci() -> bool:
+    return os.environ.get("CI", "").lower() in {"1", "true", "yes"}
+
+
+def _main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser()
+    reproduce_command.add_parser(parser.add_subparsers())
+    args = parser.parse_args(["reproduce", *argv])
+    return args.handler(args)
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a PNG"
+    assert len(data) > 2000, f"{path} is suspiciously small ({len(data)} bytes)"
+    return struct.unpack(">II", data[16:24])
+
+
+def _write_config(path: Path, corridor_matches_dir: Path, corridor_dir: Path, **extra: str) -> Path:
+    lines = [f'out = "{path.parent / "out"}"', f"methods = {json.dumps(METHODS)}", "k = 10"]
+    lines += [f"{key} = {value}" for key, value in extra.items()]
+    lines += [
+        "[[inputs]]",
+        f'precomputed_matches = "{corridor_matches_dir}"',
+        f'ground_truth = "{corridor_dir / "ground_truth_new.npy"}"',
+        f'images = "{corridor_dir}"',
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def grid(tmp_path_factory, corridor_matches_dir, corridor_dir):
+    """The grid and its reports, written once for this module."""
+    config_path = _write_config(tmp_path_factory.mktemp("grid") / "grid.toml", corridor_matches_dir, corridor_dir)
+    config = load_config(config_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cells = run_grid(config, progress=False)
+        paths = write_results(cells, config)
+        paths.update(write_reports(cells, config))
+    return config, cells, paths
+
+
+@pytest.mark.realdata
+def test_grid_gives_the_numbers_of_evaluate(grid, corridor_matches_dir, corridor_dir):
+    _, cells, paths = grid
+    assert len(cells) == 10
+    by_name = {cell.vpr_method: cell for cell in cells}
+    assert sorted(by_name) == sorted(p.name for p in corridor_matches_dir.iterdir() if p.is_dir())
+    rows = list(csv.DictReader(paths["results_csv"].open()))
+    assert len(rows) == 10 * len(METHODS)
+    document = json.loads(paths["results_json"].read_text())
+    for name, cell in by_name.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            retrieval = read_results(
+                corridor_matches_dir / name / "precomputed_data_corrected.npy",
+                ground_truth=corridor_dir / "ground_truth_new.npy",
+            )
+        reference = evaluate(retrieval, METHODS, k=10, timing_repeats=1)
+        assert cell.evaluation.recall_at_n == reference.recall_at_n
+        stored = next(c for c in document["cells"] if c["vpr_method"] == name)
+        for method in METHODS:
+            expected = reference.methods[method]
+            got = cell.evaluation.methods[method]
+            assert got.auc_pr == pytest.approx(expected.auc_pr, abs=1e-12)
+            assert got.average_precision == pytest.approx(expected.average_precision, abs=1e-12)
+            assert got.aurc == pytest.approx(expected.aurc, abs=1e-12)
+            assert stored["methods"][method]["auc_pr"] == pytest.approx(expected.auc_pr, abs=1e-12)
+            row = next(r for r in rows if r["vpr_method"] == name and r["uncertainty_method"] == method)
+            assert row["dataset"] == "corridor"
+            assert float(row["auc_pr"]) == pytest.approx(expected.auc_pr, abs=1e-12)
+            assert float(row["recall@1"]) == pytest.approx(reference.recall_at_n[1])
+    # The published NetVLAD corridor numbers (README).
+    netvlad = by_name["NetVLAD"].evaluation.methods
+    assert [round(netvlad[m].auc_pr, 3) for m in ("RS", "SD", "SU", "BM", "PA")] == [0.85, 0.844, 0.847, 0.822, 0.814]
+
+
+@pytest.mark.realdata
+def test_alpha_ablation_ends_at_sd_and_rs(grid):
+    _, cells, _ = grid
+    for cell in cells:
+        methods = cell.evaluation.methods
+        assert sorted(cell.ablation_alpha) == pytest.approx([round(0.1 * i, 1) for i in range(11)])
+        assert cell.ablation_alpha[0.0] == pytest.approx(methods["SD"].auc_pr, abs=1e-12)
+        assert cell.ablation_alpha[1.0] == pytest.approx(methods["RS"].auc_pr, abs=1e-12)
+        assert cell.ablation_alpha[0.5] == pytest.approx(methods["SU"].auc_pr, abs=1e-12)
+        assert sorted(cell.ablation_k["RS"]) == [2, 3, 5, 10, 15, 20, 30, 50]
+        assert cell.ablation_k["RS"][10] == pytest.approx(methods["RS"].auc_pr, abs=1e-12)
+        assert cell.ablation_k["SD"][10] == pytest.approx(methods["SD"].auc_pr, abs=1e-12)
+
+
+@pytest.mark.realdata
+def test_figures_are_pngs_of_the_expected_size(grid):
+    _, cells, paths = grid
+    heatmap = heatmap_figsize(10, 1, 3)
+    assert [p.name for p in paths["heatmaps"]] == ["delta_RS.png", "delta_SD.png", "delta_SU.png"]
+    for path in paths["heatmaps"]:
+        assert _png_size(path) == (round(heatmap[0] * HEATMAP_DPI), round(heatmap[1] * HEATMAP_DPI))
+    assert [p.name for p in paths["ablations"]] == ["ablation_alpha.png", "ablation_k.png"]
+    for path in paths["ablations"]:
+        assert _png_size(path) == (round(ABLATION_SIZE[0] * ABLATION_DPI), round(ABLATION_SIZE[1] * ABLATION_DPI))
+    assert len(paths["pr_curves"]) == len(cells)
+    for path in paths["pr_curves"]:
+        assert _png_size(path) == (768, 576)
+    (qualitative,) = paths["qualitative"]
+    size = qualitative_figsize(4)
+    assert _png_size(qualitative) == (round(size[0] * QUALITATIVE_DPI), round(size[1] * QUALITATIVE_DPI))
+    # Not blank: the qualitative figure shows photographs (many distinct colours).
+    from matplotlib.image import imread
+
+    pixels = imread(qualitative)[::3, ::3]
+    assert np.unique(pixels.reshape(-1, pixels.shape[-1]), axis=0).shape[0] > 1000
+
+
+@pytest.mark.realdata
+def test_table1_files(grid):
+    _, _, paths = grid
+    markdown = paths["table1_md"].read_text()
+    assert markdown.splitlines()[0].startswith("| method | AMOSNet |")
+    assert "| NetVLAD |" in markdown.splitlines()[0] or "NetVLAD" in markdown.splitlines()[0]
+    assert markdown.count("**") >= 2 * 11  # one best per column (ties may add more)
+    rows = list(csv.DictReader(paths["table1_csv"].open()))
+    assert [row["method"] for row in rows] == METHODS
+    rs = next(row for row in rows if row["method"] == "RS")
+    assert float(rs["NetVLAD"]) == pytest.approx(0.850, abs=5e-4)
+    assert "NetVLAD" in rs["best_for"]
+    latex = paths["table1_tex"].read_text()
+    for command in (r"\toprule", r"\midrule", r"\bottomrule", r"\textbf{", r"ap-gem-r101"):
+        assert command in latex
+
+
+@pytest.mark.realdata
+def test_cells_are_cached_and_force_recomputes(grid):
+    config, cells, _ = grid
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        again = run_grid(config, progress=False)
+        assert all(cell.cached for cell in again)
+        for old, new in zip(cells, again, strict=True):
+            assert new.evaluation.methods["SU"].auc_pr == old.evaluation.methods["SU"].auc_pr
+            assert new.ablation_alpha == old.ablation_alpha
+            np.testing.assert_array_equal(new.evaluation.correct, old.evaluation.correct)
+            np.testing.assert_array_equal(
+                new.evaluation.methods["PA"].curve.precision, old.evaluation.methods["PA"].curve.precision
+            )
+        subset = type(config)(**{**config.__dict__, "inputs": config.inputs[:1]})
+        (forced,) = run_grid(subset, force=True, progress=False)
+    assert not forced.cached
+
+
+@pytest.mark.realdata
+def test_report_html_is_self_contained(grid):
+    _, _, paths = grid
+    text = paths["report_html"].read_text()
+    sources = re.findall(r'<img[^>]*src="([^"]*)"', text)
+    n_figures = sum(len(paths[key]) for key in ("heatmaps", "ablations", "pr_curves", "qualitative"))
+    assert len(sources) == n_figures == 3 + 2 + 10 + 1
+    assert all(source.startswith("data:image/png;base64,") for source in sources)
+    assert "http://" not in text and "https://" not in text
+    assert '<table class="table1">' in text
+
+
+@pytest.mark.realdata
+def test_report_html_renders_in_headless_chromium(grid, tmp_path):
+    if not CHROMIUM.exists():
+        message = f"{CHROMIUM} not found (apt-get install -y chromium)"
+        if _ci():
+            pytest.fail(message)
+        pytest.skip(message)
+    _, _, paths = grid
+    command = [
+        str(CHROMIUM),
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        "--virtual-time-budget=10000",
+        "--dump-dom",
+        paths["report_html"].resolve().as_uri(),
+    ]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stderr[-2000:]
+    marker = re.search(r"figures rendered: (\d+)/(\d+)", result.stdout)
+    assert marker, f"the render check did not run; DOM starts with {result.stdout[:500]!r}"
+    assert marker.group(1) == marker.group(2) == str(16)
+
+
+@pytest.mark.realdata
+def test_missing_inputs_are_all_reported_before_any_work(tmp_path, corridor_matches_dir, corridor_dir, monkeypatch):
+    config_path = tmp_path / "grid.toml"
+    config_path.write_text(
+        f'out = "{tmp_path / "out"}"\nmethods = ["SU", "NOPE"]\n'
+        f'[[inputs]]\nprecomputed_matches = "{corridor_matches_dir}"\nground_truth = "{tmp_path / "gt.npy"}"\n'
+        f'[[inputs]]\nvpr_method = "x"\ndataset = "corridor"\nscores = "missing.npz"\n'
+    )
+    import vpr_uncertainty.reproduce as module
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work started before the configuration was validated")
+
+    monkeypatch.setattr(module, "run_cell", no_work)
+    with pytest.raises(ValueError) as error:
+        _main([str(config_path)])
+    message = str(error.value)
+    assert "3 problem(s)" in message
+    assert "NOPE" in message
+    assert f"ground truth not found: {tmp_path / 'gt.npy'}" in message
+    assert f"scores file not found: {tmp_path / 'missing.npz'}" in message
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.realdata
+def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_dir, monkeypatch, capsys):
+    """An entry with dataset + model goes through pipeline.run (stubbed here: extraction is tested elsewhere)."""
+    import types
+
+    import vpr_uncertainty.pipeline as pipeline
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        retrieval = read_results(
+            corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy",
+            ground_truth=corridor_dir / "ground_truth_new.npy",
+        )
+    calls = []
+
+    def fake_run(config):
+        calls.append(config)
+        return types.SimpleNamespace(retrieval=retrieval, evaluation=evaluate(retrieval, config.methods, k=config.k))
+
+    monkeypatch.setattr(pipeline, "run", fake_run)
+    config_path = tmp_path / "grid.toml"
+    config_path.write_text(
+        f'out = "out"\nmethods = ["SU", "BM"]\nks = [2, 30]\n'
+        f'[[inputs]]\ndataset = "{corridor_dir}"\nmodel = "efficientnet-lite0-gem"\ndevice = "cpu"\n'
+    )
+    assert _main([str(config_path), "--check"]) == 0
+    assert not calls and "1 cells x 2 uncertainty methods" in capsys.readouterr().out
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert _main([str(config_path)]) == 0
+    (call,) = calls
+    assert call.model == "efficientnet-lite0-gem" and call.device == "cpu"
+    assert call.retrieval_k == 30 and call.out == tmp_path / "out" / "runs" / "efficientnet-lite0-gem__corridor"
+    cell = json.loads((tmp_path / "out" / "cells" / "efficientnet-lite0-gem__corridor.json").read_text())
+    assert len(cell["query_paths"]) == 111 and cell["query_paths"][0].endswith("query/0000000.jpg")
+    assert (tmp_path / "out" / "figures" / "qualitative__efficientnet-lite0-gem__corridor.png").is_file()
+    assert (tmp_path / "out" / "report.html").is_file()
