@@ -19,7 +19,8 @@ DPI = 100
 
 def heatmap_figsize(n_vpr: int, n_datasets: int, n_baselines: int) -> tuple[float, float]:
     """Figure size in inches (the PNG is ``DPI`` times larger, in pixels)."""
-    return (1.6 + n_baselines * (1.2 + 0.7 * n_datasets), 1.6 + 0.35 * n_vpr)
+    # At least 6 inches wide so that the title and the method names fit beside a single column.
+    return (max(6.0, 2.2 + n_baselines * (1.2 + 0.7 * n_datasets)), 1.6 + 0.35 * n_vpr)
 
 
 def delta_matrix(cells: Sequence, proposed: str, baseline: str) -> tuple[list[str], list[str], np.ndarray]:
@@ -61,6 +62,7 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path) -> list[Path]:
             figsize=heatmap_figsize(len(vpr_methods), len(datasets), len(baselines)),
             dpi=DPI,
             squeeze=False,
+            layout="constrained",
         )
         try:
             for axis, baseline, (_, _, delta) in zip(axes[0], baselines, matrices, strict=True):
