@@ -286,3 +286,28 @@ def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_
     assert len(cell["query_paths"]) == 111 and cell["query_paths"][0].endswith("query/0000000.jpg")
     assert (tmp_path / "out" / "figures" / "qualitative__efficientnet-lite0-gem__corridor.png").is_file()
     assert (tmp_path / "out" / "report.html").is_file()
+
+
+@pytest.mark.realdata
+def test_image_methods_get_the_images_of_the_config(tmp_path, corridor_matches_dir, corridor_dir):
+    """Regression: the grid did not pass the config's images to geometric verification, which then failed."""
+    lines = [
+        f'out = "{tmp_path / "out"}"',
+        'methods = ["SU", "GV-SIFT"]',
+        "alphas = []",
+        "ks = []",
+        "[[inputs]]",
+        'vpr_method = "NetVLAD"',
+        'dataset = "corridor"',
+        f'scores = "{corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy"}"',
+        f'ground_truth = "{corridor_dir / "ground_truth_new.npy"}"',
+        f'images = "{corridor_dir}"',
+    ]
+    (tmp_path / "gv.toml").write_text("\n".join(lines) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        (cell,) = run_grid(load_config(tmp_path / "gv.toml"), progress=False)
+    sift = cell.evaluation.methods["GV-SIFT"]
+    assert sift.auc_pr > cell.evaluation.methods["SU"].auc_pr - 0.1  # a real verification, not a constant
+    assert len(np.unique(sift.uncertainty)) > 5
+    assert list((tmp_path / "out" / "local_features").glob("sift-*.h5"))

@@ -505,10 +505,6 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         if cached is not None:
             return cached
     retrieval, evaluation, dataset = _load_cell_input(entry, config, out)
-    if evaluation is None:
-        evaluation = evaluate(retrieval, config.methods, k=min(config.k, retrieval.k), alpha=config.alpha)
-    correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
-    alpha_curve, k_curve = _ablations(retrieval, correct, config)
     query_paths = database_paths = None
     if dataset is None and entry.images is not None:
         from vpr_uncertainty.data import load_vprbench_dataset
@@ -519,6 +515,19 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         database_paths = [str(p) for p in dataset.database_paths]
         if len(query_paths) != retrieval.n_queries:
             query_paths = database_paths = None
+    if evaluation is None:
+        # Image-based methods (geometric verification) get the images and one local-feature cache for the grid.
+        options = {} if query_paths is None else {"query_paths": query_paths, "database_paths": database_paths}
+        evaluation = evaluate(
+            retrieval,
+            config.methods,
+            k=min(config.k, retrieval.k),
+            alpha=config.alpha,
+            cache_dir=out / "local_features",
+            **options,
+        )
+    correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
+    alpha_curve, k_curve = _ablations(retrieval, correct, config)
     cell = Cell(
         vpr_method=entry.vpr_method,
         dataset=entry.dataset,
