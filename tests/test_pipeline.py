@@ -123,3 +123,19 @@ def test_cuda_extraction_searches_on_cpu_without_gpu_faiss(monkeypatch, tmp_path
     assert seen == {"device": "cpu", "extraction_devices": ["cuda", "cuda"]}
     assert "searching on the CPU" in capsys.readouterr().out
     assert result.evaluation.methods["SU"].auc_pr is not None
+
+
+def test_rerank_reports_recall_before_and_after(demo_run, corridor_dir, capsys):
+    status = main(
+        ["run", "--dataset", str(corridor_dir), "--out", str(demo_run), "--methods", "SU", "--rerank", "GV-SIFT"]
+    )
+    assert status == 0
+    reranking = json.loads((demo_run / "results.json").read_text())["reranking"]
+    assert reranking["method"] == "GV-SIFT" and reranking["top_k"] == 10
+    results = json.loads((demo_run / "results.json").read_text())
+    assert reranking["global"]["1"] == pytest.approx(results["recall@1"])
+    # re-ranking only reorders the top 10: recall@10 cannot change, recall@1 can
+    assert reranking["reranked"]["10"] == pytest.approx(reranking["global"]["10"])
+    assert "re-ranking the top 10 by GV-SIFT inliers: R@1" in capsys.readouterr().out
+    assert main(["run", "--dataset", str(corridor_dir), "--out", str(demo_run), "--rerank", "SU"]) == 2
+    assert "rerank needs a geometric verification method" in capsys.readouterr().err

@@ -27,11 +27,11 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation, evaluate
-from vpr_uncertainty.methods import SCORE_ONLY_METHODS, get_method
+from vpr_uncertainty.methods import GEOMETRIC_METHODS, SCORE_ONLY_METHODS, get_method
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
 from vpr_uncertainty.retrieval import Retrieval, load_retrieval, save_retrieval
 
-__all__ = ["RunConfig", "RunResult", "default_methods", "run"]
+__all__ = ["RunConfig", "RunResult", "default_methods", "format_reranking", "run"]
 
 #: Candidates kept per query: enough for k = 10 and recall@20.
 RETRIEVAL_K = 20
@@ -69,6 +69,9 @@ class RunConfig:
         Passed to :func:`vpr_uncertainty.data.load_dataset`.
     method_options : dict
         Further options for the uncertainty methods (e.g. ``btl_head`` or ``max_side``).
+    rerank : str, optional
+        A geometric verification method (``"GV-SIFT"``, ...) that re-ranks the top ``k`` of each query by
+        inliers; results.json then reports the re-ranked recall@N beside the global one.
     """
 
     dataset: str | Path
@@ -87,6 +90,7 @@ class RunConfig:
     split: str | None = None
     radius: float | None = None
     method_options: dict[str, Any] = field(default_factory=dict)
+    rerank: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         values = asdict(self)
@@ -137,6 +141,10 @@ def run(config: RunConfig) -> RunResult:
     methods = list(config.methods) if config.methods else None
     for name in methods or []:
         get_method(name)  # unknown names fail before any work
+    if config.rerank is not None and get_method(config.rerank).name not in GEOMETRIC_METHODS:
+        raise ValueError(
+            f"rerank needs a geometric verification method ({', '.join(GEOMETRIC_METHODS)}), got {config.rerank!r}"
+        )
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     seconds: dict[str, float] = {}
@@ -230,8 +238,25 @@ def run(config: RunConfig) -> RunResult:
     evaluation = evaluate(retrieval, methods, k=config.k, alpha=config.alpha, **options)
     seconds["uncertainty_and_evaluation"] = time.perf_counter() - start
 
+    reranking = None
+    if config.rerank:
+        from vpr_uncertainty.geometric import rerank
+
+        start = time.perf_counter()
+        result = rerank(
+            retrieval,
+            config.rerank,
+            top_k=config.k,
+            query_paths=options["query_paths"],
+            database_paths=options["database_paths"],
+            cache_dir=out,
+            device=config.device,
+        )
+        reranking = {"method": config.rerank, "top_k": config.k, **result.recall}
+        seconds["reranking"] = time.perf_counter() - start
+
     start = time.perf_counter()
-    paths = _write_outputs(out, evaluation, config, dataset.summary(), seconds)
+    paths = _write_outputs(out, evaluation, config, dataset.summary(), seconds, reranking)
     seconds["reports"] = time.perf_counter() - start
     _rewrite_seconds(paths["results"], seconds)
     paths.update(descriptors=descriptors_path, retrieval=retrieval_path)
@@ -239,7 +264,12 @@ def run(config: RunConfig) -> RunResult:
 
 
 def _write_outputs(
-    out: Path, evaluation: Evaluation, config: RunConfig, dataset_summary: dict[str, Any], seconds: dict[str, float]
+    out: Path,
+    evaluation: Evaluation,
+    config: RunConfig,
+    dataset_summary: dict[str, Any],
+    seconds: dict[str, float],
+    reranking: dict[str, Any] | None = None,
 ) -> dict[str, Path]:
     uncertainties = out / "uncertainties.npz"
     np.savez_compressed(
@@ -253,15 +283,27 @@ def _write_outputs(
         "config": config.to_dict(),
         "dataset": dataset_summary,
         "stage_seconds": seconds,
+        **({"reranking": reranking} if reranking else {}),
     }
     results.write_text(json.dumps(content, indent=2, default=str) + "\n")
     table = out / "results.md"
     title = f"# {dataset_summary.get('name', config.dataset)} with {config.model}\n"
-    table.write_text(title + "\n" + format_table(evaluation, markdown=True) + "\n")
+    text = title + "\n" + format_table(evaluation, markdown=True) + "\n"
+    if reranking:
+        text += "\n" + format_reranking(reranking) + "\n"
+    table.write_text(text)
     plot = plot_rejection_curves(
         evaluation, out / "pr_curves.png", title=f"{dataset_summary.get('name')} · {config.model}"
     )
     return {"uncertainties": uncertainties, "results": results, "table": table, "plot": plot}
+
+
+def format_reranking(reranking: dict[str, Any]) -> str:
+    """recall@N of the global retrieval and after re-ranking its top-k by inliers, in one line."""
+    pairs = ", ".join(
+        f"R@{n} {reranking['global'][n]:.3f} → {reranking['reranked'][n]:.3f}" for n in reranking["reranked"]
+    )
+    return f"re-ranking the top {reranking['top_k']} by {reranking['method']} inliers: {pairs}"
 
 
 def _rewrite_seconds(results: Path, seconds: dict[str, float]) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -67,6 +68,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--half", action="store_true", help="store descriptors as float16")
     parser.add_argument("--on-error", choices=("fail", "skip"), default="fail", help="images that fail to decode")
     parser.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: head written by train-btl")
+    parser.add_argument(
+        "--rerank",
+        metavar="GV-METHOD",
+        help="re-rank the top k by the inliers of a geometric verification method (e.g. GV-SIFT) and report "
+        "the re-ranked recall@N beside the global one",
+    )
     add_common_run_options(parser)
     parser.set_defaults(handler=_handle)
 
@@ -78,6 +85,11 @@ def print_summary(result: RunResult) -> None:
     print(format_table(result.evaluation))
     stages = ", ".join(f"{stage} {seconds:.1f} s" for stage, seconds in result.stage_seconds.items())
     print(f"time per stage: {stages}")
+    reranking = json.loads(result.paths["results"].read_text()).get("reranking")
+    if reranking:
+        from vpr_uncertainty.pipeline import format_reranking
+
+        print(format_reranking(reranking))
     print(f"report: {result.paths['table']}  plot: {result.paths['plot']}  json: {result.paths['results']}")
 
 
@@ -102,6 +114,7 @@ def _handle(args: argparse.Namespace) -> int:
         split=args.split,
         radius=args.radius,
         method_options={} if args.btl_head is None else {"btl_head": args.btl_head},
+        rerank=args.rerank,
     )
     print_summary(run(config))
     return 0
