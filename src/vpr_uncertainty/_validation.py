@@ -16,6 +16,7 @@ __all__ = [
     "check_best_scores",
     "check_block",
     "check_k",
+    "check_rows",
     "check_top_k_scores",
 ]
 
@@ -72,12 +73,20 @@ def _raise_for_nan(block: np.ndarray, name: str, offset: int) -> None:
         raise ValueError(f"{name} contains NaN (first in row {row}); expected finite similarities")
 
 
-def check_block(block: np.ndarray, *, name: str = "scores", offset: int = 0, check_first_column: bool = True) -> None:
+def check_block(
+    block: np.ndarray,
+    *,
+    name: str = "scores",
+    offset: int = 0,
+    check_first_column: bool = True,
+    buffer: np.ndarray | None = None,
+) -> None:
     """Check the values of rows ``offset ...`` of top-k scores: descending order, no NaN, no +inf.
 
     ``block`` must come from :func:`as_score_array`. ``-inf`` (a missing candidate) is allowed after the finite
     values of a row. With ``check_first_column=False`` the caller checks the first column for +inf itself
-    (with :func:`check_best_scores`), which is faster on a contiguous copy of it.
+    (with :func:`check_best_scores`), which is faster on a contiguous copy of it. ``buffer``, a boolean array of
+    at least ``block.size`` elements, is reused for the comparison instead of allocating one per block.
     """
     n_rows, n_columns = block.shape
     if n_rows == 0:
@@ -86,7 +95,10 @@ def check_block(block: np.ndarray, *, name: str = "scores", offset: int = 0, che
         # One contiguous comparison over the flattened block checks the order of every row; comparisons across
         # row boundaries are masked. NaN fails every comparison, so it is caught here too.
         flat = block.ravel()
-        in_order = flat[1:] <= flat[:-1]
+        if buffer is None:
+            in_order = flat[1:] <= flat[:-1]
+        else:
+            in_order = np.less_equal(flat[1:], flat[:-1], out=buffer[: flat.size - 1])
         across_rows = in_order[n_columns - 1 :: n_columns]
         if np.count_nonzero(in_order) - np.count_nonzero(across_rows) != in_order.size - across_rows.size:
             _raise_for_nan(block, name, offset)
@@ -136,6 +148,14 @@ def check_top_k_scores(scores: object, *, name: str = "scores", sort: bool = Fal
         For a wrong number of dimensions, no columns, NaN or +inf, or rows that are not sorted.
     """
     array = as_score_array(scores, name=name, sort=sort)
-    for start in range(0, array.shape[0], BLOCK_ROWS):
-        check_block(array[start : start + BLOCK_ROWS], name=name, offset=start)
+    check_rows(array, name=name)
     return array
+
+
+def check_rows(array: np.ndarray, *, name: str = "scores", check_first_column: bool = True) -> None:
+    """:func:`check_block` over every block of rows of ``array`` (from :func:`as_score_array`), one buffer reused."""
+    rows = min(BLOCK_ROWS, array.shape[0])
+    buffer = np.empty(rows * array.shape[1], dtype=bool) if rows else None
+    for start in range(0, array.shape[0], BLOCK_ROWS):
+        block = array[start : start + BLOCK_ROWS]
+        check_block(block, name=name, offset=start, check_first_column=check_first_column, buffer=buffer)

@@ -43,12 +43,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from vpr_uncertainty._validation import (
-    BLOCK_ROWS,
     as_score_array,
     check_alpha,
     check_best_scores,
-    check_block,
     check_k,
+    check_rows,
     check_top_k_scores,
 )
 
@@ -121,31 +120,35 @@ def _ratio_metric(
 ) -> np.ndarray:
     """(rs_weight·RS + sd_weight·SD) for every row, computed as one weighted sum divided by s_1.
 
-    One pass checks the order of every row (block by block, in cache). One matrix product with three weight
-    columns then gives, for every row, the weighted sum, s_1 (weights e_1) and the plain sum of the candidates.
-    That sum is finite unless the row holds ±inf (NaN was excluded by the order check), so it flags, without
-    another pass, the rows with missing candidates (-inf), +inf or overflow, which are redone one by one.
+    One pass checks the order of every row (block by block, in cache). One matrix product then gives, for every
+    row, the weighted sum and s_1 (weights e_1). These are finite unless the row holds ±inf (NaN was excluded
+    by the order check) or overflows, so they flag, without another pass, the rows with missing candidates
+    (-inf), +inf or overflow, which are redone one by one.
     """
     k = check_k(k)
     _check_policy(on_nonpositive)
     scores = as_score_array(scores, sort=sort)
     n_queries = scores.shape[0]
-    for start in range(0, n_queries, BLOCK_ROWS):
-        check_block(scores[start : start + BLOCK_ROWS], offset=start, check_first_column=False)
+    check_rows(scores, check_first_column=False)
     if n_queries == 0:
         return np.empty(0, dtype=scores.dtype)
     n = min(k, scores.shape[1])
     if n < 2:
         _raise_for_short_rows(np.full(n_queries, n))
     top = scores[:, :n]
-    weights = np.zeros((3, n), dtype=scores.dtype)
+    # With rs_weight > 0 every column after the first has a positive weight, so ±inf anywhere already makes the
+    # weighted sum or s_1 non-finite; pure SD weighs only the middle columns and needs the plain sum as a flag.
+    flag_row = rs_weight == 0
+    weights = np.zeros((3 if flag_row else 2, n), dtype=scores.dtype)
     weights[0] = _combination_weights(n, rs_weight, sd_weight, scores.dtype)
     weights[1, 0] = 1
-    weights[2] = 1
+    if flag_row:
+        weights[2] = 1
     with np.errstate(invalid="ignore", over="ignore"):  # ±inf rows are redone below
-        sums = weights @ top.T  # (3, Q): each result is a contiguous row
+        sums = weights @ top.T  # each result is a contiguous row
     numerator, best = sums[0], sums[1]
-    unusual = np.flatnonzero(~np.isfinite(sums[2]))
+    finite = np.isfinite(sums[2]) if flag_row else np.isfinite(numerator) & np.isfinite(best)
+    unusual = np.flatnonzero(~finite)
     if unusual.size:
         numerator, best = numerator.copy(), top[:, 0].copy()
         check_best_scores(best)
