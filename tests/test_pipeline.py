@@ -139,3 +139,11 @@ def test_rerank_reports_recall_before_and_after(demo_run, corridor_dir, capsys):
     assert "re-ranking the top 10 by GV-SIFT inliers: R@1" in capsys.readouterr().out
     assert main(["run", "--dataset", str(corridor_dir), "--out", str(demo_run), "--rerank", "SU"]) == 2
     assert "rerank needs a geometric verification method" in capsys.readouterr().err
+
+
+def test_method_needing_positions_fails_before_extraction(tmp_path, corridor_dir, capsys, monkeypatch):
+    import vpr_uncertainty.features as features
+
+    monkeypatch.setattr(features, "extract_descriptors", lambda *a, **k: pytest.fail("extraction started"))
+    assert main(["run", "--dataset", str(corridor_dir), "--out", str(tmp_path / "run"), "--methods", "SU,SUE"]) == 2
+    assert "'SUE' needs database_positions, which dataset 'corridor' lacks" in capsys.readouterr().err

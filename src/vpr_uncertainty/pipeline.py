@@ -153,6 +153,13 @@ def run(config: RunConfig) -> RunResult:
     dataset = load_dataset(config.dataset, root=config.root, split=config.split, radius=config.radius)
     if not dataset.has_images:
         raise ValueError(f"dataset {dataset.name!r} has no image paths; `run` needs images to extract descriptors")
+    fields = dataset.retrieval_fields()
+    for name in methods or []:
+        missing = [need for need in get_method(name).requires if fields.get(need) is None]
+        if missing:  # checked before extraction, the slow part
+            raise ValueError(
+                f"uncertainty method {name!r} needs {', '.join(missing)}, which dataset {dataset.name!r} lacks"
+            )
     seconds["dataset"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -181,7 +188,6 @@ def run(config: RunConfig) -> RunResult:
     query_names, queries = extracted["queries"]
     kept_database = _subset(dataset.database_names, database_names)
     kept_queries = _subset(dataset.query_names, query_names)
-    fields = dataset.retrieval_fields()
     positives = fields["positives"][kept_queries][:, kept_database]
     positions = {
         name: None if fields[name] is None else np.asarray(fields[name])[kept]
