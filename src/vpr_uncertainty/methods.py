@@ -7,24 +7,62 @@ Every registered method is called the same way, on a :class:`~vpr_uncertainty.re
 Options a method does not use are ignored, so one set of options can be passed to all methods. A method that
 needs heavy dependencies is registered by the dotted path of its function (``"package.module:function"``) and
 imported only when first called.
+
+Method specs
+------------
+A name can carry the method's own options: ``"SUE:clip=one-sided,slope=300"`` (:func:`parse_method_spec`).
+Values are typed like the option's default, unknown option names are errors that list the valid ones, and
+:func:`get_method` returns an entry named by the spec, whose options override those passed at call time, so two
+variants of one method are evaluated (and shown) side by side.
+
+Needs
+-----
+``requires`` names what a method cannot run without: a retrieval field or an option, or one of the groups of
+:data:`NEEDS` (``"images"``, ``"btl_head"``, ``"descriptors"``, ``"local_features"``, ``"database_positions"``).
+:meth:`UncertaintyMethod.unmet_needs` says which are missing before any work.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import inspect
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty import scores as _scores
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["OwnRetrievalUncertainty", "UncertaintyMethod", "available_methods", "get_method", "register_method"]
+__all__ = [
+    "GEOMETRIC_METHODS",
+    "NEEDS",
+    "SCORE_ONLY_METHODS",
+    "OwnRetrievalUncertainty",
+    "UncertaintyMethod",
+    "available_methods",
+    "describe_needs",
+    "get_method",
+    "parse_method_spec",
+    "register_method",
+    "split_method_list",
+]
 
 MethodFunction = Callable[..., "np.ndarray | OwnRetrievalUncertainty"]
+
+#: Named needs: the retrieval fields or options that satisfy each (all of them), and how to say it.
+NEEDS: dict[str, tuple[tuple[str, ...], str]] = {
+    "database_positions": (("database_positions",), "database_positions"),
+    "images": (("query_paths", "database_paths"), "the query and database image files (query_paths, database_paths)"),
+    "btl_head": (("btl_head",), "a trained BTL head (option btl_head=HEAD.pt, written by train-btl)"),
+    "descriptors": (
+        ("query_descriptors", "database_descriptors"),
+        "the frozen descriptors of queries and database (query_descriptors, database_descriptors)",
+    ),
+    "local_features": (("features_path",), "precomputed local features (option features_path=FILE.h5)"),
+}
 
 
 @dataclass
@@ -46,22 +84,44 @@ class OwnRetrievalUncertainty:
     retrieval: Retrieval
 
 
+def _load(target: Callable | str, what: str, extra: str | None) -> Callable:
+    if callable(target):
+        return target
+    module_name, _, attribute = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as error:
+        hint = f"; install it with: pip install 'vpr-uncertainty[{extra}]'" if extra else ""
+        raise ImportError(f"{what} needs a missing dependency ({error.name}){hint}") from error
+    return getattr(module, attribute)
+
+
 @dataclass
 class UncertaintyMethod:
-    """One registered uncertainty method.
+    """One registered uncertainty method, or a variant of one with its own options (a method spec).
 
     Attributes
     ----------
     name : str
-        The name users type.
+        The name users type (for a variant, the spec, e.g. ``"SUE:clip=one-sided"``).
     description : str
         One line for tables and ``--help``.
     target : callable or str
         ``function(retrieval, **options) -> ndarray (Q,)`` or its dotted path ``"module:function"``.
     requires : tuple of str
-        Retrieval fields that must be present (e.g. ``("database_positions",)``).
+        What the method cannot run without: retrieval fields or options (e.g. ``("database_positions",)``), or
+        names of :data:`NEEDS` (e.g. ``"images"``).
     extra : str or None
         The pip extra that provides its dependencies, named in the error when they are missing.
+    options : dict or None
+        The options a spec may set, with their defaults (whose types type the values); None: the keyword
+        parameters of the function.
+    validate : callable or str or None
+        ``validate(**options)`` raises ValueError for a bad value (or its dotted path).
+    bound : dict
+        Options of this variant; they override the options given at call time.
+    base : str or None
+        The registered name of a variant (None for a registered entry).
     """
 
     name: str
@@ -69,23 +129,16 @@ class UncertaintyMethod:
     target: MethodFunction | str
     requires: tuple[str, ...] = ()
     extra: str | None = None
+    options: dict[str, Any] | None = None
+    validate: Callable[..., None] | str | None = None
+    bound: dict[str, Any] = field(default_factory=dict)
+    base: str | None = None
     _function: MethodFunction | None = field(default=None, init=False, repr=False)
 
     @property
     def function(self) -> MethodFunction:
         if self._function is None:
-            if callable(self.target):
-                self._function = self.target
-            else:
-                module_name, _, attribute = self.target.partition(":")
-                try:
-                    module = importlib.import_module(module_name)
-                except ImportError as error:
-                    hint = f"; install it with: pip install 'vpr-uncertainty[{self.extra}]'" if self.extra else ""
-                    raise ImportError(
-                        f"uncertainty method {self.name!r} needs a missing dependency ({error.name}){hint}"
-                    ) from error
-                self._function = getattr(module, attribute)
+            self._function = _load(self.target, f"uncertainty method {self.name!r}", self.extra)
         return self._function
 
     def accepted_options(self) -> set[str] | None:
@@ -95,10 +148,37 @@ class UncertaintyMethod:
             return None
         return {parameter.name for parameter in parameters if parameter.kind is not inspect.Parameter.POSITIONAL_ONLY}
 
+    def option_defaults(self) -> dict[str, Any]:
+        """The options a spec may set, with their defaults (declared, else the function's keyword parameters)."""
+        if self.options is not None:
+            return dict(self.options)
+        parameters = inspect.signature(self.function).parameters.values()
+        return {
+            p.name: p.default
+            for p in parameters
+            if p.kind is inspect.Parameter.KEYWORD_ONLY
+            or (p.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD and p.default is not inspect.Parameter.empty)
+        }
+
+    def unmet_needs(self, available: Collection[str]) -> list[str]:
+        """The entries of ``requires`` not met by ``available`` (names of retrieval fields and options present).
+
+        Examples
+        --------
+        >>> get_method("GV-SIFT").unmet_needs({"scores", "indices"})
+        ['images']
+        >>> describe_needs(["images"])
+        'the query and database image files (query_paths, database_paths)'
+        """
+        given = set(available) | {key for key, value in self.bound.items() if value is not None}
+        return [need for need in self.requires if not all(key in given for key in NEEDS.get(need, ((need,), ""))[0])]
+
     def __call__(self, retrieval: Retrieval, **options: Any) -> np.ndarray | OwnRetrievalUncertainty:
-        missing = [name for name in self.requires if getattr(retrieval, name, None) is None]
+        options = {**options, **self.bound}
+        present = [name for name in vars(retrieval) if getattr(retrieval, name) is not None]
+        missing = self.unmet_needs([*present, *(key for key, value in options.items() if value is not None)])
         if missing:
-            raise ValueError(f"uncertainty method {self.name!r} needs {', '.join(missing)} in the retrieval")
+            raise ValueError(f"uncertainty method {self.name!r} needs {describe_needs(missing)}")
         accepted = self.accepted_options()
         if accepted is not None:
             options = {key: value for key, value in options.items() if key in accepted}
@@ -116,6 +196,11 @@ class UncertaintyMethod:
         return result
 
 
+def describe_needs(needs: Collection[str]) -> str:
+    """Say what the named needs (entries of ``UncertaintyMethod.requires``) are, in words, joined by "; "."""
+    return "; ".join(NEEDS[need][1] if need in NEEDS else need for need in needs)
+
+
 _REGISTRY: dict[str, UncertaintyMethod] = {}
 
 
@@ -126,6 +211,8 @@ def register_method(
     description: str,
     requires: tuple[str, ...] = (),
     extra: str | None = None,
+    options: Mapping[str, Any] | None = None,
+    validate: Callable[..., None] | str | None = None,
     overwrite: bool = False,
 ) -> UncertaintyMethod:
     """Add a method to the registry and return its entry.
@@ -133,27 +220,40 @@ def register_method(
     Parameters
     ----------
     name : str
-        The name users type; must be new unless ``overwrite=True``.
+        The name users type; must be new unless ``overwrite=True``, and hold no ``:``, ``,`` or ``=``.
     target : callable or str
         ``function(retrieval, **options) -> ndarray (Q,)``, higher = less trustworthy, or its dotted path.
     description : str
         One line for tables and ``--help``.
     requires : tuple of str
-        Retrieval fields the method needs.
+        What the method needs: retrieval fields, options or names of :data:`NEEDS`.
     extra : str, optional
         The pip extra that provides its dependencies.
+    options : mapping, optional
+        The options a method spec may set, with their defaults (default: the function's keyword parameters).
+    validate : callable or str, optional
+        ``validate(**options)`` that raises ValueError for a bad option value, or its dotted path.
     overwrite : bool
         Replace an existing entry of that name.
     """
     if name in _REGISTRY and not overwrite:
         raise ValueError(f"an uncertainty method named {name!r} is already registered")
-    entry = UncertaintyMethod(name=name, description=description, target=target, requires=requires, extra=extra)
+    if not name or any(character in name for character in ":,="):
+        raise ValueError(f"a method name must be non-empty and hold no ':', ',' or '=', got {name!r}")
+    entry = UncertaintyMethod(
+        name=name,
+        description=description,
+        target=target,
+        requires=tuple(requires),
+        extra=extra,
+        options=None if options is None else dict(options),
+        validate=validate,
+    )
     _REGISTRY[name] = entry
     return entry
 
 
-def get_method(name: str) -> UncertaintyMethod:
-    """The registered method called ``name`` (case-sensitive, as in ``SU`` or ``GV-SIFT``)."""
+def _registered(name: str) -> UncertaintyMethod:
     try:
         return _REGISTRY[name]
     except KeyError:
@@ -164,81 +264,113 @@ def get_method(name: str) -> UncertaintyMethod:
         ) from None
 
 
+_TRUE, _FALSE = {"true", "yes", "1", "on"}, {"false", "no", "0", "off"}
+
+
+def _typed(text: str, default: Any, where: str) -> Any:
+    """``text`` converted to the type of ``default`` (str when the default is None or a string)."""
+    try:
+        if isinstance(default, bool):
+            if text.lower() not in _TRUE | _FALSE:
+                raise ValueError
+            return text.lower() in _TRUE
+        if isinstance(default, int):
+            return int(text)
+        if isinstance(default, float):
+            value = float(text)
+            if not math.isfinite(value):
+                raise ValueError
+            return value
+    except ValueError:
+        kind = {bool: "true or false", int: "an integer", float: "a finite number"}[type(default)]
+        raise ValueError(f"{where} must be {kind}, got {text!r}") from None
+    return text
+
+
+def parse_method_spec(spec: str) -> tuple[str, dict[str, Any]]:
+    """Split a method spec ``"NAME[:option=value[,option=value...]]"`` into the registered name and its options.
+
+    Values are typed like the option's default and checked by the method; an unknown name or option is an
+    error that lists the valid ones.
+
+    Examples
+    --------
+    >>> parse_method_spec("SUE:clip=one-sided,slope=300")
+    ('SUE', {'clip': 'one-sided', 'slope': 300.0})
+    >>> parse_method_spec("SU")
+    ('SU', {})
+    """
+    if not isinstance(spec, str):
+        raise TypeError(f"a method spec must be a string, got {spec!r}")
+    name, colon, rest = (part.strip() for part in spec.partition(":"))
+    entry = _registered(name)
+    if not colon:
+        return name, {}
+    defaults = entry.option_defaults()
+    options: dict[str, Any] = {}
+    for item in rest.split(","):
+        key, equals, value = (part.strip() for part in item.partition("="))
+        if not key or not equals or not value:
+            raise ValueError(f"method spec {spec!r}: expected option=value after {name}:, got {item.strip()!r}")
+        if key not in defaults:
+            valid = ", ".join(sorted(defaults)) or "none"
+            raise ValueError(f"method spec {spec!r}: {name} has no option {key!r} (its options: {valid})")
+        if key in options:
+            raise ValueError(f"method spec {spec!r}: option {key!r} is given twice")
+        options[key] = _typed(value, defaults[key], f"method spec {spec!r}: option {key!r}")
+    if entry.validate is not None:
+        try:
+            _load(entry.validate, f"uncertainty method {name!r}", entry.extra)(**options)
+        except (ValueError, TypeError) as error:
+            raise ValueError(f"method spec {spec!r}: {error}") from None
+    return name, options
+
+
+def split_method_list(text: str) -> list[str]:
+    """Split a comma-separated list of method specs; ``option=value`` items belong to the spec before them.
+
+    Examples
+    --------
+    >>> split_method_list("SU, SUE:clip=one-sided,slope=300, BM")
+    ['SU', 'SUE:clip=one-sided,slope=300', 'BM']
+    """
+    specs: list[str] = []
+    for item in (part.strip() for part in text.split(",")):
+        if not item:
+            continue
+        if "=" in item and ":" not in item.split("=", 1)[0]:
+            if not specs or ":" not in specs[-1]:
+                raise ValueError(f"option {item!r} follows no method spec (write NAME:{item})")
+            specs[-1] += f",{item}"
+        else:
+            specs.append(item)
+    return specs
+
+
+def get_method(name: str) -> UncertaintyMethod:
+    """The registered method called ``name`` (case-sensitive, as in ``SU`` or ``GV-SIFT``), or a method spec.
+
+    A spec such as ``"SUE:clip=one-sided"`` (see :func:`parse_method_spec`) gives the variant of the registered
+    entry with those options bound, named by the spec (its options separated by ``,``, without spaces).
+    """
+    if isinstance(name, str) and ":" not in name:
+        return _registered(name.strip() if name.strip() in _REGISTRY else name)
+    base, options = parse_method_spec(name)
+    entry = _REGISTRY[base]
+    if not options:
+        return entry
+    text = ",".join(f"{key}={value}" for key, value in _spec_items(name))
+    return dataclasses.replace(entry, name=f"{base}:{text}", bound={**entry.bound, **options}, base=base)
+
+
+def _spec_items(spec: str) -> list[tuple[str, str]]:
+    return [tuple(part.strip() for part in item.split("=", 1)) for item in spec.partition(":")[2].split(",")]
+
+
 def available_methods() -> list[str]:
     """Names of all registered methods, in registration order."""
     return list(_REGISTRY)
 
 
-# --- score-only methods ------------------------------------------------------------------------------------
-
-
-def _ratio_spread(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
-    return _scores.ratio_spread(retrieval.scores, k)
-
-
-def _similarity_distribution(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
-    return _scores.similarity_distribution(retrieval.scores, k)
-
-
-def _statistical_uncertainty(retrieval: Retrieval, *, k: int = 10, alpha: float = 0.5) -> np.ndarray:
-    return _scores.statistical_uncertainty(retrieval.scores, k, alpha)
-
-
-def _best_match(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
-    return _scores.best_match(retrieval.scores, k)
-
-
-def _l2_distance(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
-    return _scores.l2_distance(retrieval.scores, k, distances=retrieval.distances)
-
-
-def _perceptual_aliasing(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
-    return _scores.perceptual_aliasing(retrieval.scores, k, distances=retrieval.distances)
-
-
-def _margin(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
-    return _scores.margin(retrieval.scores, k)
-
-
-register_method("RS", _ratio_spread, description="Ratio Spread: mean s_i/s_1 of the runners-up")
-register_method("SD", _similarity_distribution, description="Similarity Distribution: median/s_1")
-register_method("SU", _statistical_uncertainty, description="Statistical Uncertainty: α·RS + (1−α)·SD")
-register_method("BM", _best_match, description="Best match: −s_1")
-register_method("L2", _l2_distance, description="Top-1 L2 descriptor distance d_1")
-register_method("PA", _perceptual_aliasing, description="Perceptual aliasing: d_1/d_2")
-register_method("margin", _margin, description="Negated margin s_2 − s_1")
-
-SCORE_ONLY_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "BM", "L2", "PA", "margin")
-
-register_method(
-    "SUE",
-    "vpr_uncertainty.spatial:sue_from_retrieval",
-    description="Spatial uncertainty: weighted spread of the top-k database positions (Zaffar et al. 2024)",
-    requires=("database_positions",),
-)
-
-# --- geometric verification: −(RANSAC inliers between each query and its top-1); needs the image files ----------
-
-_GV = "vpr_uncertainty.geometric.verify:"
-register_method(
-    "GV-SIFT", _GV + "gv_sift", description="−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++", extra="opencv"
-)
-register_method("GV-DISK-LG", _GV + "gv_disk_lightglue", description="−RANSAC inliers: DISK + LightGlue", extra="gv")
-register_method("GV-XFEAT", _GV + "gv_xfeat", description="−RANSAC inliers: XFeat + LighterGlue", extra="gv")
-register_method(
-    "GV-SP-SG", _GV + "gv_superpoint_superglue", description="−RANSAC inliers: SuperPoint + SuperGlue", extra="gv"
-)
-register_method(
-    "GV-SP-LG", _GV + "gv_superpoint_lightglue", description="−RANSAC inliers: SuperPoint + LightGlue", extra="gv"
-)
-register_method(
-    "GV-H5", _GV + "gv_h5", description="−RANSAC inliers from precomputed local features (hloc HDF5)", extra="opencv"
-)
-GEOMETRIC_METHODS: tuple[str, ...] = ("GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG", "GV-H5")
-
-register_method(
-    "BTL",
-    "vpr_uncertainty.learned.method:btl_uncertainty",
-    description="Bayesian triplet loss: query variance of a trained head, with its own retrieval (Warburg et al. 2021)",
-    extra="torch",
-)
+# The built-in methods register themselves on import.
+from vpr_uncertainty.builtin_methods import GEOMETRIC_METHODS, SCORE_ONLY_METHODS  # noqa: E402

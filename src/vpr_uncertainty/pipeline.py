@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation, evaluate
-from vpr_uncertainty.methods import GEOMETRIC_METHODS, SCORE_ONLY_METHODS, get_method
+from vpr_uncertainty.methods import GEOMETRIC_METHODS, SCORE_ONLY_METHODS, describe_needs, get_method
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
 from vpr_uncertainty.retrieval import Retrieval, load_retrieval, save_retrieval
 
@@ -35,6 +35,15 @@ __all__ = ["RunConfig", "RunResult", "default_methods", "format_reranking", "run
 
 #: Candidates kept per query: enough for k = 10 and recall@20.
 RETRIEVAL_K = 20
+#: Options the pipeline gives every uncertainty method (images, descriptors, a cache folder, the device).
+PIPELINE_OPTIONS: tuple[str, ...] = (
+    "query_paths",
+    "database_paths",
+    "query_descriptors",
+    "database_descriptors",
+    "cache_dir",
+    "device",
+)
 
 
 @dataclass
@@ -154,12 +163,15 @@ def run(config: RunConfig) -> RunResult:
     if not dataset.has_images:
         raise ValueError(f"dataset {dataset.name!r} has no image paths; `run` needs images to extract descriptors")
     fields = dataset.retrieval_fields()
-    for name in methods or []:
-        missing = [need for need in get_method(name).requires if fields.get(need) is None]
-        if missing:  # checked before extraction, the slow part
-            raise ValueError(
-                f"uncertainty method {name!r} needs {', '.join(missing)}, which dataset {dataset.name!r} lacks"
-            )
+    available = {key for key, value in {**fields, **config.method_options}.items() if value is not None}
+    available |= set(PIPELINE_OPTIONS)
+    unmet = [
+        f"uncertainty method {name!r} needs {describe_needs(need)}, which dataset {dataset.name!r} lacks"
+        for name in methods or []
+        if (need := get_method(name).unmet_needs(available))
+    ]
+    if unmet:  # every unmet need at once, before extraction (the slow part)
+        raise ValueError("; ".join(unmet))
     seconds["dataset"] = time.perf_counter() - start
 
     start = time.perf_counter()

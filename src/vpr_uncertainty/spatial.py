@@ -44,7 +44,14 @@ import numpy as np
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["CLIP_MODES", "DEFAULT_SLOPE", "MAX_DEVIATION", "spatial_uncertainty", "sue_from_retrieval"]
+__all__ = [
+    "CLIP_MODES",
+    "DEFAULT_SLOPE",
+    "MAX_DEVIATION",
+    "check_sue_options",
+    "spatial_uncertainty",
+    "sue_from_retrieval",
+]
 
 #: Slope of the weights exp(−slope · d²) in the published implementation.
 DEFAULT_SLOPE = 350.0
@@ -61,6 +68,23 @@ def _real(value: object, name: str, *, positive: bool = False) -> float:
         bound = "> 0" if positive else ">= 0"
         raise ValueError(f"{name} must be a finite number {bound}, got {value}")
     return value
+
+
+def check_sue_options(
+    *, k: int = 10, slope: float = DEFAULT_SLOPE, clip: str = "symmetric", max_deviation: float = MAX_DEVIATION
+) -> tuple[float, float]:
+    """Validate SUE's options (raise ValueError or TypeError naming the bad one); returns (slope, max_deviation).
+
+    Examples
+    --------
+    >>> check_sue_options(clip="one-sided", slope=300)
+    (300.0, 500.0)
+    """
+    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
+        raise ValueError(f"k must be a positive integer, got {k!r}")
+    if clip not in CLIP_MODES:
+        raise ValueError(f"clip must be one of {', '.join(CLIP_MODES)}, got {clip!r}")
+    return _real(slope, "slope"), _real(max_deviation, "max_deviation", positive=True)
 
 
 def spatial_uncertainty(
@@ -107,12 +131,7 @@ def spatial_uncertainty(
     >>> spatial_uncertainty([[0, 1], [0, 2]], [[0.1, 0.1], [0.1, 0.1]], positions, clip="none")
     array([1.25e+01, 5.00e+05])
     """
-    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
-        raise ValueError(f"k must be a positive integer, got {k!r}")
-    slope = _real(slope, "slope")
-    max_deviation = _real(max_deviation, "max_deviation", positive=True)
-    if clip not in CLIP_MODES:
-        raise ValueError(f"clip must be one of {CLIP_MODES}, got {clip!r}")
+    slope, max_deviation = check_sue_options(k=k, slope=slope, clip=clip, max_deviation=max_deviation)
     indices = np.asarray(indices)
     distances = np.asarray(distances)
     positions = np.asarray(database_positions)

@@ -9,22 +9,32 @@ from pathlib import Path
 from vpr_uncertainty.commands._arguments import candidate_count
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
 from vpr_uncertainty.inputs import INPUT_FORMATS, read_results
-from vpr_uncertainty.methods import available_methods, get_method
+from vpr_uncertainty.methods import available_methods, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
 
-__all__ = ["add_parser", "method_list"]
+__all__ = ["METHOD_SPEC_HELP", "add_parser", "method_list"]
 
 
 def method_list(text: str) -> list[str]:
-    names = [name.strip() for name in text.split(",") if name.strip()]
+    """Comma-separated method specs (``SU,SUE:clip=one-sided,slope=300``) checked against the registry."""
+    try:
+        specs = split_method_list(text)
+        names = [get_method(spec).name for spec in specs]
+    except (KeyError, ValueError, TypeError, ImportError) as error:
+        raise argparse.ArgumentTypeError(str(error.args[0]) if error.args else str(error)) from None
     if not names:
         raise argparse.ArgumentTypeError("expected a comma-separated list of method names, e.g. SU,PA,BM")
-    for name in names:
-        try:
-            get_method(name)
-        except KeyError as error:
-            raise argparse.ArgumentTypeError(str(error.args[0])) from None
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"method listed more than once: {', '.join(twice)}")
     return names
+
+
+METHOD_SPEC_HELP = (
+    "A method can carry its own options after a colon, e.g. SUE:clip=one-sided,slope=350 (the published SUE);\n"
+    "each variant is reported under its spec, so --methods SUE,SUE:clip=one-sided compares both. Options:\n"
+    "SU: k, alpha; SUE: k, slope, clip (symmetric | one-sided | none), max_deviation; RS/SD/BM/L2/PA/margin: k."
+)
 
 
 def _method_help() -> str:
@@ -45,7 +55,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "  retrieval.npz                a retrieval file (scores, indices, optionally the ground truth)\n"
             "  matrix.npy                   a full similarity matrix, queries x database, higher = more similar\n"
             "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy; read with pickle)\n\n"
-            "Uncertainty methods:\n" + _method_help()
+            "Uncertainty methods:\n" + _method_help() + "\n\n" + METHOD_SPEC_HELP
         ),
         epilog=(
             "example:\n  vpr-uncertainty evaluate \\\n"
@@ -69,7 +79,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--methods",
         type=method_list,
         default=list(DEFAULT_METHODS),
-        help=f"comma-separated uncertainty methods (default {','.join(DEFAULT_METHODS)})",
+        help=f"comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided "
+        f"(default {','.join(DEFAULT_METHODS)})",
     )
     parser.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
     parser.add_argument("--plot", type=Path, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)")

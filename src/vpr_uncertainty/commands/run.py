@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vpr_uncertainty.commands._arguments import candidate_count, positive_int
-from vpr_uncertainty.commands.evaluate import method_list
+from vpr_uncertainty.commands.evaluate import METHOD_SPEC_HELP, method_list
 
 if TYPE_CHECKING:
     from vpr_uncertainty.pipeline import RunResult
@@ -24,7 +24,8 @@ def add_common_run_options(parser: argparse.ArgumentParser, *, default_out: Path
     parser.add_argument(
         "--methods",
         type=method_list,
-        help="comma-separated uncertainty methods (default: every score-only method, plus SUE with metric positions)",
+        help="comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided "
+        "(default: every score-only method, plus SUE with metric positions)",
     )
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query for RS/SD/SU (default 10)")
     parser.add_argument("--alpha", type=float, default=0.5, help="weight of RS in SU, in [0, 1] (default 0.5)")
@@ -42,7 +43,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "Extract global descriptors of every image, retrieve the top-k database images of each query with\n"
             "Faiss, compute every requested uncertainty and evaluate it. Each stage is cached in the run directory\n"
             "(descriptors.h5, retrieval.npz), so a rerun reuses it; the run writes uncertainties.npz, results.json\n"
-            "(the schema of `evaluate --json`), results.md and pr_curves.png."
+            "(the schema of `evaluate --json`), results.md and pr_curves.png.\n\n" + METHOD_SPEC_HELP
         ),
         epilog=(
             "examples:\n"

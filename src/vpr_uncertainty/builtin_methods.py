@@ -1,0 +1,133 @@
+"""The built-in uncertainty methods, registered in :mod:`vpr_uncertainty.methods` on import.
+
+Score-only methods (RS, SD, SU, BM, L2, PA, margin) wrap :mod:`vpr_uncertainty.scores`; SUE, the geometric
+verification presets and BTL are registered by dotted path and imported when first called.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vpr_uncertainty import scores as _scores
+from vpr_uncertainty.methods import register_method
+from vpr_uncertainty.retrieval import Retrieval
+
+__all__ = ["GEOMETRIC_METHODS", "SCORE_ONLY_METHODS"]
+
+
+def _check_k_alpha(*, k: int = 10, alpha: float = 0.5) -> None:
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    if not 0.0 <= alpha <= 1.0:
+        raise ValueError(f"alpha must lie in [0, 1], got {alpha}")
+
+
+# --- score-only methods ------------------------------------------------------------------------------------
+
+
+def _ratio_spread(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
+    return _scores.ratio_spread(retrieval.scores, k)
+
+
+def _similarity_distribution(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
+    return _scores.similarity_distribution(retrieval.scores, k)
+
+
+def _statistical_uncertainty(retrieval: Retrieval, *, k: int = 10, alpha: float = 0.5) -> np.ndarray:
+    return _scores.statistical_uncertainty(retrieval.scores, k, alpha)
+
+
+def _best_match(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
+    return _scores.best_match(retrieval.scores, k)
+
+
+def _l2_distance(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
+    return _scores.l2_distance(retrieval.scores, k, distances=retrieval.distances)
+
+
+def _perceptual_aliasing(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
+    return _scores.perceptual_aliasing(retrieval.scores, k, distances=retrieval.distances)
+
+
+def _margin(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
+    return _scores.margin(retrieval.scores, k)
+
+
+_K = {"k": 10}
+_SCORE = {"options": _K, "validate": _check_k_alpha}
+register_method("RS", _ratio_spread, description="Ratio Spread: mean s_i/s_1 of the runners-up", **_SCORE)
+register_method("SD", _similarity_distribution, description="Similarity Distribution: median/s_1", **_SCORE)
+register_method(
+    "SU",
+    _statistical_uncertainty,
+    description="Statistical Uncertainty: α·RS + (1−α)·SD",
+    options={**_K, "alpha": 0.5},
+    validate=_check_k_alpha,
+)
+register_method("BM", _best_match, description="Best match: −s_1", **_SCORE)
+register_method("L2", _l2_distance, description="Top-1 L2 descriptor distance d_1", **_SCORE)
+register_method("PA", _perceptual_aliasing, description="Perceptual aliasing: d_1/d_2", **_SCORE)
+register_method("margin", _margin, description="Negated margin s_2 − s_1", **_SCORE)
+
+SCORE_ONLY_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "BM", "L2", "PA", "margin")
+
+register_method(
+    "SUE",
+    "vpr_uncertainty.spatial:sue_from_retrieval",
+    description="Spatial uncertainty: weighted spread of the top-k database positions (Zaffar et al. 2024)",
+    requires=("database_positions",),
+    options={"k": 10, "slope": 350.0, "clip": "symmetric", "max_deviation": 500.0},
+    validate="vpr_uncertainty.spatial:check_sue_options",
+)
+
+# --- geometric verification: −(RANSAC inliers between each query and its top-1); needs the image files ----------
+
+_GV = "vpr_uncertainty.geometric.verify:"
+_IMAGES = ("images",)
+register_method(
+    "GV-SIFT",
+    _GV + "gv_sift",
+    description="−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++",
+    extra="opencv",
+    requires=_IMAGES,
+)
+register_method(
+    "GV-DISK-LG",
+    _GV + "gv_disk_lightglue",
+    description="−RANSAC inliers: DISK + LightGlue",
+    extra="gv",
+    requires=_IMAGES,
+)
+register_method(
+    "GV-XFEAT", _GV + "gv_xfeat", description="−RANSAC inliers: XFeat + LighterGlue", extra="gv", requires=_IMAGES
+)
+register_method(
+    "GV-SP-SG",
+    _GV + "gv_superpoint_superglue",
+    description="−RANSAC inliers: SuperPoint + SuperGlue",
+    extra="gv",
+    requires=_IMAGES,
+)
+register_method(
+    "GV-SP-LG",
+    _GV + "gv_superpoint_lightglue",
+    description="−RANSAC inliers: SuperPoint + LightGlue",
+    extra="gv",
+    requires=_IMAGES,
+)
+register_method(
+    "GV-H5",
+    _GV + "gv_h5",
+    description="−RANSAC inliers from precomputed local features (hloc HDF5)",
+    extra="opencv",
+    requires=("local_features",),
+)
+GEOMETRIC_METHODS: tuple[str, ...] = ("GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG", "GV-H5")
+
+register_method(
+    "BTL",
+    "vpr_uncertainty.learned.method:btl_uncertainty",
+    description="Bayesian triplet loss: query variance of a trained head, with its own retrieval (Warburg et al. 2021)",
+    extra="torch",
+    requires=("btl_head", "descriptors"),
+)
