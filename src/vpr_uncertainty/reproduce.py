@@ -27,9 +27,13 @@ A grid is described by a TOML file (read with :mod:`tomllib`) or a YAML file (ne
     model = "efficientnet-lite0-gem"
     root = "~/vpr-data"                 # optional options of RunConfig: root, device, batch_size, index, split
 
-One grid cell = one (VPR method, dataset). Each cell is cached under ``out/cells``: a rerun skips the cells whose
-inputs and settings did not change (``force=True`` recomputes them). The whole configuration is validated (every
-file exists, every method is known) before any work starts.
+``methods`` may carry method options (``"SUE:clip=one-sided"``, see
+:func:`vpr_uncertainty.methods.parse_method_spec`); ``qualitative = ["NetVLAD"]`` picks the VPR methods whose cells
+get a qualitative figure (default: the first cell with images). One grid cell = one (VPR method, dataset). Each
+cell is cached under ``out/cells``: a rerun skips the cells whose inputs and settings did not change
+(``force=True`` recomputes them). The whole configuration is validated (every file exists, every method is known,
+every need of every method is met by every cell's inputs) before any work
+starts, by :mod:`vpr_uncertainty.reproduce_config`.
 """
 
 from __future__ import annotations
@@ -37,17 +41,15 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import re
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from vpr_uncertainty.evaluation import (
-    DEFAULT_METHODS,
     Evaluation,
     MethodEvaluation,
     auc_pr,
@@ -57,10 +59,20 @@ from vpr_uncertainty.evaluation import (
     rejection_curve,
 )
 from vpr_uncertainty.methods import get_method
+from vpr_uncertainty.reproduce_config import (
+    DEFAULT_ALPHAS,
+    DEFAULT_KS,
+    VPRBENCH_FILE,
+    GridConfig,
+    InputEntry,
+    _slug,
+    load_config,
+)
 
 __all__ = [
     "DEFAULT_ALPHAS",
     "DEFAULT_KS",
+    "VPRBENCH_FILE",
     "Cell",
     "GridConfig",
     "InputEntry",
@@ -69,29 +81,8 @@ __all__ = [
     "write_results",
 ]
 
-DEFAULT_ALPHAS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
-DEFAULT_KS: tuple[int, ...] = (2, 3, 5, 10, 15, 20, 30, 50)
 #: Candidates per query whose correctness is kept for the qualitative figure.
 HIT_COLUMNS = 4
-VPRBENCH_FILE = "precomputed_data_corrected.npy"
-_TOP_KEYS = {"out", "methods", "k", "alpha", "alphas", "ks", "inputs", "report", "qualitative"}
-_INPUT_KEYS = {
-    "precomputed_matches",
-    "scores",
-    "ground_truth",
-    "dataset",
-    "images",
-    "vpr_methods",
-    "vpr_method",
-    "model",
-    "root",
-    "device",
-    "batch_size",
-    "index",
-    "split",
-    "format",
-}
-_RUN_OPTIONS = ("root", "device", "batch_size", "index", "split")
 CSV_FIELDS = (
     "vpr_method",
     "dataset",
@@ -103,57 +94,6 @@ CSV_FIELDS = (
     "recall_at_100_precision",
     "n_queries",
 )
-
-
-@dataclass(frozen=True)
-class InputEntry:
-    """One grid cell's input: a results file (matrix or retrieval) or a dataset + model for ``pipeline.run``."""
-
-    vpr_method: str
-    dataset: str
-    scores: Path | None = None
-    ground_truth: Path | None = None
-    images: Path | None = None
-    model: str | None = None
-    dataset_source: str | None = None
-    file_format: str = "auto"
-    run_options: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def key(self) -> str:
-        return f"{_slug(self.vpr_method)}__{_slug(self.dataset)}"
-
-    def fingerprint(self) -> dict[str, Any]:
-        files = {}
-        for name in ("scores", "ground_truth"):
-            path = getattr(self, name)
-            if path is not None:
-                stat = path.stat()
-                files[name] = [str(path.resolve()), stat.st_size, stat.st_mtime_ns]
-        return {
-            **files,
-            "model": self.model,
-            "dataset_source": self.dataset_source,
-            "format": self.file_format,
-            "run_options": {k: str(v) for k, v in self.run_options.items()},
-        }
-
-
-@dataclass
-class GridConfig:
-    """The parsed configuration of a grid (see the module docstring)."""
-
-    out: Path
-    inputs: list[InputEntry]
-    methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
-    k: int = 10
-    alpha: float = 0.5
-    alphas: list[float] = field(default_factory=lambda: list(DEFAULT_ALPHAS))
-    ks: list[int] = field(default_factory=lambda: list(DEFAULT_KS))
-    qualitative: list[str] | None = None
-
-    def settings(self) -> dict[str, Any]:
-        return {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
 
 
 @dataclass
@@ -189,173 +129,6 @@ class Cell:
                 }
             )
         return rows
-
-
-def _slug(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
-
-
-# --- configuration ------------------------------------------------------------------------------------------------
-
-
-def _read_mapping(path: Path) -> dict[str, Any]:
-    suffix = path.suffix.lower()
-    if suffix == ".toml":
-        import tomllib
-
-        with path.open("rb") as file:
-            return tomllib.load(file)
-    if suffix in (".yaml", ".yml"):
-        try:
-            import yaml
-        except ImportError as error:
-            raise ImportError(
-                f"reading {path} needs pyyaml (pip install pyyaml), or write the config as TOML"
-            ) from error
-        data = yaml.safe_load(path.read_text())
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: the configuration must be a mapping at the top level")
-        return data
-    raise ValueError(f"unsupported configuration file {path}: expected .toml, .yaml or .yml")
-
-
-def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfig:
-    """Read and validate a grid configuration; every problem is reported at once, before any work.
-
-    Raises
-    ------
-    FileNotFoundError
-        When the config file is missing.
-    ValueError
-        Listing every problem found (missing inputs, unknown methods or keys, bad values).
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"configuration file not found: {path}")
-    data = _read_mapping(path)
-    base = path.resolve().parent
-    problems: list[str] = []
-
-    def resolve(value: Any) -> Path:
-        candidate = Path(str(value)).expanduser()
-        return candidate if candidate.is_absolute() else base / candidate
-
-    problems += [
-        f"unknown top-level key {key!r} (expected {sorted(_TOP_KEYS)})" for key in data if key not in _TOP_KEYS
-    ]
-    methods = data.get("methods", list(DEFAULT_METHODS))
-    if isinstance(methods, str):
-        methods = [m.strip() for m in methods.split(",") if m.strip()]
-    for name in methods:
-        try:
-            get_method(name)
-        except KeyError as error:
-            problems.append(str(error.args[0]))
-    k = data.get("k", 10)
-    alpha = data.get("alpha", 0.5)
-    alphas = [float(a) for a in data.get("alphas", DEFAULT_ALPHAS)]
-    ks = [int(v) for v in data.get("ks", DEFAULT_KS)]
-    if not isinstance(k, int) or k < 2:
-        problems.append(f"k must be an integer >= 2, got {k!r}")
-    if not 0.0 <= float(alpha) <= 1.0 or any(not 0.0 <= a <= 1.0 for a in alphas):
-        problems.append(f"alpha and alphas must lie in [0, 1], got {alpha!r} and {alphas}")
-    if any(v < 2 for v in ks):
-        problems.append(f"every k of the k ablation must be >= 2, got {ks}")
-
-    entries: list[InputEntry] = []
-    raw_inputs = data.get("inputs") or []
-    if not raw_inputs:
-        problems.append("no [[inputs]] given: nothing to run")
-    for number, raw in enumerate(raw_inputs, 1):
-        where = f"inputs #{number}"
-        if not isinstance(raw, dict):
-            problems.append(f"{where}: expected a table, got {raw!r}")
-            continue
-        problems += [
-            f"{where}: unknown key {key!r} (expected {sorted(_INPUT_KEYS)})" for key in raw if key not in _INPUT_KEYS
-        ]
-        ground_truth = resolve(raw["ground_truth"]) if "ground_truth" in raw else None
-        if ground_truth is not None and not ground_truth.is_file():
-            problems.append(f"{where}: ground truth not found: {ground_truth}")
-        images = resolve(raw["images"]) if "images" in raw else None
-        if images is not None and not ((images / "query").is_dir() and (images / "ref").is_dir()):
-            problems.append(f"{where}: images folder {images} must hold query/ and ref/ (a VPR-Bench dataset)")
-        file_format = raw.get("format", "auto")
-        kinds = [key for key in ("precomputed_matches", "scores", "model") if key in raw]
-        if len(kinds) != 1:
-            problems.append(f"{where}: give exactly one of precomputed_matches, scores or model (with dataset)")
-            continue
-        if "precomputed_matches" in raw:
-            folder = resolve(raw["precomputed_matches"])
-            if not folder.is_dir():
-                problems.append(f"{where}: precomputed_matches folder not found: {folder}")
-                continue
-            if ground_truth is None:
-                problems.append(f"{where}: precomputed_matches needs ground_truth")
-            dataset = str(raw.get("dataset", folder.name))
-            wanted = raw.get("vpr_methods")
-            found = sorted(p.name for p in folder.iterdir() if p.is_dir())
-            for name in wanted or found:
-                matrix = folder / name / VPRBENCH_FILE
-                if not matrix.is_file():
-                    problems.append(f"{where}: {matrix} not found")
-                    continue
-                entries.append(InputEntry(name, dataset, matrix, ground_truth, images, file_format=file_format))
-            if not (wanted or found):
-                problems.append(f"{where}: {folder} has no method subfolder")
-        elif "scores" in raw:
-            scores = resolve(raw["scores"])
-            if not scores.is_file():
-                problems.append(f"{where}: scores file not found: {scores}")
-            if scores.suffix.lower() != ".npz" and ground_truth is None:
-                problems.append(f"{where}: the similarity matrix {scores.name} needs ground_truth")
-            if "vpr_method" not in raw or "dataset" not in raw:
-                problems.append(f"{where}: scores needs vpr_method and dataset names")
-                continue
-            entries.append(
-                InputEntry(
-                    str(raw["vpr_method"]), str(raw["dataset"]), scores, ground_truth, images, file_format=file_format
-                )
-            )
-        else:
-            if "dataset" not in raw:
-                problems.append(f"{where}: model needs dataset (a path or a dataset name)")
-                continue
-            source = str(raw["dataset"])
-            candidate = resolve(source)
-            root = resolve(raw["root"]) if "root" in raw else None
-            if candidate.exists():
-                source = str(candidate)
-            elif root is None or not (root / source).exists():
-                problems.append(f"{where}: dataset {raw['dataset']!r} not found (neither a path nor under root)")
-            options = {key: raw[key] for key in _RUN_OPTIONS if key in raw}
-            if root is not None:
-                options["root"] = root
-            entries.append(
-                InputEntry(
-                    str(raw.get("vpr_method", raw["model"])),
-                    Path(source).name if Path(source).exists() else source,
-                    images=images,
-                    model=str(raw["model"]),
-                    dataset_source=source,
-                    run_options=options,
-                )
-            )
-    keys = [entry.key for entry in entries]
-    problems += [f"the cell {key} appears more than once" for key in sorted({k for k in keys if keys.count(k) > 1})]
-    if problems:
-        raise ValueError(f"{path}: {len(problems)} problem(s) in the configuration:\n  - " + "\n  - ".join(problems))
-    qualitative = data.get("qualitative")
-    return GridConfig(
-        out=Path(out) if out is not None else resolve(data.get("out", "runs/reproduce")),
-        inputs=entries,
-        methods=list(methods),
-        k=int(k),
-        alpha=float(alpha),
-        alphas=alphas,
-        ks=ks,
-        qualitative=None if qualitative is None else [str(q) for q in qualitative],
-    )
 
 
 # --- one cell -----------------------------------------------------------------------------------------------------

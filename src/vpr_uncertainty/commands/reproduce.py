@@ -9,7 +9,7 @@ __all__ = ["add_parser"]
 
 _EXAMPLE = """example config (TOML; relative paths are relative to the config file):
   out = "runs/reproduce"
-  methods = ["RS", "SD", "SU", "PA", "L2", "BM"]
+  methods = ["RS", "SD", "SU", "PA", "L2", "BM"]   # options in the name: "SUE:clip=one-sided" (needs positions)
   k = 10
 
   [[inputs]]
@@ -41,7 +41,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("config", type=Path, metavar="CONFIG", help="grid configuration (.toml, or .yaml with pyyaml)")
     parser.add_argument("--out", type=Path, help="output folder (default: `out` of the config)")
     parser.add_argument("--force", action="store_true", help="recompute every cell, ignoring the cache")
-    parser.add_argument("--check", action="store_true", help="only validate the configuration")
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="only validate the configuration: files, methods and their options, and what every method needs "
+        "from every cell (positions, images, a head), all problems listed at once",
+    )
     parser.add_argument("--no-report", action="store_true", help="write results.json/csv only (no tables, figures)")
     parser.set_defaults(handler=_run_reproduce)
 
