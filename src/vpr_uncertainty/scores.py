@@ -52,6 +52,7 @@ from vpr_uncertainty._validation import (
 )
 
 __all__ = [
+    "COSINE_TOLERANCE",
     "StatisticalUncertainty",
     "best_match",
     "l2_distance",
@@ -337,23 +338,62 @@ class StatisticalUncertainty:
         return statistical_uncertainty(scores, self._k, self._alpha, on_nonpositive=policy)
 
 
-def squared_distances_from_similarities(scores: np.ndarray) -> np.ndarray:
+#: How far outside [-1, 1] cosine similarities may lie through rounding (of normalised descriptors, of float32).
+COSINE_TOLERANCE = 1e-3
+
+
+def squared_distances_from_similarities(
+    scores: np.ndarray, *, method: str | None = None, check: bool = True
+) -> np.ndarray:
     """Squared L2 distances of L2-normalised descriptors from their cosine similarities: d² = 2 − 2s.
 
-    Values are clipped at 0 so that rounding (s slightly above 1) never gives a negative square.
+    The only place in the toolkit where this conversion is made. It holds only for cosine similarities, which
+    lie in [−1, 1]; values outside that range (by more than :data:`COSINE_TOLERANCE`, which allows for rounding)
+    mean the scores are some other similarity, and the converted distances would be meaningless (all clipped to
+    0 above 1, so constant). Values are clipped at 0 so that rounding (s slightly above 1) never gives a
+    negative square; ``-inf`` (a missing candidate) gives ``+inf``.
+
+    Parameters
+    ----------
+    scores : ndarray
+        Cosine similarities (any shape).
+    method : str, optional
+        The uncertainty method that needs the distances, named in the error.
+    check : bool, default=True
+        Check the range. Only a caller whose scores come from L2-normalised descriptors by construction (the
+        descriptor search, where an approximate index may exceed 1 slightly) passes False.
+
+    Raises
+    ------
+    ValueError
+        When a finite score lies outside [−1, 1] (beyond the tolerance), naming the method and the range found.
 
     Examples
     --------
     >>> squared_distances_from_similarities(np.array([[1.0, 0.5, -1.0]]))
     array([[0., 1., 4.]])
     """
-    return np.maximum(2 - 2 * scores, 0)
+    scores = np.asarray(scores)
+    if check and scores.size:
+        finite = scores[np.isfinite(scores)] if np.issubdtype(scores.dtype, np.floating) else scores
+        if finite.size:
+            low, high = float(finite.min()), float(finite.max())
+            if low < -1 - COSINE_TOLERANCE or high > 1 + COSINE_TOLERANCE:
+                who = f"{method} needs" if method else "converting similarities to distances needs"
+                raise ValueError(
+                    f"{who} descriptor distances: the similarities lie in [{low:g}, {high:g}], outside [-1, 1], so "
+                    "they are not cosine similarities of L2-normalised descriptors and d² = 2 − 2s does not hold; "
+                    "give the squared L2 distances (the retrieval's distances), or use a method that reads the "
+                    "similarities only (BM, RS, SD, SU)"
+                )
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.maximum(2 - 2 * scores, 0)
 
 
-def _top_distances(scores: np.ndarray, distances: object, n: int) -> np.ndarray:
+def _top_distances(scores: np.ndarray, distances: object, n: int, method: str) -> np.ndarray:
     """First ``n`` columns of the L2 distances (not squared), from ``distances`` or from the similarities."""
     if distances is None:
-        return np.sqrt(squared_distances_from_similarities(scores[:, :n]))
+        return np.sqrt(squared_distances_from_similarities(scores[:, :n], method=method))
     squared = np.asarray(distances)
     if squared.ndim != 2 or squared.shape[0] != scores.shape[0] or squared.shape[1] < n:
         raise ValueError(f"distances must have shape ({scores.shape[0]}, >= {n}) to match scores, got {squared.shape}")
@@ -412,6 +452,7 @@ def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: 
     distances : array-like of shape (Q, K), optional
         Squared L2 distances of the same candidates, ascending. Without them the similarities are taken as
         cosine similarities of L2-normalised descriptors, d² = 2 − 2s; L2 then ranks queries exactly as BM.
+        Similarities outside [−1, 1] then raise a ``ValueError`` (see :func:`squared_distances_from_similarities`).
     sort : bool, default=False
         Sort each row for the caller instead of rejecting unsorted rows.
 
@@ -428,7 +469,7 @@ def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: 
     scores = _prepare(scores, k, sort, 1)
     if distances is not None and sort:
         distances = np.sort(np.asarray(distances), axis=1)
-    return _top_distances(scores, distances, 1)[:, 0]
+    return _top_distances(scores, distances, 1, "L2")[:, 0]
 
 
 def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
@@ -443,7 +484,8 @@ def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None
     k : int, default=10
         Accepted so every method shares one signature; only the two best matches are read.
     distances : array-like of shape (Q, K), optional
-        Squared L2 distances of the same candidates, ascending; by default d² = 2 − 2s.
+        Squared L2 distances of the same candidates, ascending; by default d² = 2 − 2s, which needs cosine
+        similarities in [−1, 1] (see :func:`squared_distances_from_similarities`).
     sort : bool, default=False
         Sort each row for the caller instead of rejecting unsorted rows.
 
@@ -460,7 +502,7 @@ def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None
     scores = _prepare(scores, k, sort, 2)
     if distances is not None and sort:
         distances = np.sort(np.asarray(distances), axis=1)
-    top2 = _top_distances(scores, distances, 2)
+    top2 = _top_distances(scores, distances, 2, "PA")
     first, second = top2[:, 0], top2[:, 1]
     both_zero = second == 0
     return np.divide(first, second, out=np.ones_like(first), where=~both_zero)
