@@ -48,7 +48,9 @@ import numpy as np
 
 from vpr_uncertainty.evaluation import (
     DEFAULT_METHODS,
+    RECALL_NS,
     Evaluation,
+    FewerCandidatesWarning,
     MethodEvaluation,
     auc_pr,
     correct_at_n,
@@ -364,9 +366,14 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
 def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[Any, Evaluation | None, Any]:
     """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None)."""
     if entry.model is None:
-        from vpr_uncertainty.inputs import read_results
+        from vpr_uncertainty.inputs import MATRIX_TOP_K, read_results
 
-        retrieval = read_results(entry.scores, ground_truth=entry.ground_truth, file_format=entry.file_format)
+        retrieval = read_results(
+            entry.scores,
+            ground_truth=entry.ground_truth,
+            file_format=entry.file_format,
+            top_k=max(MATRIX_TOP_K, candidates_needed(config)),
+        )
         return retrieval, None, None
     from vpr_uncertainty.pipeline import RunConfig, run
 
@@ -379,7 +386,7 @@ def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[
             methods=config.methods,
             k=config.k,
             alpha=config.alpha,
-            retrieval_k=max([config.k, *config.ks]),
+            retrieval_k=candidates_needed(config),
             **options,
         )
     )
@@ -387,6 +394,22 @@ def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[
 
     dataset = load_dataset(entry.dataset_source, root=options.get("root"), split=options.get("split"))
     return result.retrieval, result.evaluation, dataset
+
+
+def candidates_needed(config: GridConfig) -> int:
+    """Candidates per query a cell needs: the largest k asked for (k and the k ablation) and recall@20."""
+    return max([config.k, *config.ks, max(RECALL_NS)])
+
+
+def _ablation_note(retrieval: Any, config: GridConfig) -> str | None:
+    """A note when the k ablation leaves out ks larger than the candidates the retrieval holds."""
+    left_out = [value for value in config.ks if value > retrieval.k]
+    if not left_out:
+        return None
+    return (
+        f"k ablation: k = {', '.join(map(str, left_out))} left out, the retrieval holds {retrieval.k} candidates "
+        "per query"
+    )
 
 
 def _ablations(retrieval: Any, correct: np.ndarray, config: GridConfig) -> tuple[dict, dict]:
@@ -412,7 +435,8 @@ def _hits(retrieval: Any, n: int) -> np.ndarray:
 
 
 def _cell_fingerprint(entry: InputEntry, config: GridConfig) -> str:
-    text = json.dumps({"input": entry.fingerprint(), "settings": config.settings()}, sort_keys=True, default=str)
+    settings = {**config.settings(), "candidates": candidates_needed(config)}
+    text = json.dumps({"input": entry.fingerprint(), "settings": settings}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -477,6 +501,8 @@ def _load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None
         recall_at_n={int(n): v for n, v in meta["recall_at_n"].items()},
         methods=methods,
         notes=list(meta["notes"]),
+        k=meta["evaluation"].get("k"),
+        k_requested=meta["evaluation"].get("k_requested", meta["evaluation"].get("k")),
     )
     return Cell(
         vpr_method=meta["vpr_method"],
@@ -521,13 +547,17 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         evaluation = evaluate(
             retrieval,
             config.methods,
-            k=min(config.k, retrieval.k),
+            k=config.k,
             alpha=config.alpha,
             cache_dir=out / "local_features",
             **options,
         )
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     alpha_curve, k_curve = _ablations(retrieval, correct, config)
+    left_out = _ablation_note(retrieval, config)
+    if left_out:
+        evaluation.notes.append(left_out)
+        warnings.warn(f"{entry.key}: {left_out}", FewerCandidatesWarning, stacklevel=2)
     cell = Cell(
         vpr_method=entry.vpr_method,
         dataset=entry.dataset,
