@@ -15,6 +15,11 @@ Conventions
   candidates.
 * **AURC** is the area under the risk-coverage curve: Σ over thresholds of (coverage gained) × (error rate among
   the accepted queries), with coverage in steps of tied groups; lower is better.
+* **Uninformative**: a method that gives every query the same uncertainty ranks nothing; its AUC-PR is chance
+  level. It is flagged (``informative: false``, ``distinct_values: 1``) and never reported as best.
+* **k**: ``Evaluation.k`` is the k the methods used, ``min(k asked, candidates per query)``; a shortfall gives a
+  :class:`FewerCandidatesWarning` and a note. Queries with s_1 <= 0 (ranked most uncertain by RS, SD, SU) are
+  counted in the notes.
 """
 
 from __future__ import annotations

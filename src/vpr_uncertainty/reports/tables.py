@@ -85,12 +85,12 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
                 )
             )
     compared = sum(1 for m in evaluation.methods.values() if m.informative and m.auc_pr is not None)
-    star = "* best AUC-PR" if compared >= 2 else "no best AUC-PR marked (fewer than two informative methods)"
+    star = "* best AUC-PR" if compared >= 2 else "no best AUC-PR (fewer than two informative methods)"
     lines.append(
         f"{star}. AUC-PR, AP: higher is better; AURC: lower is better; R@100%P: recall with no wrong answer accepted."
     )
     if tied:
-        lines.append("† uninformative: the same uncertainty for every query (no ranking; AUC-PR and AP at chance).")
+        lines.append("† uninformative: the same uncertainty for every query (no ranking, chance-level AUC-PR).")
     for note in evaluation.notes:
         lines.append(f"note: {note}")
     return "\n".join(lines)
