@@ -71,6 +71,7 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> dict[str, list[Path]]:
 def _retrieval(indices: list[list[int]]) -> Retrieval:
     indices = np.asarray(indices)
     scores = np.linspace(1.0, 0.5, indices.shape[1])[None].repeat(len(indices), 0).astype(np.float32)
+    scores[indices < 0] = -np.inf  # a missing candidate: index -1 and score -inf
     return Retrieval(scores=scores, indices=indices)
 
 

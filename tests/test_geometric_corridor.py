@@ -125,7 +125,8 @@ def learned_subset(corridor: SimpleNamespace, tmp_path_factory: pytest.TempPathF
     cv2.imwrite(str(blank), np.full((120, 160, 3), 127, np.uint8))
     database_paths = [*corridor.database_paths, blank]
     indices = np.concatenate([corridor.retrieval.indices[rows, :1], [[len(database_paths) - 1], [-1]]])
-    retrieval = Retrieval(scores=np.ones(indices.shape, np.float32), indices=indices)
+    scores = np.where(indices >= 0, 1, -np.inf).astype(np.float32)  # a missing candidate: index -1, score -inf
+    retrieval = Retrieval(scores=scores, indices=indices)
     query_paths = [corridor.query_paths[i] for i in rows] + [corridor.query_paths[0]] * 2
     return SimpleNamespace(
         retrieval=retrieval,

@@ -340,7 +340,7 @@ def test_retrieval_checks_database_sizes():
     with pytest.raises(ValueError, match="database sizes disagree"):
         Retrieval(
             scores=np.zeros((1, 1)),
-            indices=np.zeros((1, 1)),
+            indices=np.zeros((1, 1), dtype=np.int64),
             positives=sparse.csr_array(np.ones((1, 3), bool)),
             database_positions=np.zeros((4, 2)),
         )

@@ -18,6 +18,7 @@ __all__ = [
     "check_k",
     "check_rows",
     "check_top_k_scores",
+    "raise_for_short_rows",
 ]
 
 
@@ -159,3 +160,15 @@ def check_rows(array: np.ndarray, *, name: str = "scores", check_first_column: b
     for start in range(0, array.shape[0], BLOCK_ROWS):
         block = array[start : start + BLOCK_ROWS]
         check_block(block, name=name, offset=start, check_first_column=check_first_column, buffer=buffer)
+
+
+def raise_for_short_rows(n_candidates: np.ndarray, needed: int = 2) -> None:
+    """Raise for rows with fewer than ``needed`` finite candidates, naming the first of them."""
+    short = np.flatnonzero(n_candidates < needed)
+    if short.size:
+        shown = ", ".join(str(r) for r in short[:5]) + (", ..." if short.size > 5 else "")
+        what = "its best match" if needed == 1 else "its best match and at least one runner-up"
+        raise ValueError(
+            f"scores has {short.size} row(s) with fewer than {needed} candidates (rows {shown}); each query "
+            f"needs {what} (-inf marks a missing candidate)"
+        )

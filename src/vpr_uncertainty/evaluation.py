@@ -15,6 +15,11 @@ Conventions
   candidates.
 * **AURC** is the area under the risk-coverage curve: Σ over thresholds of (coverage gained) × (error rate among
   the accepted queries), with coverage in steps of tied groups; lower is better.
+* **Uninformative**: a method that gives every query the same uncertainty ranks nothing; its AUC-PR is chance
+  level. It is flagged (``informative: false``, ``distinct_values: 1``) and never reported as best.
+* **k**: ``Evaluation.k`` is the k the methods used, ``min(k asked, candidates per query)``; a shortfall gives a
+  :class:`FewerCandidatesWarning` and a note. Queries with s_1 <= 0 (ranked most uncertain by RS, SD, SU) are
+  counted in the notes.
 """
 
 from __future__ import annotations
@@ -30,12 +35,15 @@ import numpy as np
 from scipy import sparse
 from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
+from vpr_uncertainty._evaluation_notes import FewerCandidatesWarning, candidates_note, nonpositive_note, tied_note
 from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
     "DEFAULT_METHODS",
+    "RECALL_NS",
     "Evaluation",
+    "FewerCandidatesWarning",
     "MethodEvaluation",
     "RejectionCurve",
     "auc_pr",
@@ -52,6 +60,8 @@ __all__ = [
 
 DEFAULT_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "PA", "L2", "BM")
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
+#: The N of recall@N reported by :func:`evaluate`; the largest one sets how many candidates a retrieval needs.
+RECALL_NS: tuple[int, ...] = (1, 5, 10, 20)
 
 
 def _check_positives(indices: np.ndarray, positives: object) -> sparse.csr_array:
@@ -101,7 +111,7 @@ def correct_at_n(indices: object, positives: object, n: int = 1) -> np.ndarray:
     return (hits & (top >= 0)).any(axis=1)
 
 
-def recall_at_n(indices: object, positives: object, ns: Sequence[int] = (1, 5, 10, 20)) -> dict[int, float]:
+def recall_at_n(indices: object, positives: object, ns: Sequence[int] = RECALL_NS) -> dict[int, float]:
     """recall@N over the queries that have at least one positive; N larger than K is left out.
 
     Examples
@@ -300,8 +310,20 @@ class MethodEvaluation:
     precision_at_recall: dict[float, float | None]
     own_recall_at_1: float | None = None
 
+    @property
+    def n_distinct(self) -> int:
+        """Number of distinct uncertainty values (1: every query tied)."""
+        return int(np.unique(self.uncertainty).size)
+
+    @property
+    def informative(self) -> bool:
+        """False when every query has the same uncertainty: the ranking is arbitrary, AUC-PR and AP at chance."""
+        return self.n_distinct > 1
+
     def to_dict(self) -> dict[str, Any]:
         return {
+            "informative": self.informative,
+            "distinct_values": self.n_distinct,
             "auc_pr": self.auc_pr,
             "average_precision": self.average_precision,
             "aurc": self.aurc,
@@ -326,10 +348,17 @@ class Evaluation:
     recall_at_n: dict[int, float]
     methods: dict[str, MethodEvaluation] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    k: int | None = None
+    k_requested: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON schema of ``evaluate --json``."""
-        result: dict[str, Any] = {"n_queries": self.n_queries, "recall@1": self.recall_at_n.get(1)}
+        result: dict[str, Any] = {"n_queries": self.n_queries}
+        if self.k is not None:
+            result["k"] = self.k
+        if self.k_requested is not None and self.k_requested != self.k:
+            result["k_requested"] = self.k_requested
+        result["recall@1"] = self.recall_at_n.get(1)
         result.update({f"recall@{n}": value for n, value in self.recall_at_n.items() if n != 1})
         result["n_queries_without_positives"] = self.n_queries - self.n_answerable
         result["methods"] = {name: method.to_dict() for name, method in self.methods.items()}
@@ -357,7 +386,9 @@ def evaluate(
     methods : sequence of str
         Registered method names (see :func:`vpr_uncertainty.available_methods`).
     k, alpha : int, float
-        Options of the score-based methods (k candidates, weight α of SU).
+        Options of the score-based methods (k candidates, weight α of SU). When the retrieval holds fewer than
+        k candidates per query, the methods use those it has: a :class:`FewerCandidatesWarning` and a note say
+        so, and ``Evaluation.k`` records the k used.
     recall_levels : sequence of float
         Recall levels at which the end-to-end precision is reported.
     timing_repeats : int
@@ -384,6 +415,8 @@ def evaluate(
         n_answerable=int(answerable.sum()),
         correct=correct,
         recall_at_n=recall_at_n(retrieval.indices, positives),
+        k=min(int(k), retrieval.k),
+        k_requested=int(k),
     )
     if (~answerable).any():
         evaluation.notes.append(
@@ -394,6 +427,14 @@ def evaluate(
     if not both_classes:
         evaluation.notes.append("AUC-PR and AP are undefined: every top-1 answer is correct, or none is")
         warnings.warn(evaluation.notes[-1], RuntimeWarning, stacklevel=2)
+    names = [entry.name for entry in entries]
+    shortfall = candidates_note(k, retrieval.k, names, retrieval.config.get("source"))
+    if shortfall:
+        evaluation.notes.append(shortfall)
+        warnings.warn(shortfall, FewerCandidatesWarning, stacklevel=2)
+    nonpositive = nonpositive_note(retrieval.scores, names)
+    if nonpositive:
+        evaluation.notes.append(nonpositive)
     for entry in entries:
         result, seconds = time_per_query(
             lambda entry=entry: entry(retrieval, k=k, alpha=alpha, **options),
@@ -426,4 +467,7 @@ def evaluate(
             precision_at_recall={level: precision_at_recall(curve, level) for level in recall_levels},
             own_recall_at_1=own_recall,
         )
+    tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
+    if tied:
+        evaluation.notes.append(tied)
     return evaluation

@@ -21,7 +21,7 @@ from vpr_uncertainty.retrieval import Retrieval, load_retrieval, top_k_from_simi
 __all__ = ["INPUT_FORMATS", "load_similarity_matrix", "read_results"]
 
 INPUT_FORMATS = ("auto", "retrieval", "matrix", "vprbench")
-#: Candidates kept per query when a full matrix is read: enough for recall@20 and any k up to 50.
+#: Candidates kept per query when a full matrix is read, unless a larger k asks for more (recall@20 needs 20).
 MATRIX_TOP_K = 50
 
 
@@ -71,7 +71,8 @@ def read_results(
     file_format : {"auto", "retrieval", "matrix", "vprbench"}
         How to read ``path``; "auto" decides from the suffix and the file name.
     top_k : int
-        Candidates kept per query when a full matrix is read.
+        Candidates kept per query when a full matrix is read (all of them when the database is smaller); pass at
+        least the largest k the methods will use. A retrieval file keeps the candidates it holds.
     """
     if file_format not in INPUT_FORMATS:
         raise ValueError(f"file_format must be one of {INPUT_FORMATS}, got {file_format!r}")

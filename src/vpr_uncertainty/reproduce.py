@@ -50,7 +50,9 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.evaluation import (
+    RECALL_NS,
     Evaluation,
+    FewerCandidatesWarning,
     MethodEvaluation,
     auc_pr,
     correct_at_n,
@@ -137,9 +139,14 @@ class Cell:
 def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[Any, Evaluation | None, Any]:
     """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None)."""
     if entry.model is None:
-        from vpr_uncertainty.inputs import read_results
+        from vpr_uncertainty.inputs import MATRIX_TOP_K, read_results
 
-        retrieval = read_results(entry.scores, ground_truth=entry.ground_truth, file_format=entry.file_format)
+        retrieval = read_results(
+            entry.scores,
+            ground_truth=entry.ground_truth,
+            file_format=entry.file_format,
+            top_k=max(MATRIX_TOP_K, candidates_needed(config)),
+        )
         return retrieval, None, None
     from vpr_uncertainty.pipeline import RunConfig, run
 
@@ -152,7 +159,7 @@ def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[
             methods=config.methods,
             k=config.k,
             alpha=config.alpha,
-            retrieval_k=max([config.k, *config.ks]),
+            retrieval_k=candidates_needed(config),
             **options,
         )
     )
@@ -160,6 +167,22 @@ def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[
 
     dataset = load_dataset(entry.dataset_source, root=options.get("root"), split=options.get("split"))
     return result.retrieval, result.evaluation, dataset
+
+
+def candidates_needed(config: GridConfig) -> int:
+    """Candidates per query a cell needs: the largest k asked for (k and the k ablation) and recall@20."""
+    return max([config.k, *config.ks, max(RECALL_NS)])
+
+
+def _ablation_note(retrieval: Any, config: GridConfig) -> str | None:
+    """A note when the k ablation leaves out ks larger than the candidates the retrieval holds."""
+    left_out = [value for value in config.ks if value > retrieval.k]
+    if not left_out:
+        return None
+    return (
+        f"k ablation: k = {', '.join(map(str, left_out))} left out, the retrieval holds {retrieval.k} candidates "
+        "per query"
+    )
 
 
 def _ablations(retrieval: Any, correct: np.ndarray, config: GridConfig) -> tuple[dict, dict]:
@@ -185,7 +208,8 @@ def _hits(retrieval: Any, n: int) -> np.ndarray:
 
 
 def _cell_fingerprint(entry: InputEntry, config: GridConfig) -> str:
-    text = json.dumps({"input": entry.fingerprint(), "settings": config.settings()}, sort_keys=True, default=str)
+    settings = {**config.settings(), "candidates": candidates_needed(config)}
+    text = json.dumps({"input": entry.fingerprint(), "settings": settings}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -250,6 +274,8 @@ def _load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None
         recall_at_n={int(n): v for n, v in meta["recall_at_n"].items()},
         methods=methods,
         notes=list(meta["notes"]),
+        k=meta["evaluation"].get("k"),
+        k_requested=meta["evaluation"].get("k_requested", meta["evaluation"].get("k")),
     )
     return Cell(
         vpr_method=meta["vpr_method"],
@@ -294,13 +320,17 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         evaluation = evaluate(
             retrieval,
             config.methods,
-            k=min(config.k, retrieval.k),
+            k=config.k,
             alpha=config.alpha,
             cache_dir=out / "local_features",
             **options,
         )
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     alpha_curve, k_curve = _ablations(retrieval, correct, config)
+    left_out = _ablation_note(retrieval, config)
+    if left_out:
+        evaluation.notes.append(left_out)
+        warnings.warn(f"{entry.key}: {left_out}", FewerCandidatesWarning, stacklevel=2)
     cell = Cell(
         vpr_method=entry.vpr_method,
         dataset=entry.dataset,

@@ -55,6 +55,8 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+from vpr_uncertainty.scores import squared_distances_from_similarities
+
 __all__ = [
     "FORMAT_VERSION",
     "POSITION_KINDS",
@@ -102,55 +104,10 @@ class Retrieval:
     config: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.scores = np.asarray(self.scores)
-        self.indices = np.asarray(self.indices, dtype=np.int64)
-        if self.scores.ndim != 2 or self.scores.shape != self.indices.shape:
-            raise ValueError(
-                f"scores and indices must both have shape (n_queries, k), got {self.scores.shape} and "
-                f"{self.indices.shape}"
-            )
-        if self.distances is not None:
-            self.distances = np.asarray(self.distances)
-            if self.distances.shape != self.scores.shape:
-                raise ValueError(f"distances must have shape {self.scores.shape}, got {self.distances.shape}")
-        if self.positives is not None:
-            self.positives = sparse.csr_array(self.positives, dtype=bool)
-            if self.positives.shape[0] != self.n_queries:
-                raise ValueError(f"positives has {self.positives.shape[0]} rows but there are {self.n_queries} queries")
-            if self.indices.size and self.indices.max() >= self.positives.shape[1]:
-                raise ValueError(
-                    f"indices refer to database image {int(self.indices.max())} but the ground truth covers "
-                    f"only {self.positives.shape[1]} database images"
-                )
-        for name, expected in (("query_names", self.n_queries), ("query_positions", self.n_queries)):
-            value = getattr(self, name)
-            if value is not None and len(value) != expected:
-                raise ValueError(f"{name} has {len(value)} entries, expected {expected} (one per query)")
-        for name in ("query_positions", "database_positions"):
-            value = getattr(self, name)
-            if value is not None:
-                value = np.asarray(value)
-                if value.ndim != 2 or value.shape[1] < 1:
-                    raise ValueError(f"{name} must have shape (n_images, 2), got shape {value.shape}")
-                setattr(self, name, value)
-        sizes = {
-            name: length
-            for name, length in (
-                ("positives", None if self.positives is None else self.positives.shape[1]),
-                ("database_names", None if self.database_names is None else len(self.database_names)),
-                ("database_positions", None if self.database_positions is None else len(self.database_positions)),
-            )
-            if length is not None
-        }
-        if len(set(sizes.values())) > 1:
-            described = ", ".join(f"{name}: {length}" for name, length in sizes.items())
-            raise ValueError(f"the database sizes disagree ({described})")
-        if sizes and self.indices.size and self.indices.max() >= max(sizes.values()):
-            name, length = next(iter(sizes.items()))
-            raise ValueError(
-                f"indices refer to database image {int(self.indices.max())} but {name} covers only {length} "
-                "database images"
-            )
+        """Check every field (see :mod:`vpr_uncertainty._retrieval_checks`); a ValueError names the field."""
+        from vpr_uncertainty._retrieval_checks import check_retrieval_fields
+
+        check_retrieval_fields(self)
 
     @property
     def n_database(self) -> int | None:
@@ -237,10 +194,6 @@ def top_k_from_similarity(similarity: object, k: int, *, chunk_size: int = 4096)
     return scores, indices
 
 
-def _optional(archive: Any, key: str) -> np.ndarray | None:
-    return archive[key] if key in archive.files else None
-
-
 def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
     """Write a retrieval file (see the module docstring for the layout) and return its path."""
     path = Path(path)
@@ -272,42 +225,24 @@ def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
 
 
 def load_retrieval(path: str | Path) -> Retrieval:
-    """Read a retrieval file written by :func:`save_retrieval` (or any ``.npz`` with ``scores``, ``indices``)."""
+    """Read a retrieval file written by :func:`save_retrieval` (or any ``.npz`` with ``scores``, ``indices``).
+
+    Every field is checked (dtype, range, and consistency between ``indices``, ``scores``, ``distances``, the
+    positives, names and positions; see :mod:`vpr_uncertainty._retrieval_checks`).
+
+    Raises
+    ------
+    FileNotFoundError
+        When ``path`` is not a file.
+    ValueError
+        Naming the file, the field and the problem; also for an empty, truncated or non-``.npz`` file.
+    """
+    from vpr_uncertainty._retrieval_checks import read_retrieval_file
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"retrieval file not found: {path}")
-    with np.load(path, allow_pickle=False) as archive:
-        missing = {"scores", "indices"} - set(archive.files)
-        if missing:
-            raise ValueError(
-                f"{path} is not a retrieval file: missing {sorted(missing)} (found {sorted(archive.files)})"
-            )
-        version = int(archive["format_version"]) if "format_version" in archive.files else FORMAT_VERSION
-        if version > FORMAT_VERSION:
-            raise ValueError(
-                f"{path} has retrieval format version {version}; this toolkit reads up to {FORMAT_VERSION}. "
-                "Upgrade vpr-uncertainty."
-            )
-        positives = None
-        if "positives_indptr" in archive.files:
-            indices = archive["positives_indices"]
-            n_database = int(archive["n_database"]) if "n_database" in archive.files else int(indices.max()) + 1
-            positives = sparse.csr_array(
-                (np.ones(indices.size, dtype=bool), indices, archive["positives_indptr"]),
-                shape=(len(archive["positives_indptr"]) - 1, n_database),
-            )
-        config = json.loads(str(archive["config"])) if "config" in archive.files else {}
-        return Retrieval(
-            scores=archive["scores"],
-            indices=archive["indices"],
-            positives=positives,
-            distances=_optional(archive, "distances"),
-            query_names=_optional(archive, "query_names"),
-            database_names=_optional(archive, "database_names"),
-            query_positions=_optional(archive, "query_positions"),
-            database_positions=_optional(archive, "database_positions"),
-            config=config,
-        )
+    return read_retrieval_file(path, Retrieval, FORMAT_VERSION)
 
 
 # --- descriptor search ------------------------------------------------------------------------------------------
@@ -611,7 +546,8 @@ def search_descriptors(
             bar.update(len(batch))
     missing = indices < 0
     scores[missing] = -np.inf
-    distances = np.maximum(np.float32(2) - np.float32(2) * scores, np.float32(0))
+    # Scores of normalised descriptors by construction (an approximate index may exceed 1 slightly): no range check.
+    distances = squared_distances_from_similarities(scores, check=False)
     return scores, indices, distances
 
 

@@ -26,6 +26,12 @@ Hard input, defined once for all of them
       meaning. With ``on_nonpositive="most_uncertain"`` (the default) such a row gets the uncertainty
       ``1 − s_1``: ≥ 1, so above every row with s_1 > 0 (whose RS, SD and SU are ≤ 1 because s_i ≤ s_1), and
       ordered among themselves by their best similarity. ``on_nonpositive="raise"`` rejects such input.
+      :func:`vpr_uncertainty.evaluate` counts such queries in its notes.
+    * **Similarities outside [−1, 1] without distances.** L2 and PA (and SUE) convert cosine similarities to
+      distances, d² = 2 − 2s (:func:`squared_distances_from_similarities`, the one place this is done), which
+      holds only for similarities in [−1, 1] (± :data:`COSINE_TOLERANCE` for rounding). Other similarities
+      (integer scores, unnormalised inner products) raise a ``ValueError`` naming the method and the range
+      found: give the real distances instead.
     * **NaN, +inf, unsorted rows, fewer than 2 columns, k < 2, α outside [0, 1], non-2-D input**: a
       ``ValueError`` (or ``TypeError``) that names the argument, what was found and what was expected.
     * **No queries** (shape (0, K)): an empty array of shape (0,).
@@ -48,10 +54,19 @@ from vpr_uncertainty._validation import (
     check_best_scores,
     check_k,
     check_rows,
-    check_top_k_scores,
+    raise_for_short_rows,
+)
+from vpr_uncertainty.baselines import (
+    COSINE_TOLERANCE,
+    best_match,
+    l2_distance,
+    margin,
+    perceptual_aliasing,
+    squared_distances_from_similarities,
 )
 
 __all__ = [
+    "COSINE_TOLERANCE",
     "StatisticalUncertainty",
     "best_match",
     "l2_distance",
@@ -73,17 +88,6 @@ def _combination_weights(n: int, rs_weight: float, sd_weight: float, dtype: np.d
     weights[(n - 1) // 2] += sd_weight / 2
     weights[n // 2] += sd_weight / 2
     return weights.astype(dtype)
-
-
-def _raise_for_short_rows(n_candidates: np.ndarray, needed: int = 2) -> None:
-    short = np.flatnonzero(n_candidates < needed)
-    if short.size:
-        shown = ", ".join(str(r) for r in short[:5]) + (", ..." if short.size > 5 else "")
-        what = "its best match" if needed == 1 else "its best match and at least one runner-up"
-        raise ValueError(
-            f"scores has {short.size} row(s) with fewer than {needed} candidates (rows {shown}); each query "
-            f"needs {what} (-inf marks a missing candidate)"
-        )
 
 
 def _check_policy(on_nonpositive: str) -> None:
@@ -134,7 +138,7 @@ def _ratio_metric(
         return np.empty(0, dtype=scores.dtype)
     n = min(k, scores.shape[1])
     if n < 2:
-        _raise_for_short_rows(np.full(n_queries, n))
+        raise_for_short_rows(np.full(n_queries, n))
     top = scores[:, :n]
     # With rs_weight > 0 every column after the first has a positive weight, so ±inf anywhere already makes the
     # weighted sum or s_1 non-finite; pure SD weighs only the middle columns and needs the plain sum as a flag.
@@ -157,7 +161,7 @@ def _ratio_metric(
         if (n_candidates < 2).any():
             every_row = np.full(n_queries, n)
             every_row[unusual] = n_candidates
-            _raise_for_short_rows(every_row)
+            raise_for_short_rows(every_row)
         for count in np.unique(n_candidates):
             rows = unusual[n_candidates == count]
             count_weights = _combination_weights(int(count), rs_weight, sd_weight, scores.dtype)
@@ -335,158 +339,3 @@ class StatisticalUncertainty:
         """SU of many queries at once (see :func:`statistical_uncertainty`)."""
         policy = "raise" if self._raise_nonpositive else "most_uncertain"
         return statistical_uncertainty(scores, self._k, self._alpha, on_nonpositive=policy)
-
-
-def squared_distances_from_similarities(scores: np.ndarray) -> np.ndarray:
-    """Squared L2 distances of L2-normalised descriptors from their cosine similarities: d² = 2 − 2s.
-
-    Values are clipped at 0 so that rounding (s slightly above 1) never gives a negative square.
-
-    Examples
-    --------
-    >>> squared_distances_from_similarities(np.array([[1.0, 0.5, -1.0]]))
-    array([[0., 1., 4.]])
-    """
-    return np.maximum(2 - 2 * scores, 0)
-
-
-def _top_distances(scores: np.ndarray, distances: object, n: int) -> np.ndarray:
-    """First ``n`` columns of the L2 distances (not squared), from ``distances`` or from the similarities."""
-    if distances is None:
-        return np.sqrt(squared_distances_from_similarities(scores[:, :n]))
-    squared = np.asarray(distances)
-    if squared.ndim != 2 or squared.shape[0] != scores.shape[0] or squared.shape[1] < n:
-        raise ValueError(f"distances must have shape ({scores.shape[0]}, >= {n}) to match scores, got {squared.shape}")
-    squared = squared[:, :n].astype(scores.dtype, copy=False)
-    if not (np.isfinite(squared).all() and (squared >= 0).all()):
-        raise ValueError("distances must be finite squared L2 distances >= 0 in the columns used")
-    if n > 1 and (squared[:, 1:] < squared[:, :-1]).any():
-        raise ValueError("distances must be sorted in ascending order along axis 1 (nearest first)")
-    return np.sqrt(squared)
-
-
-def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
-    check_k(k)
-    scores = check_top_k_scores(scores, sort=sort)
-    if scores.shape[0] and scores.shape[1] < columns:
-        raise ValueError(f"scores must have at least {columns} columns, got shape {scores.shape}")
-    if scores.shape[0] and not np.isfinite(scores[:, :columns]).all():
-        _raise_for_short_rows(np.isfinite(scores[:, :columns]).sum(axis=1), needed=columns)
-    return scores
-
-
-def best_match(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
-    """BM: the negated top-1 similarity, −s_1.
-
-    Parameters
-    ----------
-    scores : array-like of shape (Q, K)
-        Top-K similarities per query, sorted descending along axis 1.
-    k : int, default=10
-        Accepted so every method shares one signature; only the best match is read.
-    sort : bool, default=False
-        Sort each row for the caller instead of rejecting unsorted rows.
-
-    Returns
-    -------
-    ndarray of shape (Q,)
-        Uncertainty, higher = less trustworthy.
-
-    Examples
-    --------
-    >>> best_match(np.array([[0.8, 0.4], [0.3, 0.1]]))
-    array([-0.8, -0.3])
-    """
-    return -_prepare(scores, k, sort, 1)[:, 0]
-
-
-def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
-    """L2: the descriptor distance d_1 between the query and its best match.
-
-    Parameters
-    ----------
-    scores : array-like of shape (Q, K)
-        Top-K similarities per query, sorted descending along axis 1.
-    k : int, default=10
-        Accepted so every method shares one signature; only the best match is read.
-    distances : array-like of shape (Q, K), optional
-        Squared L2 distances of the same candidates, ascending. Without them the similarities are taken as
-        cosine similarities of L2-normalised descriptors, d² = 2 − 2s; L2 then ranks queries exactly as BM.
-    sort : bool, default=False
-        Sort each row for the caller instead of rejecting unsorted rows.
-
-    Returns
-    -------
-    ndarray of shape (Q,)
-        Uncertainty, higher = less trustworthy.
-
-    Examples
-    --------
-    >>> l2_distance(np.array([[0.5, 0.0]]))
-    array([1.])
-    """
-    scores = _prepare(scores, k, sort, 1)
-    if distances is not None and sort:
-        distances = np.sort(np.asarray(distances), axis=1)
-    return _top_distances(scores, distances, 1)[:, 0]
-
-
-def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
-    """PA: the ratio d_1 / d_2 of the two nearest-neighbour distances (Lowe's ratio for places).
-
-    Close to 1 when a second place matches as well as the first. Two candidates at distance 0 give 1.
-
-    Parameters
-    ----------
-    scores : array-like of shape (Q, K)
-        Top-K similarities per query, sorted descending along axis 1.
-    k : int, default=10
-        Accepted so every method shares one signature; only the two best matches are read.
-    distances : array-like of shape (Q, K), optional
-        Squared L2 distances of the same candidates, ascending; by default d² = 2 − 2s.
-    sort : bool, default=False
-        Sort each row for the caller instead of rejecting unsorted rows.
-
-    Returns
-    -------
-    ndarray of shape (Q,)
-        Uncertainty, higher = less trustworthy.
-
-    Examples
-    --------
-    >>> perceptual_aliasing(np.array([[0.5, -1.0], [1.0, 1.0]]))
-    array([0.5, 1. ])
-    """
-    scores = _prepare(scores, k, sort, 2)
-    if distances is not None and sort:
-        distances = np.sort(np.asarray(distances), axis=1)
-    top2 = _top_distances(scores, distances, 2)
-    first, second = top2[:, 0], top2[:, 1]
-    both_zero = second == 0
-    return np.divide(first, second, out=np.ones_like(first), where=~both_zero)
-
-
-def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
-    """Margin baseline: s_2 − s_1, the negated gap between the best match and the runner-up.
-
-    Parameters
-    ----------
-    scores : array-like of shape (Q, K)
-        Top-K similarities per query, sorted descending along axis 1.
-    k : int, default=10
-        Accepted so every method shares one signature; only the two best matches are read.
-    sort : bool, default=False
-        Sort each row for the caller instead of rejecting unsorted rows.
-
-    Returns
-    -------
-    ndarray of shape (Q,)
-        Uncertainty, higher = less trustworthy (0 when the two best matches tie).
-
-    Examples
-    --------
-    >>> margin(np.array([[0.9, 0.5], [0.6, 0.6]]))
-    array([-0.4,  0. ])
-    """
-    scores = _prepare(scores, k, sort, 2)
-    return scores[:, 1] - scores[:, 0]

@@ -242,8 +242,9 @@ def sue_from_retrieval(
     if retrieval.distances is not None:
         distances = retrieval.distances
     else:
-        with np.errstate(over="ignore", invalid="ignore"):
-            distances = np.maximum(2.0 - 2.0 * np.asarray(retrieval.scores, dtype=np.float64), 0.0)
+        from vpr_uncertainty.scores import squared_distances_from_similarities
+
+        distances = squared_distances_from_similarities(np.asarray(retrieval.scores, dtype=np.float64), method="SUE")
     return spatial_uncertainty(
         retrieval.indices,
         distances,

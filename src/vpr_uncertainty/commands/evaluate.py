@@ -8,7 +8,7 @@ from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import candidate_count
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
-from vpr_uncertainty.inputs import INPUT_FORMATS, read_results
+from vpr_uncertainty.inputs import INPUT_FORMATS, MATRIX_TOP_K, read_results
 from vpr_uncertainty.methods import available_methods, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
 
@@ -99,7 +99,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def _run_evaluate(args: argparse.Namespace) -> int:
     if not 0.0 <= args.alpha <= 1.0:
         raise ValueError(f"--alpha must lie in [0, 1], got {args.alpha}")
-    retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format)
+    # A full matrix gives as many candidates as k asks (and at least MATRIX_TOP_K, enough for recall@20).
+    top_k = max(MATRIX_TOP_K, args.k)
+    retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
     options = {}
     if args.btl_head is not None:
         options["btl_head"] = args.btl_head

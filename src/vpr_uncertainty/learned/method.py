@@ -83,7 +83,9 @@ def _search(database: np.ndarray, queries: np.ndarray, k: int) -> tuple[np.ndarr
         from vpr_uncertainty.retrieval import top_k_from_similarity
 
         scores, indices = top_k_from_similarity(queries @ database.T, k)
-        return scores, indices, np.maximum(2 - 2 * scores, 0)
+        from vpr_uncertainty.scores import squared_distances_from_similarities
+
+        return scores, indices, squared_distances_from_similarities(scores, check=False)
     return search_descriptors(database, queries, k, progress=False)
 
 

@@ -1,0 +1,333 @@
+"""Checks of every field of a :class:`~vpr_uncertainty.retrieval.Retrieval` and of a retrieval file.
+
+A retrieval with a wrong field (an index −5, a wrapped unsigned index, a missing-candidate marker beside a real
+score, ground truth that points outside the database, a NaN score) would silently change recall@N and AUC-PR,
+so every field is checked when a Retrieval is made and when a retrieval file is read. Each check raises a
+``ValueError`` that names the field and the problem; :func:`read_retrieval_file` adds the file name.
+
+What is checked
+    * ``scores`` (Q, K), K >= 1: real numbers (not bool), no NaN, no +inf, sorted descending along each row;
+      ``-inf`` only for missing candidates.
+    * ``indices`` (Q, K): integers (not float, not bool) within the int64 range, ``-1`` exactly where the score
+      is ``-inf`` (a missing candidate), otherwise >= 0 and below the database size when one is known.
+    * ``distances`` (Q, K), optional: real numbers, ``+inf`` exactly where a candidate is missing, otherwise
+      finite and >= 0, ascending along each row.
+    * ``positives``: one row per query, one column per database image.
+    * names: 1-D strings, one per query / database image; positions: 2-D finite numbers with one row per image
+      and, when both are given, the same number of columns.
+    * In a file: ``format_version`` an integer between 1 and :data:`~vpr_uncertainty.retrieval.FORMAT_VERSION`;
+      the CSR ground truth (``positives_indptr``, ``positives_indices``, ``n_database``) consistent;
+      ``config`` a JSON object. A zero-byte, truncated or non-``.npz`` file is reported as such.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import sparse
+
+__all__ = ["check_retrieval_fields", "read_retrieval_file"]
+
+_INT64_MAX = np.iinfo(np.int64).max
+
+
+def _first(mask: np.ndarray) -> tuple[int, ...]:
+    return tuple(int(i) for i in np.argwhere(mask)[0])
+
+
+def _where(position: tuple[int, ...]) -> str:
+    return f"row {position[0]}, column {position[1]}" if len(position) == 2 else f"entry {position[0]}"
+
+
+def _check_real(name: str, value: object) -> np.ndarray:
+    array = np.asarray(value)
+    if array.dtype == bool or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"{name} must hold real numbers, got dtype {array.dtype}")
+    return array
+
+
+def _check_integers(name: str, value: object) -> np.ndarray:
+    """An integer array (any integer dtype) converted to int64 without wrapping."""
+    array = np.asarray(value)
+    if array.dtype == bool or not np.issubdtype(array.dtype, np.integer):
+        raise ValueError(f"{name} must hold integers, got dtype {array.dtype}")
+    if array.size and np.issubdtype(array.dtype, np.unsignedinteger) and array.max() > _INT64_MAX:
+        position = _first(array > _INT64_MAX)
+        raise ValueError(
+            f"{name} holds {int(array[position])} at {_where(position)}, beyond the int64 range (a negative "
+            "index wrapped into an unsigned type?)"
+        )
+    return array.astype(np.int64, copy=False)
+
+
+def _check_scores(scores: object) -> np.ndarray:
+    scores = _check_real("scores", scores)
+    if scores.ndim != 2 or scores.shape[1] < 1:
+        raise ValueError(f"scores must have shape (n_queries, k) with k >= 1, got shape {scores.shape}")
+    if np.issubdtype(scores.dtype, np.floating) and scores.size:
+        nan = np.isnan(scores)
+        if nan.any():
+            raise ValueError(f"scores contains NaN (first at {_where(_first(nan))}); expected finite similarities")
+        if (scores == np.inf).any():
+            raise ValueError(f"scores contains +inf (first at {_where(_first(scores == np.inf))})")
+    if scores.shape[1] > 1:
+        unsorted = scores[:, 1:] > scores[:, :-1]
+        if unsorted.any():
+            row, column = _first(unsorted)
+            raise ValueError(
+                f"scores must be sorted in descending order along each row, but row {row} has "
+                f"{scores[row, column]} before {scores[row, column + 1]}"
+            )
+    return scores
+
+
+def _check_indices(indices: object, scores: np.ndarray) -> np.ndarray:
+    indices = _check_integers("indices", indices)
+    if indices.shape != scores.shape:
+        raise ValueError(f"indices has shape {indices.shape} but scores has shape {scores.shape}; they must agree")
+    if indices.size and indices.min() < -1:
+        position = _first(indices < -1)
+        raise ValueError(
+            f"indices holds {int(indices[position])} at {_where(position)}; expected a database index >= 0, or -1 "
+            "for a missing candidate"
+        )
+    missing_score = scores == -np.inf
+    mismatch = (indices == -1) != missing_score
+    if mismatch.any():
+        position = _first(mismatch)
+        raise ValueError(
+            f"indices holds {int(indices[position])} beside the score {scores[position]} at {_where(position)}; a "
+            "missing candidate must have index -1 and score -inf, and only a missing one"
+        )
+    return indices
+
+
+def _check_distances(distances: object, indices: np.ndarray) -> np.ndarray:
+    distances = _check_real("distances", distances)
+    if distances.shape != indices.shape:
+        raise ValueError(
+            f"distances has shape {distances.shape} but scores and indices have shape {indices.shape}; they must agree"
+        )
+    if not distances.size:
+        return distances
+    with np.errstate(invalid="ignore"):
+        missing = indices == -1
+        bad = np.isnan(distances) | (distances < 0) | (np.isinf(distances) != missing)
+    if bad.any():
+        position = _first(bad)
+        raise ValueError(
+            f"distances holds {distances[position]} at {_where(position)}; expected finite squared L2 distances "
+            ">= 0, and +inf where a candidate is missing (index -1)"
+        )
+    if distances.shape[1] > 1:
+        unsorted = distances[:, 1:] < distances[:, :-1]
+        if unsorted.any():
+            row, column = _first(unsorted)
+            raise ValueError(
+                f"distances must be sorted in ascending order along each row (nearest first), but row {row} has "
+                f"{distances[row, column]} before {distances[row, column + 1]}"
+            )
+    return distances
+
+
+def _check_names(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    array = np.asarray(value)
+    if array.ndim != 1 or array.dtype.kind not in "USO":
+        raise ValueError(
+            f"{name} must be a 1-D array of strings (one per {what}), got dtype {array.dtype} and shape {array.shape}"
+        )
+    if expected is not None and len(array) != expected:
+        raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what})")
+    return array
+
+
+def _check_positions(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    array = _check_real(name, value)
+    if array.ndim != 2 or array.shape[1] < 1:
+        raise ValueError(f"{name} must have shape (n_images, 2) (one row per {what}), got shape {array.shape}")
+    if expected is not None and len(array) != expected:
+        raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what})")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name} holds a non-finite value (first at {_where(_first(~np.isfinite(array)))})")
+    return array
+
+
+def check_retrieval_fields(retrieval: Any) -> None:
+    """Check every field of a Retrieval (see the module docstring); converts arrays in place (indices to int64).
+
+    Raises
+    ------
+    ValueError
+        Naming the field and the problem.
+    """
+    retrieval.scores = _check_scores(retrieval.scores)
+    retrieval.indices = _check_indices(retrieval.indices, retrieval.scores)
+    n_queries = retrieval.scores.shape[0]
+    if retrieval.distances is not None:
+        retrieval.distances = _check_distances(retrieval.distances, retrieval.indices)
+    if retrieval.positives is not None:
+        retrieval.positives = sparse.csr_array(retrieval.positives, dtype=bool)
+        if retrieval.positives.shape[0] != n_queries:
+            raise ValueError(
+                f"positives has {retrieval.positives.shape[0]} rows but there are {n_queries} queries (scores rows)"
+            )
+    retrieval.query_names = _check_names("query_names", retrieval.query_names, n_queries, "query")
+    retrieval.database_names = _check_names("database_names", retrieval.database_names, None, "database image")
+    retrieval.query_positions = _check_positions("query_positions", retrieval.query_positions, n_queries, "query")
+    retrieval.database_positions = _check_positions(
+        "database_positions", retrieval.database_positions, None, "database image"
+    )
+    if retrieval.query_positions is not None and retrieval.database_positions is not None:
+        if retrieval.query_positions.shape[1] != retrieval.database_positions.shape[1]:
+            raise ValueError(
+                f"query_positions has {retrieval.query_positions.shape[1]} columns but database_positions has "
+                f"{retrieval.database_positions.shape[1]}; they must agree"
+            )
+    sizes = {
+        name: length
+        for name, length in (
+            ("positives", None if retrieval.positives is None else retrieval.positives.shape[1]),
+            ("database_names", None if retrieval.database_names is None else len(retrieval.database_names)),
+            ("database_positions", None if retrieval.database_positions is None else len(retrieval.database_positions)),
+        )
+        if length is not None
+    }
+    if len(set(sizes.values())) > 1:
+        described = ", ".join(f"{name}: {length}" for name, length in sizes.items())
+        raise ValueError(f"the database sizes disagree ({described})")
+    if sizes and retrieval.indices.size and retrieval.indices.max() >= max(sizes.values()):
+        name, length = next(iter(sizes.items()))
+        position = _first(retrieval.indices >= length)
+        raise ValueError(
+            f"indices refer to database image {int(retrieval.indices[position])} (at {_where(position)}) but "
+            f"{name} covers only {length} database images"
+        )
+
+
+# --- the file -----------------------------------------------------------------------------------------------------
+
+_READ_ERRORS = (EOFError, OSError, ValueError, zipfile.BadZipFile, zlib.error, KeyError)
+
+
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    if path.stat().st_size == 0:
+        raise ValueError(f"retrieval file {path} is empty (0 bytes); write it again")
+    try:
+        archive = np.load(path, allow_pickle=False)
+        if not isinstance(archive, np.lib.npyio.NpzFile):
+            raise ValueError(f"retrieval file {path} is a single .npy array, not a .npz archive of named arrays")
+        with archive:
+            return {key: archive[key] for key in archive.files}
+    except PermissionError:
+        raise
+    except _READ_ERRORS as error:
+        if str(error).startswith(f"retrieval file {path}"):
+            raise
+        detail = str(error) or type(error).__name__
+        raise ValueError(
+            f"retrieval file {path} cannot be read as a .npz archive (truncated or not a retrieval file?): {detail}"
+        ) from None
+
+
+def _scalar_int(name: str, value: np.ndarray) -> int:
+    if value.ndim != 0 or value.dtype == bool or not np.issubdtype(value.dtype, np.integer):
+        raise ValueError(f"{name} must be a single integer, got {value!r}")
+    return int(value)
+
+
+def _format_version(arrays: dict[str, np.ndarray], maximum: int) -> int:
+    if "format_version" not in arrays:
+        return maximum  # written by another tool: read as the current version
+    value = arrays["format_version"]
+    if value.ndim != 0 or value.dtype == bool or not np.issubdtype(value.dtype, np.integer):
+        raise ValueError(f"format_version must be an integer between 1 and {maximum}, got {value.tolist()!r}")
+    version = int(value)
+    if version < 1:
+        raise ValueError(f"format_version must be an integer between 1 and {maximum}, got {version}")
+    if version > maximum:
+        raise ValueError(f"format_version is {version}; this toolkit reads up to {maximum}. Upgrade vpr-uncertainty")
+    return version
+
+
+def _positives(arrays: dict[str, np.ndarray], n_queries: int) -> sparse.csr_array | None:
+    present = [key for key in ("positives_indptr", "positives_indices") if key in arrays]
+    if not present:
+        if "n_database" in arrays:
+            _scalar_int("n_database", arrays["n_database"])
+        return None
+    if len(present) == 1:
+        other = ({"positives_indptr", "positives_indices"} - set(present)).pop()
+        raise ValueError(f"{present[0]} is present without {other}; the ground truth needs both")
+    indptr = _check_integers("positives_indptr", arrays["positives_indptr"])
+    indices = _check_integers("positives_indices", arrays["positives_indices"])
+    if indptr.ndim != 1 or indices.ndim != 1:
+        raise ValueError(
+            f"positives_indptr and positives_indices must be 1-D, got shapes {indptr.shape} and {indices.shape}"
+        )
+    if len(indptr) != n_queries + 1:
+        raise ValueError(f"positives_indptr has {len(indptr)} entries, expected {n_queries + 1} (queries + 1)")
+    if indptr[0] != 0 or indptr[-1] != len(indices) or (np.diff(indptr) < 0).any():
+        raise ValueError(
+            f"positives_indptr must rise from 0 to the {len(indices)} entries of positives_indices without "
+            f"decreasing, got {indptr[0]} ... {indptr[-1]}" + (" (it decreases)" if (np.diff(indptr) < 0).any() else "")
+        )
+    if "n_database" in arrays:
+        n_database = _scalar_int("n_database", arrays["n_database"])
+        if n_database < 1:
+            raise ValueError(f"n_database must be >= 1, got {n_database}")
+    else:
+        n_database = int(indices.max()) + 1 if indices.size else 0
+    if indices.size and (indices.min() < 0 or indices.max() >= n_database):
+        bad = int(indices[(indices < 0) | (indices >= n_database)][0])
+        raise ValueError(f"positives_indices holds {bad}, outside the database of n_database = {n_database} images")
+    return sparse.csr_array((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n_queries, n_database))
+
+
+def _config(arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+    if "config" not in arrays:
+        return {}
+    value = arrays["config"]
+    if value.ndim != 0 or value.dtype.kind != "U":
+        raise ValueError(f"config must be JSON text, got dtype {value.dtype} and shape {value.shape}")
+    try:
+        config = json.loads(str(value))
+    except json.JSONDecodeError as error:
+        raise ValueError(f"config is not valid JSON ({error})") from None
+    if not isinstance(config, dict):
+        raise ValueError(f"config must be a JSON object, got {type(config).__name__}")
+    return config
+
+
+def read_retrieval_file(path: Path, retrieval_type: type, maximum_version: int) -> Any:
+    """Read and check a retrieval file; every error is a ``ValueError`` that names the file and the field."""
+    arrays = _read_arrays(path)
+    missing = {"scores", "indices"} - set(arrays)
+    if missing:
+        raise ValueError(f"{path} is not a retrieval file: missing {sorted(missing)} (found {sorted(arrays)})")
+    try:
+        _format_version(arrays, maximum_version)
+        scores = _check_scores(arrays["scores"])  # first, so that the positives are checked against them
+        _check_indices(arrays["indices"], scores)
+        positives = _positives(arrays, scores.shape[0])
+        return retrieval_type(
+            scores=scores,
+            indices=arrays["indices"],
+            positives=positives,
+            distances=arrays.get("distances"),
+            query_names=arrays.get("query_names"),
+            database_names=arrays.get("database_names"),
+            query_positions=arrays.get("query_positions"),
+            database_positions=arrays.get("database_positions"),
+            config=_config(arrays),
+        )
+    except ValueError as error:
+        raise ValueError(f"retrieval file {path}: {error}") from None
