@@ -8,12 +8,10 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.data import load_dataset, load_vprbench_dataset
-from vpr_uncertainty.data.vprbench import PickleWarning
 
 
 def test_corridor_images_and_ground_truth(corridor_dir: Path) -> None:
-    with pytest.warns(PickleWarning):
-        dataset = load_vprbench_dataset(corridor_dir)
+    dataset = load_vprbench_dataset(corridor_dir)
     assert (dataset.n_queries, dataset.n_database) == (111, 111)
     assert dataset.name == "corridor" and dataset.source_format == "vprbench" and dataset.root == corridor_dir
     assert dataset.query_names[0] == "query/0000000.jpg" and dataset.query_names[-1] == "query/0000110.jpg"
@@ -35,8 +33,7 @@ def test_corridor_images_and_ground_truth(corridor_dir: Path) -> None:
 
 
 def test_load_dataset_detects_vprbench(corridor_dir: Path) -> None:
-    with pytest.warns(PickleWarning):
-        dataset = load_dataset(corridor_dir)
+    dataset = load_dataset(corridor_dir)
     assert dataset.source_format == "vprbench" and dataset.n_queries == 111
     with pytest.raises(ValueError, match="radius does not apply"):
         load_dataset(corridor_dir, radius=25)
@@ -55,5 +52,5 @@ def test_incomplete_vprbench_folders(tmp_path: Path) -> None:
     rows = np.empty((2, 2), dtype=object)
     rows[0], rows[1] = [0, [0]], [1, [0]]
     np.save(tmp_path / "ground_truth_new.npy", rows, allow_pickle=True)
-    with pytest.warns(PickleWarning), pytest.raises(ValueError, match=r"ground truth for 2 queries but .* holds 1"):
+    with pytest.raises(ValueError, match=r"ground truth for 2 queries but .* holds 1"):
         load_vprbench_dataset(tmp_path)

@@ -45,7 +45,7 @@ def test_read_matrix_with_ground_truth(tmp_path):
     with pytest.raises(ValueError, match="without ground truth"):
         read_results(tmp_path / "sim.npy")
     np.save(tmp_path / "objects.npy", np.array([1, "a"], dtype=object), allow_pickle=True)
-    with pytest.raises(ValueError, match="--format vprbench"):
+    with pytest.raises(ValueError, match=r"objects\.npy holds Python objects"):
         read_results(tmp_path / "objects.npy", ground_truth=tmp_path / "gt.txt")
 
 

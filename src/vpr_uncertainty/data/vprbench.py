@@ -1,8 +1,11 @@
 """Readers for the legacy files of the VPR-Bench benchmark (Zaffar et al., IJCV 2021).
 
-VPR-Bench stores its ground truth and its precomputed matches as NumPy *object* arrays, which can only be read
-with pickle. Unpickling a file can run arbitrary code: these two readers are the only places in the toolkit
-that do it, they say so with a warning, and they should only be given files from a source you trust.
+VPR-Bench stores its ground truth and its precomputed matches as NumPy *object* arrays, whose payload is a
+pickle. These readers never unpickle with ``pickle.load``: they use
+:func:`~vpr_uncertainty.data.legacy_pickle.restricted_unpickle`, which rebuilds NumPy arrays, numbers, strings
+and lists and refuses every other global (``os.system``, ``builtins.eval``, ...) with an error naming the file, so
+no code from the file can run. The results are identical to ``np.load(path, allow_pickle=True,
+encoding="latin1")`` on VPR-Bench's files.
 
 :func:`load_vprbench_dataset` reads a whole VPR-Bench image dataset (``query/``, ``ref/``, ground truth) into a
 :class:`~vpr_uncertainty.data.dataset.Dataset`.
@@ -10,29 +13,70 @@ that do it, they say so with a warning, and they should only be given files from
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
 from scipy import sparse
 
 from vpr_uncertainty.data.dataset import Dataset
-from vpr_uncertainty.data.ground_truth import positives_from_lists
+from vpr_uncertainty.data.ground_truth import _is_index, _lists_to_positives
+from vpr_uncertainty.data.npy import read_npy
 
-__all__ = ["PickleWarning", "load_vprbench_dataset", "load_vprbench_ground_truth", "load_vprbench_similarity"]
+__all__ = [
+    "PickleWarning",
+    "load_vprbench_dataset",
+    "load_vprbench_ground_truth",
+    "load_vprbench_similarity",
+    "positives_from_vprbench_rows",
+]
+
+_GROUND_TRUTH = "VPR-Bench ground truth (an object array of rows [query index, list of positive database indices])"
+_MATCHES = (
+    "VPR-Bench precomputed matches (an object array of 6 items: query indices, top-1 indices, top-1 scores, "
+    "similarity matrix, encoding time, matching time)"
+)
 
 
 class PickleWarning(UserWarning):
-    """Issued when a legacy file is read with pickle."""
+    """No longer issued: the legacy files are read with a restricted unpickler that cannot run code.
+
+    Kept so that code filtering it keeps working.
+    """
 
 
-def _load_object_array(path: Path) -> np.ndarray:
-    warnings.warn(
-        f"reading the legacy VPR-Bench file {path} with pickle; only open files from a source you trust",
-        PickleWarning,
-        stacklevel=3,
-    )
-    return np.load(path, allow_pickle=True, encoding="latin1")
+def positives_from_vprbench_rows(rows: np.ndarray, path: str | Path, *, n_database: int | None) -> sparse.csr_array:
+    """Positives from VPR-Bench's ground-truth rows [query index, positives], validated; errors name ``path``.
+
+    Parameters
+    ----------
+    rows : ndarray of shape (Q, 2), dtype object
+        Row i = [query index, list (or array, or single int) of positive database indices]; the query indices
+        are a permutation of 0..Q-1.
+    path : str or Path
+        The file the rows come from, for error messages.
+    n_database : int, optional
+        Number of database images; by default the largest positive index + 1.
+
+    Returns
+    -------
+    scipy.sparse.csr_array of shape (Q, D), dtype bool
+    """
+    if not isinstance(rows, np.ndarray) or rows.dtype != object or rows.ndim != 2 or rows.shape[1] != 2:
+        found = f"a {rows.dtype} array of shape {rows.shape}" if isinstance(rows, np.ndarray) else type(rows).__name__
+        raise ValueError(f"{path}: expected {_GROUND_TRUTH} of shape (n_queries, 2), got {found}")
+    n_queries = len(rows)
+    lists: list[object | None] = [None] * n_queries
+    for row, (query, positives) in enumerate(rows):
+        if not _is_index(query) or not 0 <= query < n_queries:
+            raise ValueError(
+                f"{path}: row {row}: the query index must be an integer in [0, {n_queries}), got {query!r}"
+            )
+        if lists[query] is not None:
+            raise ValueError(
+                f"{path}: row {row}: query {query} appears twice; expected each of 0..{n_queries - 1} once"
+            )
+        lists[query] = [positives] if _is_index(positives) else positives
+    return _lists_to_positives(lists, n_database, f"{path}: ")  # errors name the file, the query and the value
 
 
 def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = None) -> sparse.csr_array:
@@ -48,23 +92,16 @@ def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = Non
     Returns
     -------
     scipy.sparse.csr_array of shape (Q, D), dtype bool
+
+    Raises
+    ------
+    ValueError
+        When the file is not such an object array, holds anything but integer indices in range, or its pickled
+        payload names a global other than NumPy array reconstruction (nothing from the file is run).
     """
     path = Path(path)
-    rows = _load_object_array(path)
-    if rows.ndim != 2 or rows.shape[1] != 2:
-        raise ValueError(
-            f"{path}: expected VPR-Bench ground truth of shape (n_queries, 2) = [query index, positives], "
-            f"got shape {rows.shape}"
-        )
-    query_ids = np.asarray(rows[:, 0], dtype=np.int64)
-    if not np.array_equal(np.sort(query_ids), np.arange(len(rows))):
-        raise ValueError(f"{path}: query indices must be a permutation of 0..{len(rows) - 1}")
-    lists: list[list[int]] = [[] for _ in range(len(rows))]
-    for query, positives in zip(query_ids, rows[:, 1], strict=True):
-        lists[query] = [int(index) for index in np.atleast_1d(positives)]
-    if n_database is None:
-        n_database = max((max(item) for item in lists if item), default=-1) + 1
-    return positives_from_lists(lists, n_database)
+    rows = read_npy(path, what=_GROUND_TRUTH, allow_objects=True)
+    return positives_from_vprbench_rows(rows, path, n_database=n_database)
 
 
 def load_vprbench_similarity(path: str | Path) -> np.ndarray:
@@ -76,27 +113,44 @@ def load_vprbench_similarity(path: str | Path) -> np.ndarray:
     Returns
     -------
     ndarray of shape (Q, D), float32
+
+    Raises
+    ------
+    ValueError
+        When the file does not have that layout (e.g. a plain numeric matrix), or its pickled payload names a
+        global other than NumPy array reconstruction (nothing from the file is run).
     """
     path = Path(path)
-    content = _load_object_array(path)
-    if content.shape != (6,):
+    content = read_npy(path, what=_MATCHES, allow_objects=True)
+    if content.dtype != object:
         raise ValueError(
-            f"{path}: expected VPR-Bench precomputed matches (an object array of 6 items), got shape {content.shape}"
+            f"{path} is a plain {content.dtype} array of shape {content.shape}, not {_MATCHES}; "
+            "read it as a similarity matrix (format 'matrix')"
         )
-    similarity = np.asarray(content[3], dtype=np.float32)
-    if similarity.ndim != 2:
-        raise ValueError(f"{path}: item 3 should be the (queries × database) similarity matrix")
-    order = np.asarray(content[0]).astype(np.int64)
-    if not np.array_equal(order, np.arange(len(order))) or len(order) != similarity.shape[0]:
+    if content.shape != (6,):
+        raise ValueError(f"{path}: expected {_MATCHES}, got an object array of shape {content.shape}")
+    similarity = content[3]
+    if not isinstance(similarity, np.ndarray) or similarity.dtype.kind not in "iuf" or similarity.ndim != 2:
+        found = (
+            f"a {similarity.dtype} array of shape {similarity.shape}"
+            if isinstance(similarity, np.ndarray)
+            else type(similarity).__name__
+        )
+        raise ValueError(f"{path}: item 3 should be the numeric (queries × database) similarity matrix, got {found}")
+    order = content[0]
+    # Some of VPR-Bench's own files (ap-gem-r101) store the query indices as floats 0.0, 1.0, ...: compared exactly.
+    if not isinstance(order, np.ndarray) or order.dtype.kind not in "iuf" or order.ndim != 1:
+        raise ValueError(f"{path}: item 0 should be the query indices 0..{similarity.shape[0] - 1}, got {order!r:.80}")
+    if len(order) != similarity.shape[0] or not np.array_equal(order, np.arange(len(order))):
         raise ValueError(f"{path}: expected query indices 0..{similarity.shape[0] - 1} in order")
-    return similarity
+    return similarity.astype(np.float32)
 
 
 def load_vprbench_dataset(root: str | Path, *, name: str | None = None) -> Dataset:
     """Read a VPR-Bench image dataset: ``query/``, ``ref/`` and ``ground_truth_new.npy``.
 
-    The ground truth is an explicit list of positives per query (no positions), read with pickle: see
-    :func:`load_vprbench_ground_truth`, which warns with :class:`PickleWarning`.
+    The ground truth is an explicit list of positives per query (no positions): see
+    :func:`load_vprbench_ground_truth`.
 
     Parameters
     ----------

@@ -1,0 +1,116 @@
+"""Read a ``.npy`` file with one clear error for every way it can be wrong, and never run its code.
+
+:func:`read_npy` checks the magic bytes, the header and the data length before reading, so an empty, truncated
+or foreign file (a text file, a ``.npz`` archive renamed ``.npy``) gives a ``ValueError`` that names the file and
+says what was expected, instead of an ``EOFError`` or an ``UnpicklingError``. Object arrays are refused unless
+the caller allows them; then their pickled payload is read with
+:func:`~vpr_uncertainty.data.legacy_pickle.restricted_unpickle`, which can rebuild arrays, numbers, strings and
+lists but runs nothing the file names.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from numpy.lib import format as npy_format
+
+from vpr_uncertainty.data.legacy_pickle import restricted_unpickle
+
+__all__ = ["read_npy"]
+
+_MAGIC = b"\x93NUMPY"
+_ZIP_MAGIC = b"PK"
+
+
+def _describe(head: bytes) -> str:
+    if head.startswith(_ZIP_MAGIC):
+        return "a zip archive (an .npz?)"
+    if head.lstrip()[:1] in (b"[", b"{"):
+        return "text (JSON?)"
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "binary data of another format"
+    return "text"
+
+
+def read_npy(path: str | Path, *, what: str, allow_objects: bool = False) -> np.ndarray:
+    """Read one array from a ``.npy`` file.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str
+        What the caller expects the file to hold, for error messages (e.g. "a similarity matrix").
+    allow_objects : bool
+        Accept object arrays (read with the restricted unpickler); by default they are an error.
+
+    Returns
+    -------
+    ndarray
+        The array, of the shape and dtype in the header.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the file does not exist.
+    ValueError
+        When the file is empty, truncated, not a ``.npy`` file, an object array (unless allowed) or holds pickled
+        data other than arrays, numbers, strings and builtin containers.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"file not found: {path} (expected {what})")
+    file_size = path.stat().st_size
+    if file_size == 0:
+        raise ValueError(f"{path} is empty (0 bytes); expected {what} in a NumPy .npy file")
+    with path.open("rb") as handle:
+        head = handle.read(len(_MAGIC))
+        if head != _MAGIC:
+            if _MAGIC.startswith(head):
+                raise ValueError(f"{path} is truncated ({file_size} bytes, not even a .npy header); expected {what}")
+            raise ValueError(f"{path} is not a NumPy .npy file (it holds {_describe(head)}); expected {what}")
+        handle.seek(0)
+        try:
+            version = npy_format.read_magic(handle)
+            if version == (1, 0):
+                shape, _, dtype = npy_format.read_array_header_1_0(handle)
+            elif version == (2, 0):
+                shape, _, dtype = npy_format.read_array_header_2_0(handle)
+            else:  # format 3.0 (utf-8 field names): never used for object arrays; let NumPy read it all
+                handle.seek(0)
+                return npy_format.read_array(handle, allow_pickle=False)
+        except ValueError as error:
+            message = str(error)
+            if message.startswith("EOF"):
+                raise ValueError(f"{path} is truncated: its .npy header is incomplete; expected {what}") from None
+            raise ValueError(f"{path} has an invalid .npy header ({message}); expected {what}") from None
+        if dtype.hasobject:
+            if not allow_objects:
+                raise ValueError(
+                    f"{path} holds Python objects (an object array of shape {shape}), not numbers; expected {what}"
+                )
+            return _read_object_array(handle, path, shape)
+        expected = math.prod(shape) * dtype.itemsize
+        available = file_size - handle.tell()
+        if available < expected:
+            raise ValueError(
+                f"{path} is truncated: its header announces a {dtype} array of shape {shape} ({expected} bytes of "
+                f"data) but only {available} bytes follow; expected {what}"
+            )
+        handle.seek(0)
+        return npy_format.read_array(handle, allow_pickle=False)
+
+
+def _read_object_array(handle, path: Path, shape: tuple[int, ...]) -> np.ndarray:
+    array = restricted_unpickle(handle, path)
+    if not isinstance(array, np.ndarray) or array.dtype != object or array.shape != tuple(shape):
+        found = f"shape {array.shape}, dtype {array.dtype}" if isinstance(array, np.ndarray) else type(array).__name__
+        raise ValueError(
+            f"{path} is corrupt: its header announces an object array of shape {tuple(shape)} but the data holds "
+            f"{found}"
+        )
+    return array
