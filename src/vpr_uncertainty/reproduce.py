@@ -39,6 +39,7 @@ import hashlib
 import json
 import re
 import warnings
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -451,7 +452,7 @@ def _load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None
             return None
         with np.load(npz_path, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):  # a cell cut short is recomputed
         return None
     correct = arrays["correct"].astype(bool)
     methods = {}
