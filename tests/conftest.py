@@ -1,7 +1,10 @@
-"""Shared fixtures: the real data directory from VPR_UNCERTAINTY_DATA.
+"""Shared fixtures: the real data directory from VPR_UNCERTAINTY_DATA; the tolerance policy of float comparisons.
 
 Tests that need the real data use the ``data_dir`` fixture. Without the data they are skipped on a developer
 machine and fail under CI (CI=true), so a CI run never passes without exercising them.
+
+Float comparisons go through :func:`assert_close` (``from conftest import assert_close``), which picks the relative
+tolerance by dtype; tests/README.md states the policy.
 """
 
 from __future__ import annotations
@@ -9,6 +12,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 
@@ -42,3 +46,35 @@ def corridor_dir(data_dir: Path) -> Path:
 def corridor_matches_dir(data_dir: Path) -> Path:
     """Precomputed similarity matrices of ten VPR methods on the corridor dataset."""
     return _require(data_dir / "vprbench" / "precomputed_matches" / "corridor", "the corridor matches")
+
+
+# --- tolerance policy (tests/README.md) ------------------------------------------------------------------------
+
+#: Relative tolerance by floating dtype: a few units in the last place, enough for another summation order,
+#: another BLAS kernel or thread count, never enough to hide a wrong formula.
+RTOL: dict[np.dtype, float] = {np.dtype(np.float16): 1e-3, np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-12}
+
+
+def rtol_for(*values: object) -> float:
+    """The relative tolerance of the least precise floating array among ``values`` (0 when none is floating).
+
+    A Python float counts as float64: pass ``dtype=`` to :func:`assert_close` when it was computed in float32.
+    """
+    dtypes = [np.asarray(value).dtype for value in values]
+    floating = [dtype for dtype in dtypes if dtype.kind in "fc"]
+    if not floating:
+        return 0.0
+    least = max(floating, key=lambda dtype: np.finfo(dtype).eps)
+    return RTOL[np.finfo(least).dtype]
+
+
+def assert_close(actual, expected, *, rtol: float | None = None, atol: float = 0.0, dtype=None, err_msg: str = ""):
+    """``np.testing.assert_allclose`` with ``rtol`` chosen by dtype (see :data:`RTOL`).
+
+    ``dtype`` names the precision the values were computed in when it is not that of the arrays (a Python float
+    from a float32 computation). Give ``atol`` where the values can be ~0, as a relative bound means nothing there.
+    Integer and boolean inputs are compared exactly.
+    """
+    if rtol is None:
+        rtol = RTOL[np.dtype(dtype)] if dtype is not None else rtol_for(actual, expected)
+    np.testing.assert_allclose(actual, expected, rtol=rtol, atol=atol, err_msg=err_msg)

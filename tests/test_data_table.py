@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import assert_close
 from test_data_positives import assert_same_positives, brute_force_positives
 from vpr_uncertainty.data import load_dataset, load_table_dataset
 
@@ -44,8 +45,8 @@ def test_csv_with_latitude_longitude(tmp_path: Path, pitts_places) -> None:
     assert dataset.database_paths[0] == tmp_path / "db" / "0000.jpg"
     assert dataset.info["unit"] == "latlon" and dataset.info["utm_zone"] == 17
     # Projected back to the original UTM positions (8 decimals of a degree ≈ 1 mm).
-    np.testing.assert_allclose(dataset.database_positions, database, atol=0.01)
-    np.testing.assert_allclose(dataset.query_positions, queries, atol=0.01)
+    assert_close(dataset.database_positions, database, atol=0.01)  # 8 decimals of a degree, UTM round trip
+    assert_close(dataset.query_positions, queries, atol=0.01)
     assert dataset.position_kind == "metres" and dataset.positive_radius == 25
     assert_same_positives(
         dataset.positives, brute_force_positives(dataset.query_positions, dataset.database_positions, 25)
@@ -66,7 +67,7 @@ def test_tsv_in_metres_with_a_separate_query_table(tmp_path: Path, pitts_places)
     )
     dataset = load_dataset(tmp_path / "database.tsv", queries=tmp_path / "queries.tsv", name="pitts")
     assert dataset.name == "pitts"
-    np.testing.assert_array_equal(dataset.database_positions, database)
+    np.testing.assert_array_equal(dataset.database_positions, database)  # repr() of a float parses back exactly
     np.testing.assert_array_equal(dataset.query_positions, queries)
     assert_same_positives(dataset.positives, brute_force_positives(queries, database, 25))
 

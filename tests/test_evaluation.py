@@ -7,6 +7,7 @@ import pytest
 from scipy import sparse
 from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
+from conftest import assert_close
 from vpr_uncertainty import Retrieval, evaluate
 from vpr_uncertainty.evaluation import (
     auc_pr,
@@ -50,12 +51,10 @@ def labels():
 def test_auc_pr_is_the_trapezoid_over_sklearn_curve(labels):
     correct, uncertainty = labels
     precision, recall, _ = precision_recall_curve(correct, -uncertainty)
-    assert auc_pr(correct, uncertainty) == pytest.approx(auc(recall, precision), abs=0)
-    assert average_precision(correct, uncertainty) == pytest.approx(
-        average_precision_score(correct, -uncertainty), abs=0
-    )
+    assert_close(auc_pr(correct, uncertainty), auc(recall, precision), atol=0)
+    assert_close(average_precision(correct, uncertainty), average_precision_score(correct, -uncertainty))
     # the sign convention: a perfect uncertainty (wrong answers most uncertain) gives AUC-PR 1
-    assert auc_pr(correct, np.where(correct, 0.0, 1.0)) == pytest.approx(1.0)
+    assert_close(auc_pr(correct, np.where(correct, 0.0, 1.0)), 1.0)
     assert auc_pr(correct, uncertainty) > auc_pr(correct, -uncertainty)
 
 
@@ -73,9 +72,9 @@ def test_rejection_curve_matches_loop(labels, ties):
         uncertainty = np.round(uncertainty, 1)
     curve = rejection_curve(correct, uncertainty, n_answerable=320)
     expected = reference_rejection_curve(correct, uncertainty, 320)
-    np.testing.assert_allclose(curve.thresholds, expected[:, 0])
-    np.testing.assert_allclose(curve.precision, expected[:, 1])
-    np.testing.assert_allclose(curve.recall, expected[:, 2])
+    assert_close(curve.thresholds, expected[:, 0])
+    assert_close(curve.precision, expected[:, 1])
+    assert_close(curve.recall, expected[:, 2])
     assert curve.coverage[-1] == 1.0
 
 
@@ -84,8 +83,8 @@ def test_rejection_summaries_hand_computed():
     correct = np.array([True, True, False, True, False])
     uncertainty = np.array([0.1, 0.2, 0.3, 0.4, 0.5])
     curve = rejection_curve(correct, uncertainty, n_answerable=4)
-    np.testing.assert_allclose(curve.precision, [1, 1, 2 / 3, 3 / 4, 3 / 5])
-    np.testing.assert_allclose(curve.recall, [1 / 4, 2 / 4, 2 / 4, 3 / 4, 3 / 4])
+    assert_close(curve.precision, [1, 1, 2 / 3, 3 / 4, 3 / 5])
+    assert_close(curve.recall, [1 / 4, 2 / 4, 2 / 4, 3 / 4, 3 / 4])
     assert recall_at_full_precision(curve) == 0.5
     assert precision_at_recall(curve, 0.5) == 1.0
     assert precision_at_recall(curve, 0.75) == 0.75
@@ -96,14 +95,14 @@ def test_rejection_summaries_hand_computed():
 
 def test_aurc_matches_textbook_formula_without_ties(labels):
     correct, uncertainty = labels
-    assert aurc(correct, uncertainty) == pytest.approx(reference_aurc_without_ties(correct, uncertainty))
+    assert_close(aurc(correct, uncertainty), reference_aurc_without_ties(correct, uncertainty))
 
 
 def test_aurc_with_ties_accepts_tied_queries_together():
     correct = np.array([True, False, True, True])
     uncertainty = np.array([0.1, 0.1, 0.2, 0.2])
     # coverage 1/2 with risk 1/2, then coverage 1 with risk 1/4
-    assert aurc(correct, uncertainty) == pytest.approx(0.5 * 0.5 + 0.5 * 0.25)
+    assert_close(aurc(correct, uncertainty), 0.5 * 0.5 + 0.5 * 0.25)
     # independent of the order of tied queries
     assert aurc(correct[[1, 0, 3, 2]], uncertainty) == aurc(correct, uncertainty)
 
@@ -133,7 +132,7 @@ def test_correct_and_recall_at_n_match_loop():
         np.testing.assert_array_equal(correct_at_n(indices, sparse.csr_array(mask), n), expected)
     recalls = recall_at_n(indices, mask, ns=(1, 5, 25))
     assert set(recalls) == {1, 5}  # 25 > k is left out
-    assert recalls[5] == pytest.approx(correct_at_n(indices, mask, 5)[answerable].mean())
+    assert_close(recalls[5], correct_at_n(indices, mask, 5)[answerable].mean())
     with pytest.raises(ValueError, match="between 1 and"):
         correct_at_n(indices, mask, 21)
 
@@ -150,8 +149,8 @@ def test_evaluate_on_synthetic_retrieval_matches_direct_computation():
     np.testing.assert_array_equal(result.correct, correct)
     from vpr_uncertainty import statistical_uncertainty
 
-    assert result.methods["SU"].auc_pr == pytest.approx(auc_pr(correct, statistical_uncertainty(scores)))
-    assert result.methods["BM"].auc_pr == pytest.approx(auc_pr(correct, -scores[:, 0]))
+    assert_close(result.methods["SU"].auc_pr, auc_pr(correct, statistical_uncertainty(scores)))
+    assert_close(result.methods["BM"].auc_pr, auc_pr(correct, -scores[:, 0]))
     as_json = result.to_dict()
     assert set(as_json) >= {"n_queries", "recall@1", "methods"}
     assert set(as_json["methods"]["SU"]) >= {"auc_pr", "average_precision", "aurc", "time_per_query_ms"}
@@ -211,11 +210,11 @@ def test_method_with_its_own_retrieval_is_judged_by_its_own_top1():
     finally:
         del _REGISTRY["OWN-TEST"]
     own_correct = np.array([False, True, True])
-    assert result.methods["OWN-TEST"].auc_pr == pytest.approx(auc_pr(own_correct, [0.3, 0.1, 0.2]))
-    assert result.methods["BM"].auc_pr == pytest.approx(auc_pr([True, False, True], -shared.scores[:, 0]))
+    assert_close(result.methods["OWN-TEST"].auc_pr, auc_pr(own_correct, [0.3, 0.1, 0.2]))
+    assert_close(result.methods["BM"].auc_pr, auc_pr([True, False, True], -shared.scores[:, 0]))
     as_json = result.to_dict()["methods"]
     assert as_json["OWN-TEST"]["correctness_from"] == "own retrieval"
-    assert as_json["OWN-TEST"]["own_recall@1"] == pytest.approx(2 / 3)
+    assert_close(as_json["OWN-TEST"]["own_recall@1"], 2 / 3)
     assert "correctness_from" not in as_json["BM"]
     assert any("OWN-TEST retrieves with its own embeddings" in note for note in result.notes)
 

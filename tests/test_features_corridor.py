@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import assert_close
+
 torch = pytest.importorskip("torch")
 pytest.importorskip("efficientnet_lite_pytorch")
 
@@ -49,7 +51,7 @@ def test_default_model_descriptors_are_finite_unit_vectors(corridor_descriptors)
         names, descriptors = result[split]
         assert descriptors.shape == (111, 1280) and descriptors.dtype == np.float32
         assert np.isfinite(descriptors).all()
-        np.testing.assert_allclose(np.linalg.norm(descriptors, axis=1), 1.0, atol=1e-5)
+        assert_close(np.linalg.norm(descriptors, axis=1), 1.0)
         assert list(names) == [f"{i:07d}.jpg" for i in range(111)]
         read_names, read = read_descriptors(cache, split)
         assert list(read_names) == list(names)

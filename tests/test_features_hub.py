@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from conftest import assert_close
+
 torch = pytest.importorskip("torch")
 
 from vpr_uncertainty.features import (  # noqa: E402
@@ -105,8 +107,8 @@ def test_entry_metadata(name):
 
 def test_netvlad_uses_openibl_pixel_range():
     spec = get_model_spec("netvlad")
-    assert spec.preprocessing.std == pytest.approx((1 / 255,) * 3)
-    assert spec.preprocessing.mean == pytest.approx((0.48502, 0.45796, 0.40760), abs=1e-5)
+    assert_close(spec.preprocessing.std, (1 / 255,) * 3)
+    assert_close(spec.preprocessing.mean, (0.48502, 0.45796, 0.40760), atol=1e-5)
 
 
 @pytest.mark.parametrize("alias", ["Conv-AP", "AP-GeM", "EigenPlaces", "SALAD", "cric_avpr"])

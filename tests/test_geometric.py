@@ -9,6 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
+from conftest import assert_close
 from vpr_uncertainty import Retrieval, get_method
 from vpr_uncertainty.geometric import (
     GeometricVerifier,
@@ -142,10 +143,10 @@ def test_working_resolution_round_trip() -> None:
     features = LocalFeatures.from_working(
         np.array([[0.0, 0.0], [319.0, 239.0]]), np.ones((2, 4)), None, original_size=(640, 480), working_size=(320, 240)
     )
-    np.testing.assert_allclose(features.keypoints, [[0.5, 0.5], [638.5, 478.5]])
+    assert_close(features.keypoints, [[0.5, 0.5], [638.5, 478.5]])
     keypoints, size = features.at_working_resolution(320)
     assert size == (320, 240)
-    np.testing.assert_allclose(keypoints, [[0.0, 0.0], [319.0, 239.0]], atol=1e-5)
+    assert_close(keypoints, [[0.0, 0.0], [319.0, 239.0]], atol=1e-5)
     assert features.at_working_resolution(1024)[1] == (640, 480)  # never enlarged
 
 

@@ -8,6 +8,7 @@ import warnings
 import numpy as np
 import pytest
 
+from conftest import assert_close
 from vpr_uncertainty import get_method
 from vpr_uncertainty.retrieval import Retrieval
 from vpr_uncertainty.spatial import spatial_uncertainty, sue_from_retrieval
@@ -67,7 +68,9 @@ def test_matches_loop_reference(clip, slope):
     indices, distances, positions = random_problem(seed=int(slope))
     expected = loop_reference(indices, distances, positions, slope=slope, clip=clip)
     result = spatial_uncertainty(indices, distances, positions, slope=slope, clip=clip)
-    np.testing.assert_allclose(result, expected, rtol=1e-9, atol=1e-6)
+    # float64, but the loop sums the weighted variance in another order over UTM-sized coordinates (~5e6 m):
+    # cancellation in x - mean costs ~6 digits, hence rtol 1e-9 and an atol (m²) for variances near 0.
+    assert_close(result, expected, rtol=1e-9, atol=1e-6)
 
 
 def test_one_sided_clip_reproduces_the_published_code():
@@ -75,7 +78,7 @@ def test_one_sided_clip_reproduces_the_published_code():
     distances = distances * 0.01  # small enough that the unshifted exp of the published code does not underflow
     expected = published(indices, distances, positions)
     result = spatial_uncertainty(indices, distances, positions, clip="one-sided")
-    np.testing.assert_allclose(result, expected, rtol=1e-8)
+    assert_close(result, expected, rtol=1e-8)  # the published code's unshifted exp and UTM-sized sums: ~6 digits lost
 
 
 def test_all_neighbours_at_one_place_give_zero():
@@ -99,19 +102,21 @@ def test_huge_distances_stay_finite(scale):
     result = spatial_uncertainty(indices, distances * scale, positions)
     assert np.isfinite(result).all() and (result >= 0).all()
     # All weight on the nearest candidate (huge gaps), unless the distances tie.
-    np.testing.assert_allclose(result, 0.0, atol=1e-6)
+    assert_close(result, 0.0, atol=1e-6)
 
 
 def test_huge_but_close_distances_keep_their_relative_weights():
     indices, distances, positions = random_problem(seed=3)
     shifted = spatial_uncertainty(indices, distances + 1e6, positions)
-    np.testing.assert_allclose(shifted, spatial_uncertainty(indices, distances, positions), rtol=1e-6)
+    # distances + 1e6 keep only ~10 of their 16 digits, and exp(-slope * d) amplifies the loss: rtol 1e-6.
+    assert_close(shifted, spatial_uncertainty(indices, distances, positions), rtol=1e-6)
 
 
 def test_equal_distances_give_the_plain_variance():
     indices, _, positions = random_problem(seed=4, spread=300.0)  # within 500 m: no clipping
     result = spatial_uncertainty(indices, np.full(indices.shape, 0.7), positions)
-    np.testing.assert_allclose(result, positions[indices].var(axis=1).mean(axis=1), rtol=1e-9)
+    # numpy's var subtracts the mean first, the method weights by exp: other sums over UTM-sized coordinates.
+    assert_close(result, positions[indices].var(axis=1).mean(axis=1), rtol=1e-9)
 
 
 def test_clip_variants():
@@ -121,6 +126,7 @@ def test_clip_variants():
     symmetric = [spatial_uncertainty(*case, positions)[0] for case in (west, east)]
     one_sided = [spatial_uncertainty(*case, positions, clip="one-sided")[0] for case in (west, east)]
     unclipped = spatial_uncertainty(*west, positions, clip="none")[0]
+    # Two points, equal weights, round coordinates: every step is exact in binary, so == is meant.
     assert symmetric[0] == symmetric[1] == 500.0**2 / 2  # mirror images agree
     assert one_sided[0] == one_sided[1]  # two points: one deviation of each sign, so still symmetric
     assert unclipped == 1500.0**2 / 2
@@ -128,10 +134,10 @@ def test_clip_variants():
     lopsided = np.array([[0.0, 0.0], [0.0, 0.0], [3000.0, 0.0]])  # mean x = 1000: deviations −1000, −1000, 2000
     three = ([[0, 1, 2]], [[0.5, 0.5, 0.5]])
     mirrored = lopsided * [-1, 1]
-    assert spatial_uncertainty(*three, lopsided)[0] == pytest.approx(500.0**2 / 2)
-    assert spatial_uncertainty(*three, mirrored)[0] == pytest.approx(500.0**2 / 2)
-    assert spatial_uncertainty(*three, lopsided, clip="one-sided")[0] == pytest.approx((2 * 1000.0**2 + 500.0**2) / 6)
-    assert spatial_uncertainty(*three, mirrored, clip="one-sided")[0] == pytest.approx((2 * 500.0**2 + 2000.0**2) / 6)
+    assert_close(spatial_uncertainty(*three, lopsided)[0], 500.0**2 / 2)
+    assert_close(spatial_uncertainty(*three, mirrored)[0], 500.0**2 / 2)
+    assert_close(spatial_uncertainty(*three, lopsided, clip="one-sided")[0], (2 * 1000.0**2 + 500.0**2) / 6)
+    assert_close(spatial_uncertainty(*three, mirrored, clip="one-sided")[0], (2 * 500.0**2 + 2000.0**2) / 6)
     assert spatial_uncertainty(*west, positions, max_deviation=100.0)[0] == 100.0**2 / 2
 
 
@@ -141,7 +147,7 @@ def test_missing_candidates_are_left_out():
     padded_indices[:, 6:] = -1
     padded_distances = distances.copy()
     padded_distances[:, 6:] = np.inf
-    np.testing.assert_allclose(
+    assert_close(
         spatial_uncertainty(padded_indices, padded_distances, positions),
         spatial_uncertainty(indices[:, :6], distances[:, :6], positions),
     )
@@ -152,7 +158,7 @@ def test_missing_candidates_are_left_out():
 
 def test_k_uses_the_first_columns():
     indices, distances, positions = random_problem(seed=6, k=20)
-    np.testing.assert_allclose(
+    assert_close(
         spatial_uncertainty(indices, distances, positions, k=10),
         spatial_uncertainty(indices[:, :10], distances[:, :10], positions),
     )
@@ -200,9 +206,10 @@ def test_registry_entry_uses_the_distances_or_the_scores():
     expected = spatial_uncertainty(indices, distances, positions)
     with_distances = retrieval_of(indices, distances, positions, distances=distances)
     without = retrieval_of(indices, distances, positions)
-    np.testing.assert_allclose(get_method("SUE")(with_distances, k=10, alpha=0.3), expected)
-    np.testing.assert_allclose(get_method("SUE")(without), expected, rtol=1e-9)
-    np.testing.assert_allclose(
+    assert_close(get_method("SUE")(with_distances, k=10, alpha=0.3), expected)
+    # Distances rebuilt from the scores (d² = 2 − 2s of s = 1 − d²/2) differ in the last bits, amplified by exp.
+    assert_close(get_method("SUE")(without), expected, rtol=1e-9)
+    assert_close(
         sue_from_retrieval(with_distances, clip="none"), spatial_uncertainty(indices, distances, positions, clip="none")
     )
 

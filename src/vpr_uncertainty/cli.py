@@ -1,27 +1,80 @@
 """Command line: ``vpr-uncertainty <command> --help`` explains each command.
 
-Thin by design: each command lives in :mod:`vpr_uncertainty.commands` and calls the library functions.
+Thin by design: each command lives in :mod:`vpr_uncertainty.commands` and calls the library functions. This
+module turns what goes wrong into one line on stderr and an exit status (see :data:`EXIT_STATUS_HELP`).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import pickle
 import sys
+import traceback
 import warnings
+import zipfile
 from collections.abc import Sequence
+from typing import NoReturn
 
-__all__ = ["COMMANDS", "build_parser", "main"]
+__all__ = ["COMMANDS", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_RUNTIME", "build_parser", "exit_status", "main"]
 
 #: Command modules in :mod:`vpr_uncertainty.commands`, in the order ``--help`` lists them.
 COMMANDS: tuple[str, ...] = ("demo", "run", "evaluate", "reproduce", "datasets", "extract", "retrieve", "train-btl")
 
+#: Exit statuses: a usage or input error (what the user can fix in the command line or the files it names), a
+#: failure while running (disk full, a library or device failure), an interrupt (Ctrl-C, as the shells do).
+EXIT_INPUT, EXIT_RUNTIME, EXIT_INTERRUPTED = 2, 1, 130
+
+#: Environment variable that, set to anything but "" or "0", shows tracebacks like ``--debug``.
+DEBUG_VARIABLE = "VPR_UNCERTAINTY_DEBUG"
+
+EXIT_STATUS_HELP = f"""exit status:
+  0    success
+  1    runtime failure (disk full, I/O error, library or device failure); one line on stderr
+  2    usage or input error (bad option, missing or unreadable file, invalid data); one line on stderr
+  130  interrupted (Ctrl-C); caches stay consistent and a rerun resumes
+  An unexpected error (a bug) prints its traceback. --debug (or {DEBUG_VARIABLE}=1) prints the traceback of
+  every error."""
+
+# Errors about what the user gave: options, paths, file contents.
+_INPUT_ERRORS: tuple[type[BaseException], ...] = (
+    ValueError,  # includes UnicodeError, json/TOML decode errors
+    TypeError,
+    KeyError,
+    ImportError,  # a missing optional dependency: the message names the extra to install
+    EOFError,  # truncated input file
+    zipfile.BadZipFile,
+    pickle.UnpicklingError,
+    FileNotFoundError,
+    FileExistsError,
+    IsADirectoryError,
+    NotADirectoryError,
+    PermissionError,
+)
+# Failures of the environment or of a library while running: disk full, I/O, h5py/Faiss/torch RuntimeErrors.
+_RUNTIME_ERRORS: tuple[type[BaseException], ...] = (OSError, RuntimeError, MemoryError)
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (the usage is one ``--help`` away)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="vpr-uncertainty",
         description="How much to doubt each answer of a visual place recognition system, and how good that "
         "doubt is. Uncertainty is higher for answers to trust less.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EXIT_STATUS_HELP,
+    )
+    parser.add_argument(
+        "--debug",
+        action="store_true",
+        help=f"show the full Python traceback of an error (also: environment variable {DEBUG_VARIABLE}=1)",
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
@@ -33,17 +86,66 @@ def _short_warning(message, category, filename, lineno, line=None) -> str:
     return f"warning: {message}\n"
 
 
+def exit_status(error: BaseException) -> int | None:
+    """Exit status for ``error``: 2 input, 1 runtime, 130 interrupt; None for an unexpected error (a bug)."""
+    if isinstance(error, KeyboardInterrupt):
+        return EXIT_INTERRUPTED
+    if isinstance(error, _INPUT_ERRORS):
+        return EXIT_INPUT
+    if isinstance(error, _RUNTIME_ERRORS):
+        return EXIT_RUNTIME
+    return None
+
+
+def _message(error: BaseException) -> str:
+    """The one line that describes ``error``."""
+    if isinstance(error, KeyError) and error.args:
+        return str(error.args[0])
+    if isinstance(error, OSError) and error.strerror and error.filename is not None:
+        target = f"{error.filename} -> {error.filename2}" if error.filename2 is not None else str(error.filename)
+        text = f"{error.strerror}: {target}"
+    else:
+        text = str(error) or type(error).__name__
+    if isinstance(error, _RUNTIME_ERRORS) and not isinstance(error, _INPUT_ERRORS):
+        text = " ".join(text.split())  # third-party messages (h5py, Faiss) span lines
+    return text
+
+
+def _debug_requested(args: argparse.Namespace | None) -> bool:
+    return bool(getattr(args, "debug", False)) or os.environ.get(DEBUG_VARIABLE, "") not in {"", "0"}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vpr-uncertainty`` command; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    warnings.formatwarning = _short_warning
+    args: argparse.Namespace | None = None
+    prefix = "vpr-uncertainty"
     try:
+        args = build_parser().parse_args(argv)
+        prefix = f"vpr-uncertainty {args.command}"
+        warnings.formatwarning = _short_warning
         return args.handler(args)
-    except (ValueError, TypeError, FileNotFoundError, KeyError, ImportError) as error:
-        message = error.args[0] if isinstance(error, KeyError) and error.args else error
-        print(f"vpr-uncertainty {args.command}: error: {message}", file=sys.stderr)
-        return 2
+    except BrokenPipeError:  # the reader of stdout went away (`... | head`): stop quietly
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_RUNTIME
+    except KeyboardInterrupt:
+        if _debug_requested(args):
+            traceback.print_exc()
+        print(f"\n{prefix}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as error:
+        status = exit_status(error)
+        if status is None or _debug_requested(args):
+            traceback.print_exc()
+        if status is None:
+            print(
+                f"{prefix}: internal error: {type(error).__name__}: {_message(error)} "
+                "(a bug: please report it with the traceback above)",
+                file=sys.stderr,
+            )
+            return EXIT_RUNTIME
+        print(f"{prefix}: error: {_message(error)}", file=sys.stderr)
+        return status
 
 
 if __name__ == "__main__":

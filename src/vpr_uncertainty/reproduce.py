@@ -42,6 +42,7 @@ import csv
 import hashlib
 import json
 import warnings
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -248,7 +249,7 @@ def _load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None
             return None
         with np.load(npz_path, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):  # a cell cut short is recomputed
         return None
     correct = arrays["correct"].astype(bool)
     methods = {}

@@ -48,6 +48,7 @@ Retrieval file (``.npz``, no pickles), format version 1
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -219,8 +220,13 @@ def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
         if value is not None:
             arrays[name] = np.asarray(value, dtype=np.float64)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("wb") as handle:
-        np.savez_compressed(handle, **arrays)
+    partial = path.with_name(f".{path.name}.partial")  # written whole, then renamed: never a truncated file
+    try:
+        with partial.open("wb") as handle:
+            np.savez_compressed(handle, **arrays)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
     return path
 
 

@@ -4,9 +4,22 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import re
+import tempfile
 from collections.abc import Callable
+from pathlib import Path
 
-__all__ = ["candidate_count", "integer_at_least", "non_negative_float", "positive_int"]
+__all__ = [
+    "candidate_count",
+    "device_name",
+    "integer_at_least",
+    "non_negative_float",
+    "output_directory",
+    "output_file",
+    "positive_int",
+    "write_output",
+]
 
 
 def integer_at_least(minimum: int) -> Callable[[str], int]:
@@ -40,3 +53,68 @@ def non_negative_float(text: str) -> float:
     if not 0 <= value < math.inf:
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
     return value
+
+
+_DEVICE = re.compile(r"(cpu|mps|cuda(:\d+)?)")
+
+
+def device_name(text: str) -> str:
+    """An argparse type accepting the device names the toolkit supports: cpu, cuda, cuda:N, mps.
+
+    Whether the device is present is checked where it is used (torch or Faiss says which ones are).
+    """
+    if not _DEVICE.fullmatch(text):
+        raise argparse.ArgumentTypeError(f"expected cpu, cuda, cuda:N or mps, got {text!r}")
+    return text
+
+
+def _check_writable(path: Path) -> None:
+    """Raise ArgumentTypeError unless ``path`` could be created: its nearest existing ancestor must be a folder
+    in which a file can be created (probed with a temporary file, removed at once)."""
+    ancestor = path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise argparse.ArgumentTypeError(f"{ancestor} is a file, so {path} cannot be created under it")
+    try:
+        with tempfile.NamedTemporaryFile(dir=ancestor, prefix=".vpr-uncertainty-probe-"):
+            pass
+    except OSError as error:
+        raise argparse.ArgumentTypeError(f"cannot write in {ancestor}: {error.strerror or error}") from None
+
+
+def output_file(text: str) -> Path:
+    """An argparse type for a file the command writes: not a folder, and creatable or writable."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a folder; expected a file name")
+    if path.exists():
+        if not os.access(path, os.W_OK):
+            raise argparse.ArgumentTypeError(f"{path} exists and is not writable")
+    else:
+        _check_writable(path)
+    return path
+
+
+def output_directory(text: str) -> Path:
+    """An argparse type for a folder the command writes into: not an existing file, and creatable."""
+    path = Path(text)
+    if path.exists():
+        if not path.is_dir():
+            raise argparse.ArgumentTypeError(f"{path} exists and is not a folder; expected an output folder")
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise argparse.ArgumentTypeError(f"{path} is not writable")
+    else:
+        _check_writable(path)
+    return path
+
+
+def write_output(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` (creating its folder); an OSError always names the file (disk full included)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    except OSError as error:
+        if error.filename is None and error.errno is not None:
+            raise OSError(error.errno, error.strerror, str(path)) from error
+        raise

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import candidate_count
+from vpr_uncertainty.commands._arguments import candidate_count, output_file, write_output
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
 from vpr_uncertainty.inputs import INPUT_FORMATS, MATRIX_TOP_K, read_results
 from vpr_uncertainty.methods import available_methods, get_method, split_method_list
@@ -82,8 +82,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help=f"comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided "
         f"(default {','.join(DEFAULT_METHODS)})",
     )
-    parser.add_argument("--json", type=Path, metavar="FILE", help="write the results as JSON")
-    parser.add_argument("--plot", type=Path, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)")
+    parser.add_argument("--json", type=output_file, metavar="FILE", help="write the results as JSON")
+    parser.add_argument(
+        "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
+    )
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     learned = parser.add_argument_group("options of methods that need more than scores")
     learned.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: the head written by train-btl")
@@ -110,8 +112,7 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha, **options)
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(evaluation.to_dict(), indent=2) + "\n")
+        write_output(args.json, json.dumps(evaluation.to_dict(), indent=2) + "\n")
         print(f"wrote {args.json}")
     if args.plot:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import positive_int
+from vpr_uncertainty.commands._arguments import device_name, output_file, positive_int
 from vpr_uncertainty.features.extract import ON_ERROR
 from vpr_uncertainty.features.models import DEFAULT_MODEL, available_models, get_model_spec
 
@@ -103,8 +103,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--model", default=DEFAULT_MODEL, help=f"model name (see above) or TorchScript file (default {DEFAULT_MODEL})"
     )
-    parser.add_argument("--out", type=Path, required=True, help="HDF5 file to write (resumed if it exists)")
-    parser.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+    parser.add_argument("--out", type=output_file, required=True, help="HDF5 file to write (resumed if it exists)")
+    parser.add_argument("--device", type=device_name, default="cpu", help="cpu, cuda, cuda:N or mps (default cpu)")
     parser.add_argument("--batch-size", type=positive_int, default=16, help="images per forward pass (default 16)")
     parser.add_argument("--half", action="store_true", help="store descriptors as float16 instead of float32")
     parser.add_argument(

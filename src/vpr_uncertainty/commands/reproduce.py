@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from vpr_uncertainty.commands._arguments import output_directory
+
 __all__ = ["add_parser"]
 
 _EXAMPLE = """example config (TOML; relative paths are relative to the config file):
@@ -39,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         epilog=_EXAMPLE,
     )
     parser.add_argument("config", type=Path, metavar="CONFIG", help="grid configuration (.toml, or .yaml with pyyaml)")
-    parser.add_argument("--out", type=Path, help="output folder (default: `out` of the config)")
+    parser.add_argument("--out", type=output_directory, help="output folder (default: `out` of the config)")
     parser.add_argument("--force", action="store_true", help="recompute every cell, ignoring the cache")
     parser.add_argument(
         "--check",

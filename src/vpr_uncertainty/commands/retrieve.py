@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import non_negative_float, positive_int
+from vpr_uncertainty.commands._arguments import non_negative_float, output_file, positive_int
 
 __all__ = ["add_parser"]
 
@@ -37,7 +37,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--database", type=Path, required=True, metavar="DB", help="database descriptors (.npy, .h5)")
     parser.add_argument("--queries", type=Path, required=True, metavar="Q", help="query descriptors (.npy, .h5)")
-    parser.add_argument("--out", type=Path, required=True, metavar="FILE", help="retrieval file to write (.npz)")
+    parser.add_argument("--out", type=output_file, required=True, metavar="FILE", help="retrieval file to write (.npz)")
     parser.add_argument("--k", type=positive_int, default=10, help="candidates kept per query (default 10)")
     parser.add_argument(
         "--index",

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from vpr_uncertainty.commands._arguments import candidate_count, positive_int
+from vpr_uncertainty.commands._arguments import candidate_count, device_name, output_directory, positive_int
 from vpr_uncertainty.commands.evaluate import METHOD_SPEC_HELP, method_list
 
 if TYPE_CHECKING:
@@ -19,7 +19,11 @@ __all__ = ["add_common_run_options", "add_parser", "print_summary"]
 def add_common_run_options(parser: argparse.ArgumentParser, *, default_out: Path | None = None) -> None:
     """Options shared by ``run`` and ``demo``."""
     parser.add_argument(
-        "--out", type=Path, required=default_out is None, default=default_out, help="run directory (reused on rerun)"
+        "--out",
+        type=output_directory,
+        required=default_out is None,
+        default=default_out,
+        help="run directory (reused on rerun)",
     )
     parser.add_argument(
         "--methods",
@@ -29,7 +33,9 @@ def add_common_run_options(parser: argparse.ArgumentParser, *, default_out: Path
     )
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query for RS/SD/SU (default 10)")
     parser.add_argument("--alpha", type=float, default=0.5, help="weight of RS in SU, in [0, 1] (default 0.5)")
-    parser.add_argument("--device", default="cpu", help="cpu or cuda (extraction and Faiss search)")
+    parser.add_argument(
+        "--device", type=device_name, default="cpu", help="cpu, cuda, cuda:N or mps (extraction and Faiss search)"
+    )
     parser.add_argument("--batch-size", type=positive_int, default=16, help="images per forward pass (default 16)")
 
 

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.commands._arguments import non_negative_float, positive_int
+from vpr_uncertainty.commands._arguments import device_name, non_negative_float, output_file, positive_int
 
 __all__ = ["add_parser", "read_training_inputs"]
 
@@ -65,7 +65,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=25.0,
         help="positives: images within this distance, in the unit of the positions (default 25)",
     )
-    parser.add_argument("--out", type=Path, required=True, metavar="FILE", help="head file to write (e.g. head.pt)")
+    parser.add_argument(
+        "--out", type=output_file, required=True, metavar="FILE", help="head file to write (e.g. head.pt)"
+    )
     model = parser.add_argument_group("model and loss")
     model.add_argument(
         "--embedding-dim", type=positive_int, help="dimension of the mean embedding (default min(dim, 2048))"
@@ -84,7 +86,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     training.add_argument("--val-fraction", type=float, default=0.2, help="anchors held out for validation (0.2)")
     training.add_argument("--patience", type=positive_int, default=10, help="epochs without improvement (10)")
     training.add_argument("--seed", type=int, default=0, help="random seed of the split, init and shuffling (0)")
-    training.add_argument("--device", default="cpu", help="cpu, cuda or cuda:N (default cpu)")
+    training.add_argument("--device", type=device_name, default="cpu", help="cpu, cuda or cuda:N (default cpu)")
     training.add_argument(
         "--threads", type=positive_int, help="CPU threads of PyTorch (default: its own choice; 1 on a busy machine)"
     )

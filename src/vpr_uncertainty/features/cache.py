@@ -18,10 +18,13 @@ from the current model's is recomputed from scratch, never mixed.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import os
+import re
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +37,10 @@ FORMAT_VERSION = 1
 SPLITS = ("database", "queries")
 DTYPES = ("float32", "float16")
 _CHUNK_ROWS = 256
+# No raw-data chunk cache in the writer: each batch goes to disk when written, so a failed write (disk full)
+# raises there, as an OSError, instead of leaving a dirty chunk that HDF5 cannot flush on close and that crashes
+# the interpreter at exit (HDF5 2.0 / h5py 3.16: segmentation fault).
+_WRITER_OPTIONS = {"rdcc_nbytes": 0}
 
 
 def _check_split(split: str) -> str:
@@ -178,19 +185,20 @@ class DescriptorCache:
         if self.path.exists() and not self.overwrite:
             reason = self._stale_reason(h5py)
             if reason is None:
-                self._handle = h5py.File(self.path, "a")
+                self._handle = h5py.File(self.path, "a", **_WRITER_OPTIONS)
                 return
             warnings.warn(f"descriptor cache {self.path}: {reason}; recomputing all descriptors", stacklevel=3)
             self.invalidated = True
         if self.path.exists():
             os.remove(self.path)
-        self._handle = h5py.File(self.path, "w")
-        self._handle.attrs["format"] = FORMAT
-        self._handle.attrs["format_version"] = FORMAT_VERSION
-        self._handle.attrs["fingerprint"] = self.fingerprint
-        self._handle.attrs["model"] = self.model_name
-        self._handle.attrs["dtype"] = self.dtype
-        self._handle.flush()
+        self._handle = h5py.File(self.path, "w", **_WRITER_OPTIONS)
+        with self._writing():
+            self._handle.attrs["format"] = FORMAT
+            self._handle.attrs["format_version"] = FORMAT_VERSION
+            self._handle.attrs["fingerprint"] = self.fingerprint
+            self._handle.attrs["model"] = self.model_name
+            self._handle.attrs["dtype"] = self.dtype
+            self._handle.flush()
 
     def _stale_reason(self, h5py: Any) -> str | None:
         try:
@@ -219,9 +227,18 @@ class DescriptorCache:
         return None
 
     def close(self) -> None:
-        if self._handle is not None:
-            self._handle.close()
-            self._handle = None
+        handle, self._handle = self._handle, None
+        if handle is not None:
+            with self._writing():
+                handle.close()
+
+    @contextlib.contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Report a failed HDF5 write (disk full, I/O error) as an OSError naming the errno and this file."""
+        try:
+            yield
+        except (OSError, RuntimeError) as error:
+            raise _write_error(self.path, error) from error
 
     def names(self, split: str) -> list[str]:
         """Names already stored for ``split``."""
@@ -250,12 +267,13 @@ class DescriptorCache:
             )
         start = _valid_length(group)
         stop = start + len(names)
-        # Descriptors first, names second: a name on disk always has its descriptor.
-        stored.resize((stop, stored.shape[1]))
-        stored[start:stop] = descriptors.astype(self.dtype)
-        group["names"].resize((stop,))
-        group["names"][start:stop] = np.asarray(list(names), dtype=object)
-        self._handle.flush()
+        with self._writing():
+            # Descriptors first, names second: a name on disk always has its descriptor.
+            stored.resize((stop, stored.shape[1]))
+            stored[start:stop] = descriptors.astype(self.dtype)
+            group["names"].resize((stop,))
+            group["names"][start:stop] = np.asarray(list(names), dtype=object)
+            self._handle.flush()
 
     def _create(self, group: Any, dim: int) -> None:
         h5py = _import_h5py()
@@ -280,21 +298,32 @@ class DescriptorCache:
             missing = [name for name in names if name not in index]
             if missing:
                 raise RuntimeError(f"cannot finalise {split!r}: {len(missing)} names were never written")
-            if names:
-                rows = np.array([index[name] for name in names], dtype=np.int64)
-                descriptors = np.asarray(group["descriptors"][:count])[rows]
-                self._create(group, descriptors.shape[1])
-                group["descriptors"].resize((len(names), descriptors.shape[1]))
-                group["descriptors"][:] = descriptors
-                group["names"].resize((len(names),))
-                group["names"][:] = np.asarray(list(names), dtype=object)
-            else:
-                for key in ("names", "descriptors"):
-                    if key in group:
-                        del group[key]
-        group.attrs["failed"] = json.dumps(list(failed))
-        group.attrs["complete"] = True
-        self._handle.flush()
+            with self._writing():
+                if names:
+                    rows = np.array([index[name] for name in names], dtype=np.int64)
+                    descriptors = np.asarray(group["descriptors"][:count])[rows]
+                    self._create(group, descriptors.shape[1])
+                    group["descriptors"].resize((len(names), descriptors.shape[1]))
+                    group["descriptors"][:] = descriptors
+                    group["names"].resize((len(names),))
+                    group["names"][:] = np.asarray(list(names), dtype=object)
+                else:
+                    for key in ("names", "descriptors"):
+                        if key in group:
+                            del group[key]
+        with self._writing():
+            group.attrs["failed"] = json.dumps(list(failed))
+            group.attrs["complete"] = True
+            self._handle.flush()
+
+
+def _write_error(path: Path, error: BaseException) -> OSError:
+    """An OSError with the errno of a failed HDF5 write (h5py puts it in the text of a RuntimeError)."""
+    number = getattr(error, "errno", None)
+    if not number:
+        found = re.search(r"errno = (\d+)", str(error))
+        number = int(found.group(1)) if found else errno.EIO
+    return OSError(number, f"{os.strerror(number)} (writing the descriptor cache)", str(path))
 
 
 def _looks_like_hdf5(path: Path) -> bool:
