@@ -524,11 +524,12 @@ def test_bad_vprbench_matrix_is_named(tmp_path):
 
 
 def test_minus_inf_keeps_its_meaning(tmp_path):
-    """-inf = this database image is no candidate (the retrieval convention): accepted, ranked last."""
+    """-inf = this database image is no candidate (the retrieval convention): accepted, ranked last, index -1."""
     matrix = np.array([[0.9, -np.inf, 0.5], [0.1, 0.8, 0.7]], dtype=np.float32)
     np.save(tmp_path / "sim.npy", matrix)
     retrieval = read_results(tmp_path / "sim.npy", ground_truth=_gt_for(tmp_path, 2))
-    assert retrieval.indices[0].tolist() == [0, 2, 1]
+    assert retrieval.indices[0].tolist() == [0, 2, -1]
+    assert retrieval.indices[1].tolist() == [1, 2, 0]
 
 
 @pytest.mark.parametrize(

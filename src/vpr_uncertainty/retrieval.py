@@ -138,7 +138,8 @@ def top_k_from_similarity(similarity: object, k: int, *, chunk_size: int = 4096)
     Parameters
     ----------
     similarity : array-like of shape (Q, D)
-        Higher = more similar. NaN is rejected.
+        Higher = more similar. NaN is rejected; ``-inf`` marks a database image that is no candidate for that
+        query, and comes back with index -1.
     k : int
         Candidates per query; ``min(k, D)`` are returned.
     chunk_size : int
@@ -192,6 +193,7 @@ def top_k_from_similarity(similarity: object, k: int, *, chunk_size: int = 4096)
             values[row] = block[row, full_order]
         scores[start : start + len(block)] = values
         indices[start : start + len(block)] = candidates
+    indices[scores == -np.inf] = -1  # -inf = no candidate: the retrieval convention pairs it with index -1
     return scores, indices
 
 
