@@ -21,7 +21,7 @@ import pytest
 torch = pytest.importorskip("torch")
 Image = pytest.importorskip("PIL.Image")
 
-from vpr_uncertainty.data import folder as folder_module  # noqa: E402
+from vpr_uncertainty.data import listing as listing_module  # noqa: E402
 from vpr_uncertainty.data.folder import ImageListingError, list_images, load_folder_dataset  # noqa: E402
 from vpr_uncertainty.features import (  # noqa: E402
     ImageDecodeError,
@@ -169,7 +169,7 @@ def _unreadable(folder: Path, monkeypatch: pytest.MonkeyPatch) -> None:
             raise PermissionError(13, "Permission denied", str(path))
         return real_scandir(path)
 
-    monkeypatch.setattr(folder_module.os, "scandir", scandir)
+    monkeypatch.setattr(listing_module.os, "scandir", scandir)
 
 
 def test_listing_keeps_broken_links_and_odd_names_and_reports_unreadable_folders(tmp_path, monkeypatch):
