@@ -242,7 +242,7 @@ def test_corrupt_image_fails_with_its_name(images, tmp_path):
     garbage, truncated = corrupt_files(tmp_path)
     path = tmp_path / "d.h5"
     all_paths = [*paths[:4], garbage, *paths[4:]]
-    with pytest.raises(ImageDecodeError, match=r"cannot decode image 'garbage\.jpg'.*not a recognised image"):
+    with pytest.raises(ImageDecodeError, match=r"cannot use image 'garbage\.jpg'.*not a recognised image"):
         extract_descriptors(counting()[1], all_paths, None, path, "database", batch_size=4, progress=False)
     assert cache_info(path)["database"]["count"] == 4  # the batch before the bad image was kept
     with pytest.raises(ImageDecodeError, match=r"truncated\.jpg"):
@@ -256,7 +256,7 @@ def test_corrupt_image_skipped_on_request(images, tmp_path):
     garbage, truncated = corrupt_files(tmp_path)
     path = tmp_path / "d.h5"
     all_paths = [garbage, *paths, truncated]
-    with pytest.warns(UserWarning, match=r"skipping cannot decode image 'garbage\.jpg'"):
+    with pytest.warns(UserWarning, match=r"left out 2 of 12 'database' images that cannot be used: 'garbage\.jpg'"):
         kept, descriptors = extract_descriptors(
             counting()[1], all_paths, None, path, "database", batch_size=4, on_error="skip", progress=False
         )

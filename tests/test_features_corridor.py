@@ -86,7 +86,7 @@ def test_corrupt_image_among_real_ones(corridor_dir, model, tmp_path):
     paths = sorted((corridor_dir / "query").glob("*.jpg"))[:3]
     bad = tmp_path / "0000999.jpg"
     bad.write_bytes(paths[0].read_bytes()[:300])  # a truncated JPEG
-    with pytest.raises(ValueError, match=r"cannot decode image '0000999\.jpg'"):
+    with pytest.raises(ValueError, match=r"cannot use image '0000999\.jpg'"):
         extract_descriptors(model, [*paths, bad], None, progress=False)
     with pytest.warns(UserWarning, match=r"0000999\.jpg"):
         names, descriptors = extract_descriptors(model, [bad, *paths], None, on_error="skip", progress=False)

@@ -8,7 +8,9 @@ Each stage writes one file into the run directory, and a rerun reuses what is th
 ``retrieval.npz``       top-k scores, indices, distances, positives, names and positions (reused while the
                         descriptors, k and index are unchanged)
 ``uncertainties.npz``   one (Q,) array per uncertainty method, higher = less trustworthy, and ``correct``
-``results.json``        the schema of ``evaluate --json``, plus the run configuration and the time of each stage
+``results.json``        the schema of ``evaluate --json``, plus the run configuration, the time of each stage
+                        and, under ``dataset``, the images left out (``images_left_out``) and the folders
+                        that could not be listed (``unlisted``) with ``on_error="skip"``
 ``results.md``          the table
 ``pr_curves.png``       end-to-end precision-recall of every method
 ======================  =========================================================================================
@@ -19,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -73,7 +76,9 @@ class RunConfig:
     half : bool
         Store descriptors as float16.
     on_error : {"fail", "skip"}
-        What to do with an image that cannot be decoded.
+        What to do with an image that cannot be used (see :mod:`vpr_uncertainty.features.images`) or a folder
+        that cannot be listed: stop with an error naming it, or leave it out; the images left out are counted
+        and named in a warning and in ``results.json`` (``dataset.images_left_out``).
     root, split, radius
         Passed to :func:`vpr_uncertainty.data.load_dataset`.
     method_options : dict
@@ -127,6 +132,25 @@ def _subset(names: Sequence[str], kept: np.ndarray) -> np.ndarray:
     return np.array([position[name] for name in kept], dtype=np.int64)
 
 
+def _left_out(dataset: Any, descriptors_path: Path, extracted: dict[str, Any]) -> dict[str, Any] | None:
+    """The images left out of the run, by split, with their reasons (None when there is none).
+
+    Folders that could not be listed are in the dataset summary (``unlisted``): how many images they held is
+    unknown.
+    """
+    from vpr_uncertainty.features.cache import cache_info
+
+    info = cache_info(descriptors_path) if descriptors_path.is_file() else {}
+    report: dict[str, Any] = {"count": 0}
+    for split, requested in (("database", dataset.database_names), ("queries", dataset.query_names)):
+        reasons = {entry["name"]: entry for entry in info.get(split, {}).get("failed", [])}
+        kept = {str(name) for name in extracted[split][0]}
+        missing = [name for name in requested if name not in kept]
+        report[split] = [reasons.get(name, {"name": name, "error": "no descriptor"}) for name in missing]
+        report["count"] += len(missing)
+    return report if report["count"] else None
+
+
 def _digest(*arrays: np.ndarray) -> str:
     hasher = hashlib.sha256()
     for array in arrays:
@@ -172,6 +196,16 @@ def run(config: RunConfig) -> RunResult:
     ]
     if unmet:  # every unmet need at once, before extraction (the slow part)
         raise ValueError("; ".join(unmet))
+    if dataset.unlisted:
+        from vpr_uncertainty.data.folder import ImageListingError, describe_unlisted
+
+        if config.on_error == "fail":
+            raise ImageListingError(dataset.root or config.dataset, dataset.unlisted)
+        warnings.warn(
+            f"left out the images under {len(dataset.unlisted)} path(s) of dataset {dataset.name!r} that cannot be "
+            f"listed: {describe_unlisted(dataset.unlisted)}",
+            stacklevel=2,
+        )
     seconds["dataset"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -194,6 +228,7 @@ def run(config: RunConfig) -> RunResult:
             on_error=config.on_error,
         )
     seconds["extraction"] = time.perf_counter() - start
+    left_out = _left_out(dataset, descriptors_path, extracted)
 
     start = time.perf_counter()
     database_names, database = extracted["database"]
@@ -274,7 +309,8 @@ def run(config: RunConfig) -> RunResult:
         seconds["reranking"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    paths = _write_outputs(out, evaluation, config, dataset.summary(), seconds, reranking)
+    summary = {**dataset.summary(), **({"images_left_out": left_out} if left_out else {})}
+    paths = _write_outputs(out, evaluation, config, summary, seconds, reranking)
     seconds["reports"] = time.perf_counter() - start
     _rewrite_seconds(paths["results"], seconds)
     paths.update(descriptors=descriptors_path, retrieval=retrieval_path)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import device_name, output_file, positive_int
+from vpr_uncertainty.commands._arguments import device_name, integer_at_least, output_file, positive_int
 from vpr_uncertainty.features.extract import ON_ERROR
+from vpr_uncertainty.features.images import DEFAULT_MAX_SIDE
 from vpr_uncertainty.features.models import DEFAULT_MODEL, available_models, get_model_spec
 
 __all__ = ["IMAGE_SUFFIXES", "SPLIT_FOLDERS", "add_parser", "dataset_images"]
@@ -17,50 +19,86 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".ppm", ".pgm", ".tif", ".tif
 SPLIT_FOLDERS = (("ref", "query"), ("database", "queries"))
 
 
-def _scan(folder: Path, root: Path) -> tuple[list[Path], list[str]]:
-    paths = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+def _scan(folder: Path, root: Path, unlisted: list[dict[str, str]]) -> tuple[list[Path], list[str]]:
+    from vpr_uncertainty.data.folder import ImageListingError, list_images
+
+    found: list[dict[str, str]] = []
+    paths = list_images(folder, problems=found)
+    unlisted.extend(found)
     if not paths:
+        if found:
+            raise ImageListingError(folder, found)
         raise FileNotFoundError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
     return paths, [path.relative_to(root).as_posix() for path in paths]
 
 
-def _scan_dataset(folder: Path) -> dict[str, tuple[list[Path], list[str]]] | None:
+def _scan_dataset(folder: Path, unlisted: list[dict[str, str]]) -> dict[str, tuple[list[Path], list[str]]] | None:
     for database, queries in SPLIT_FOLDERS:
         if (folder / database).is_dir() and (folder / queries).is_dir():
-            return {"database": _scan(folder / database, folder), "queries": _scan(folder / queries, folder)}
+            return {
+                "database": _scan(folder / database, folder, unlisted),
+                "queries": _scan(folder / queries, folder, unlisted),
+            }
     return None
 
 
-def dataset_images(dataset: str | Path) -> dict[str, tuple[list[Path], list[str]]]:
+def _checked(
+    scanned: dict[str, tuple[list[Path], list[str]]] | None,
+    found: list[dict[str, str]],
+    unlisted: list[dict[str, str]] | None,
+    folder: Path,
+) -> dict[str, tuple[list[Path], list[str]]] | None:
+    from vpr_uncertainty.data.folder import ImageListingError
+
+    if found and unlisted is None:
+        raise ImageListingError(folder, found)
+    if unlisted is not None:
+        unlisted.extend(found)
+    return scanned
+
+
+def dataset_images(
+    dataset: str | Path, *, unlisted: list[dict[str, str]] | None = None
+) -> dict[str, tuple[list[Path], list[str]]]:
     """Image paths and names of both splits: ``{"database": (paths, names), "queries": (paths, names)}``.
 
     Reads the dataset with ``vpr_uncertainty.data.load_dataset`` (any format or registered name it knows) when
     that is available; a folder it cannot read (e.g. images without ground truth) with ``ref/`` and ``query/``
     (VPR-Bench) or ``database/`` and ``queries/`` subfolders is scanned for images. Names are POSIX paths
     relative to the dataset folder, e.g. ``ref/0000000.jpg``.
+
+    Parameters
+    ----------
+    dataset : str or Path
+    unlisted : list, optional
+        Receives ``{"path", "error"}`` of each folder or link that could not be listed (images under it are
+        missing). By default such a problem raises
+        :class:`~vpr_uncertainty.data.folder.ImageListingError` naming it.
     """
     try:
         from vpr_uncertainty.data import load_dataset
     except ImportError:
         load_dataset = None
     folder = Path(dataset)
+    found: list[dict[str, str]] = []
     if load_dataset is not None:
         try:
             loaded = load_dataset(dataset)
         except (FileNotFoundError, ValueError):
-            scanned = _scan_dataset(folder) if folder.is_dir() else None
+            scanned = _scan_dataset(folder, found) if folder.is_dir() else None
             if scanned is None:
                 raise
-            return scanned
+            return _checked(scanned, found, unlisted, folder)  # type: ignore[return-value]
         if loaded.database_paths is None or loaded.query_paths is None:
             raise ValueError(f"dataset {dataset} has no image files (positions only); extraction needs images")
+        _checked(None, list(loaded.unlisted), unlisted, folder)
         return {
             "database": (list(loaded.database_paths), list(loaded.database_names)),
             "queries": (list(loaded.query_paths), list(loaded.query_names)),
         }
     if not folder.is_dir():
         raise FileNotFoundError(f"dataset folder not found: {folder}")
-    scanned = _scan_dataset(folder)
+    scanned = _checked(_scan_dataset(folder, found), found, unlisted, folder)
     if scanned is None:
         expected = " or ".join(f"{d}/ and {q}/" for d, q in SPLIT_FOLDERS)
         raise FileNotFoundError(f"{folder} has no image subfolders {expected}")
@@ -111,12 +149,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--on-error",
         choices=ON_ERROR,
         default="fail",
-        help="images that cannot be decoded: stop with an error naming them, or skip them (default fail)",
+        help="images that cannot be used (unreadable, corrupt, broken links, over PIL's decompression-bomb limit, "
+        "smaller than the model's minimum, names not valid UTF-8) and folders that cannot be listed: stop with an "
+        "error naming the first, or leave them out, counted and named in a warning and in the file's 'failed' "
+        "attribute (default fail)",
     )
     parser.add_argument(
         "--image-size",
         type=positive_int,
         help="resize so that the shorter image side has this many pixels (default: the model's own setting)",
+    )
+    parser.add_argument(
+        "--max-side",
+        type=integer_at_least(32),
+        help=f"cap on the longer side of the model input, in pixels (default {DEFAULT_MAX_SIDE}); larger images "
+        "are shrunk keeping their aspect ratio, so memory per batch is bounded: about 235 bytes per pixel for "
+        f"the default model on CPU, i.e. about 2 GB for 16 images of {DEFAULT_MAX_SIDE} x {DEFAULT_MAX_SIDE}",
     )
     parser.add_argument("--workers", type=int, help="image decoding threads (default min(4, CPUs); 0 = none)")
     parser.add_argument(
@@ -131,17 +179,26 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run_extract(args: argparse.Namespace) -> int:
+    from vpr_uncertainty.data.folder import describe_unlisted
     from vpr_uncertainty.features.extract import extract_descriptors
     from vpr_uncertainty.features.models import load_model
 
-    splits = dataset_images(args.dataset)
+    unlisted: list[dict[str, str]] | None = [] if args.on_error == "skip" else None
+    splits = dataset_images(args.dataset, unlisted=unlisted)
+    if unlisted:
+        warnings.warn(
+            f"left out the images under {len(unlisted)} path(s) that cannot be listed: {describe_unlisted(unlisted)}",
+            stacklevel=2,
+        )
     if args.threads is not None:
         import torch
 
         torch.set_num_threads(args.threads)
     model = load_model(args.model, device=args.device)
-    if args.image_size is not None:
-        model.preprocessing = model.preprocessing.replace(image_size=args.image_size)
+    changes = {"image_size": args.image_size, "max_side": args.max_side}
+    changes = {key: value for key, value in changes.items() if value is not None}
+    if changes:
+        model.preprocessing = model.preprocessing.replace(**changes)
     for split in ("database", "queries"):
         paths, names = splits[split]
         kept, descriptors = extract_descriptors(
@@ -159,7 +216,7 @@ def _run_extract(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
         )
         skipped = len(names) - len(kept)
-        note = f", {skipped} skipped (could not be decoded)" if skipped else ""
+        note = f", {skipped} skipped (cannot be used; listed in the file's 'failed' attribute)" if skipped else ""
         print(f"{split}: {len(kept)} descriptors of size {descriptors.shape[1]}{note}")
     print(f"wrote {args.out}")
     return 0

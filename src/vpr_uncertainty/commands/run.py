@@ -73,7 +73,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--radius", type=float, help="positives within this many metres (default 25)")
     parser.add_argument("--index", default="Flat", help="Faiss index-factory string (default Flat = exact search)")
     parser.add_argument("--half", action="store_true", help="store descriptors as float16")
-    parser.add_argument("--on-error", choices=("fail", "skip"), default="fail", help="images that fail to decode")
+    parser.add_argument(
+        "--on-error",
+        choices=("fail", "skip"),
+        default="fail",
+        help="images that cannot be used (corrupt, broken links, over PIL's decompression-bomb limit, below the "
+        "model's minimum size, names not valid UTF-8) and folders that cannot be listed: stop with an error naming "
+        "the first, or leave them out, counted in a warning and in results.json (default fail). The model sees at "
+        "most 640 px on the longer side (larger images are shrunk), so memory per batch is bounded",
+    )
     parser.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: head written by train-btl")
     parser.add_argument(
         "--rerank",

@@ -180,6 +180,10 @@ class Dataset:
         Reader that produced the dataset: ``"folder"``, ``"vprbench"``, ``"table"`` or ``"poses"``.
     info : dict
         Anything else worth keeping (UTM zone, original file, notes); JSON-serialisable.
+    unlisted : list of dict
+        What could not be listed when the images were discovered, ``{"path": ..., "error": ...}`` per folder
+        that cannot be read or broken link without an image suffix: images under them are missing from the
+        dataset. The extraction stage reports them (``on_error="skip"``) or refuses to go on (``"fail"``).
     """
 
     name: str
@@ -196,6 +200,7 @@ class Dataset:
     split: str | None = None
     source_format: str | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    unlisted: list[dict[str, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.root = Path(self.root) if self.root is not None else None
@@ -340,6 +345,7 @@ class Dataset:
             "position_kind": self.position_kind,
             "n_queries_without_positives": int(self.queries_without_positives.size),
             **({"info": self.info} if self.info else {}),
+            **({"unlisted": list(self.unlisted)} if self.unlisted else {}),
         }
 
     def __repr__(self) -> str:

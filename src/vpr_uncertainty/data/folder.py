@@ -13,6 +13,10 @@ Only the UTM easting and northing are required (AmsterTime and Nordland leave th
 longitude empty and use dummy coordinates: see :mod:`vpr_uncertainty.data.dataset`). Images are listed
 recursively and sorted by their path relative to the split folder, so indices match the other tools that read
 this format. Positives are the database images within 25 m of the query (configurable).
+
+Images are listed by :mod:`vpr_uncertainty.data.listing`, which never drops one silently; a sub-folder that
+cannot be read is kept in :attr:`Dataset.unlisted <vpr_uncertainty.data.dataset.Dataset.unlisted>` for the
+extraction stage to report or refuse.
 """
 
 from __future__ import annotations
@@ -26,24 +30,30 @@ import numpy as np
 
 from vpr_uncertainty.data.dataset import Dataset, PositionKind
 from vpr_uncertainty.data.geo import latlon_to_utm
+from vpr_uncertainty.data.listing import (
+    IMAGE_EXTENSIONS,
+    ImageListingError,
+    describe_unlisted,
+    list_images,
+    scan_images,
+)
 from vpr_uncertainty.data.positives import DEFAULT_RADIUS, positives_within_radius
 
 __all__ = [
     "DATABASE_FOLDERS",
     "IMAGE_EXTENSIONS",
     "QUERY_FOLDERS",
+    "ImageListingError",
     "ImageName",
     "MalformedImageNameError",
+    "describe_unlisted",
     "find_split_folder",
     "list_images",
     "load_folder_dataset",
     "parse_image_name",
+    "scan_images",
 ]
 
-#: File extensions read as images (case-insensitive).
-IMAGE_EXTENSIONS: frozenset[str] = frozenset(
-    {".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".bmp", ".tif", ".tiff", ".webp"}
-)
 #: Accepted names of the database and query folders, in order of preference.
 DATABASE_FOLDERS: tuple[str, ...] = ("database", "gallery")
 QUERY_FOLDERS: tuple[str, ...] = ("queries", "query")
@@ -154,13 +164,6 @@ def parse_image_name(path: str | Path) -> ImageName:
     return ImageName(east, north, zone, letter, latitude, longitude, fields)
 
 
-def list_images(folder: str | Path) -> list[Path]:
-    """Image files under ``folder`` (recursively), sorted by their POSIX path relative to it."""
-    folder = Path(folder)
-    images = [path for path in folder.rglob("*") if path.suffix.lower() in IMAGE_EXTENSIONS and path.is_file()]
-    return sorted(images, key=lambda path: path.relative_to(folder).as_posix())
-
-
 def _pick(folder: Path, candidates: tuple[str, ...]) -> Path | None:
     for candidate in candidates:
         if (folder / candidate).is_dir():
@@ -260,15 +263,24 @@ def load_folder_dataset(
         When no split folder is found, or a folder has no image.
     MalformedImageNameError
         Naming the first file whose name does not carry a position.
+
+    Notes
+    -----
+    A sub-folder that cannot be read does not stop the reading (positions come from the names, so the other
+    images keep their meaning); it is recorded in :attr:`Dataset.unlisted`, which the extraction stage reports
+    (``on_error="skip"``) or refuses (``on_error="fail"``).
     """
     split_folder = find_split_folder(root, split)
     database_folder = _pick(split_folder, DATABASE_FOLDERS)
     query_folder = _pick(split_folder, QUERY_FOLDERS)
     assert database_folder is not None and query_folder is not None
-    database_paths = list_images(database_folder)
-    query_paths = list_images(query_folder)
+    unlisted: list[dict[str, str]] = []
+    database_paths = list_images(database_folder, problems=unlisted)
+    query_paths = list_images(query_folder, problems=unlisted)
     for folder, paths in ((database_folder, database_paths), (query_folder, query_paths)):
         if not paths:
+            if unlisted:
+                raise ImageListingError(folder, unlisted)
             raise FileNotFoundError(f"no image ({', '.join(sorted(IMAGE_EXTENSIONS))}) found under {folder}")
     parsed = [parse_image_name(path) for path in database_paths + query_paths]
     positions, info = _positions(parsed, database_paths + query_paths)
@@ -288,4 +300,5 @@ def load_folder_dataset(
         split=split_folder.name if split_folder.parent.name == "images" else None,
         source_format="folder",
         info=info,
+        unlisted=unlisted,
     )

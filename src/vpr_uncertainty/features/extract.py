@@ -2,9 +2,15 @@
 
 :func:`extract_descriptors` decodes images in worker threads (the next batch while the model runs on the current
 one), runs the model batch by batch and appends each batch to the cache (see :mod:`vpr_uncertainty.features.cache`)
-before starting the next, so an interrupted run resumes where it stopped. Images that cannot be decoded either
-stop the extraction with an error naming them (``on_error="fail"``) or are skipped with a warning and recorded
-in the cache (``on_error="skip"``).
+before starting the next, so an interrupted run resumes where it stopped. Images that cannot be used (see
+:mod:`vpr_uncertainty.features.images`: unreadable, corrupt, decompression bombs, smaller than the model's minimum;
+also names that are not valid UTF-8, which the cache cannot store) either stop the extraction with an error naming
+the first of them (``on_error="fail"``) or are left out, counted in one warning per split that names the first
+few, and recorded with their reasons in the cache's ``failed`` attribute (``on_error="skip"``).
+
+Memory is bounded by the model's :attr:`~vpr_uncertainty.features.images.Preprocessing.max_side`: at most
+``batch_size`` images of at most ``max_side`` x ``max_side`` pixels go through the model at once (about 2 GB for
+the default model at 16 x 640 x 640 on CPU), plus the images being decoded ahead by the worker threads.
 """
 
 from __future__ import annotations
@@ -19,10 +25,10 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.features.cache import SPLITS, DescriptorCache
-from vpr_uncertainty.features.images import ImageDecodeError, load_image, to_model_input
+from vpr_uncertainty.features.images import ImageDecodeError, load_image, printable, to_model_input
 from vpr_uncertainty.features.models import DEFAULT_MODEL, DescriptorModel, load_model
 
-__all__ = ["ON_ERROR", "extract_descriptors"]
+__all__ = ["ON_ERROR", "describe_left_out", "extract_descriptors"]
 
 ON_ERROR = ("fail", "skip")
 
@@ -55,8 +61,35 @@ def _validate(
     return paths, names
 
 
+def describe_left_out(left_out: Sequence[dict[str, str]], total: int, what: str, *, shown: int = 3) -> str:
+    """One line: how many of ``total`` images were left out, the first ``shown`` with their reasons.
+
+    Examples
+    --------
+    >>> describe_left_out([{"name": "q/a.jpg", "error": "file not found"}], 10, "'queries' images")
+    "left out 1 of 10 'queries' images that cannot be used: 'q/a.jpg' (file not found)"
+    """
+    listed = "; ".join(f"'{printable(entry['name'])}' ({entry['error']})" for entry in left_out[:shown])
+    more = f"; and {len(left_out) - shown} more" if len(left_out) > shown else ""
+    return f"left out {len(left_out)} of {total} {what} that cannot be used: {listed}{more}"
+
+
+def _unstorable_name(name: str) -> str | None:
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return (
+            "its name is not valid UTF-8 and cannot be stored in descriptor or retrieval files; rename the file "
+            "(e.g. with convmv)"
+        )
+    return None
+
+
 def _decode(item: _Item, model: DescriptorModel) -> tuple[_Item, np.ndarray | ImageDecodeError]:
     _, name, path = item
+    problem = _unstorable_name(name)
+    if problem is not None:
+        return item, ImageDecodeError(name, path, problem)
     try:
         return item, load_image(path, model.preprocessing, name=name)
     except ImageDecodeError as error:
@@ -137,8 +170,9 @@ def extract_descriptors(
     half : bool
         Store float16 instead of float32 (the model still computes in float32).
     on_error : {"fail", "skip"}
-        What to do with an image that cannot be decoded: raise
-        :class:`~vpr_uncertainty.features.images.ImageDecodeError` naming it, or warn and leave it out.
+        What to do with an image that cannot be used: raise
+        :class:`~vpr_uncertainty.features.images.ImageDecodeError` naming it, or leave it out (one warning per
+        call counts them and names the first few; the cache records all of them with their reasons).
     num_workers : int, optional
         Threads that decode images ahead of the model (default: min(4, CPU count); 0 decodes in this thread).
     overwrite : bool
@@ -208,7 +242,6 @@ def extract_descriptors(
                     if isinstance(result, ImageDecodeError):
                         if on_error == "fail":
                             raise result
-                        warnings.warn(f"skipping {result}", stacklevel=2)
                         failed.append({"name": name, "path": str(path), "error": result.reason})
                         continue
                     good_names.append(name)
@@ -225,6 +258,9 @@ def extract_descriptors(
                     on_batch(good_names)
         failed_names = {entry["name"] for entry in failed}
         kept = [name for name in names if name not in failed_names]
+        if failed:
+            where = f"; all of them are listed in {printable(cache.path)} (attribute 'failed')" if cache else ""
+            warnings.warn(describe_left_out(failed, len(names), f"{split!r} images") + where, stacklevel=2)
         if cache is not None:
             cache.finalize(split, kept, failed)
             cache.close()

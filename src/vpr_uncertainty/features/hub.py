@@ -49,7 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty.features._torch import require_torch
-from vpr_uncertainty.features.images import Preprocessing
+from vpr_uncertainty.features.images import DEFAULT_MIN_SIDE, Preprocessing
 from vpr_uncertainty.features.models import DescriptorModel, ModelSpec, ModelUnavailableError, from_torchscript
 
 __all__ = ["HUB_MODELS", "HUB_TIMEOUT_S", "hub_cache_dir", "load_hub_model", "torchscript_cache_path"]
@@ -61,6 +61,7 @@ HUB_TIMEOUT_S = 20.0
 _OPENIBL = Preprocessing(
     mean=(0.48501960784313836, 0.4579568627450961, 0.4076039215686255),
     std=(1 / 255, 1 / 255, 1 / 255),
+    min_side=DEFAULT_MIN_SIDE,
 )
 
 
@@ -190,8 +191,8 @@ def _spec(
     )
 
 
-_NATIVE = Preprocessing()
-_DINO = Preprocessing(multiple_of=14)
+_NATIVE = Preprocessing(min_side=DEFAULT_MIN_SIDE)
+_DINO = Preprocessing(multiple_of=14, min_side=DEFAULT_MIN_SIDE)
 
 #: The nine methods of the benchmark, in the order of the paper's tables.
 HUB_MODELS: tuple[ModelSpec, ...] = (

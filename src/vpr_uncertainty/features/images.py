@@ -8,11 +8,33 @@ An image goes through two steps:
    device, scaled to [0, 1] and normalised with the model's mean and standard deviation.
 
 Resizing happens on the PIL image (antialiased ``Image.resize``), like torchvision's ``Resize`` on PIL images.
+
+Bounded memory
+    The model never sees more than ``max_side`` pixels on either side (:attr:`Preprocessing.max_side`, default
+    :data:`DEFAULT_MAX_SIDE` = 640: the standard VPR benchmarks store 640 x 480 images or smaller, so they are
+    used as they are; larger images keep their aspect ratio). A JPEG larger than twice the target size is decoded
+    at 1/2, 1/4 or 1/8 of its size (``Image.draft``), so a 12-megapixel photo never exists at full size in
+    memory. Other formats are decoded at full size, bounded by the decompression-bomb limit below. The default
+    model (EfficientNet-Lite0) needs about 235 bytes per input pixel on CPU, so a batch of 16 images of at most
+    640 x 640 stays below about 2 GB.
+
+Images that cannot be used
+    :class:`ImageDecodeError` (a ValueError naming the image and the reason) is raised for a missing,
+    unreadable, empty, truncated or unrecognised file, a broken or looping symbolic link, an image with more
+    pixels than ``PIL.Image.MAX_IMAGE_PIXELS`` (PIL's decompression-bomb limit, 89,478,485 by default, about
+    9459 x 9459; set it to change the limit), and an image smaller than the model's minimum after resizing
+    (:attr:`Preprocessing.min_side`; the registered models declare :data:`DEFAULT_MIN_SIDE` = 32 pixels, below
+    which EfficientNet-Lite0 fails: it reduces the image 32 times). A model that resizes every image to a fixed
+    size (e.g. 320 x 320) upscales small images as it always did; a model that runs at the native resolution
+    does not upscale them into a meaningless descriptor: they cannot be used.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import errno
+import os
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,11 +43,16 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "DEFAULT_MAX_SIDE",
+    "DEFAULT_MIN_SIDE",
     "IMAGENET_MEAN",
     "IMAGENET_STD",
     "ImageDecodeError",
     "Preprocessing",
+    "image_pixel_limit",
     "load_image",
+    "printable",
+    "read_image_size",
     "to_model_input",
 ]
 
@@ -33,16 +60,46 @@ IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
 IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
 
 _INTERPOLATIONS = ("bilinear", "bicubic", "nearest")
+#: Longest side, in pixels, of the image a model sees (unless a model's preprocessing says otherwise).
+DEFAULT_MAX_SIDE = 640
+#: Shortest side, in pixels, the registered models accept (EfficientNet-Lite0 fails below 32: it downsamples 32
+#: times). Models given as a callable or a TorchScript file accept any size unless their preprocessing says so.
+DEFAULT_MIN_SIDE = 32
+
+
+def printable(text: str | Path) -> str:
+    r"""``text`` with the bytes of a file name that is not valid UTF-8 written as ``\xNN`` escapes.
+
+    Examples
+    --------
+    >>> printable("caf\udce9.jpg")  # the file name b"caf\xe9.jpg" (Latin-1), as Python reads it on Linux
+    'caf\\xe9.jpg'
+    """
+    return os.fsencode(str(text)).decode("utf-8", "backslashreplace")
 
 
 class ImageDecodeError(ValueError):
-    """An image file could not be read or decoded; the message names the image."""
+    """An image cannot be used (unreadable, corrupt, too large, too small...); the message names the image."""
 
     def __init__(self, name: str, path: str | Path, reason: str) -> None:
-        super().__init__(f"cannot decode image {name!r} ({path}): {reason}")
+        where = "" if str(name) == str(path) else f" ({printable(path)})"
+        super().__init__(f"cannot use image '{printable(name)}'{where}: {reason}")
         self.name = name
         self.path = Path(path)
         self.reason = reason
+
+
+def image_pixel_limit() -> int | None:
+    """Most pixels an image may have: ``PIL.Image.MAX_IMAGE_PIXELS`` (None: no limit)."""
+    from PIL import Image
+
+    return Image.MAX_IMAGE_PIXELS
+
+
+def _positive_int(value: object, what: str, minimum: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{what} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -61,6 +118,13 @@ class Preprocessing:
         Per-channel normalisation of pixel values in [0, 1]: ``(x - mean) / std``.
     interpolation : {"bilinear", "bicubic", "nearest"}
         PIL resampling filter.
+    max_side : int or None
+        Cap on the longer side of the model input, in pixels (default 640); larger outputs are shrunk, keeping
+        the aspect ratio, so memory per batch is bounded. ``image_size`` may not exceed it. None: no cap.
+        Part of the cache fingerprint.
+    min_side : int
+        Images whose model input would have a side shorter than this cannot be used (default 1; the registered
+        models use :data:`DEFAULT_MIN_SIDE` = 32).
 
     Examples
     --------
@@ -68,6 +132,8 @@ class Preprocessing:
     (299, 224)
     >>> Preprocessing(multiple_of=14).output_size(width=160, height=120)
     (154, 126)
+    >>> Preprocessing().output_size(width=4032, height=3024)   # capped at max_side = 640
+    (640, 480)
     """
 
     image_size: int | tuple[int, int] | None = None
@@ -75,6 +141,8 @@ class Preprocessing:
     mean: tuple[float, float, float] = IMAGENET_MEAN
     std: tuple[float, float, float] = IMAGENET_STD
     interpolation: str = "bilinear"
+    max_side: int | None = DEFAULT_MAX_SIDE
+    min_side: int = 1
 
     def __post_init__(self) -> None:
         size = self.image_size
@@ -105,9 +173,18 @@ class Preprocessing:
             raise ValueError(f"std must be positive, got {self.std!r}")
         if self.interpolation not in _INTERPOLATIONS:
             raise ValueError(f"interpolation must be one of {_INTERPOLATIONS}, got {self.interpolation!r}")
+        object.__setattr__(self, "min_side", _positive_int(self.min_side, "min_side"))
+        if self.max_side is not None:
+            floor = max(self.min_side, self.multiple_of)
+            object.__setattr__(self, "max_side", _positive_int(self.max_side, "max_side", floor))
+            sides = self.image_size if isinstance(self.image_size, tuple) else (self.image_size or 0,)
+            if max(sides) > self.max_side:
+                raise ValueError(
+                    f"image_size {self.image_size!r} exceeds max_side {self.max_side}; raise max_side to use it"
+                )
 
     def output_size(self, width: int, height: int) -> tuple[int, int]:
-        """Size ``(width, height)`` of an image of the given size after resizing."""
+        """Size ``(width, height)`` of an image of the given size after resizing (both sides <= ``max_side``)."""
         if self.image_size is None:
             new_w, new_h = width, height
         elif isinstance(self.image_size, tuple):
@@ -115,10 +192,16 @@ class Preprocessing:
         else:
             scale = self.image_size / min(width, height)
             new_w, new_h = round(width * scale), round(height * scale)
+        cap = self.max_side
+        if cap is not None and max(new_w, new_h) > cap:
+            scale = cap / max(new_w, new_h)
+            new_w, new_h = min(cap, max(1, round(new_w * scale))), min(cap, max(1, round(new_h * scale)))
         if self.multiple_of > 1:
             m = self.multiple_of
             new_w = max(m, round(new_w / m) * m)
             new_h = max(m, round(new_h / m) * m)
+            if cap is not None:  # rounding up may pass the cap: take the multiple below it
+                new_w, new_h = (side - m if side > cap else side for side in (new_w, new_h))
         return new_w, new_h
 
     def replace(self, **changes: Any) -> Preprocessing:
@@ -134,38 +217,150 @@ class Preprocessing:
             "mean": list(self.mean),
             "std": list(self.std),
             "interpolation": self.interpolation,
+            "max_side": self.max_side,
         }
+
+
+def _link_problem(path: Path) -> str | None:
+    """Why a symbolic link cannot be followed, or None when ``path`` is not a broken link."""
+    if not os.path.islink(path):
+        return None
+    target = printable(os.readlink(path))
+    try:
+        os.stat(path)
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            return f"symbolic link to '{target}' that loops back on itself"
+        return f"broken symbolic link to '{target}' ({error.strerror or error})"
+    return None
+
+
+def _unidentified(path: Path) -> str:
+    try:
+        empty = path.stat().st_size == 0
+    except OSError:
+        empty = False
+    return "empty file (0 bytes)" if empty else "not a recognised image format"
+
+
+class _Unusable(ValueError):
+    """Raised inside the loaders for an image whose size rules it out; the message is the reason."""
+
+
+def _check_pixels(width: int, height: int) -> None:
+    limit = image_pixel_limit()
+    if limit is not None and width * height > limit:
+        raise _Unusable(
+            f"{width} x {height} pixels, more than the limit of {limit:,} (PIL.Image.MAX_IMAGE_PIXELS, protection "
+            "against decompression bombs)"
+        )
+
+
+def _bomb_reason(error: Exception) -> str:
+    claimed = re.search(r"\((\d+) pixels\)", str(error))
+    pixels = f"{int(claimed.group(1)):,} pixels" if claimed else "too many pixels"
+    return (
+        f"{pixels}, more than the limit of {image_pixel_limit() or 0:,} (PIL.Image.MAX_IMAGE_PIXELS, protection "
+        "against decompression bombs)"
+    )
+
+
+def read_image_size(path: str | Path, *, name: str | None = None) -> tuple[int, int]:
+    """``(width, height)`` of an image file from its header, checked against the decompression-bomb limit.
+
+    Reads only the header; used by loaders that decode with another library (OpenCV for local features).
+
+    Raises
+    ------
+    ImageDecodeError
+        Naming the image, when it is missing, a broken link, not an image, or over ``PIL.Image.MAX_IMAGE_PIXELS``.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    name = str(path) if name is None else name
+    path = Path(path)
+    link = _link_problem(path)
+    if link is not None:
+        raise ImageDecodeError(name, path, link)
+    try:
+        with Image.open(path) as image:
+            width, height = image.size
+        _check_pixels(width, height)
+    except _Unusable as error:
+        raise ImageDecodeError(name, path, str(error)) from None
+    except FileNotFoundError:
+        raise ImageDecodeError(name, path, "file not found") from None
+    except UnidentifiedImageError:
+        raise ImageDecodeError(name, path, _unidentified(path)) from None
+    except Image.DecompressionBombError as error:
+        raise ImageDecodeError(name, path, _bomb_reason(error)) from None
+    except (OSError, ValueError, SyntaxError) as error:
+        raise ImageDecodeError(name, path, f"cannot read its header: {error or type(error).__name__}") from None
+    return width, height
+
+
+def _check_size(width: int, height: int, preprocessing: Preprocessing) -> tuple[int, int]:
+    """The output size of an image of ``width`` x ``height`` pixels; ValueError when it cannot be used."""
+    _check_pixels(width, height)
+    size = preprocessing.output_size(width, height)
+    if min(size) < preprocessing.min_side:
+        resized = "" if size == (width, height) else f", {size[0]} x {size[1]} after resizing"
+        need = f"the model needs at least {preprocessing.min_side} pixels on each side"
+        raise _Unusable(f"{width} x {height} pixels{resized}: {need}")
+    return size
 
 
 def load_image(path: str | Path, preprocessing: Preprocessing, *, name: str | None = None) -> np.ndarray:
     """Decode an image file to an RGB ``uint8`` array of shape (H, W, 3), resized as ``preprocessing`` says.
 
+    Both sides of the result are at most ``preprocessing.max_side``; a large JPEG is decoded at reduced size.
+
     Raises
     ------
     ImageDecodeError
-        If the file is missing, is not an image, or is truncated; the message names the image.
+        If the image cannot be used (see the module docstring): missing, unreadable, broken symbolic link, not
+        an image, truncated, over the decompression-bomb limit, or smaller than ``preprocessing.min_side``. The
+        message names the image and the reason.
     """
     from PIL import Image, UnidentifiedImageError
 
     name = str(path) if name is None else name
+    path = Path(path)
+    link = _link_problem(path)
+    if link is not None:
+        raise ImageDecodeError(name, path, link)
     try:
         with Image.open(path) as image:
+            width, height = image.size
+            size = _check_size(width, height, preprocessing)
+            box = None
+            if min(width // (2 * size[0]), height // (2 * size[1])) >= 2:
+                # JPEG: decode at 1/2, 1/4 or 1/8 scale, still at least twice the target size (as thumbnail())
+                drafted = image.draft("RGB", (2 * size[0], 2 * size[1]))
+                box = None if drafted is None else drafted[1]
             image.load()
             rgb = image.convert("RGB")
+    except _Unusable as error:
+        raise ImageDecodeError(name, path, str(error)) from None
     except FileNotFoundError:
         raise ImageDecodeError(name, path, "file not found") from None
     except UnidentifiedImageError:
-        raise ImageDecodeError(name, path, "not a recognised image format") from None
-    except (OSError, ValueError, SyntaxError) as error:  # truncated or corrupt data
-        raise ImageDecodeError(name, path, str(error) or type(error).__name__) from None
-    size = preprocessing.output_size(*rgb.size)
-    if size != rgb.size:
+        raise ImageDecodeError(name, path, _unidentified(path)) from None
+    except Image.DecompressionBombError as error:
+        raise ImageDecodeError(name, path, _bomb_reason(error)) from None
+    except MemoryError:
+        raise ImageDecodeError(name, path, "not enough memory to decode it") from None
+    except (OSError, ValueError, SyntaxError) as error:  # unreadable, truncated or corrupt data
+        raise ImageDecodeError(name, path, f"cannot decode it: {error or type(error).__name__}") from None
+    except Exception as error:  # PIL's decoders raise many kinds of errors on corrupt data
+        raise ImageDecodeError(name, path, f"corrupt image data ({type(error).__name__}: {error})") from None
+    if size != rgb.size or box is not None:
         resample = {
             "bilinear": Image.Resampling.BILINEAR,
             "bicubic": Image.Resampling.BICUBIC,
             "nearest": Image.Resampling.NEAREST,
         }[preprocessing.interpolation]
-        rgb = rgb.resize(size, resample=resample)
+        rgb = rgb.resize(size, resample=resample, box=box)
     return np.asarray(rgb, dtype=np.uint8)
 
 

@@ -121,20 +121,40 @@ class LocalFeatures:
 def load_image(path: str | Path, *, max_side: int, grayscale: bool) -> tuple[np.ndarray, tuple[int, int]]:
     """Read an image and shrink it so its longer side is at most ``max_side`` (area interpolation).
 
+    The header is checked first with the loader of the global descriptors
+    (:func:`~vpr_uncertainty.features.images.read_image_size`): broken links, files that are not images and images
+    over PIL's decompression-bomb limit (``PIL.Image.MAX_IMAGE_PIXELS``) are refused before OpenCV allocates
+    anything, so decoding needs at most that many pixels. OpenCV then decodes the bytes (``cv2.imdecode``, which
+    accepts any file name, including names that are not valid UTF-8).
+
     Returns
     -------
     image : ndarray of shape (H', W') uint8 when ``grayscale``, else (H', W', 3) RGB uint8
     original_size : (W, H) of the file
+
+    Raises
+    ------
+    ValueError
+        ``cannot read image <path>: <reason>``.
     """
     import cv2
 
+    from vpr_uncertainty.features.images import ImageDecodeError, printable, read_image_size
+
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"cannot read image {path}: it does not exist")
+    if not path.is_file() and not path.is_symlink():
+        raise ValueError(f"cannot read image {printable(path)}: it does not exist")
+    try:
+        read_image_size(path)
+    except ImageDecodeError as error:
+        raise ValueError(f"cannot read image {printable(path)}: {error.reason}") from None
     flag = cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_COLOR
-    image = cv2.imread(str(path), flag)
+    try:
+        image = cv2.imdecode(np.fromfile(path, dtype=np.uint8), flag)
+    except (OSError, cv2.error) as error:
+        raise ValueError(f"cannot read image {printable(path)}: {error}") from None
     if image is None:
-        raise ValueError(f"cannot read image {path}: OpenCV cannot decode it")
+        raise ValueError(f"cannot read image {printable(path)}: OpenCV cannot decode it")
     if not grayscale:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     height, width = image.shape[:2]
