@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -64,9 +63,7 @@ def test_default_model_descriptors_are_finite_unit_vectors(corridor_descriptors)
 def test_default_model_recall_at_1_well_above_chance(corridor_descriptors, corridor_dir):
     _, result = corridor_descriptors
     queries, database = result["queries"][1], result["database"][1]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the legacy ground truth is read with pickle and says so
-        positives = load_vprbench_ground_truth(corridor_dir / "ground_truth_new.npy", n_database=111).toarray()
+    positives = load_vprbench_ground_truth(corridor_dir / "ground_truth_new.npy", n_database=111).toarray()
     top1 = (queries @ database.T).argmax(axis=1)
     recall_at_1 = positives[np.arange(111), top1].mean()
     chance = positives.sum(axis=1).mean() / 111  # about 0.045: ~5 positives among 111 images

@@ -50,9 +50,7 @@ def corridor(corridor_dir: Path, request, tmp_path_factory):
         result[f"{split}_names"], result[split] = extract_descriptors(
             model, paths, None, cache, split, batch_size=32, progress=False
         )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the VPR-Bench ground truth is read with pickle, and says so
-        result["positives"] = load_vprbench_ground_truth(result["gt_path"], n_database=len(result["database"]))
+    result["positives"] = load_vprbench_ground_truth(result["gt_path"], n_database=len(result["database"]))
     return result
 
 

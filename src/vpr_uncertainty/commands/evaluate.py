@@ -54,7 +54,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "SCORES is one of:\n"
             "  retrieval.npz                a retrieval file (scores, indices, optionally the ground truth)\n"
             "  matrix.npy                   a full similarity matrix, queries x database, higher = more similar\n"
-            "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy; read with pickle)\n\n"
+            "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy object array, read safely)\n\n"
             "Uncertainty methods:\n" + _method_help() + "\n\n" + METHOD_SPEC_HELP
         ),
         epilog=(
