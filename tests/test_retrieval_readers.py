@@ -1,12 +1,15 @@
-"""Top-k from a full similarity matrix, and reading precomputed results from files."""
+"""Top-k from a full similarity matrix, reading precomputed results and descriptor files (retrieval.readers)."""
 
 from __future__ import annotations
+
+import sys
+import types
 
 import numpy as np
 import pytest
 
 from vpr_uncertainty import read_results, top_k_from_similarity
-from vpr_uncertainty.retrieval import Retrieval, save_retrieval
+from vpr_uncertainty.retrieval import Retrieval, load_descriptors, save_retrieval
 
 
 def reference_top_k(similarity, k):
@@ -59,3 +62,43 @@ def test_read_retrieval_file_and_override_ground_truth(tmp_path):
     np.save(tmp_path / "gt.npy", np.array([[False, True], [True, False]]))
     overridden = read_results(path, ground_truth=tmp_path / "gt.npy")
     assert overridden.positives.toarray().tolist() == [[False, True], [True, False]]
+
+
+# --- descriptor files ---------------------------------------------------------------------------------------
+
+
+def test_load_descriptors_from_npy(tmp_path):
+    array = np.arange(12, dtype=np.float64).reshape(4, 3)
+    np.save(tmp_path / "d.npy", array)
+    names, loaded = load_descriptors(tmp_path / "d.npy")
+    assert names is None and loaded.dtype == np.float32 and loaded.flags.c_contiguous
+    np.testing.assert_array_equal(loaded, array)  # small integers: exact in float32
+    np.save(tmp_path / "flat.npy", np.ones(3))
+    with pytest.raises(ValueError, match="2-D"):
+        load_descriptors(tmp_path / "flat.npy")
+    with pytest.raises(FileNotFoundError):
+        load_descriptors(tmp_path / "missing.npy")
+    (tmp_path / "d.txt").write_text("1 2\n")
+    with pytest.raises(ValueError, match="unsupported descriptor file"):
+        load_descriptors(tmp_path / "d.txt")
+
+
+def test_load_descriptors_from_the_cache_contract(tmp_path, monkeypatch):
+    """The .h5 branch calls vpr_uncertainty.features.cache.read_descriptors(path, split) -> (names, array)."""
+    calls = []
+
+    def read_descriptors(path, split):
+        calls.append((path, split))
+        return [f"{split}/{i}.jpg" for i in range(3)], np.ones((3, 4), np.float32) * (split == "database")
+
+    module = types.ModuleType("vpr_uncertainty.features.cache")
+    module.read_descriptors = read_descriptors
+    monkeypatch.setitem(sys.modules, "vpr_uncertainty.features.cache", module)
+    path = tmp_path / "descriptors.h5"
+    path.write_bytes(b"")
+    names, descriptors = load_descriptors(path, "database")
+    assert calls == [(path, "database")]
+    assert names.tolist() == ["database/0.jpg", "database/1.jpg", "database/2.jpg"]
+    assert descriptors.shape == (3, 4) and descriptors.dtype == np.float32
+    with pytest.raises(ValueError, match="split"):
+        load_descriptors(path)
