@@ -6,8 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from scipy import sparse
 
-from vpr_uncertainty.data.attach import attach_ground_truth
+from vpr_uncertainty.data.attach import attach_ground_truth, ground_truth_fields
 from vpr_uncertainty.retrieval import retrieve
 
 pytest.importorskip("faiss")
@@ -72,3 +73,39 @@ def test_attach_takes_explicit_positives_and_checks_lengths():
         attach_ground_truth(retrieve(database, database, k=2), database_positions=np.zeros((3, 2)))
     with pytest.raises(ValueError, match="position_kind"):
         attach_ground_truth(retrieve(database, database, k=2), position_kind="miles")
+
+
+def test_fields_checked_before_the_search_have_the_form_of_a_datasets():
+    frames = np.arange(6.0)
+    fields = ground_truth_fields(2, 6, database_positions=frames, query_positions=frames[:2], radius=1)
+    assert set(fields) == {"positives", "query_names", "database_names", "query_positions", "database_positions"} | {
+        "config"
+    }
+    assert fields["positives"].toarray().nonzero()[1].tolist() == [0, 1, 0, 1, 2]
+    assert fields["config"] == {"radius": 1.0}  # 1-D positions: the kind is not guessed
+    with pytest.raises(ValueError, match="query_names has 3 entries, expected 2"):
+        ground_truth_fields(2, 6, query_names=["a", "b", "c"])
+    result = attach_ground_truth(retrieve(np.eye(6, dtype=np.float32), np.eye(6, dtype=np.float32)[:2], k=2), fields)
+    assert result.query_positions.shape == (2, 1) and result.config["radius"] == 1.0
+
+
+def test_attaching_keeps_what_is_not_given_and_drops_stale_ground_truth_settings():
+    database = np.eye(4, dtype=np.float32)
+    frames = np.repeat(np.arange(4.0)[:, None], 2, axis=1)
+    first = attach_ground_truth(
+        retrieve(database, database[:2], k=2),
+        database_positions=frames,
+        query_positions=frames[:2],
+        radius=1.5,  # frames (i, i) are sqrt(2) apart
+        database_names=[f"db/{i}" for i in range(4)],
+    )
+    assert first.config["radius"] == 1.5 and first.config["position_kind"] == "frames"
+    second = attach_ground_truth(first, positives=np.eye(2, 4, dtype=bool))
+    assert "radius" not in second.config and second.config["position_kind"] == "frames"  # positions kept
+    assert second.database_names.tolist() == ["db/0", "db/1", "db/2", "db/3"]
+    assert (second.positives != sparse.csr_array(np.eye(2, 4, dtype=bool))).nnz == 0
+    assert first.positives.sum() == 5  # the first retrieval is not changed
+    with pytest.raises(TypeError, match="not both"):
+        attach_ground_truth(first, {"positives": None}, radius=3)
+    with pytest.raises(ValueError, match="unknown ground-truth fields"):
+        attach_ground_truth(first, {"positive": np.eye(2, 4, dtype=bool)})

@@ -102,3 +102,17 @@ def test_load_descriptors_from_the_cache_contract(tmp_path, monkeypatch):
     assert descriptors.shape == (3, 4) and descriptors.dtype == np.float32
     with pytest.raises(ValueError, match="split"):
         load_descriptors(path)
+
+
+def test_empty_or_truncated_descriptor_npy_is_one_clear_error(tmp_path):
+    """Regression: an empty .npy gave a bare EOFError ("No data left in file") instead of naming the file."""
+    (tmp_path / "empty.npy").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"empty\.npy is empty \(0 bytes\)"):
+        load_descriptors(tmp_path / "empty.npy")
+    np.save(tmp_path / "whole.npy", np.ones((50, 8), np.float32))
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "whole.npy").read_bytes()[:300])
+    with pytest.raises(ValueError, match=r"cut\.npy is truncated"):
+        load_descriptors(tmp_path / "cut.npy")
+    np.save(tmp_path / "text.npy", np.array([["a", "b"]]))
+    with pytest.raises(ValueError, match="not a numeric descriptor array"):
+        load_descriptors(tmp_path / "text.npy")
