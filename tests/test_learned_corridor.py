@@ -21,6 +21,7 @@ from conftest import assert_close
 torch = pytest.importorskip("torch")
 pytest.importorskip("efficientnet_lite_pytorch")
 
+from vpr_uncertainty.data.attach import attach_ground_truth  # noqa: E402
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth  # noqa: E402
 from vpr_uncertainty.evaluation import evaluate  # noqa: E402
 from vpr_uncertainty.features import extract_descriptors, load_model  # noqa: E402
@@ -83,10 +84,8 @@ def test_training_on_corridor_lowers_the_validation_loss(corridor_head):
 
 def test_btl_evaluated_end_to_end_with_its_own_retrieval(corridor, corridor_head):
     head_path, _ = corridor_head
-    retrieval = retrieve(
-        corridor["database"],
-        corridor["queries"],
-        k=10,
+    retrieval = attach_ground_truth(
+        retrieve(corridor["database"], corridor["queries"], k=10),
         positives=corridor["positives"],
         database_names=corridor["database_names"],
         query_names=corridor["queries_names"],
@@ -105,10 +104,8 @@ def test_btl_evaluated_end_to_end_with_its_own_retrieval(corridor, corridor_head
     assert "correctness_from" not in results["methods"]["SU"]
     assert any("BTL retrieves with its own embeddings" in note for note in results["notes"])
     with pytest.raises(ValueError, match="names"):
-        reversed_names = retrieve(
-            corridor["database"],
-            corridor["queries"],
-            k=10,
+        reversed_names = attach_ground_truth(
+            retrieve(corridor["database"], corridor["queries"], k=10),
             positives=corridor["positives"],
             query_names=corridor["queries_names"][::-1],
         )
@@ -139,9 +136,8 @@ def test_cli_on_corridor_from_positive_lists_and_from_a_run_directory(corridor, 
     run.mkdir()
     shutil.copy(corridor["h5"], run / "descriptors.h5")
     save_retrieval(
-        retrieve(
-            corridor["database"],
-            corridor["queries"],
+        attach_ground_truth(
+            retrieve(corridor["database"], corridor["queries"]),
             positives=corridor["positives"],
             database_names=corridor["database_names"],
             query_names=corridor["queries_names"],

@@ -27,7 +27,7 @@ from vpr_uncertainty.data import load_ground_truth, load_vprbench_dataset, posit
 from vpr_uncertainty.data.legacy_pickle import UnsafePickleError
 from vpr_uncertainty.data.npy import read_npy
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth, load_vprbench_similarity
-from vpr_uncertainty.inputs import load_similarity_matrix
+from vpr_uncertainty.retrieval import load_similarity_matrix
 
 # --------------------------------------------------------------------------------------------------------------
 # Helpers: legacy-looking files and malicious payloads

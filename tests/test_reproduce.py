@@ -19,7 +19,6 @@ import pytest
 from conftest import assert_close
 from vpr_uncertainty import evaluate
 from vpr_uncertainty.commands import reproduce as reproduce_command
-from vpr_uncertainty.inputs import read_results
 from vpr_uncertainty.reports.ablations import ABLATION_SIZE
 from vpr_uncertainty.reports.ablations import DPI as ABLATION_DPI
 from vpr_uncertainty.reports.heatmaps import DPI as HEATMAP_DPI
@@ -27,6 +26,7 @@ from vpr_uncertainty.reports.heatmaps import heatmap_figsize
 from vpr_uncertainty.reports.qualitative import DPI as QUALITATIVE_DPI
 from vpr_uncertainty.reports.qualitative import qualitative_figsize
 from vpr_uncertainty.reproduce import load_config, run_grid, write_reports, write_results
+from vpr_uncertainty.retrieval import read_results
 
 METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]
 CHROMIUM = Path("/usr/bin/chromium")

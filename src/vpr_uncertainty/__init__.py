@@ -19,12 +19,12 @@ from vpr_uncertainty.evaluation import (
     recall_at_n,
     rejection_curve,
 )
-from vpr_uncertainty.inputs import read_results
 from vpr_uncertainty.methods import available_methods, get_method, register_method
 from vpr_uncertainty.retrieval import (
     Retrieval,
     load_descriptors,
     load_retrieval,
+    read_results,
     retrieve,
     save_retrieval,
     search_descriptors,

@@ -166,6 +166,7 @@ def run(config: RunConfig) -> RunResult:
     RunResult
     """
     from vpr_uncertainty.data import load_dataset
+    from vpr_uncertainty.data.attach import attach_ground_truth
     from vpr_uncertainty.features import extract_descriptors, load_model
     from vpr_uncertainty.retrieval import faiss_gpu_available, retrieve
 
@@ -260,17 +261,19 @@ def run(config: RunConfig) -> RunResult:
         search_device = "cuda" if config.device.startswith("cuda") and faiss_gpu_available() else "cpu"
         if search_device != config.device.split(":")[0]:
             print(f"note: Faiss has no GPU support here; searching on the CPU (descriptors came from {config.device})")
-        retrieval = retrieve(
-            database,
-            queries,
-            config.retrieval_k,
-            index=config.index,
-            device=search_device,
+        retrieval = attach_ground_truth(
+            retrieve(
+                database,
+                queries,
+                config.retrieval_k,
+                index=config.index,
+                device=search_device,
+                config=retrieval_config,
+            ),
             positives=positives,
             database_names=database_names,
             query_names=query_names,
             position_kind=dataset.position_kind,
-            config=retrieval_config,
             **positions,
         )
         save_retrieval(retrieval, retrieval_path)

@@ -140,7 +140,7 @@ class Cell:
 def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[Any, Evaluation | None, Any]:
     """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None)."""
     if entry.model is None:
-        from vpr_uncertainty.inputs import MATRIX_TOP_K, read_results
+        from vpr_uncertainty.retrieval import MATRIX_TOP_K, read_results
 
         retrieval = read_results(
             entry.scores,

@@ -8,9 +8,9 @@ from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import candidate_count, output_file, write_output
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
-from vpr_uncertainty.inputs import INPUT_FORMATS, MATRIX_TOP_K, read_results
 from vpr_uncertainty.methods import available_methods, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
+from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K, read_results
 
 __all__ = ["METHOD_SPEC_HELP", "add_parser", "method_list"]
 

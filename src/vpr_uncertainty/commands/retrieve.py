@@ -90,6 +90,7 @@ def _load_positions(path: Path | None, expected: int, what: str):
 
 
 def _run_retrieve(args: argparse.Namespace) -> int:
+    from vpr_uncertainty.data.attach import attach_ground_truth, ground_truth_fields
     from vpr_uncertainty.evaluation import recall_at_n
     from vpr_uncertainty.retrieval import load_descriptors, retrieve, save_retrieval
 
@@ -104,6 +105,17 @@ def _run_retrieve(args: argparse.Namespace) -> int:
         from vpr_uncertainty.data.ground_truth import load_ground_truth
 
         positives = load_ground_truth(args.gt, n_queries=len(queries), n_database=len(database))
+    ground_truth = ground_truth_fields(  # checked before the search, the slow part
+        len(queries),
+        len(database),
+        database_positions=database_positions,
+        query_positions=query_positions,
+        radius=args.radius,
+        positives=positives,
+        database_names=database_names,
+        query_names=query_names,
+        position_kind=args.position_kind,
+    )
     config = {"database": str(args.database), "queries": str(args.queries)}
     if args.gt is not None:
         config["ground_truth"] = str(args.gt)
@@ -116,18 +128,12 @@ def _run_retrieve(args: argparse.Namespace) -> int:
         device=args.device,
         batch_size=args.batch_size,
         search_params=args.search_params,
-        database_positions=database_positions,
-        query_positions=query_positions,
-        radius=args.radius,
-        positives=positives,
-        database_names=database_names,
-        query_names=query_names,
-        position_kind=args.position_kind,
         config=config,
         copy=False,  # the arrays were just read from disk: normalise them in place
         progress=False if args.no_progress else None,
     )
     seconds = time.perf_counter() - start
+    result = attach_ground_truth(result, ground_truth)
     save_retrieval(result, args.out)
     print(
         f"wrote {args.out}: {result.n_queries} queries x {result.k} candidates among {len(database)} database "

@@ -1,9 +1,10 @@
-"""Checks of every field of a :class:`~vpr_uncertainty.retrieval.Retrieval` and of a retrieval file.
+"""Checks of every field of a :class:`~vpr_uncertainty.retrieval.Retrieval`.
 
 A retrieval with a wrong field (an index −5, a wrapped unsigned index, a missing-candidate marker beside a real
 score, ground truth that points outside the database, a NaN score) would silently change recall@N and AUC-PR,
-so every field is checked when a Retrieval is made and when a retrieval file is read. Each check raises a
-``ValueError`` that names the field and the problem; :func:`read_retrieval_file` adds the file name.
+so every field is checked when a Retrieval is made (and so when a retrieval file is read). Each check raises a
+``ValueError`` that names the field and the problem; the file reader
+(:func:`vpr_uncertainty.retrieval.file_format.load_retrieval`) adds the file name and checks what only a file has.
 
 What is checked
     * ``scores`` (Q, K), K >= 1: real numbers (not bool), no NaN, no +inf, sorted descending along each row;
@@ -15,23 +16,16 @@ What is checked
     * ``positives``: one row per query, one column per database image.
     * names: 1-D strings, one per query / database image; positions: 2-D finite numbers with one row per image
       and, when both are given, the same number of columns.
-    * In a file: ``format_version`` an integer between 1 and :data:`~vpr_uncertainty.retrieval.FORMAT_VERSION`;
-      the CSR ground truth (``positives_indptr``, ``positives_indices``, ``n_database``) consistent;
-      ``config`` a JSON object. A zero-byte, truncated or non-``.npz`` file is reported as such.
 """
 
 from __future__ import annotations
 
-import json
-import zipfile
-import zlib
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import sparse
 
-__all__ = ["check_retrieval_fields", "read_retrieval_file"]
+__all__ = ["check_indices", "check_integers", "check_retrieval_fields", "check_scores"]
 
 _INT64_MAX = np.iinfo(np.int64).max
 
@@ -51,7 +45,7 @@ def _check_real(name: str, value: object) -> np.ndarray:
     return array
 
 
-def _check_integers(name: str, value: object) -> np.ndarray:
+def check_integers(name: str, value: object) -> np.ndarray:
     """An integer array (any integer dtype) converted to int64 without wrapping."""
     array = np.asarray(value)
     if array.dtype == bool or not np.issubdtype(array.dtype, np.integer):
@@ -65,7 +59,7 @@ def _check_integers(name: str, value: object) -> np.ndarray:
     return array.astype(np.int64, copy=False)
 
 
-def _check_scores(scores: object) -> np.ndarray:
+def check_scores(scores: object) -> np.ndarray:
     scores = _check_real("scores", scores)
     if scores.ndim != 2 or scores.shape[1] < 1:
         raise ValueError(f"scores must have shape (n_queries, k) with k >= 1, got shape {scores.shape}")
@@ -86,8 +80,8 @@ def _check_scores(scores: object) -> np.ndarray:
     return scores
 
 
-def _check_indices(indices: object, scores: np.ndarray) -> np.ndarray:
-    indices = _check_integers("indices", indices)
+def check_indices(indices: object, scores: np.ndarray) -> np.ndarray:
+    indices = check_integers("indices", indices)
     if indices.shape != scores.shape:
         raise ValueError(f"indices has shape {indices.shape} but scores has shape {scores.shape}; they must agree")
     if indices.size and indices.min() < -1:
@@ -169,8 +163,8 @@ def check_retrieval_fields(retrieval: Any) -> None:
     ValueError
         Naming the field and the problem.
     """
-    retrieval.scores = _check_scores(retrieval.scores)
-    retrieval.indices = _check_indices(retrieval.indices, retrieval.scores)
+    retrieval.scores = check_scores(retrieval.scores)
+    retrieval.indices = check_indices(retrieval.indices, retrieval.scores)
     n_queries = retrieval.scores.shape[0]
     if retrieval.distances is not None:
         retrieval.distances = _check_distances(retrieval.distances, retrieval.indices)
@@ -211,123 +205,3 @@ def check_retrieval_fields(retrieval: Any) -> None:
             f"indices refer to database image {int(retrieval.indices[position])} (at {_where(position)}) but "
             f"{name} covers only {length} database images"
         )
-
-
-# --- the file -----------------------------------------------------------------------------------------------------
-
-_READ_ERRORS = (EOFError, OSError, ValueError, zipfile.BadZipFile, zlib.error, KeyError)
-
-
-def _read_arrays(path: Path) -> dict[str, np.ndarray]:
-    if path.stat().st_size == 0:
-        raise ValueError(f"retrieval file {path} is empty (0 bytes); write it again")
-    try:
-        archive = np.load(path, allow_pickle=False)
-        if not isinstance(archive, np.lib.npyio.NpzFile):
-            raise ValueError(f"retrieval file {path} is a single .npy array, not a .npz archive of named arrays")
-        with archive:
-            return {key: archive[key] for key in archive.files}
-    except PermissionError:
-        raise
-    except _READ_ERRORS as error:
-        if str(error).startswith(f"retrieval file {path}"):
-            raise
-        detail = str(error) or type(error).__name__
-        raise ValueError(
-            f"retrieval file {path} cannot be read as a .npz archive (truncated or not a retrieval file?): {detail}"
-        ) from None
-
-
-def _scalar_int(name: str, value: np.ndarray) -> int:
-    if value.ndim != 0 or value.dtype == bool or not np.issubdtype(value.dtype, np.integer):
-        raise ValueError(f"{name} must be a single integer, got {value!r}")
-    return int(value)
-
-
-def _format_version(arrays: dict[str, np.ndarray], maximum: int) -> int:
-    if "format_version" not in arrays:
-        return maximum  # written by another tool: read as the current version
-    value = arrays["format_version"]
-    if value.ndim != 0 or value.dtype == bool or not np.issubdtype(value.dtype, np.integer):
-        raise ValueError(f"format_version must be an integer between 1 and {maximum}, got {value.tolist()!r}")
-    version = int(value)
-    if version < 1:
-        raise ValueError(f"format_version must be an integer between 1 and {maximum}, got {version}")
-    if version > maximum:
-        raise ValueError(f"format_version is {version}; this toolkit reads up to {maximum}. Upgrade vpr-uncertainty")
-    return version
-
-
-def _positives(arrays: dict[str, np.ndarray], n_queries: int) -> sparse.csr_array | None:
-    present = [key for key in ("positives_indptr", "positives_indices") if key in arrays]
-    if not present:
-        if "n_database" in arrays:
-            _scalar_int("n_database", arrays["n_database"])
-        return None
-    if len(present) == 1:
-        other = ({"positives_indptr", "positives_indices"} - set(present)).pop()
-        raise ValueError(f"{present[0]} is present without {other}; the ground truth needs both")
-    indptr = _check_integers("positives_indptr", arrays["positives_indptr"])
-    indices = _check_integers("positives_indices", arrays["positives_indices"])
-    if indptr.ndim != 1 or indices.ndim != 1:
-        raise ValueError(
-            f"positives_indptr and positives_indices must be 1-D, got shapes {indptr.shape} and {indices.shape}"
-        )
-    if len(indptr) != n_queries + 1:
-        raise ValueError(f"positives_indptr has {len(indptr)} entries, expected {n_queries + 1} (queries + 1)")
-    if indptr[0] != 0 or indptr[-1] != len(indices) or (np.diff(indptr) < 0).any():
-        raise ValueError(
-            f"positives_indptr must rise from 0 to the {len(indices)} entries of positives_indices without "
-            f"decreasing, got {indptr[0]} ... {indptr[-1]}" + (" (it decreases)" if (np.diff(indptr) < 0).any() else "")
-        )
-    if "n_database" in arrays:
-        n_database = _scalar_int("n_database", arrays["n_database"])
-        if n_database < 1:
-            raise ValueError(f"n_database must be >= 1, got {n_database}")
-    else:
-        n_database = int(indices.max()) + 1 if indices.size else 0
-    if indices.size and (indices.min() < 0 or indices.max() >= n_database):
-        bad = int(indices[(indices < 0) | (indices >= n_database)][0])
-        raise ValueError(f"positives_indices holds {bad}, outside the database of n_database = {n_database} images")
-    return sparse.csr_array((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n_queries, n_database))
-
-
-def _config(arrays: dict[str, np.ndarray]) -> dict[str, Any]:
-    if "config" not in arrays:
-        return {}
-    value = arrays["config"]
-    if value.ndim != 0 or value.dtype.kind != "U":
-        raise ValueError(f"config must be JSON text, got dtype {value.dtype} and shape {value.shape}")
-    try:
-        config = json.loads(str(value))
-    except json.JSONDecodeError as error:
-        raise ValueError(f"config is not valid JSON ({error})") from None
-    if not isinstance(config, dict):
-        raise ValueError(f"config must be a JSON object, got {type(config).__name__}")
-    return config
-
-
-def read_retrieval_file(path: Path, retrieval_type: type, maximum_version: int) -> Any:
-    """Read and check a retrieval file; every error is a ``ValueError`` that names the file and the field."""
-    arrays = _read_arrays(path)
-    missing = {"scores", "indices"} - set(arrays)
-    if missing:
-        raise ValueError(f"{path} is not a retrieval file: missing {sorted(missing)} (found {sorted(arrays)})")
-    try:
-        _format_version(arrays, maximum_version)
-        scores = _check_scores(arrays["scores"])  # first, so that the positives are checked against them
-        _check_indices(arrays["indices"], scores)
-        positives = _positives(arrays, scores.shape[0])
-        return retrieval_type(
-            scores=scores,
-            indices=arrays["indices"],
-            positives=positives,
-            distances=arrays.get("distances"),
-            query_names=arrays.get("query_names"),
-            database_names=arrays.get("database_names"),
-            query_positions=arrays.get("query_positions"),
-            database_positions=arrays.get("database_positions"),
-            config=_config(arrays),
-        )
-    except ValueError as error:
-        raise ValueError(f"retrieval file {path}: {error}") from None
