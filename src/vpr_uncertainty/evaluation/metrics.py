@@ -1,9 +1,12 @@
-"""How good is an uncertainty? Correctness, AUC-PR, rejection curves, recall@N, AURC and time per query.
+"""Metrics of an uncertainty as a predictor of correct answers: AUC-PR, AP, rejection curves, AURC and recall@N.
+
+Plain functions on arrays, in the style of :mod:`sklearn.metrics`: inputs are validated at the boundary and every
+error names the argument, what was found and what was expected.
 
 Conventions
 -----------
 * A query's answer is **correct** when its top-1 database image is among its positives.
-* An uncertainty is higher for answers to trust less. The evaluation negates it exactly once, to rank queries by
+* An uncertainty is higher for answers to trust less. These functions negate it exactly once, to rank queries by
   confidence; a correct answer is the positive class.
 * **AUC-PR** is the trapezoid area ``sklearn.metrics.auc(recall, precision)`` under
   ``precision_recall_curve(correct, -uncertainty)``, the convention of the published VPR uncertainty tables;
@@ -15,52 +18,32 @@ Conventions
   candidates.
 * **AURC** is the area under the risk-coverage curve: Σ over thresholds of (coverage gained) × (error rate among
   the accepted queries), with coverage in steps of tied groups; lower is better.
-* **Uninformative**: a method that gives every query the same uncertainty ranks nothing; its AUC-PR is chance
-  level. It is flagged (``informative: false``, ``distinct_values: 1``) and never reported as best.
-* **k**: ``Evaluation.k`` is the k the methods used, ``min(k asked, candidates per query)``; a shortfall gives a
-  :class:`FewerCandidatesWarning` and a note. Queries with s_1 <= 0 (ranked most uncertain by RS, SD, SU) are
-  counted in the notes.
 """
 
 from __future__ import annotations
 
-import statistics
-import time
-import warnings
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
 from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
-from vpr_uncertainty._evaluation_notes import FewerCandidatesWarning, candidates_note, nonpositive_note, tied_note
-from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method
-from vpr_uncertainty.retrieval import Retrieval
-
 __all__ = [
-    "DEFAULT_METHODS",
     "RECALL_NS",
-    "Evaluation",
-    "FewerCandidatesWarning",
-    "MethodEvaluation",
     "RejectionCurve",
     "auc_pr",
     "aurc",
     "average_precision",
     "correct_at_n",
-    "evaluate",
     "precision_at_recall",
     "recall_at_full_precision",
     "recall_at_n",
     "rejection_curve",
-    "time_per_query",
 ]
 
-DEFAULT_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "PA", "L2", "BM")
-RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
-#: The N of recall@N reported by :func:`evaluate`; the largest one sets how many candidates a retrieval needs.
+#: The N of recall@N reported by :func:`vpr_uncertainty.evaluate`; the largest one sets how many candidates a
+#: retrieval needs.
 RECALL_NS: tuple[int, ...] = (1, 5, 10, 20)
 
 
@@ -271,203 +254,3 @@ def aurc(correct: object, uncertainty: object) -> float:
     risk = 1.0 - curve.precision
     coverage_gained = np.diff(curve.coverage, prepend=0.0)
     return float(np.sum(coverage_gained * risk))
-
-
-def time_per_query(
-    compute: Callable[[], Any], n_queries: int, *, repeats: int = 5, budget_s: float = 0.5
-) -> tuple[Any, float]:
-    """Run ``compute`` once, then repeat it while within ``budget_s`` (at most ``repeats`` times in all).
-
-    Returns
-    -------
-    result : the first call's return value
-    seconds_per_query : float
-        Median wall-clock time of one call divided by ``n_queries``.
-    """
-    durations = []
-    start = time.perf_counter()
-    result = compute()
-    durations.append(time.perf_counter() - start)
-    while len(durations) < repeats and sum(durations) < budget_s:
-        start = time.perf_counter()
-        compute()
-        durations.append(time.perf_counter() - start)
-    return result, statistics.median(durations) / max(n_queries, 1)
-
-
-@dataclass
-class MethodEvaluation:
-    """Everything measured for one uncertainty method."""
-
-    name: str
-    uncertainty: np.ndarray
-    auc_pr: float | None
-    average_precision: float | None
-    aurc: float
-    time_per_query_ms: float
-    curve: RejectionCurve
-    recall_at_full_precision: float
-    precision_at_recall: dict[float, float | None]
-    own_recall_at_1: float | None = None
-
-    @property
-    def n_distinct(self) -> int:
-        """Number of distinct uncertainty values (1: every query tied)."""
-        return int(np.unique(self.uncertainty).size)
-
-    @property
-    def informative(self) -> bool:
-        """False when every query has the same uncertainty: the ranking is arbitrary, AUC-PR and AP at chance."""
-        return self.n_distinct > 1
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "informative": self.informative,
-            "distinct_values": self.n_distinct,
-            "auc_pr": self.auc_pr,
-            "average_precision": self.average_precision,
-            "aurc": self.aurc,
-            "time_per_query_ms": self.time_per_query_ms,
-            "recall_at_100_precision": self.recall_at_full_precision,
-            "precision_at_recall": {f"{level:g}": value for level, value in self.precision_at_recall.items()},
-            **(
-                {"correctness_from": "own retrieval", "own_recall@1": self.own_recall_at_1}
-                if self.own_recall_at_1 is not None
-                else {}
-            ),
-        }
-
-
-@dataclass
-class Evaluation:
-    """Result of :func:`evaluate`: retrieval quality and one :class:`MethodEvaluation` per method."""
-
-    n_queries: int
-    n_answerable: int
-    correct: np.ndarray
-    recall_at_n: dict[int, float]
-    methods: dict[str, MethodEvaluation] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    k: int | None = None
-    k_requested: int | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON schema of ``evaluate --json``."""
-        result: dict[str, Any] = {"n_queries": self.n_queries}
-        if self.k is not None:
-            result["k"] = self.k
-        if self.k_requested is not None and self.k_requested != self.k:
-            result["k_requested"] = self.k_requested
-        result["recall@1"] = self.recall_at_n.get(1)
-        result.update({f"recall@{n}": value for n, value in self.recall_at_n.items() if n != 1})
-        result["n_queries_without_positives"] = self.n_queries - self.n_answerable
-        result["methods"] = {name: method.to_dict() for name, method in self.methods.items()}
-        if self.notes:
-            result["notes"] = list(self.notes)
-        return result
-
-
-def evaluate(
-    retrieval: Retrieval,
-    methods: Sequence[str] = DEFAULT_METHODS,
-    *,
-    k: int = 10,
-    alpha: float = 0.5,
-    recall_levels: Sequence[float] = RECALL_LEVELS,
-    timing_repeats: int = 5,
-    **options: Any,
-) -> Evaluation:
-    """Compute every requested uncertainty on a retrieval and measure how well it predicts correct answers.
-
-    Parameters
-    ----------
-    retrieval : Retrieval
-        Top-k retrieval with its ground truth (``retrieval.positives``).
-    methods : sequence of str
-        Registered method names (see :func:`vpr_uncertainty.available_methods`).
-    k, alpha : int, float
-        Options of the score-based methods (k candidates, weight α of SU). When the retrieval holds fewer than
-        k candidates per query, the methods use those it has: a :class:`FewerCandidatesWarning` and a note say
-        so, and ``Evaluation.k`` records the k used.
-    recall_levels : sequence of float
-        Recall levels at which the end-to-end precision is reported.
-    timing_repeats : int
-        Calls per method for the time per query (median; fewer when a call is slow).
-    **options
-        Further options passed to the methods that accept them.
-
-    Returns
-    -------
-    Evaluation
-    """
-    if retrieval.positives is None:
-        raise ValueError("the retrieval has no ground truth (positives); give --gt or a file that holds it")
-    if retrieval.n_queries == 0:
-        raise ValueError("the retrieval has no queries")
-    if not methods:
-        raise ValueError("no uncertainty method requested")
-    entries = [get_method(name) for name in methods]  # unknown names fail before any work
-    positives = retrieval.positives
-    answerable = np.asarray(positives.sum(axis=1)).ravel() > 0
-    correct = correct_at_n(retrieval.indices, positives, 1)
-    evaluation = Evaluation(
-        n_queries=retrieval.n_queries,
-        n_answerable=int(answerable.sum()),
-        correct=correct,
-        recall_at_n=recall_at_n(retrieval.indices, positives),
-        k=min(int(k), retrieval.k),
-        k_requested=int(k),
-    )
-    if (~answerable).any():
-        evaluation.notes.append(
-            f"{int((~answerable).sum())} queries have no positive in the database; they count as wrong answers "
-            "and are left out of the recall denominators"
-        )
-    both_classes = correct.any() and not correct.all()
-    if not both_classes:
-        evaluation.notes.append("AUC-PR and AP are undefined: every top-1 answer is correct, or none is")
-        warnings.warn(evaluation.notes[-1], RuntimeWarning, stacklevel=2)
-    names = [entry.name for entry in entries]
-    shortfall = candidates_note(k, retrieval.k, names, retrieval.config.get("source"))
-    if shortfall:
-        evaluation.notes.append(shortfall)
-        warnings.warn(shortfall, FewerCandidatesWarning, stacklevel=2)
-    nonpositive = nonpositive_note(retrieval.scores, names)
-    if nonpositive:
-        evaluation.notes.append(nonpositive)
-    for entry in entries:
-        result, seconds = time_per_query(
-            lambda entry=entry: entry(retrieval, k=k, alpha=alpha, **options),
-            retrieval.n_queries,
-            repeats=timing_repeats,
-        )
-        method_correct, method_both, own_recall = correct, both_classes, None
-        if isinstance(result, OwnRetrievalUncertainty):
-            uncertainty = result.uncertainty
-            own = result.retrieval
-            method_correct = correct_at_n(own.indices, own.positives if own.positives is not None else positives, 1)
-            method_both = bool(method_correct.any() and not method_correct.all())
-            own_recall = float(method_correct[answerable].mean())
-            evaluation.notes.append(
-                f"{entry.name} retrieves with its own embeddings: its correctness labels come from its own top-1 "
-                f"(recall@1 {own_recall:.3f})"
-            )
-        else:
-            uncertainty = result
-        curve = rejection_curve(method_correct, uncertainty, n_answerable=evaluation.n_answerable)
-        evaluation.methods[entry.name] = MethodEvaluation(
-            name=entry.name,
-            uncertainty=uncertainty,
-            auc_pr=auc_pr(method_correct, uncertainty) if method_both else None,
-            average_precision=average_precision(method_correct, uncertainty) if method_both else None,
-            aurc=aurc(method_correct, uncertainty),
-            time_per_query_ms=seconds * 1e3,
-            curve=curve,
-            recall_at_full_precision=recall_at_full_precision(curve),
-            precision_at_recall={level: precision_at_recall(curve, level) for level in recall_levels},
-            own_recall_at_1=own_recall,
-        )
-    tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
-    if tied:
-        evaluation.notes.append(tied)
-    return evaluation
