@@ -97,6 +97,20 @@ def correct_at_n(indices: object, positives: object, n: int = 1) -> np.ndarray:
 def recall_at_n(indices: object, positives: object, ns: Sequence[int] = RECALL_NS) -> dict[int, float]:
     """recall@N over the queries that have at least one positive; N larger than K is left out.
 
+    Parameters
+    ----------
+    indices : array-like of shape (Q, K), int
+        Database index of each candidate, best first; ``-1`` marks a missing candidate.
+    positives : sparse or dense bool matrix of shape (Q, D)
+        Ground truth.
+    ns : sequence of int, default=RECALL_NS
+        The N to report.
+
+    Returns
+    -------
+    dict of int to float
+        N -> share of the answerable queries with a positive among their first N candidates.
+
     Examples
     --------
     >>> recall_at_n(np.array([[2, 0], [1, 0]]), np.array([[1, 0, 0], [1, 0, 0]], bool), ns=(1, 2, 5))
@@ -146,6 +160,10 @@ def auc_pr(correct: object, uncertainty: object) -> float:
     uncertainty : array-like of shape (Q,)
         Higher = less trustworthy.
 
+    Returns
+    -------
+    float
+
     Examples
     --------
     >>> auc_pr([True, True, False, False], [0.1, 0.2, 0.3, 0.4])
@@ -159,6 +177,17 @@ def auc_pr(correct: object, uncertainty: object) -> float:
 
 def average_precision(correct: object, uncertainty: object) -> float:
     """Average precision (step-wise area under the PR curve) of an uncertainty; higher is better.
+
+    Parameters
+    ----------
+    correct : array-like of shape (Q,), bool
+        Whether each query's top-1 answer is correct.
+    uncertainty : array-like of shape (Q,)
+        Higher = less trustworthy.
+
+    Returns
+    -------
+    float
 
     Examples
     --------
@@ -229,13 +258,33 @@ def rejection_curve(correct: object, uncertainty: object, *, n_answerable: int |
 
 
 def recall_at_full_precision(curve: RejectionCurve) -> float:
-    """Largest recall reached with no wrong answer accepted (0 when the most confident answer is wrong)."""
+    """Largest recall reached with no wrong answer accepted (0 when the most confident answer is wrong).
+
+    Parameters
+    ----------
+    curve : RejectionCurve
+
+    Returns
+    -------
+    float
+    """
     perfect = curve.precision >= 1.0
     return float(curve.recall[perfect].max()) if perfect.any() else 0.0
 
 
 def precision_at_recall(curve: RejectionCurve, recall: float) -> float | None:
-    """Precision at the strictest threshold whose recall reaches ``recall`` (None if it is never reached)."""
+    """Precision at the strictest threshold whose recall reaches ``recall`` (None if it is never reached).
+
+    Parameters
+    ----------
+    curve : RejectionCurve
+    recall : float
+        In (0, 1].
+
+    Returns
+    -------
+    float or None
+    """
     if not 0.0 < recall <= 1.0:
         raise ValueError(f"recall must lie in (0, 1], got {recall}")
     reached = np.flatnonzero(curve.recall >= recall)
@@ -244,6 +293,17 @@ def precision_at_recall(curve: RejectionCurve, recall: float) -> float | None:
 
 def aurc(correct: object, uncertainty: object) -> float:
     """Area under the risk-coverage curve (lower is better); risk = share of wrong answers among the accepted.
+
+    Parameters
+    ----------
+    correct : array-like of shape (Q,), bool
+        Whether each query's top-1 answer is correct.
+    uncertainty : array-like of shape (Q,)
+        Higher = less trustworthy; tied queries are accepted together.
+
+    Returns
+    -------
+    float
 
     Examples
     --------
