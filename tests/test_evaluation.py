@@ -1,140 +1,14 @@
-"""Evaluation metrics against direct scikit-learn calls and slow loop references."""
+"""evaluate(): every method run on a retrieval and measured; its notes, errors and own-retrieval methods."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy import sparse
-from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
 from conftest import assert_close
 from vpr_uncertainty import Retrieval, evaluate
-from vpr_uncertainty.evaluation import (
-    auc_pr,
-    aurc,
-    average_precision,
-    correct_at_n,
-    precision_at_recall,
-    recall_at_full_precision,
-    recall_at_n,
-    rejection_curve,
-    time_per_query,
-)
-
-
-def reference_rejection_curve(correct, uncertainty, n_answerable):
-    """Loop over every distinct threshold: accept the queries whose uncertainty is <= it."""
-    rows = []
-    for threshold in sorted(set(uncertainty.tolist())):
-        accepted = uncertainty <= threshold
-        correct_accepted = int((correct & accepted).sum())
-        rows.append((threshold, correct_accepted / accepted.sum(), correct_accepted / n_answerable))
-    return np.array(rows)
-
-
-def reference_aurc_without_ties(correct, uncertainty):
-    """The textbook AURC: mean over i of the error rate among the i most confident queries."""
-    order = np.argsort(uncertainty)
-    errors = np.cumsum(~correct[order])
-    return float(np.mean(errors / np.arange(1, len(order) + 1)))
-
-
-@pytest.fixture
-def labels():
-    rng = np.random.default_rng(0)
-    uncertainty = rng.normal(size=300)
-    # correctness that depends on the uncertainty, with noise, so the curves are not trivial
-    correct = rng.uniform(size=300) > 1 / (1 + np.exp(-2 * uncertainty))
-    return correct, uncertainty
-
-
-def test_auc_pr_is_the_trapezoid_over_sklearn_curve(labels):
-    correct, uncertainty = labels
-    precision, recall, _ = precision_recall_curve(correct, -uncertainty)
-    assert_close(auc_pr(correct, uncertainty), auc(recall, precision), atol=0)
-    assert_close(average_precision(correct, uncertainty), average_precision_score(correct, -uncertainty))
-    # the sign convention: a perfect uncertainty (wrong answers most uncertain) gives AUC-PR 1
-    assert_close(auc_pr(correct, np.where(correct, 0.0, 1.0)), 1.0)
-    assert auc_pr(correct, uncertainty) > auc_pr(correct, -uncertainty)
-
-
-def test_precision_recall_needs_both_classes():
-    with pytest.raises(ValueError, match="all 3 top-1 answers are correct"):
-        auc_pr([True, True, True], [0.1, 0.2, 0.3])
-    with pytest.raises(ValueError, match="are wrong"):
-        average_precision([False, False], [0.1, 0.2])
-
-
-@pytest.mark.parametrize("ties", [False, True])
-def test_rejection_curve_matches_loop(labels, ties):
-    correct, uncertainty = labels
-    if ties:
-        uncertainty = np.round(uncertainty, 1)
-    curve = rejection_curve(correct, uncertainty, n_answerable=320)
-    expected = reference_rejection_curve(correct, uncertainty, 320)
-    assert_close(curve.thresholds, expected[:, 0])
-    assert_close(curve.precision, expected[:, 1])
-    assert_close(curve.recall, expected[:, 2])
-    assert curve.coverage[-1] == 1.0
-
-
-def test_rejection_summaries_hand_computed():
-    #            accepted in order: T    T    F    T    F
-    correct = np.array([True, True, False, True, False])
-    uncertainty = np.array([0.1, 0.2, 0.3, 0.4, 0.5])
-    curve = rejection_curve(correct, uncertainty, n_answerable=4)
-    assert_close(curve.precision, [1, 1, 2 / 3, 3 / 4, 3 / 5])
-    assert_close(curve.recall, [1 / 4, 2 / 4, 2 / 4, 3 / 4, 3 / 4])
-    assert recall_at_full_precision(curve) == 0.5
-    assert precision_at_recall(curve, 0.5) == 1.0
-    assert precision_at_recall(curve, 0.75) == 0.75
-    assert precision_at_recall(curve, 1.0) is None
-    first_wrong = rejection_curve(~correct, uncertainty)
-    assert recall_at_full_precision(first_wrong) == 0.0
-
-
-def test_aurc_matches_textbook_formula_without_ties(labels):
-    correct, uncertainty = labels
-    assert_close(aurc(correct, uncertainty), reference_aurc_without_ties(correct, uncertainty))
-
-
-def test_aurc_with_ties_accepts_tied_queries_together():
-    correct = np.array([True, False, True, True])
-    uncertainty = np.array([0.1, 0.1, 0.2, 0.2])
-    # coverage 1/2 with risk 1/2, then coverage 1 with risk 1/4
-    assert_close(aurc(correct, uncertainty), 0.5 * 0.5 + 0.5 * 0.25)
-    # independent of the order of tied queries
-    assert aurc(correct[[1, 0, 3, 2]], uncertainty) == aurc(correct, uncertainty)
-
-
-def test_label_validation():
-    with pytest.raises(ValueError, match="shape"):
-        auc_pr([True, False], [0.1])
-    with pytest.raises(ValueError, match="NaN or inf"):
-        rejection_curve([True, False], [0.1, np.nan])
-    with pytest.raises(ValueError, match="empty"):
-        aurc([], [])
-    with pytest.raises(ValueError, match="boolean"):
-        auc_pr([2, 0], [0.1, 0.2])
-
-
-def test_correct_and_recall_at_n_match_loop():
-    rng = np.random.default_rng(1)
-    n_queries, n_database, k = 60, 40, 20
-    indices = np.array([rng.permutation(n_database)[:k] for _ in range(n_queries)])
-    indices[5, 3:] = -1  # a query with only three candidates
-    mask = rng.uniform(size=(n_queries, n_database)) < 0.05
-    mask[7] = False  # a query with no positive at all
-    answerable = mask.any(axis=1)
-    for n in (1, 5, 10, 20):
-        expected = np.array([any(i >= 0 and mask[q, i] for i in indices[q, :n]) for q in range(n_queries)])
-        np.testing.assert_array_equal(correct_at_n(indices, mask, n), expected)
-        np.testing.assert_array_equal(correct_at_n(indices, sparse.csr_array(mask), n), expected)
-    recalls = recall_at_n(indices, mask, ns=(1, 5, 25))
-    assert set(recalls) == {1, 5}  # 25 > k is left out
-    assert_close(recalls[5], correct_at_n(indices, mask, 5)[answerable].mean())
-    with pytest.raises(ValueError, match="between 1 and"):
-        correct_at_n(indices, mask, 21)
+from vpr_uncertainty.evaluation import auc_pr, time_per_query
 
 
 def test_evaluate_on_synthetic_retrieval_matches_direct_computation():

@@ -414,10 +414,10 @@ def test_interrupted_retrieval_write_keeps_the_previous_file(tmp_path, monkeypat
 
 
 def test_reproduce_recomputes_a_cell_whose_arrays_were_cut_short(tmp_path):
-    from vpr_uncertainty.reproduce import _load_cell
+    from vpr_uncertainty.study.runner import load_cell
 
     json_path, npz_path = tmp_path / "cell.json", tmp_path / "cell.npz"
     json_path.write_text(json.dumps({"fingerprint": "abc"}))
     np.savez_compressed(npz_path, correct=np.ones(1000, bool))
     npz_path.write_bytes(npz_path.read_bytes()[:100])  # interrupted while rewriting (--force)
-    assert _load_cell(json_path, npz_path, "abc") is None
+    assert load_cell(json_path, npz_path, "abc") is None

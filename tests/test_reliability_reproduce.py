@@ -17,9 +17,9 @@ from vpr_uncertainty.cli import main
 from vpr_uncertainty.commands import reproduce as reproduce_command
 from vpr_uncertainty.commands.evaluate import method_list
 from vpr_uncertainty.methods import get_method, parse_method_spec, split_method_list
-from vpr_uncertainty.reproduce import load_config, run_grid, write_results
 from vpr_uncertainty.retrieval import Retrieval, save_retrieval
 from vpr_uncertainty.spatial import spatial_uncertainty
+from vpr_uncertainty.study import load_config, run_grid, write_results
 
 
 def _reproduce(argv: list[str]) -> int:
@@ -30,7 +30,7 @@ def _reproduce(argv: list[str]) -> int:
 
 
 def _no_work(monkeypatch) -> None:
-    import vpr_uncertainty.reproduce as module
+    import vpr_uncertainty.study.runner as module
 
     def fail(*args, **kwargs):
         raise AssertionError("work started before the configuration was checked")

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
 from conftest import assert_close
 from vpr_uncertainty import evaluate
@@ -25,8 +26,8 @@ from vpr_uncertainty.reports.heatmaps import DPI as HEATMAP_DPI
 from vpr_uncertainty.reports.heatmaps import heatmap_figsize
 from vpr_uncertainty.reports.qualitative import DPI as QUALITATIVE_DPI
 from vpr_uncertainty.reports.qualitative import qualitative_figsize
-from vpr_uncertainty.reproduce import load_config, run_grid, write_reports, write_results
 from vpr_uncertainty.retrieval import read_results
+from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 
 METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]
 CHROMIUM = Path("/usr/bin/chromium")
@@ -76,8 +77,30 @@ def grid(tmp_path_factory, corridor_matches_dir, corridor_dir):
     return config, cells, paths
 
 
+def _reference_uncertainties(scores: np.ndarray, k: int = 10, alpha: float = 0.5) -> dict[str, np.ndarray]:
+    """RS, SD, SU, BM, L2 and PA written out row by row from their definitions (README, Conventions)."""
+    top = scores[:, :k].astype(np.float64)
+    rs = np.array([np.mean(row[1:] / row[0]) for row in top])
+    sd = np.array([np.median(row) / row[0] for row in top])
+    distances = np.sqrt(np.maximum(2.0 - 2.0 * scores[:, :2].astype(np.float64), 0.0))
+    pa = np.array([1.0 if d2 == 0 else d1 / d2 for d1, d2 in distances])
+    return {"RS": rs, "SD": sd, "SU": alpha * rs + (1 - alpha) * sd, "BM": -top[:, 0], "L2": distances[:, 0], "PA": pa}
+
+
+def _reference_aurc(correct: np.ndarray, uncertainty: np.ndarray) -> float:
+    """Loop over the distinct thresholds: coverage gained × error rate among the accepted queries."""
+    area, covered = 0.0, 0
+    for threshold in sorted(set(uncertainty.tolist())):
+        accepted = uncertainty <= threshold
+        area += (accepted.sum() - covered) / len(correct) * (1 - correct[accepted].mean())
+        covered = accepted.sum()
+    return area
+
+
 @pytest.mark.realdata
-def test_grid_gives_the_numbers_of_evaluate(grid, corridor_matches_dir, corridor_dir):
+def test_grid_numbers_match_independent_references(grid, corridor_matches_dir, corridor_dir):
+    """Every cell against the definitions: correctness by a loop over the ground truth, the uncertainties
+    from their formulas, AUC-PR and AP by scikit-learn directly, AURC by a loop."""
     _, cells, paths = grid
     assert len(cells) == 10
     by_name = {cell.vpr_method: cell for cell in cells}
@@ -92,20 +115,24 @@ def test_grid_gives_the_numbers_of_evaluate(grid, corridor_matches_dir, corridor
                 corridor_matches_dir / name / "precomputed_data_corrected.npy",
                 ground_truth=corridor_dir / "ground_truth_new.npy",
             )
-        reference = evaluate(retrieval, METHODS, k=10, timing_repeats=1)
-        assert cell.evaluation.recall_at_n == reference.recall_at_n
+        positives = retrieval.positives.toarray()
+        correct = np.array([bool(positives[q, retrieval.indices[q, 0]]) for q in range(retrieval.n_queries)])
+        np.testing.assert_array_equal(cell.evaluation.correct, correct)
+        assert_close(cell.evaluation.recall_at_n[1], correct[positives.any(axis=1)].mean())
         stored = next(c for c in document["cells"] if c["vpr_method"] == name)
-        for method in METHODS:
-            expected = reference.methods[method]
+        for method, uncertainty in _reference_uncertainties(np.asarray(retrieval.scores)).items():
             got = cell.evaluation.methods[method]
-            assert_close(got.auc_pr, expected.auc_pr)
-            assert_close(got.average_precision, expected.average_precision)
-            assert_close(got.aurc, expected.aurc)
-            assert_close(stored["methods"][method]["auc_pr"], expected.auc_pr)
+            assert_close(got.uncertainty, uncertainty, rtol=1e-5)
+            precision, recall, _ = precision_recall_curve(correct, -got.uncertainty)
+            expected_auc_pr = auc(recall, precision)
+            assert_close(got.auc_pr, expected_auc_pr)
+            assert_close(got.average_precision, average_precision_score(correct, -got.uncertainty))
+            assert_close(got.aurc, _reference_aurc(correct, np.asarray(got.uncertainty, dtype=np.float64)))
+            assert_close(stored["methods"][method]["auc_pr"], expected_auc_pr)
             row = next(r for r in rows if r["vpr_method"] == name and r["uncertainty_method"] == method)
             assert row["dataset"] == "corridor"
-            assert_close(float(row["auc_pr"]), expected.auc_pr)
-            assert_close(float(row["recall@1"]), reference.recall_at_n[1])
+            assert_close(float(row["auc_pr"]), expected_auc_pr)
+            assert_close(float(row["recall@1"]), cell.evaluation.recall_at_n[1])
     # The published NetVLAD corridor numbers (README).
     netvlad = by_name["NetVLAD"].evaluation.methods
     assert [round(netvlad[m].auc_pr, 3) for m in ("RS", "SD", "SU", "BM", "PA")] == [0.85, 0.844, 0.847, 0.822, 0.814]
@@ -234,7 +261,7 @@ def test_missing_inputs_are_all_reported_before_any_work(tmp_path, corridor_matc
         f'[[inputs]]\nprecomputed_matches = "{corridor_matches_dir}"\nground_truth = "{tmp_path / "gt.npy"}"\n'
         f'[[inputs]]\nvpr_method = "x"\ndataset = "corridor"\nscores = "missing.npz"\n'
     )
-    import vpr_uncertainty.reproduce as module
+    import vpr_uncertainty.study.runner as module
 
     def no_work(*args, **kwargs):
         raise AssertionError("work started before the configuration was validated")

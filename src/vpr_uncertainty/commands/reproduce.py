@@ -54,7 +54,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run_reproduce(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.reproduce import load_config, run_grid, write_reports, write_results
+    from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 
     config = load_config(args.config, out=args.out)
     cells = {(e.vpr_method, e.dataset) for e in config.inputs}

@@ -4,20 +4,26 @@ Four queries are chosen automatically by SU among the cell's answers: the most c
 confident wrong one, the most uncertain correct one and the most uncertain wrong one (a category without any
 query is left out). Each row shows the query, with RS, SD and SU under it, then its top-4 database images with
 their similarity scores, in a green frame when the image is a positive and red otherwise.
+
+The uncertainties are those the grid stored in the cell's evaluation (nothing is recomputed): the figure shows
+those of RS, SD and SU that the grid computed, and ranks by SU (or, without SU, by the first of them, or by the
+first method of the cell).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty import scores as _scores
-
-__all__ = ["CATEGORIES", "DPI", "TOP", "choose_queries", "plot_qualitative", "qualitative_figsize"]
+__all__ = ["CATEGORIES", "DPI", "SHOWN", "TOP", "choose_queries", "plot_qualitative", "qualitative_figsize"]
 
 CATEGORIES: tuple[str, ...] = ("confident correct", "confident wrong", "uncertain correct", "uncertain wrong")
 TOP = 4
+#: The uncertainty methods shown under each query, when the cell has them.
+SHOWN: tuple[str, ...] = ("RS", "SD", "SU")
 DPI = 100
 
 
@@ -52,22 +58,52 @@ def _image(path: str) -> np.ndarray:
     return imread(path)
 
 
-def plot_qualitative(cell, path: str | Path, *, k: int = 10, alpha: float = 0.5) -> Path | None:
-    """Draw the figure for one grid cell (:class:`vpr_uncertainty.reproduce.Cell`); None without image paths."""
+def plot_qualitative(
+    cell: Any,
+    path: str | Path,
+    *,
+    rank_by: str = "SU",
+    shown: Sequence[str] = SHOWN,
+    alpha: float | None = None,
+) -> Path | None:
+    """Draw the figure for one grid cell from its stored uncertainties.
+
+    Parameters
+    ----------
+    cell : vpr_uncertainty.study.Cell
+        The cell: its images, top-k scores, indices, hits and its evaluation's uncertainties.
+    path : str or Path
+        The PNG to write.
+    rank_by : str, default="SU"
+        The method whose uncertainties choose the queries; without it in the cell, the first of ``shown`` that
+        the cell has, else its first method.
+    shown : sequence of str, default=("RS", "SD", "SU")
+        The methods whose uncertainties are written under each query (those the cell has).
+    alpha : float, optional
+        The α of SU, for the title.
+
+    Returns
+    -------
+    Path or None
+        ``path``, or None when the cell has no image paths or no uncertainties.
+    """
     if not cell.query_paths or not cell.database_paths:
         return None
+    uncertainties = {name: np.asarray(m.uncertainty, dtype=np.float64) for name, m in cell.evaluation.methods.items()}
+    labels = [name for name in shown if name in uncertainties]
+    if rank_by not in uncertainties:
+        rank_by = next(iter(labels or uncertainties), None)
+    if rank_by is None:
+        return None
+    labels = labels or [rank_by]
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
     scores = np.asarray(cell.scores, dtype=np.float64)
-    k = min(k, scores.shape[1])
-    rs = _scores.ratio_spread(scores, k)
-    sd = _scores.similarity_distribution(scores, k)
-    su = _scores.statistical_uncertainty(scores, k, alpha)
     correct = np.asarray(cell.evaluation.correct, dtype=bool)
-    chosen = choose_queries(correct, su)
+    chosen = choose_queries(correct, uncertainties[rank_by])
     if not chosen:
         return None
     path = Path(path)
@@ -77,7 +113,8 @@ def plot_qualitative(cell, path: str | Path, *, k: int = 10, alpha: float = 0.5)
             axis = axes[row][0]
             axis.imshow(_image(cell.query_paths[query]))
             axis.set_title(f"{category}\nquery {query}", fontsize=8)
-            axis.set_xlabel(f"RS {rs[query]:.3f}  SD {sd[query]:.3f}\nSU {su[query]:.3f}", fontsize=8)
+            values = [f"{name} {uncertainties[name][query]:.3f}" for name in labels]
+            axis.set_xlabel("  ".join(values[:2]) + ("\n" + "  ".join(values[2:]) if values[2:] else ""), fontsize=8)
             for column in range(1, TOP + 1):
                 axis = axes[row][column]
                 rank = column - 1
@@ -95,7 +132,10 @@ def plot_qualitative(cell, path: str | Path, *, k: int = 10, alpha: float = 0.5)
             for axis in axes[row]:
                 axis.set_xticks([])
                 axis.set_yticks([])
-        figure.suptitle(f"{cell.vpr_method} on {cell.dataset}: answers ranked by SU (k={k}, α={alpha:g})", fontsize=10)
+        settings = [f"k={cell.evaluation.k}"] if cell.evaluation.k is not None else []
+        settings += [f"α={alpha:g}"] if alpha is not None and rank_by.startswith("SU") else []
+        suffix = f" ({', '.join(settings)})" if settings else ""
+        figure.suptitle(f"{cell.vpr_method} on {cell.dataset}: answers ranked by {rank_by}{suffix}", fontsize=10)
         figure.tight_layout()
         path.parent.mkdir(parents=True, exist_ok=True)
         figure.savefig(path, dpi=DPI)

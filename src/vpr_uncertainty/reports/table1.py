@@ -58,7 +58,7 @@ def _mean(values: Sequence[float | None]) -> float | None:
 
 
 def build_table1(cells: Sequence) -> Table1:
-    """Average the grid's AUC-PR over datasets; ``cells`` are :class:`vpr_uncertainty.reproduce.Cell`."""
+    """Average the grid's AUC-PR over datasets; ``cells`` are :class:`vpr_uncertainty.study.Cell`."""
     vpr_methods = list(dict.fromkeys(cell.vpr_method for cell in cells))
     methods = list(dict.fromkeys(name for cell in cells for name in cell.evaluation.methods))
     values, times, informative = [], [], []

@@ -1,4 +1,4 @@
-"""The configuration of a reproduction grid (see :mod:`vpr_uncertainty.reproduce`): reading and checking it.
+"""The configuration of a reproduction grid (see :mod:`vpr_uncertainty.study`): reading and checking it.
 
 :func:`load_config` reads a TOML or YAML file and reports every problem at once, before any work: syntax errors
 (one line naming the file and the line), unknown keys, values of the wrong type (naming the key and the value),
@@ -17,6 +17,7 @@ from typing import Any
 
 from vpr_uncertainty.evaluation import DEFAULT_METHODS
 from vpr_uncertainty.methods import get_method, split_method_list
+from vpr_uncertainty.study.needs import unmet_needs
 
 __all__ = ["DEFAULT_ALPHAS", "DEFAULT_KS", "GridConfig", "InputEntry", "load_config"]
 
@@ -59,7 +60,7 @@ class InputEntry:
 
     @property
     def key(self) -> str:
-        return f"{_slug(self.vpr_method)}__{_slug(self.dataset)}"
+        return f"{slug(self.vpr_method)}__{slug(self.dataset)}"
 
     def fingerprint(self) -> dict[str, Any]:
         files = {}
@@ -79,7 +80,7 @@ class InputEntry:
 
 @dataclass
 class GridConfig:
-    """The parsed configuration of a grid (see :mod:`vpr_uncertainty.reproduce`)."""
+    """The parsed configuration of a grid (see :mod:`vpr_uncertainty.study`)."""
 
     out: Path
     inputs: list[InputEntry]
@@ -94,7 +95,8 @@ class GridConfig:
         return {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
 
 
-def _slug(text: str) -> str:
+def slug(text: str) -> str:
+    """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
 
 
@@ -328,7 +330,6 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
     keys = [entry.key for entry in entries]
     problems += [f"the cell {key} appears more than once" for key in sorted({k for k in keys if keys.count(k) > 1})]
     qualitative = _qualitative(data.get("qualitative"), entries, problems)
-    from vpr_uncertainty.reproduce_needs import unmet_needs
 
     problems += unmet_needs(entries, methods)  # of the inputs that exist
     if problems:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from vpr_uncertainty.methods import describe_needs, get_method
 
 if TYPE_CHECKING:
-    from vpr_uncertainty.reproduce_config import InputEntry
+    from vpr_uncertainty.study.config import InputEntry
 
 __all__ = ["unmet_needs"]
 

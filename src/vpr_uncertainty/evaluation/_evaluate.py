@@ -1,0 +1,166 @@
+"""Evaluate uncertainty methods on a retrieval: run each one, time it, and measure it with the metrics.
+
+:func:`evaluate` is the orchestration; the metrics are in :mod:`vpr_uncertainty.evaluation.metrics` and the
+result types in :mod:`vpr_uncertainty.evaluation.results`.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from vpr_uncertainty.evaluation._notes import FewerCandidatesWarning, candidates_note, nonpositive_note, tied_note
+from vpr_uncertainty.evaluation.metrics import (
+    auc_pr,
+    aurc,
+    average_precision,
+    correct_at_n,
+    precision_at_recall,
+    recall_at_full_precision,
+    recall_at_n,
+    rejection_curve,
+)
+from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
+from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method
+
+if TYPE_CHECKING:
+    from vpr_uncertainty.retrieval import Retrieval
+
+__all__ = ["DEFAULT_METHODS", "RECALL_LEVELS", "evaluate", "time_per_query"]
+
+DEFAULT_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "PA", "L2", "BM")
+RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
+
+
+def time_per_query(
+    compute: Callable[[], Any], n_queries: int, *, repeats: int = 5, budget_s: float = 0.5
+) -> tuple[Any, float]:
+    """Run ``compute`` once, then repeat it while within ``budget_s`` (at most ``repeats`` times in all).
+
+    Returns
+    -------
+    result : the first call's return value
+    seconds_per_query : float
+        Median wall-clock time of one call divided by ``n_queries``.
+    """
+    durations = []
+    start = time.perf_counter()
+    result = compute()
+    durations.append(time.perf_counter() - start)
+    while len(durations) < repeats and sum(durations) < budget_s:
+        start = time.perf_counter()
+        compute()
+        durations.append(time.perf_counter() - start)
+    return result, statistics.median(durations) / max(n_queries, 1)
+
+
+def evaluate(
+    retrieval: Retrieval,
+    methods: Sequence[str] = DEFAULT_METHODS,
+    *,
+    k: int = 10,
+    alpha: float = 0.5,
+    recall_levels: Sequence[float] = RECALL_LEVELS,
+    timing_repeats: int = 5,
+    **options: Any,
+) -> Evaluation:
+    """Compute every requested uncertainty on a retrieval and measure how well it predicts correct answers.
+
+    Parameters
+    ----------
+    retrieval : Retrieval
+        Top-k retrieval with its ground truth (``retrieval.positives``).
+    methods : sequence of str
+        Registered method names (see :func:`vpr_uncertainty.available_methods`).
+    k, alpha : int, float
+        Options of the score-based methods (k candidates, weight α of SU). When the retrieval holds fewer than
+        k candidates per query, the methods use those it has: a :class:`FewerCandidatesWarning` and a note say
+        so, and ``Evaluation.k`` records the k used.
+    recall_levels : sequence of float
+        Recall levels at which the end-to-end precision is reported.
+    timing_repeats : int
+        Calls per method for the time per query (median; fewer when a call is slow).
+    **options
+        Further options passed to the methods that accept them.
+
+    Returns
+    -------
+    Evaluation
+    """
+    if retrieval.positives is None:
+        raise ValueError("the retrieval has no ground truth (positives); give --gt or a file that holds it")
+    if retrieval.n_queries == 0:
+        raise ValueError("the retrieval has no queries")
+    if not methods:
+        raise ValueError("no uncertainty method requested")
+    entries = [get_method(name) for name in methods]  # unknown names fail before any work
+    positives = retrieval.positives
+    answerable = np.asarray(positives.sum(axis=1)).ravel() > 0
+    correct = correct_at_n(retrieval.indices, positives, 1)
+    evaluation = Evaluation(
+        n_queries=retrieval.n_queries,
+        n_answerable=int(answerable.sum()),
+        correct=correct,
+        recall_at_n=recall_at_n(retrieval.indices, positives),
+        k=min(int(k), retrieval.k),
+        k_requested=int(k),
+    )
+    if (~answerable).any():
+        evaluation.notes.append(
+            f"{int((~answerable).sum())} queries have no positive in the database; they count as wrong answers "
+            "and are left out of the recall denominators"
+        )
+    both_classes = correct.any() and not correct.all()
+    if not both_classes:
+        evaluation.notes.append("AUC-PR and AP are undefined: every top-1 answer is correct, or none is")
+        warnings.warn(evaluation.notes[-1], RuntimeWarning, stacklevel=2)
+    names = [entry.name for entry in entries]
+    shortfall = candidates_note(k, retrieval.k, names, retrieval.config.get("source"))
+    if shortfall:
+        evaluation.notes.append(shortfall)
+        warnings.warn(shortfall, FewerCandidatesWarning, stacklevel=2)
+    nonpositive = nonpositive_note(retrieval.scores, names)
+    if nonpositive:
+        evaluation.notes.append(nonpositive)
+    for entry in entries:
+        result, seconds = time_per_query(
+            lambda entry=entry: entry(retrieval, k=k, alpha=alpha, **options),
+            retrieval.n_queries,
+            repeats=timing_repeats,
+        )
+        method_correct, method_both, own_recall = correct, both_classes, None
+        if isinstance(result, OwnRetrievalUncertainty):
+            uncertainty = result.uncertainty
+            own = result.retrieval
+            method_correct = correct_at_n(own.indices, own.positives if own.positives is not None else positives, 1)
+            method_both = bool(method_correct.any() and not method_correct.all())
+            own_recall = float(method_correct[answerable].mean())
+            evaluation.notes.append(
+                f"{entry.name} retrieves with its own embeddings: its correctness labels come from its own top-1 "
+                f"(recall@1 {own_recall:.3f})"
+            )
+        else:
+            uncertainty = result
+        curve = rejection_curve(method_correct, uncertainty, n_answerable=evaluation.n_answerable)
+        evaluation.methods[entry.name] = MethodEvaluation(
+            name=entry.name,
+            uncertainty=uncertainty,
+            auc_pr=auc_pr(method_correct, uncertainty) if method_both else None,
+            average_precision=average_precision(method_correct, uncertainty) if method_both else None,
+            aurc=aurc(method_correct, uncertainty),
+            time_per_query_ms=seconds * 1e3,
+            curve=curve,
+            recall_at_full_precision=recall_at_full_precision(curve),
+            precision_at_recall={level: precision_at_recall(curve, level) for level in recall_levels},
+            own_recall_at_1=own_recall,
+            correct=None if own_recall is None else method_correct,
+        )
+    tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
+    if tied:
+        evaluation.notes.append(tied)
+    return evaluation

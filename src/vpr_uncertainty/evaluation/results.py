@@ -1,0 +1,214 @@
+"""What :func:`vpr_uncertainty.evaluate` returns: one :class:`Evaluation` holding a :class:`MethodEvaluation` per
+uncertainty method, with ``to_dict`` (the JSON schema of ``evaluate --json`` and of ``results.json``) and its
+inverse ``from_dict``.
+
+The JSON documents hold the numbers; the arrays (the correctness of every query, every method's uncertainties)
+are stored beside them by whoever writes the document, and given back to ``from_dict``, which recomputes the
+rejection curves from them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
+
+__all__ = ["Evaluation", "MethodEvaluation"]
+
+
+@dataclass
+class MethodEvaluation:
+    """Everything measured for one uncertainty method.
+
+    ``correct`` is set only for a method that retrieves with its own embeddings: its own top-1 correctness, the
+    labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`).
+    """
+
+    name: str
+    uncertainty: np.ndarray
+    auc_pr: float | None
+    average_precision: float | None
+    aurc: float
+    time_per_query_ms: float
+    curve: RejectionCurve
+    recall_at_full_precision: float
+    precision_at_recall: dict[float, float | None]
+    own_recall_at_1: float | None = None
+    correct: np.ndarray | None = None
+
+    @property
+    def n_distinct(self) -> int:
+        """Number of distinct uncertainty values (1: every query tied)."""
+        return int(np.unique(self.uncertainty).size)
+
+    @property
+    def informative(self) -> bool:
+        """False when every query has the same uncertainty: the ranking is arbitrary, AUC-PR and AP at chance."""
+        return self.n_distinct > 1
+
+    def to_dict(self) -> dict[str, Any]:
+        """The numbers of this method as JSON types (the uncertainties and the curve are left out)."""
+        return {
+            "informative": self.informative,
+            "distinct_values": self.n_distinct,
+            "auc_pr": self.auc_pr,
+            "average_precision": self.average_precision,
+            "aurc": self.aurc,
+            "time_per_query_ms": self.time_per_query_ms,
+            "recall_at_100_precision": self.recall_at_full_precision,
+            "precision_at_recall": {f"{level:g}": value for level, value in self.precision_at_recall.items()},
+            **(
+                {"correctness_from": "own retrieval", "own_recall@1": self.own_recall_at_1}
+                if self.own_recall_at_1 is not None
+                else {}
+            ),
+        }
+
+    @classmethod
+    def from_dict(
+        cls,
+        name: str,
+        data: Mapping[str, Any],
+        *,
+        uncertainty: np.ndarray,
+        correct: np.ndarray,
+        n_answerable: int,
+        own_correct: np.ndarray | None = None,
+    ) -> MethodEvaluation:
+        """The inverse of :meth:`to_dict`, given the arrays it leaves out.
+
+        Parameters
+        ----------
+        name : str
+            The method's name (the key of ``Evaluation.to_dict()["methods"]``).
+        data : mapping
+            What :meth:`to_dict` returned.
+        uncertainty : ndarray of shape (Q,)
+            The method's uncertainties.
+        correct : ndarray of shape (Q,), bool
+            The evaluation's top-1 correctness.
+        n_answerable : int
+            Queries with at least one positive (the recall denominator of the curve).
+        own_correct : ndarray of shape (Q,), bool, optional
+            The method's own correctness labels, for a method that retrieves with its own embeddings.
+
+        Returns
+        -------
+        MethodEvaluation
+        """
+        uncertainty = np.asarray(uncertainty)
+        labels = correct if own_correct is None else np.asarray(own_correct, dtype=bool)
+        curve = rejection_curve(labels, uncertainty, n_answerable=n_answerable)
+        return cls(
+            name=name,
+            uncertainty=uncertainty,
+            auc_pr=data["auc_pr"],
+            average_precision=data["average_precision"],
+            aurc=data["aurc"],
+            time_per_query_ms=data["time_per_query_ms"],
+            curve=curve,
+            recall_at_full_precision=data["recall_at_100_precision"],
+            precision_at_recall={float(level): value for level, value in data["precision_at_recall"].items()},
+            own_recall_at_1=data.get("own_recall@1"),
+            correct=None if own_correct is None else labels,
+        )
+
+
+@dataclass
+class Evaluation:
+    """Result of :func:`vpr_uncertainty.evaluate`: retrieval quality and one :class:`MethodEvaluation` per method."""
+
+    n_queries: int
+    n_answerable: int
+    correct: np.ndarray
+    recall_at_n: dict[int, float]
+    methods: dict[str, MethodEvaluation] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    k: int | None = None
+    k_requested: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON schema of ``evaluate --json``."""
+        result: dict[str, Any] = {"n_queries": self.n_queries}
+        if self.k is not None:
+            result["k"] = self.k
+        if self.k_requested is not None and self.k_requested != self.k:
+            result["k_requested"] = self.k_requested
+        result["recall@1"] = self.recall_at_n.get(1)
+        result.update({f"recall@{n}": value for n, value in self.recall_at_n.items() if n != 1})
+        result["n_queries_without_positives"] = self.n_queries - self.n_answerable
+        result["methods"] = {name: method.to_dict() for name, method in self.methods.items()}
+        if self.notes:
+            result["notes"] = list(self.notes)
+        return result
+
+    @classmethod
+    def from_dict(
+        cls,
+        data: Mapping[str, Any],
+        *,
+        correct: np.ndarray,
+        uncertainties: Mapping[str, np.ndarray],
+        own_correct: Mapping[str, np.ndarray] | None = None,
+    ) -> Evaluation:
+        """The inverse of :meth:`to_dict`, given the arrays it leaves out.
+
+        Parameters
+        ----------
+        data : mapping
+            What :meth:`to_dict` returned (extra keys are ignored).
+        correct : ndarray of shape (Q,), bool
+            Whether each query's top-1 answer is correct.
+        uncertainties : mapping of str to ndarray of shape (Q,)
+            Every method's uncertainties, by the names of ``data["methods"]``.
+        own_correct : mapping of str to ndarray of shape (Q,), optional
+            The own correctness labels of the methods that retrieve with their own embeddings.
+
+        Returns
+        -------
+        Evaluation
+
+        Raises
+        ------
+        ValueError
+            When ``correct`` does not have ``data["n_queries"]`` entries or a method's uncertainties are missing.
+        """
+        correct = np.asarray(correct).astype(bool)
+        n_queries = int(data["n_queries"])
+        if correct.shape != (n_queries,):
+            raise ValueError(f"correct must have shape ({n_queries},) as n_queries says, got {correct.shape}")
+        missing = [name for name in data["methods"] if name not in uncertainties]
+        if missing:
+            raise ValueError(f"uncertainties of {', '.join(missing)} are missing")
+        n_answerable = n_queries - int(data["n_queries_without_positives"])
+        own_correct = own_correct or {}
+        methods = {
+            name: MethodEvaluation.from_dict(
+                name,
+                metrics,
+                uncertainty=uncertainties[name],
+                correct=correct,
+                n_answerable=n_answerable,
+                own_correct=own_correct.get(name),
+            )
+            for name, metrics in data["methods"].items()
+        }
+        recalls = {
+            int(key[len("recall@") :]): value
+            for key, value in data.items()
+            if key.startswith("recall@") and value is not None
+        }
+        return cls(
+            n_queries=n_queries,
+            n_answerable=n_answerable,
+            correct=correct,
+            recall_at_n=recalls,
+            methods=methods,
+            notes=list(data.get("notes", [])),
+            k=data.get("k"),
+            k_requested=data.get("k_requested", data.get("k")),
+        )

@@ -1,0 +1,271 @@
+"""Run the grid: every (VPR method, dataset) cell evaluated, or read from its cache under ``out/cells``.
+
+A cell's cache is two files named by the cell's key: ``KEY.json`` (a fingerprint of the cell's inputs and the
+grid's settings, :meth:`Cell.to_dict` and the image paths) and ``KEY.npz`` (:meth:`Cell.arrays`). Both are written
+atomically (a temporary file, then a rename). A cell is read back only when its fingerprint matches; a cell cut
+short or unreadable is recomputed, and a cell of the previous cache layout (version 1) is still read.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import warnings
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, correct_at_n, evaluate
+from vpr_uncertainty.study.ablations import ablation_curves, ks_left_out_note
+from vpr_uncertainty.study.cell import Cell
+from vpr_uncertainty.study.config import GridConfig, InputEntry
+
+__all__ = ["HIT_COLUMNS", "candidates_needed", "load_cell", "run_cell", "run_grid", "save_cell"]
+
+#: Candidates per query whose correctness is kept for the qualitative figure.
+HIT_COLUMNS = 4
+#: Layout of the cell cache files (1: the layout before :meth:`Cell.to_dict`, still read).
+CACHE_VERSION = 2
+
+
+def candidates_needed(config: GridConfig) -> int:
+    """Candidates per query a cell needs: the largest k asked for (k and the k ablation) and recall@20.
+
+    Parameters
+    ----------
+    config : GridConfig
+
+    Returns
+    -------
+    int
+    """
+    return max([config.k, *config.ks, max(RECALL_NS)])
+
+
+def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[Any, Evaluation | None, Any]:
+    """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None)."""
+    if entry.model is None:
+        from vpr_uncertainty.retrieval import MATRIX_TOP_K, read_results
+
+        retrieval = read_results(
+            entry.scores,
+            ground_truth=entry.ground_truth,
+            file_format=entry.file_format,
+            top_k=max(MATRIX_TOP_K, candidates_needed(config)),
+        )
+        return retrieval, None, None
+    from vpr_uncertainty.pipeline import RunConfig, run
+
+    options = dict(entry.run_options)
+    result = run(
+        RunConfig(
+            dataset=entry.dataset_source,
+            out=out / "runs" / entry.key,
+            model=entry.model,
+            methods=config.methods,
+            k=config.k,
+            alpha=config.alpha,
+            retrieval_k=candidates_needed(config),
+            **options,
+        )
+    )
+    from vpr_uncertainty.data import load_dataset
+
+    dataset = load_dataset(entry.dataset_source, root=options.get("root"), split=options.get("split"))
+    return result.retrieval, result.evaluation, dataset
+
+
+def positive_hits(retrieval: Any, n: int) -> np.ndarray:
+    """(Q, n) bool: whether each of the first ``n`` candidates of each query is a positive."""
+    indices = retrieval.indices[:, :n]
+    rows = np.repeat(np.arange(len(indices)), indices.shape[1])
+    hits = np.asarray(retrieval.positives[rows, np.maximum(indices.ravel(), 0)]).reshape(indices.shape)
+    return hits.astype(bool) & (indices >= 0)
+
+
+def _cell_fingerprint(entry: InputEntry, config: GridConfig) -> str:
+    settings = {**config.settings(), "candidates": candidates_needed(config)}
+    text = json.dumps({"input": entry.fingerprint(), "settings": settings}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _write_atomically(path: Path, write: Callable[[Any], None], mode: str) -> None:
+    """Call ``write(file)`` on a temporary file beside ``path``, then rename it to ``path``."""
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, mode) as file:
+            write(file)
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def save_cell(cell: Cell, json_path: Path, npz_path: Path, fingerprint: str) -> None:
+    """Write a cell's cache: its arrays to ``npz_path``, then its document to ``json_path``, each atomically.
+
+    Parameters
+    ----------
+    cell : Cell
+    json_path, npz_path : Path
+        The two files of the cell's cache.
+    fingerprint : str
+        The fingerprint of the cell's inputs and settings, checked by :func:`load_cell`.
+    """
+    _write_atomically(npz_path, lambda file: np.savez_compressed(file, **cell.arrays()), "wb")
+    document = {
+        "version": CACHE_VERSION,
+        "fingerprint": fingerprint,
+        "cell": cell.to_dict(),
+        "query_paths": cell.query_paths,
+        "database_paths": cell.database_paths,
+    }
+    _write_atomically(json_path, lambda file: file.write(json.dumps(document, indent=1) + "\n"), "w")
+
+
+def _version_1(meta: dict[str, Any]) -> dict[str, Any]:
+    """The :meth:`Cell.to_dict` of a cell cached in the layout of version 1."""
+    return {
+        "vpr_method": meta["vpr_method"],
+        "dataset": meta["dataset"],
+        **meta["evaluation"],
+        "ablation_alpha": {repr(float(a)): v for a, v in meta["ablation_alpha"]},
+        "ablation_k": {name: {str(k): v for k, v in curve} for name, curve in meta["ablation_k"].items()},
+    }
+
+
+def load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None:
+    """A cell read from its cache, or None when the cache is missing, stale (another fingerprint) or unreadable.
+
+    Parameters
+    ----------
+    json_path, npz_path : Path
+        The two files written by :func:`save_cell` (or by the previous layout).
+    fingerprint : str
+        The fingerprint the cache must hold.
+
+    Returns
+    -------
+    Cell or None
+    """
+    if not (json_path.is_file() and npz_path.is_file()):
+        return None
+    try:
+        meta = json.loads(json_path.read_text())
+        if meta.get("fingerprint") != fingerprint:
+            return None
+        data = meta["cell"] if "cell" in meta else _version_1(meta)
+        with np.load(npz_path, allow_pickle=False) as archive:
+            arrays = {key: archive[key] for key in archive.files}
+        return Cell.from_dict(
+            data,
+            arrays,
+            query_paths=meta.get("query_paths"),
+            database_paths=meta.get("database_paths"),
+            cached=True,
+        )
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):  # a cell cut short: recompute
+        return None
+
+
+def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> Cell:
+    """Evaluate one (VPR method, dataset) cell, or read it from ``config.out/cells`` when it is up to date.
+
+    Parameters
+    ----------
+    entry : InputEntry
+        The cell's input.
+    config : GridConfig
+        The grid's settings (methods, k, α, ablations, output folder).
+    force : bool, default=False
+        Recompute the cell even when its cache is up to date.
+
+    Returns
+    -------
+    Cell
+    """
+    out = Path(config.out)
+    cells = out / "cells"
+    cells.mkdir(parents=True, exist_ok=True)
+    json_path, npz_path = cells / f"{entry.key}.json", cells / f"{entry.key}.npz"
+    fingerprint = _cell_fingerprint(entry, config)
+    if not force:
+        cached = load_cell(json_path, npz_path, fingerprint)
+        if cached is not None:
+            return cached
+    retrieval, evaluation, dataset = _load_cell_input(entry, config, out)
+    query_paths = database_paths = None
+    if dataset is None and entry.images is not None:
+        from vpr_uncertainty.data import load_vprbench_dataset
+
+        dataset = load_vprbench_dataset(entry.images)
+    if dataset is not None and dataset.has_images:
+        query_paths = [str(p) for p in dataset.query_paths]
+        database_paths = [str(p) for p in dataset.database_paths]
+        if len(query_paths) != retrieval.n_queries:
+            query_paths = database_paths = None
+    if evaluation is None:
+        # Image-based methods (geometric verification) get the images and one local-feature cache for the grid.
+        options = {} if query_paths is None else {"query_paths": query_paths, "database_paths": database_paths}
+        evaluation = evaluate(
+            retrieval,
+            config.methods,
+            k=config.k,
+            alpha=config.alpha,
+            cache_dir=out / "local_features",
+            **options,
+        )
+    correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
+    alpha_curve, k_curve = ablation_curves(retrieval, correct, k=config.k, alphas=config.alphas, ks=config.ks)
+    left_out = ks_left_out_note(config.ks, retrieval.k)
+    if left_out:
+        evaluation.notes.append(left_out)
+        warnings.warn(f"{entry.key}: {left_out}", FewerCandidatesWarning, stacklevel=2)
+    cell = Cell(
+        vpr_method=entry.vpr_method,
+        dataset=entry.dataset,
+        evaluation=evaluation,
+        scores=np.asarray(retrieval.scores, dtype=np.float32),
+        indices=retrieval.indices,
+        ablation_alpha=alpha_curve,
+        ablation_k=k_curve,
+        hits=positive_hits(retrieval, HIT_COLUMNS),
+        query_paths=query_paths,
+        database_paths=database_paths,
+    )
+    save_cell(cell, json_path, npz_path, fingerprint)
+    return cell
+
+
+def run_grid(config: GridConfig, *, force: bool = False, progress: bool | None = None) -> list[Cell]:
+    """Run (or read from the cache) every cell of the grid, with a progress bar.
+
+    Parameters
+    ----------
+    config : GridConfig
+        The validated grid (see :func:`vpr_uncertainty.study.load_config`).
+    force : bool, default=False
+        Recompute every cell, ignoring the cache.
+    progress : bool, optional
+        Show the progress bar; by default only on a terminal.
+
+    Returns
+    -------
+    list of Cell
+        In the order of ``config.inputs``.
+    """
+    from tqdm import tqdm
+
+    cells = []
+    disable = None if progress is None else not progress
+    with tqdm(total=len(config.inputs), desc="grid", unit="cell", disable=disable) as bar:
+        for entry in config.inputs:
+            bar.set_postfix_str(f"{entry.vpr_method} / {entry.dataset}", refresh=False)
+            cells.append(run_cell(entry, config, force=force))
+            bar.update(1)
+    return cells
