@@ -36,7 +36,7 @@ from scipy import sparse
 from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
 from vpr_uncertainty._evaluation_notes import FewerCandidatesWarning, candidates_note, nonpositive_note, tied_note
-from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method
+from vpr_uncertainty.methods import OwnRetrievalUncertainty, available_methods, check_options, get_method
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
@@ -58,7 +58,8 @@ __all__ = [
     "time_per_query",
 ]
 
-DEFAULT_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "PA", "L2", "BM")
+#: The methods evaluated when none are named: the registered entries declared ``default=True``.
+DEFAULT_METHODS: tuple[str, ...] = tuple(available_methods(default=True))
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
 #: The N of recall@N reported by :func:`evaluate`; the largest one sets how many candidates a retrieval needs.
 RECALL_NS: tuple[int, ...] = (1, 5, 10, 20)
@@ -394,19 +395,22 @@ def evaluate(
     timing_repeats : int
         Calls per method for the time per query (median; fewer when a call is slow).
     **options
-        Further options passed to the methods that accept them.
+        Further options passed to the methods that accept them; an option that no selected method takes
+        (besides the inputs of :data:`~vpr_uncertainty.methods.STAGE_INPUTS`) is a ValueError. Files the
+        options name (e.g. BTL's head) are read once, before the timing.
 
     Returns
     -------
     Evaluation
     """
     if retrieval.positives is None:
-        raise ValueError("the retrieval has no ground truth (positives); give --gt or a file that holds it")
+        raise ValueError("the retrieval has no ground truth (positives): give a retrieval that holds it")
     if retrieval.n_queries == 0:
         raise ValueError("the retrieval has no queries")
     if not methods:
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work
+    check_options(entries, options)  # and so do options that no selected method takes
     positives = retrieval.positives
     answerable = np.asarray(positives.sum(axis=1)).ravel() > 0
     correct = correct_at_n(retrieval.indices, positives, 1)
@@ -436,8 +440,9 @@ def evaluate(
     if nonpositive:
         evaluation.notes.append(nonpositive)
     for entry in entries:
+        inputs = entry.resolve_inputs(retrieval, {"k": k, "alpha": alpha, **options})  # files read once
         result, seconds = time_per_query(
-            lambda entry=entry: entry(retrieval, k=k, alpha=alpha, **options),
+            lambda entry=entry, inputs=inputs: entry(retrieval, **inputs),
             retrieval.n_queries,
             repeats=timing_repeats,
         )
