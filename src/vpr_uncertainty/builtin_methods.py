@@ -81,7 +81,7 @@ register_method(
 
 # --- geometric verification: −(RANSAC inliers between each query and its top-1); needs the image files ----------
 
-_GV = "vpr_uncertainty.geometric.verify:"
+_GV = "vpr_uncertainty.geometric.gv_methods:"
 _IMAGES = {"requires": ("images",), "kind": "geometric"}
 register_method(
     "GV-SIFT",
