@@ -90,3 +90,13 @@ def test_evaluate_resolves_files_once_before_timing():
         METHODS.unregister("RESOLVE-TEST")
     assert calls == ["file.npy"]  # read once; the timed calls received the array
     np.testing.assert_array_equal(result.methods["RESOLVE-TEST"].uncertainty, [0.3, 0.1, 0.2])
+
+
+def test_descriptor_models_are_registry_entries():
+    from vpr_uncertainty.features.models import MODELS, available_models, get_model_spec
+
+    spec = get_model_spec("EfficientNet_Lite0-GEM")  # case, "-" and "_" ignored
+    assert spec.name == "efficientnet-lite0-gem" and spec.requires == ("images",) and spec.extra == "torch"
+    assert available_models() == MODELS.names()
+    with pytest.raises(KeyError, match=r"did you mean 'cosplace'\?.*or a TorchScript file"):
+        get_model_spec("cosplac")
