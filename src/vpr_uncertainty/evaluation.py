@@ -404,7 +404,10 @@ def evaluate(
     Evaluation
     """
     if retrieval.positives is None:
-        raise ValueError("the retrieval has no ground truth (positives): give a retrieval that holds it")
+        raise ValueError(
+            "the retrieval has no ground truth (positives); read it with one (argument ground_truth) or from a file "
+            "that holds it"
+        )
     if retrieval.n_queries == 0:
         raise ValueError("the retrieval has no queries")
     if not methods:
