@@ -66,7 +66,7 @@ def test_time_per_query_uses_the_median_of_repeats():
 
 
 def test_method_with_its_own_retrieval_is_judged_by_its_own_top1():
-    from vpr_uncertainty.methods import _REGISTRY, OwnRetrievalUncertainty, register_method
+    from vpr_uncertainty.methods import METHODS, OwnRetrievalUncertainty, register_method
 
     shared = Retrieval(
         scores=np.array([[0.9, 0.5], [0.8, 0.7], [0.6, 0.1]]),
@@ -82,7 +82,7 @@ def test_method_with_its_own_retrieval_is_judged_by_its_own_top1():
     try:
         result = evaluate(shared, ["OWN-TEST", "BM"])
     finally:
-        del _REGISTRY["OWN-TEST"]
+        METHODS.unregister("OWN-TEST")
     own_correct = np.array([False, True, True])
     assert_close(result.methods["OWN-TEST"].auc_pr, auc_pr(own_correct, [0.3, 0.1, 0.2]))
     assert_close(result.methods["BM"].auc_pr, auc_pr([True, False, True], -shared.scores[:, 0]))
@@ -94,7 +94,7 @@ def test_method_with_its_own_retrieval_is_judged_by_its_own_top1():
 
 
 def test_method_returning_nan_is_an_error():
-    from vpr_uncertainty.methods import _REGISTRY, register_method
+    from vpr_uncertainty.methods import METHODS, register_method
 
     register_method("NAN-TEST", lambda retrieval: np.full(retrieval.n_queries, np.nan), description="test")
     retrieval = Retrieval(scores=np.array([[0.9, 0.5]]), indices=np.array([[0, 1]]), positives=np.eye(1, 2, dtype=bool))
@@ -102,4 +102,4 @@ def test_method_returning_nan_is_an_error():
         with pytest.raises(RuntimeError, match="NaN"):
             evaluate(retrieval, ["NAN-TEST"])
     finally:
-        del _REGISTRY["NAN-TEST"]
+        METHODS.unregister("NAN-TEST")

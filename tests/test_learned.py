@@ -32,6 +32,7 @@ from vpr_uncertainty.learned import (  # noqa: E402
     triplet_distance_moments,
     triplet_probability,
 )
+from vpr_uncertainty.learned.inputs import resolve_btl_inputs  # noqa: E402
 from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method  # noqa: E402
 from vpr_uncertainty.retrieval import Retrieval, top_k_from_similarity  # noqa: E402
 
@@ -342,9 +343,8 @@ def test_btl_method_errors_are_clear(trained, tmp_path):
     with pytest.raises(ValueError, match="needs a trained head: pass btl_head"):
         btl_uncertainty(retrieval, query_descriptors=queries, database_descriptors=database)
     with pytest.raises(FileNotFoundError, match="train-btl"):
-        btl_uncertainty(
-            retrieval, btl_head=tmp_path / "none.pt", query_descriptors=queries, database_descriptors=database
-        )
+        options = {"btl_head": tmp_path / "none.pt", "query_descriptors": queries, "database_descriptors": database}
+        resolve_btl_inputs(retrieval, options)
     with pytest.raises(ValueError, match="query_descriptors="):
         btl_uncertainty(retrieval, btl_head=head, database_descriptors=database)
     with pytest.raises(ValueError, match="database_descriptors="):

@@ -26,6 +26,7 @@ from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth  # noqa: E4
 from vpr_uncertainty.evaluation import evaluate  # noqa: E402
 from vpr_uncertainty.features import extract_descriptors, load_model  # noqa: E402
 from vpr_uncertainty.learned import btl_retrieval, load_btl_head, save_btl_head, train_btl_head  # noqa: E402
+from vpr_uncertainty.learned.inputs import resolve_btl_inputs  # noqa: E402
 from vpr_uncertainty.retrieval import retrieve, save_retrieval  # noqa: E402
 
 pytestmark = pytest.mark.realdata
@@ -96,7 +97,7 @@ def test_btl_evaluated_end_to_end_with_its_own_retrieval(corridor, corridor_head
     results = json.loads(json.dumps(evaluation.to_dict()))  # what `evaluate --json` writes
     btl = results["methods"]["BTL"]
     assert btl["correctness_from"] == "own retrieval"
-    own, variance = btl_retrieval(retrieval, **options)
+    own, variance = btl_retrieval(retrieval, **resolve_btl_inputs(retrieval, options))  # files read by the hook
     own_correct = corridor["positives"].toarray()[np.arange(111), own.indices[:, 0]]
     assert_close(btl["own_recall@1"], own_correct.mean())
     assert 0.0 < btl["auc_pr"] <= 1.0 and 0.0 <= btl["aurc"] <= 1.0

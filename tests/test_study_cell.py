@@ -110,7 +110,7 @@ def test_a_cell_cached_by_the_previous_release_is_read(tmp_path):
 def test_a_cached_method_with_its_own_retrieval_keeps_its_own_correctness(tmp_path):
     """Regression: a cached cell rebuilt the curve of such a method from the shared top-1 labels, so its PR
     curve and recall at 100 % precision changed between the first run and the next."""
-    from vpr_uncertainty.methods import _REGISTRY, OwnRetrievalUncertainty, register_method
+    from vpr_uncertainty.methods import METHODS, OwnRetrievalUncertainty, register_method
 
     def own_method(retrieval):
         own = Retrieval(
@@ -124,7 +124,7 @@ def test_a_cached_method_with_its_own_retrieval_keeps_its_own_correctness(tmp_pa
         (fresh,) = _grid(config_path)
         (cached,) = _grid(config_path)
     finally:
-        del _REGISTRY["OWN-CELL-TEST"]
+        METHODS.unregister("OWN-CELL-TEST")
     assert cached.cached
     own = fresh.evaluation.methods["OWN-CELL-TEST"]
     assert own.correct is not None and not np.array_equal(own.correct, fresh.evaluation.correct)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from vpr_uncertainty import scores as _scores
-from vpr_uncertainty.methods import register_method
+from vpr_uncertainty.methods import METHODS, register_method
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["GEOMETRIC_METHODS", "SCORE_ONLY_METHODS"]
@@ -53,23 +53,21 @@ def _margin(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
     return _scores.margin(retrieval.scores, k)
 
 
+# Registration order is the order of tables and of evaluate's default list (the entries with default=True).
 _K = {"k": 10}
-_SCORE = {"options": _K, "validate": _check_k_alpha}
+_SCORE = {"options": _K, "validate": _check_k_alpha, "kind": "score", "default": True}
 register_method("RS", _ratio_spread, description="Ratio Spread: mean s_i/s_1 of the runners-up", **_SCORE)
 register_method("SD", _similarity_distribution, description="Similarity Distribution: median/s_1", **_SCORE)
 register_method(
     "SU",
     _statistical_uncertainty,
     description="Statistical Uncertainty: α·RS + (1−α)·SD",
-    options={**_K, "alpha": 0.5},
-    validate=_check_k_alpha,
+    **{**_SCORE, "options": {**_K, "alpha": 0.5}},
 )
-register_method("BM", _best_match, description="Best match: −s_1", **_SCORE)
-register_method("L2", _l2_distance, description="Top-1 L2 descriptor distance d_1", **_SCORE)
 register_method("PA", _perceptual_aliasing, description="Perceptual aliasing: d_1/d_2", **_SCORE)
-register_method("margin", _margin, description="Negated margin s_2 − s_1", **_SCORE)
-
-SCORE_ONLY_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "BM", "L2", "PA", "margin")
+register_method("L2", _l2_distance, description="Top-1 L2 descriptor distance d_1", **_SCORE)
+register_method("BM", _best_match, description="Best match: −s_1", **_SCORE)
+register_method("margin", _margin, description="Negated margin s_2 − s_1", **{**_SCORE, "default": False})
 
 register_method(
     "SUE",
@@ -78,42 +76,41 @@ register_method(
     requires=("database_positions",),
     options={"k": 10, "slope": 350.0, "clip": "symmetric", "max_deviation": 500.0},
     validate="vpr_uncertainty.spatial:check_sue_options",
+    kind="spatial",
 )
 
 # --- geometric verification: −(RANSAC inliers between each query and its top-1); needs the image files ----------
 
-_GV = "vpr_uncertainty.geometric.verify:"
-_IMAGES = ("images",)
+_GV = "vpr_uncertainty.geometric.gv_methods:"
+_IMAGES = {"requires": ("images",), "kind": "geometric"}
 register_method(
     "GV-SIFT",
     _GV + "gv_sift",
     description="−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++",
     extra="opencv",
-    requires=_IMAGES,
+    **_IMAGES,
 )
 register_method(
     "GV-DISK-LG",
     _GV + "gv_disk_lightglue",
     description="−RANSAC inliers: DISK + LightGlue",
     extra="gv",
-    requires=_IMAGES,
+    **_IMAGES,
 )
-register_method(
-    "GV-XFEAT", _GV + "gv_xfeat", description="−RANSAC inliers: XFeat + LighterGlue", extra="gv", requires=_IMAGES
-)
+register_method("GV-XFEAT", _GV + "gv_xfeat", description="−RANSAC inliers: XFeat + LighterGlue", extra="gv", **_IMAGES)
 register_method(
     "GV-SP-SG",
     _GV + "gv_superpoint_superglue",
     description="−RANSAC inliers: SuperPoint + SuperGlue",
     extra="gv",
-    requires=_IMAGES,
+    **_IMAGES,
 )
 register_method(
     "GV-SP-LG",
     _GV + "gv_superpoint_lightglue",
     description="−RANSAC inliers: SuperPoint + LightGlue",
     extra="gv",
-    requires=_IMAGES,
+    **_IMAGES,
 )
 register_method(
     "GV-H5",
@@ -121,8 +118,8 @@ register_method(
     description="−RANSAC inliers from precomputed local features (hloc HDF5)",
     extra="opencv",
     requires=("local_features",),
+    kind="geometric",
 )
-GEOMETRIC_METHODS: tuple[str, ...] = ("GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG", "GV-H5")
 
 register_method(
     "BTL",
@@ -130,4 +127,10 @@ register_method(
     description="Bayesian triplet loss: query variance of a trained head, with its own retrieval (Warburg et al. 2021)",
     extra="torch",
     requires=("btl_head", "descriptors"),
+    kind="learned",
+    resolve="vpr_uncertainty.learned.inputs:resolve_btl_inputs",
 )
+
+# Derived from the entries (for callers of the former constants): prefer available_methods(kind=...).
+SCORE_ONLY_METHODS: tuple[str, ...] = tuple(METHODS.names(kind="score"))
+GEOMETRIC_METHODS: tuple[str, ...] = tuple(METHODS.names(kind="geometric"))

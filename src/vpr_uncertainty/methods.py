@@ -4,9 +4,14 @@ Every registered method is called the same way, on a :class:`~vpr_uncertainty.re
 
     get_method("SU")(retrieval, k=10, alpha=0.5)   # -> ndarray of shape (Q,), higher = less trustworthy
 
-Options a method does not use are ignored, so one set of options can be passed to all methods. A method that
-needs heavy dependencies is registered by the dotted path of its function (``"package.module:function"``) and
-imported only when first called.
+The registry is a :class:`~vpr_uncertainty.plugins.Registry` (:data:`METHODS`): each entry declares its
+``kind`` (``"score"``, ``"spatial"``, ``"geometric"``, ``"learned"``), whether it is evaluated by ``default``,
+what it ``requires``, its ``extra`` and its ``options``; ``available_methods(kind="score")`` queries them.
+Options a method does not use are ignored, so one set of options can be passed to all methods, but an option
+that no selected method takes is an error (:func:`check_options`). A method that needs heavy dependencies is
+registered by the dotted path of its function (``"package.module:function"``) and imported only when first
+called; a method that reads files declares a ``resolve`` hook, run once by the stage, that turns paths into the
+arrays and models the function receives.
 
 Method specs
 ------------
@@ -25,24 +30,27 @@ Needs
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import inspect
-import math
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.method_specs import split_method_list, typed_option
+from vpr_uncertainty.plugins import Registry, load_target
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
     "GEOMETRIC_METHODS",
+    "METHODS",
     "NEEDS",
     "SCORE_ONLY_METHODS",
+    "STAGE_INPUTS",
     "OwnRetrievalUncertainty",
     "UncertaintyMethod",
     "available_methods",
+    "check_options",
     "describe_needs",
     "get_method",
     "parse_method_spec",
@@ -84,16 +92,10 @@ class OwnRetrievalUncertainty:
     retrieval: Retrieval
 
 
-def _load(target: Callable | str, what: str, extra: str | None) -> Callable:
-    if callable(target):
-        return target
-    module_name, _, attribute = target.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as error:
-        hint = f"; install it with: pip install 'vpr-uncertainty[{extra}]'" if extra else ""
-        raise ImportError(f"{what} needs a missing dependency ({error.name}){hint}") from error
-    return getattr(module, attribute)
+#: Inputs a stage offers every selected method: used by the methods that take them, ignored by the others.
+STAGE_INPUTS: frozenset[str] = frozenset(
+    {"query_paths", "database_paths", "query_descriptors", "database_descriptors", "cache_dir", "device"}
+)
 
 
 @dataclass
@@ -118,6 +120,13 @@ class UncertaintyMethod:
         parameters of the function.
     validate : callable or str or None
         ``validate(**options)`` raises ValueError for a bad value (or its dotted path).
+    kind : {"score", "spatial", "geometric", "learned"}
+        What the method works from: the top-k scores only, database positions, the images, a trained model.
+    default : bool
+        Evaluated when no methods are named (``evaluate``'s default list).
+    resolve : callable or str or None
+        ``resolve(retrieval, options) -> options`` that reads the files named by options (paths) into what the
+        function takes (arrays, a loaded model); run once by the stage before timing (or its dotted path).
     bound : dict
         Options of this variant; they override the options given at call time.
     base : str or None
@@ -131,6 +140,9 @@ class UncertaintyMethod:
     extra: str | None = None
     options: dict[str, Any] | None = None
     validate: Callable[..., None] | str | None = None
+    kind: str = "score"
+    default: bool = False
+    resolve: Callable[..., dict[str, Any]] | str | None = None
     bound: dict[str, Any] = field(default_factory=dict)
     base: str | None = None
     _function: MethodFunction | None = field(default=None, init=False, repr=False)
@@ -138,8 +150,16 @@ class UncertaintyMethod:
     @property
     def function(self) -> MethodFunction:
         if self._function is None:
-            self._function = _load(self.target, f"uncertainty method {self.name!r}", self.extra)
+            self._function = load_target(self.target, what=f"uncertainty method {self.name!r}", extra=self.extra)
         return self._function
+
+    def resolve_inputs(self, retrieval: Retrieval, options: Mapping[str, Any]) -> dict[str, Any]:
+        """``options`` with this variant's bound options, and files read by the declared ``resolve`` hook."""
+        options = {**options, **self.bound}
+        if self.resolve is None:
+            return options
+        hook = load_target(self.resolve, what=f"uncertainty method {self.name!r}", extra=self.extra)
+        return dict(hook(retrieval, options))
 
     def accepted_options(self) -> set[str] | None:
         """Keyword options the function takes (None when it takes any)."""
@@ -174,7 +194,7 @@ class UncertaintyMethod:
         return [need for need in self.requires if not all(key in given for key in NEEDS.get(need, ((need,), ""))[0])]
 
     def __call__(self, retrieval: Retrieval, **options: Any) -> np.ndarray | OwnRetrievalUncertainty:
-        options = {**options, **self.bound}
+        options = self.resolve_inputs(retrieval, options)
         present = [name for name in vars(retrieval) if getattr(retrieval, name) is not None]
         missing = self.unmet_needs([*present, *(key for key, value in options.items() if value is not None)])
         if missing:
@@ -201,7 +221,33 @@ def describe_needs(needs: Collection[str]) -> str:
     return "; ".join(NEEDS[need][1] if need in NEEDS else need for need in needs)
 
 
-_REGISTRY: dict[str, UncertaintyMethod] = {}
+#: The registered uncertainty methods.
+METHODS: Registry[UncertaintyMethod] = Registry("uncertainty method", label="available")
+
+
+def check_options(methods: Sequence[UncertaintyMethod], options: Collection[str]) -> None:
+    """Raise ValueError when an option is taken by none of ``methods`` (nor one of :data:`STAGE_INPUTS`).
+
+    Examples
+    --------
+    >>> check_options([get_method("SU")], ["alpha"])
+    >>> check_options([get_method("SU"), get_method("BM")], ["btl_haed"])
+    Traceback (most recent call last):
+    ...
+    ValueError: no selected uncertainty method (SU, BM) takes the option 'btl_haed'; their options: alpha, k
+    """
+    taken: set[str] = set()
+    for entry in methods:
+        accepted = entry.accepted_options() if entry.options is None else set(entry.option_defaults())
+        if accepted is None:
+            return
+        taken |= accepted
+    unknown = [name for name in options if name not in taken and name not in STAGE_INPUTS]
+    if unknown:
+        names = ", ".join(entry.name for entry in methods)
+        valid = ", ".join(sorted(taken - {"retrieval"})) or "none"
+        listed = ", ".join(repr(name) for name in unknown)
+        raise ValueError(f"no selected uncertainty method ({names}) takes the option {listed}; their options: {valid}")
 
 
 def register_method(
@@ -213,6 +259,9 @@ def register_method(
     extra: str | None = None,
     options: Mapping[str, Any] | None = None,
     validate: Callable[..., None] | str | None = None,
+    kind: str = "score",
+    default: bool = False,
+    resolve: Callable[..., dict[str, Any]] | str | None = None,
     overwrite: bool = False,
 ) -> UncertaintyMethod:
     """Add a method to the registry and return its entry.
@@ -233,10 +282,17 @@ def register_method(
         The options a method spec may set, with their defaults (default: the function's keyword parameters).
     validate : callable or str, optional
         ``validate(**options)`` that raises ValueError for a bad option value, or its dotted path.
+    kind : {"score", "spatial", "geometric", "learned"}
+        What the method works from (queried by ``available_methods(kind=...)``).
+    default : bool
+        Evaluated when no methods are named.
+    resolve : callable or str, optional
+        ``resolve(retrieval, options) -> options`` that reads the files the options name (see
+        :class:`UncertaintyMethod`).
     overwrite : bool
         Replace an existing entry of that name.
     """
-    if name in _REGISTRY and not overwrite:
+    if name in METHODS and not overwrite:
         raise ValueError(f"an uncertainty method named {name!r} is already registered")
     if not name or any(character in name for character in ":,="):
         raise ValueError(f"a method name must be non-empty and hold no ':', ',' or '=', got {name!r}")
@@ -248,43 +304,11 @@ def register_method(
         extra=extra,
         options=None if options is None else dict(options),
         validate=validate,
+        kind=kind,
+        default=default,
+        resolve=resolve,
     )
-    _REGISTRY[name] = entry
-    return entry
-
-
-def _registered(name: str) -> UncertaintyMethod:
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        close = [known for known in _REGISTRY if known.lower() == name.lower()]
-        hint = f"; did you mean {close[0]!r}?" if close else ""
-        raise KeyError(
-            f"unknown uncertainty method {name!r}{hint} Available: {', '.join(available_methods())}"
-        ) from None
-
-
-_TRUE, _FALSE = {"true", "yes", "1", "on"}, {"false", "no", "0", "off"}
-
-
-def _typed(text: str, default: Any, where: str) -> Any:
-    """``text`` converted to the type of ``default`` (str when the default is None or a string)."""
-    try:
-        if isinstance(default, bool):
-            if text.lower() not in _TRUE | _FALSE:
-                raise ValueError
-            return text.lower() in _TRUE
-        if isinstance(default, int):
-            return int(text)
-        if isinstance(default, float):
-            value = float(text)
-            if not math.isfinite(value):
-                raise ValueError
-            return value
-    except ValueError:
-        kind = {bool: "true or false", int: "an integer", float: "a finite number"}[type(default)]
-        raise ValueError(f"{where} must be {kind}, got {text!r}") from None
-    return text
+    return METHODS.register(entry, overwrite=overwrite)
 
 
 def parse_method_spec(spec: str) -> tuple[str, dict[str, Any]]:
@@ -303,7 +327,7 @@ def parse_method_spec(spec: str) -> tuple[str, dict[str, Any]]:
     if not isinstance(spec, str):
         raise TypeError(f"a method spec must be a string, got {spec!r}")
     name, colon, rest = (part.strip() for part in spec.partition(":"))
-    entry = _registered(name)
+    entry = METHODS.get(name)
     if not colon:
         return name, {}
     defaults = entry.option_defaults()
@@ -317,34 +341,13 @@ def parse_method_spec(spec: str) -> tuple[str, dict[str, Any]]:
             raise ValueError(f"method spec {spec!r}: {name} has no option {key!r} (its options: {valid})")
         if key in options:
             raise ValueError(f"method spec {spec!r}: option {key!r} is given twice")
-        options[key] = _typed(value, defaults[key], f"method spec {spec!r}: option {key!r}")
+        options[key] = typed_option(value, defaults[key], f"method spec {spec!r}: option {key!r}")
     if entry.validate is not None:
         try:
-            _load(entry.validate, f"uncertainty method {name!r}", entry.extra)(**options)
+            load_target(entry.validate, what=f"uncertainty method {name!r}", extra=entry.extra)(**options)
         except (ValueError, TypeError) as error:
             raise ValueError(f"method spec {spec!r}: {error}") from None
     return name, options
-
-
-def split_method_list(text: str) -> list[str]:
-    """Split a comma-separated list of method specs; ``option=value`` items belong to the spec before them.
-
-    Examples
-    --------
-    >>> split_method_list("SU, SUE:clip=one-sided,slope=300, BM")
-    ['SU', 'SUE:clip=one-sided,slope=300', 'BM']
-    """
-    specs: list[str] = []
-    for item in (part.strip() for part in text.split(",")):
-        if not item:
-            continue
-        if "=" in item and ":" not in item.split("=", 1)[0]:
-            if not specs or ":" not in specs[-1]:
-                raise ValueError(f"option {item!r} follows no method spec (write NAME:{item})")
-            specs[-1] += f",{item}"
-        else:
-            specs.append(item)
-    return specs
 
 
 def get_method(name: str) -> UncertaintyMethod:
@@ -354,9 +357,9 @@ def get_method(name: str) -> UncertaintyMethod:
     entry with those options bound, named by the spec (its options separated by ``,``, without spaces).
     """
     if isinstance(name, str) and ":" not in name:
-        return _registered(name.strip() if name.strip() in _REGISTRY else name)
+        return METHODS.get(name.strip() if name.strip() in METHODS else name)
     base, options = parse_method_spec(name)
-    entry = _REGISTRY[base]
+    entry = METHODS.get(base)
     if not options:
         return entry
     text = ",".join(f"{key}={value}" for key, value in _spec_items(name))
@@ -367,9 +370,15 @@ def _spec_items(spec: str) -> list[tuple[str, str]]:
     return [tuple(part.strip() for part in item.split("=", 1)) for item in spec.partition(":")[2].split(",")]
 
 
-def available_methods() -> list[str]:
-    """Names of all registered methods, in registration order."""
-    return list(_REGISTRY)
+def available_methods(**attributes: Any) -> list[str]:
+    """Names of the registered methods in registration order, optionally those with the given attributes.
+
+    Examples
+    --------
+    >>> available_methods(kind="geometric")[:2]
+    ['GV-SIFT', 'GV-DISK-LG']
+    """
+    return METHODS.names(**attributes)
 
 
 # The built-in methods register themselves on import.

@@ -227,7 +227,7 @@ def sue_from_retrieval(
     if retrieval.database_positions is None:
         raise ValueError(
             "SUE needs the positions of the database images (retrieval.database_positions); give them to "
-            "retrieve (--database-positions) or use a dataset with positions"
+            "retrieve (argument database_positions) or use a dataset with positions"
         )
     kind = _position_kind(retrieval.config)
     if kind is not None and kind != "metres":

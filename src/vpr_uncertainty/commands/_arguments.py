@@ -7,11 +7,13 @@ import math
 import os
 import re
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = [
     "candidate_count",
+    "command_wording",
     "device_name",
     "integer_at_least",
     "non_negative_float",
@@ -118,3 +120,22 @@ def write_output(path: Path, text: str) -> None:
         if error.filename is None and error.errno is not None:
             raise OSError(error.errno, error.strerror, str(path)) from error
         raise
+
+
+@contextmanager
+def command_wording(**flags: str) -> Iterator[None]:
+    """Re-word library errors for the command line: ``(argument NAME)`` becomes the command's flag.
+
+    The library names its arguments (``"give the ground truth (argument ground_truth)"``); a command says
+    ``command_wording(ground_truth="--gt GT")`` around its calls, and the user reads the flag to type.
+    """
+    try:
+        yield
+    except (ValueError, TypeError, FileNotFoundError, FloatingPointError) as error:
+        text = str(error.args[0]) if len(error.args) == 1 else ""
+        reworded = text
+        for argument, flag in flags.items():
+            reworded = reworded.replace(f"argument {argument}", flag)
+        if reworded == text:
+            raise
+        raise type(error)(reworded) from error

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import candidate_count, output_file, write_output
+from vpr_uncertainty.commands._arguments import candidate_count, command_wording, output_file, write_output
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
 from vpr_uncertainty.methods import available_methods, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
@@ -103,13 +103,14 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         raise ValueError(f"--alpha must lie in [0, 1], got {args.alpha}")
     # A full matrix gives as many candidates as k asks (and at least MATRIX_TOP_K, enough for recall@20).
     top_k = max(MATRIX_TOP_K, args.k)
-    retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
     options = {}
     if args.btl_head is not None:
         options["btl_head"] = args.btl_head
     if args.descriptors is not None:
         options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
-    evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha, **options)
+    with command_wording(ground_truth="--gt GT", database_positions="--database-positions"):
+        retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
+        evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha, **options)
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
     if args.json:
         write_output(args.json, json.dumps(evaluation.to_dict(), indent=2) + "\n")

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
-import numpy as np
+from vpr_uncertainty.commands._arguments import (
+    command_wording,
+    device_name,
+    non_negative_float,
+    output_file,
+    positive_int,
+)
 
-from vpr_uncertainty.commands._arguments import device_name, non_negative_float, output_file, positive_int
-
-__all__ = ["add_parser", "read_training_inputs"]
+__all__ = ["add_parser"]
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -94,102 +97,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=_run_train_btl)
 
 
-def _load_positions(path: Path, name: str) -> np.ndarray:
-    if not path.is_file():
-        raise FileNotFoundError(f"{name} file not found: {path}")
-    try:
-        array = np.load(path, allow_pickle=False)
-    except ValueError as error:
-        raise ValueError(f"{path}: {name} must be a numeric .npy array: {error}") from None
-    if array.ndim not in (1, 2) or not np.issubdtype(array.dtype, np.number):
-        raise ValueError(f"{path}: {name} must be a numeric array of shape (n, 2) or (n,), got {array.shape}")
-    return array
-
-
-def _h5_has_queries(path: Path) -> bool:
-    from vpr_uncertainty.features.cache import cache_info
-
-    return bool(cache_info(path).get("queries", {}).get("count", 0))
-
-
-def read_training_inputs(args: argparse.Namespace) -> dict[str, Any]:
-    """Descriptors and positives for :func:`~vpr_uncertainty.learned.train_btl_head` from the command line.
-
-    Returns a dict with ``database``, ``queries`` (or None: the database trains on itself), ``positives`` and
-    ``source`` (JSON-compatible description for the head file).
-    """
-    from vpr_uncertainty.data import load_ground_truth, positives_within_radius
-    from vpr_uncertainty.retrieval import load_descriptors, load_retrieval
-
-    if args.run is not None:
-        exclusive = ("descriptors", "query_descriptors", "positions", "query_positions", "positives")
-        given = ["--" + name.replace("_", "-") for name in exclusive if getattr(args, name) is not None]
-        if given:
-            raise ValueError(f"--run reads descriptors.h5 and retrieval.npz; do not combine it with {', '.join(given)}")
-        if not args.run.is_dir():
-            raise FileNotFoundError(f"run directory not found: {args.run}")
-        args.descriptors = args.run / "descriptors.h5"
-        retrieval_path = args.run / "retrieval.npz"
-        if not args.descriptors.is_file() or not retrieval_path.is_file():
-            raise FileNotFoundError(f"{args.run} must hold descriptors.h5 and retrieval.npz (from extract + retrieve)")
-    elif args.descriptors is None:
-        raise ValueError("give the training data: --descriptors DESC (with --positions or --positives) or --run DIR")
-    else:
-        retrieval_path = None
-
-    database_names, database = load_descriptors(args.descriptors, "database")
-    query_path = args.query_descriptors
-    if query_path is None and args.descriptors.suffix.lower() in (".h5", ".hdf5") and _h5_has_queries(args.descriptors):
-        query_path = args.descriptors
-    query_names, queries = load_descriptors(query_path, "queries") if query_path is not None else (None, None)
-    source: dict[str, Any] = {"descriptors": str(args.descriptors), "query_descriptors": str(query_path or "")}
-
-    positives = None
-    if retrieval_path is not None:
-        retrieval = load_retrieval(retrieval_path)
-        if retrieval.positives is None:
-            raise ValueError(f"{retrieval_path} holds no ground truth (positives); retrieve with positions")
-        if queries is None:
-            raise ValueError(f"{args.descriptors} holds no query descriptors")
-        for split, names, stored in (
-            ("query", query_names, retrieval.query_names),
-            ("database", database_names, retrieval.database_names),
-        ):
-            if names is not None and stored is not None and list(names) != [str(name) for name in stored]:
-                raise ValueError(f"the {split} names of {args.descriptors} and {retrieval_path} differ")
-        positives = retrieval.positives
-        source["positives"] = str(retrieval_path)
-    elif args.positives is not None:
-        positives = load_ground_truth(args.positives, n_database=len(database))
-        if queries is None or positives.shape[0] != len(queries):
-            if positives.shape[0] != len(database):
-                expected = f"{len(queries)} (queries) or {len(database)}" if queries is not None else f"{len(database)}"
-                raise ValueError(
-                    f"{args.positives} has positives for {positives.shape[0]} images; expected {expected} (database)"
-                )
-            queries = None  # database × database ground truth: the database trains on itself
-        source["positives"] = str(args.positives)
-    elif args.positions is not None:
-        database_positions = _load_positions(args.positions, "--positions")
-        if len(database_positions) != len(database):
-            raise ValueError(f"--positions has {len(database_positions)} rows but there are {len(database)} images")
-        if args.query_positions is not None and queries is not None:
-            query_positions = _load_positions(args.query_positions, "--query-positions")
-            if len(query_positions) != len(queries):
-                raise ValueError(
-                    f"--query-positions has {len(query_positions)} rows but there are {len(queries)} queries"
-                )
-            positives = positives_within_radius(query_positions, database_positions, args.radius)
-        else:
-            queries = None  # no query ground truth: the database trains on itself
-            positives = positives_within_radius(database_positions, database_positions, args.radius)
-        source.update(positions=str(args.positions), radius=args.radius)
-    else:
-        raise ValueError("give the ground truth: --positions POS.npy (with --radius) or --positives GT")
-    if queries is None:
-        source["query_descriptors"] = ""
-    source["anchors"] = "queries" if queries is not None else "database"
-    return {"database": database, "queries": queries, "positives": positives, "source": source}
+_INPUTS = ("descriptors", "query_descriptors", "positions", "query_positions", "positives", "run")
 
 
 def _run_train_btl(args: argparse.Namespace) -> int:
@@ -199,7 +107,11 @@ def _run_train_btl(args: argparse.Namespace) -> int:
         import torch
 
         torch.set_num_threads(args.threads)
-    inputs = read_training_inputs(args)
+    from vpr_uncertainty.learned.inputs import read_training_inputs
+
+    flags = {name: "--" + name.replace("_", "-") for name in _INPUTS}
+    with command_wording(**flags, learning_rate="--lr", device="--device cpu"):
+        inputs = read_training_inputs(**{name: getattr(args, name) for name in _INPUTS}, radius=args.radius)
     database, queries = inputs["database"], inputs["queries"]
     config = BTLTrainingConfig(
         embedding_dim=args.embedding_dim,
@@ -220,9 +132,10 @@ def _run_train_btl(args: argparse.Namespace) -> int:
     )
     anchors = f"{len(queries)} queries" if queries is not None else f"{len(database)} database images"
     print(f"training data: {anchors} as anchors, {len(database)} database images of dimension {database.shape[1]}")
-    head, history = train_btl_head(
-        database, inputs["positives"], query_descriptors=queries, config=config, progress=not args.no_progress
-    )
+    with command_wording(learning_rate="--lr", device="--device cpu"):
+        head, history = train_btl_head(
+            database, inputs["positives"], query_descriptors=queries, config=config, progress=not args.no_progress
+        )
     head.metadata["source"] = inputs["source"]
     out = save_btl_head(head, args.out, metadata=head.metadata)
     stem = out.with_suffix("")

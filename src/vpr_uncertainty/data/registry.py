@@ -8,26 +8,35 @@ The root is the ``root`` argument (``--root`` on the command line), else the ``V
 environment variable. The downloader's own ``datasets/`` folder can serve as the root as it is; a root whose
 ``datasets/`` subfolder holds them works too. Nothing is downloaded at run time: a missing dataset gives an error
 that says where to get it and where to put it.
+
+The named datasets are data, not code: the records of ``named_datasets.json`` (shipped with the package), read
+once into :data:`NAMED_DATASETS` and the :data:`NAMED_DATASET_REGISTRY`. Dataset formats are the entries of
+:mod:`vpr_uncertainty.data.formats`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import warnings
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from vpr_uncertainty.data.dataset import Dataset, PositionKind, _line_coordinate
-from vpr_uncertainty.data.folder import DATABASE_FOLDERS, QUERY_FOLDERS, find_split_folder, load_folder_dataset
-from vpr_uncertainty.data.positives import DEFAULT_RADIUS, positives_within_frames
+from vpr_uncertainty.data.folder import load_folder_dataset
+from vpr_uncertainty.data.formats import DATASET_FORMAT_REGISTRY, detect_format, has_split, read_format
+from vpr_uncertainty.data.positives import positives_within_frames
+from vpr_uncertainty.plugins import Registry
 
 __all__ = [
     "DATASET_FORMATS",
     "DATA_ROOT_VARIABLE",
     "NAMED_DATASETS",
+    "NAMED_DATASET_REGISTRY",
     "NamedDataset",
     "data_root",
     "detect_format",
@@ -38,10 +47,9 @@ __all__ = [
 
 #: Environment variable naming the data root.
 DATA_ROOT_VARIABLE = "VPR_UNCERTAINTY_DATA"
-#: Formats :func:`load_dataset` reads.
-DATASET_FORMATS: tuple[str, ...] = ("folder", "vprbench", "table", "poses")
-
-_DOWNLOADER = "VPR-datasets-downloader (https://github.com/gmberton/VPR-datasets-downloader)"
+#: Names of the formats :func:`load_dataset` reads (at import; the registry is
+#: :data:`~vpr_uncertainty.data.formats.DATASET_FORMAT_REGISTRY`).
+DATASET_FORMATS: tuple[str, ...] = tuple(DATASET_FORMAT_REGISTRY.names())
 
 
 @dataclass(frozen=True)
@@ -104,103 +112,35 @@ class NamedDataset:
         return {**dataclasses.asdict(self), "aliases": list(self.aliases), "relative_path": self.relative_path}
 
 
-NAMED_DATASETS: dict[str, NamedDataset] = {
-    entry.name: entry
-    for entry in (
-        NamedDataset(
-            name="pitts250k",
-            title="Pittsburgh250k",
-            folder="pitts250k",
-            split="test",
-            radius=DEFAULT_RADIUS,
-            threshold="25 m",
-            position_kind="metres",
-            n_database=83_952,
-            n_queries=8_280,
-            source=f"images on request from the authors (Torii et al., NetVLAD project page); put them under "
-            f"datasets/pitts250k/raw_data of {_DOWNLOADER} and run `python format_pitts250k.py`",
-            citation="Torii et al., Visual Place Recognition with Repetitive Structures, TPAMI 2015",
-            aliases=("pittsburgh250k", "pitts-250k", "pitts_250k"),
-        ),
-        NamedDataset(
-            name="st_lucia",
-            title="St Lucia",
-            folder="st_lucia",
-            split="test",
-            radius=DEFAULT_RADIUS,
-            threshold="25 m",
-            position_kind="metres",
-            n_database=1_549,
-            n_queries=1_464,
-            source=f"{_DOWNLOADER}: `python download_st_lucia.py`",
-            citation="Milford and Wyeth, Mapping a Suburb With a Single Camera..., T-RO 2008",
-            aliases=("stlucia", "st-lucia", "st lucia"),
-        ),
-        NamedDataset(
-            name="nordland",
-            title="Nordland",
-            folder="nordland",
-            split="test",
-            radius=DEFAULT_RADIUS,
-            threshold="±10 frames",
-            position_kind="frames",
-            n_database=27_592,
-            n_queries=27_592,
-            source=f"{_DOWNLOADER}: `python download_nordland.py` (the Patch-NetVLAD split, summer database, "
-            "winter queries)",
-            citation="Sünderhauf et al., Are we there yet? Challenging SeqSLAM on a 3000 km journey..., ICRA-W 2013",
-            frame_tolerance=10,
-            frame_spacing=DEFAULT_RADIUS / 10.5,
-        ),
-        NamedDataset(
-            name="amstertime",
-            title="AmsterTime",
-            folder="amstertime",
-            split="test",
-            radius=DEFAULT_RADIUS,
-            threshold="its own pair",
-            position_kind="placeholder",
-            n_database=1_231,
-            n_queries=1_231,
-            source=f"{_DOWNLOADER}: `python download_amstertime.py`",
-            citation="Yildiz et al., AmsterTime: A Visual Place Recognition Benchmark Dataset..., ICPR 2022",
-            aliases=("amster_time", "amster-time"),
-        ),
-        NamedDataset(
-            name="eynsham",
-            title="Eynsham",
-            folder="eynsham",
-            split="test",
-            radius=DEFAULT_RADIUS,
-            threshold="25 m",
-            position_kind="metres",
-            n_database=23_935,
-            n_queries=23_935,
-            source=f"{_DOWNLOADER}: `python download_eynsham.py`",
-            citation="Cummins and Newman, Highly scalable appearance-only SLAM - FAB-MAP 2.0, RSS 2009",
-        ),
-        NamedDataset(
-            name="tokyo247",
-            title="Tokyo 24/7",
-            folder="tokyo247",
-            split="test",
-            radius=DEFAULT_RADIUS,
-            threshold="25 m",
-            position_kind="metres",
-            n_database=75_984,
-            n_queries=315,
-            source=f"database images on request from the authors (Torii et al., 24/7 Tokyo project page); put "
-            f"them under datasets/tokyo247/raw_data of {_DOWNLOADER} and run `python format_tokyo247.py` "
-            "(it fetches the queries)",
-            citation="Torii et al., 24/7 Place Recognition by View Synthesis, TPAMI 2018",
-            aliases=("tokyo", "tokyo24/7", "tokyo_247", "tokyo-247", "tokyo24_7"),
-        ),
-    )
-}
-
-
 def _normalise(name: str) -> str:
     return name.strip().lower().replace(" ", "_")
+
+
+def read_named_datasets(text: str | None = None) -> list[NamedDataset]:
+    """The records of ``named_datasets.json`` (or of the JSON ``text``), checked field by field."""
+    if text is None:
+        text = resources.files("vpr_uncertainty.data").joinpath("named_datasets.json").read_text(encoding="utf-8")
+    document = json.loads(text)
+    downloader = str(document.get("downloader", ""))
+    fields = {item.name for item in dataclasses.fields(NamedDataset)}
+    records = []
+    for number, record in enumerate(document["datasets"]):
+        unknown = sorted(set(record) - fields)
+        if unknown:
+            raise ValueError(
+                f"named_datasets.json, record {number}: unknown fields {unknown} (valid: {sorted(fields)})"
+            )
+        record = {**record, "source": record["source"].replace("{downloader}", downloader)}
+        records.append(NamedDataset(**{**record, "aliases": tuple(record.get("aliases", ()))}))
+    return records
+
+
+#: The named datasets: records read from the package's ``named_datasets.json`` (names and aliases).
+NAMED_DATASET_REGISTRY: Registry[NamedDataset] = Registry("dataset", normalise=_normalise, label="named datasets")
+for _record in read_named_datasets():
+    NAMED_DATASET_REGISTRY.register(_record, aliases=_record.aliases)
+#: The named datasets by name (at import).
+NAMED_DATASETS: dict[str, NamedDataset] = {entry.name: entry for entry in NAMED_DATASET_REGISTRY}
 
 
 def get_named_dataset(name: str) -> NamedDataset:
@@ -211,11 +151,7 @@ def get_named_dataset(name: str) -> NamedDataset:
     KeyError
         Listing the known names.
     """
-    key = _normalise(name)
-    for entry in NAMED_DATASETS.values():
-        if key == entry.name or key in {_normalise(alias) for alias in entry.aliases}:
-            return entry
-    raise KeyError(f"unknown dataset {name!r}; named datasets: {', '.join(NAMED_DATASETS)}")
+    return NAMED_DATASET_REGISTRY.get(name)
 
 
 def data_root(root: str | Path | None = None) -> Path | None:
@@ -226,12 +162,6 @@ def data_root(root: str | Path | None = None) -> Path | None:
     return Path(value).expanduser() if value else None
 
 
-def _has_split(folder: Path) -> bool:
-    return any((folder / name).is_dir() for name in DATABASE_FOLDERS) and any(
-        (folder / name).is_dir() for name in QUERY_FOLDERS
-    )
-
-
 def find_named_dataset(name: str, root: str | Path | None = None, *, split: str | None = None) -> Path | None:
     """The split folder of a named dataset under the data root, or None when it is not there."""
     entry = get_named_dataset(name)
@@ -240,7 +170,7 @@ def find_named_dataset(name: str, root: str | Path | None = None, *, split: str 
         return None
     for folder in (base / entry.folder, base / "datasets" / entry.folder):
         candidate = folder / "images" / (split or entry.split)
-        if _has_split(candidate):
+        if has_split(candidate):
             return candidate
     return None
 
@@ -249,7 +179,7 @@ def _missing_message(entry: NamedDataset, root: Path | None, split: str) -> str:
     layout = f"{entry.folder}/images/{split}/database/ and {entry.folder}/images/{split}/queries/"
     if root is None:
         where = (
-            f"no data root is set: pass root= (--root DIR on the command line) or set {DATA_ROOT_VARIABLE} to "
+            f"no data root is set: pass root= (the data root) or set {DATA_ROOT_VARIABLE} to "
             f"the folder that holds {entry.folder}/"
         )
     else:
@@ -320,40 +250,6 @@ def _load_named(entry: NamedDataset, root: str | Path | None, split: str | None,
     return dataset
 
 
-def detect_format(path: str | Path) -> str:
-    """The format of a dataset path: ``"folder"``, ``"vprbench"``, ``"table"`` or ``"poses"``.
-
-    Raises
-    ------
-    FileNotFoundError
-        When the path does not exist.
-    ValueError
-        When it is none of the supported layouts (the message lists them).
-    """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"no such file or folder: {path}")
-    if path.is_file():
-        suffix = path.suffix.lower()
-        if suffix == ".npz":
-            return "poses"
-        if suffix in {".csv", ".tsv", ".txt"}:
-            return "table"
-        raise ValueError(
-            f"{path}: unknown dataset file type {suffix!r}; expected .npz (utmQ, utmDb, posDistThr) or "
-            ".csv/.tsv (image paths with positions)"
-        )
-    if (path / "ground_truth_new.npy").is_file() or ((path / "query").is_dir() and (path / "ref").is_dir()):
-        return "vprbench"
-    for candidate in (path, *(path / "images").glob("*"), *path.glob("*")):
-        if candidate.is_dir() and _has_split(candidate):
-            return "folder"
-    raise ValueError(
-        f"{path} is not a dataset folder: expected images/<split>/database/ and queries/ (VPR-datasets-downloader) "
-        "or query/, ref/ and ground_truth_new.npy (VPR-Bench)"
-    )
-
-
 def load_dataset(
     path_or_name: str | Path,
     *,
@@ -408,32 +304,5 @@ def load_dataset(
                 f"({', '.join(NAMED_DATASETS)})"
             ) from None
         return _load_named(entry, root, split, radius)
-    file_format = detect_format(path)
-    if file_format == "vprbench":
-        from vpr_uncertainty.data.vprbench import load_vprbench_dataset
-
-        if radius is not None:
-            raise ValueError(f"{path} is a VPR-Bench dataset with explicit ground truth: radius does not apply")
-        return load_vprbench_dataset(path, name=name)
-    if file_format == "table":
-        from vpr_uncertainty.data.table import load_table_dataset
-
-        return load_table_dataset(
-            path,
-            queries=queries,
-            radius=DEFAULT_RADIUS if radius is None else radius,
-            name=name,
-            position_kind=position_kind,
-        )
-    if file_format == "poses":
-        from vpr_uncertainty.data.poses import load_poses_dataset
-
-        return load_poses_dataset(path, radius=radius, name=name, position_kind=position_kind)
-    split_folder = find_split_folder(path, split or "test")
-    return load_folder_dataset(
-        split_folder,
-        split=split or "test",
-        radius=DEFAULT_RADIUS if radius is None else radius,
-        name=name,
-        position_kind=position_kind,
-    )
+    arguments = {"split": split, "radius": radius, "queries": queries, "name": name, "position_kind": position_kind}
+    return read_format(detect_format(path), path, **arguments)

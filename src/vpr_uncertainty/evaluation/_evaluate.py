@@ -26,14 +26,15 @@ from vpr_uncertainty.evaluation.metrics import (
     rejection_curve,
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
-from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method
+from vpr_uncertainty.methods import OwnRetrievalUncertainty, available_methods, check_options, get_method
 
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["DEFAULT_METHODS", "RECALL_LEVELS", "evaluate", "time_per_query"]
 
-DEFAULT_METHODS: tuple[str, ...] = ("RS", "SD", "SU", "PA", "L2", "BM")
+#: The methods evaluated when none are named: the registered entries declared ``default=True``.
+DEFAULT_METHODS: tuple[str, ...] = tuple(available_methods(default=True))
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
 
 
@@ -86,19 +87,25 @@ def evaluate(
     timing_repeats : int
         Calls per method for the time per query (median; fewer when a call is slow).
     **options
-        Further options passed to the methods that accept them.
+        Further options passed to the methods that accept them; an option that no selected method takes
+        (besides the inputs of :data:`~vpr_uncertainty.methods.STAGE_INPUTS`) is a ValueError. Files the
+        options name (e.g. BTL's head) are read once, before the timing.
 
     Returns
     -------
     Evaluation
     """
     if retrieval.positives is None:
-        raise ValueError("the retrieval has no ground truth (positives); give --gt or a file that holds it")
+        raise ValueError(
+            "the retrieval has no ground truth (positives); read it with one (argument ground_truth) or from a file "
+            "that holds it"
+        )
     if retrieval.n_queries == 0:
         raise ValueError("the retrieval has no queries")
     if not methods:
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work
+    check_options(entries, options)  # and so do options that no selected method takes
     positives = retrieval.positives
     answerable = np.asarray(positives.sum(axis=1)).ravel() > 0
     correct = correct_at_n(retrieval.indices, positives, 1)
@@ -128,8 +135,9 @@ def evaluate(
     if nonpositive:
         evaluation.notes.append(nonpositive)
     for entry in entries:
+        inputs = entry.resolve_inputs(retrieval, {"k": k, "alpha": alpha, **options})  # files read once
         result, seconds = time_per_query(
-            lambda entry=entry: entry(retrieval, k=k, alpha=alpha, **options),
+            lambda entry=entry, inputs=inputs: entry(retrieval, **inputs),
             retrieval.n_queries,
             repeats=timing_repeats,
         )

@@ -27,9 +27,11 @@ from typing import Any
 
 from vpr_uncertainty.features._torch import require_torch
 from vpr_uncertainty.features.images import Preprocessing
+from vpr_uncertainty.plugins import Registry, load_target
 
 __all__ = [
     "DEFAULT_MODEL",
+    "MODELS",
     "TORCHSCRIPT_SUFFIXES",
     "DescriptorModel",
     "ModelSpec",
@@ -149,8 +151,11 @@ class DescriptorModel:
 class ModelSpec:
     """A registered model: what it is and how to load it.
 
-    ``loader(spec, device=..., **options)`` returns a :class:`DescriptorModel`. The ``hub_*`` fields describe
-    the torch.hub entry point of hub models (``hub_repo`` is None for models loaded another way).
+    ``loader(spec, device=..., **options)`` returns a :class:`DescriptorModel` (``loader`` may be the dotted
+    path ``"module:function"`` of one, imported when the model is first loaded). The ``hub_*`` fields describe
+    the torch.hub entry point of hub models (``hub_repo`` is None for models loaded another way). Like every
+    plugin entry (:mod:`vpr_uncertainty.plugins`), a model declares what it ``requires`` (the images) and the
+    pip ``extra`` it needs.
     """
 
     name: str
@@ -158,34 +163,34 @@ class ModelSpec:
     descriptor_dim: int
     backbone: str
     preprocessing: Preprocessing
-    loader: Callable[..., DescriptorModel] = field(repr=False)
+    loader: Callable[..., DescriptorModel] | str = field(repr=False)
     source: str = ""
     hub_repo: str | None = None
     hub_entrypoint: str | None = None
     hub_kwargs: Mapping[str, Any] = field(default_factory=dict)
     notes: str = ""
+    requires: tuple[str, ...] = ("images",)
+    extra: str | None = "torch"
 
     def load(self, *, device: Any = "cpu", **options: Any) -> DescriptorModel:
         """Load the model on ``device``."""
-        return self.loader(self, device=device, **options)
-
-
-_REGISTRY: dict[str, ModelSpec] = {}
-_BUILTINS_LOADED = False
+        loader = load_target(self.loader, what=f"descriptor model {self.name!r}", extra=self.extra)
+        return loader(self, device=device, **options)
 
 
 def _key(name: str) -> str:
     return re.sub(r"[\s_\-]", "", name.lower())
 
 
+#: The registered descriptor models (names matched ignoring case, ``-`` and ``_``).
+MODELS: Registry[ModelSpec] = Registry("model", normalise=_key, label="available")
+_BUILTINS_LOADED = False
+
+
 def register_model(spec: ModelSpec, *, overwrite: bool = False) -> ModelSpec:
     """Add a model to the registry under ``spec.name`` (matched ignoring case, ``-`` and ``_``)."""
     _ensure_builtins()
-    key = _key(spec.name)
-    if key in _REGISTRY and not overwrite:
-        raise ValueError(f"a model named {spec.name!r} is already registered; pass overwrite=True to replace it")
-    _REGISTRY[key] = spec
-    return spec
+    return MODELS.register(spec, overwrite=overwrite)
 
 
 def _ensure_builtins() -> None:
@@ -196,25 +201,22 @@ def _ensure_builtins() -> None:
     from vpr_uncertainty.features import efficientnet, hub
 
     for spec in (efficientnet.SPEC, *hub.HUB_MODELS):
-        _REGISTRY[_key(spec.name)] = spec
+        MODELS.register(spec, overwrite=True)
 
 
 def available_models() -> list[str]:
     """Names of the registered models, the offline default first."""
     _ensure_builtins()
-    return [spec.name for spec in _REGISTRY.values()]
+    return MODELS.names()
 
 
 def get_model_spec(name: str) -> ModelSpec:
     """The registered model called ``name`` (ignoring case, ``-`` and ``_``: ``Conv-AP`` = ``convap``)."""
     _ensure_builtins()
     try:
-        return _REGISTRY[_key(name)]
-    except KeyError:
-        raise KeyError(
-            f"unknown model {name!r}; available: {', '.join(available_models())}, "
-            f"or a TorchScript file ({', '.join(TORCHSCRIPT_SUFFIXES)})"
-        ) from None
+        return MODELS.get(name)
+    except KeyError as error:
+        raise KeyError(f"{error.args[0]}, or a TorchScript file ({', '.join(TORCHSCRIPT_SUFFIXES)})") from None
 
 
 def load_model(
@@ -257,7 +259,7 @@ def load_model(
     if isinstance(model, (str, Path)):
         path = Path(model)
         _ensure_builtins()
-        if path.suffix.lower() in TORCHSCRIPT_SUFFIXES or (_key(str(model)) not in _REGISTRY and path.is_file()):
+        if path.suffix.lower() in TORCHSCRIPT_SUFFIXES or (str(model) not in MODELS and path.is_file()):
             if options:
                 raise TypeError(f"unexpected options for a TorchScript model: {sorted(options)}")
             return from_torchscript(path, preprocessing=preprocessing, name=name, device=device)

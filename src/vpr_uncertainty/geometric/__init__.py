@@ -8,26 +8,26 @@ they are loaded when a method first runs.
 
 from vpr_uncertainty.geometric.cache import extract_features, image_names, read_features, write_features
 from vpr_uncertainty.geometric.features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures, load_image
-from vpr_uncertainty.geometric.matching import NearestNeighborMatcher, match_nearest_neighbors
-from vpr_uncertainty.geometric.ransac import count_inliers
-from vpr_uncertainty.geometric.rerank import Reranking, rerank, rerank_by_inliers
-from vpr_uncertainty.geometric.verify import (
-    PRESETS,
-    GeometricVerifier,
-    VerificationResult,
+from vpr_uncertainty.geometric.gv_methods import (
     gv_disk_lightglue,
     gv_h5,
     gv_sift,
     gv_superpoint_lightglue,
     gv_superpoint_superglue,
     gv_xfeat,
-    verify_retrieval,
 )
+from vpr_uncertainty.geometric.matching import NearestNeighborMatcher, match_nearest_neighbors
+from vpr_uncertainty.geometric.presets import GV_PRESETS, PRESETS, GVPreset, register_preset
+from vpr_uncertainty.geometric.ransac import count_inliers
+from vpr_uncertainty.geometric.rerank import Reranking, rerank, rerank_by_inliers
+from vpr_uncertainty.geometric.verify import GeometricVerifier, VerificationResult, verify_retrieval
 
 __all__ = [
     "DEFAULT_MAX_SIDE",
+    "GV_PRESETS",
     "PRESETS",
     "Extractor",
+    "GVPreset",
     "GeometricVerifier",
     "LocalFeatures",
     "NearestNeighborMatcher",
@@ -45,6 +45,7 @@ __all__ = [
     "load_image",
     "match_nearest_neighbors",
     "read_features",
+    "register_preset",
     "rerank",
     "rerank_by_inliers",
     "verify_retrieval",

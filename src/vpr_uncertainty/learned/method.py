@@ -6,13 +6,16 @@ head's means and searched by cosine similarity, so its correctness labels come f
 :func:`vpr_uncertainty.evaluate` or ``get_method("BTL")(retrieval, ...)``):
 
 ``btl_head``
-    Path of a head file written by ``vpr-uncertainty train-btl`` (or a loaded :class:`BTLHead`).
+    A loaded :class:`BTLHead`.
 ``query_descriptors``, ``database_descriptors``
     The frozen descriptors the head was trained on, (Q, dim) and (D, dim) arrays in the retrieval's query and
-    database order, or paths of a ``.npy`` array or of the HDF5 descriptor cache (read with the image names,
-    which are checked against the retrieval's names when both are known).
+    database order.
 ``device``
     Where the head runs (``"cpu"``, ``"cuda"``).
+
+The functions here read no file: through :func:`vpr_uncertainty.evaluate` or ``get_method("BTL")``, the
+method's ``resolve`` hook (:func:`vpr_uncertainty.learned.inputs.resolve_btl_inputs`) first reads a head file
+path and ``.npy`` / descriptor-cache ``.h5`` paths (checking the cache's image names against the retrieval's).
 """
 
 from __future__ import annotations
@@ -22,56 +25,46 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.learned.model import BTLHead, embed, load_btl_head
+from vpr_uncertainty.learned.model import BTLHead, embed
 from vpr_uncertainty.learned.training import resolve_device
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["btl_retrieval", "btl_uncertainty"]
 
-_HEADS: dict[tuple[str, int, int, str], BTLHead] = {}
 
-
-def _head(value: object, device: str) -> tuple[BTLHead, str | None]:
+def _head(value: object, device: str) -> BTLHead:
     if value is None:
         raise ValueError(
-            "uncertainty method 'BTL' needs a trained head: pass btl_head=PATH (a file written by "
-            "`vpr-uncertainty train-btl`)"
+            "uncertainty method 'BTL' needs a trained head: pass btl_head= (a BTLHead, or the path of a file "
+            "written by train-btl when called through evaluate or get_method)"
         )
-    if isinstance(value, BTLHead):
-        return value.to(resolve_device(device)).eval(), None
-    if not isinstance(value, (str, Path)):
-        raise TypeError(f"btl_head must be the path of a head file or a BTLHead, got {type(value).__name__}")
-    path = Path(value)
-    if not path.is_file():
-        raise FileNotFoundError(f"BTL head file not found: {path} (train one with `vpr-uncertainty train-btl`)")
-    stat = path.stat()
-    key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size, str(device))
-    if key not in _HEADS:  # evaluate() calls a method several times to time it: read the file once
-        _HEADS.clear()
-        _HEADS[key] = load_btl_head(path, device=resolve_device(device))
-    return _HEADS[key], str(path)
+    if not isinstance(value, BTLHead):
+        raise TypeError(
+            f"btl_head must be a loaded BTLHead here, got {type(value).__name__} (read a head file with "
+            "vpr_uncertainty.learned.inputs.resolve_btl_inputs or load_btl_head)"
+        )
+    return value.to(resolve_device(device)).eval()
 
 
-def _descriptors(value: object, split: str, expected: int | None, names: object) -> np.ndarray:
+def _descriptors(value: object, split: str, expected: int | None) -> np.ndarray:
     option = "query_descriptors" if split == "queries" else "database_descriptors"
     if value is None:
         raise ValueError(
             f"uncertainty method 'BTL' needs the frozen descriptors: pass {option}= (an array of shape "
-            f"(n_{'queries' if split == 'queries' else 'database'}, dim) or a .npy / descriptor-cache .h5 path)"
+            f"(n_{'queries' if split == 'queries' else 'database'}, dim), or a .npy / descriptor-cache .h5 path "
+            "when called through evaluate or get_method)"
         )
-    file_names = None
     if isinstance(value, (str, Path)):
-        from vpr_uncertainty.retrieval import load_descriptors
-
-        file_names, value = load_descriptors(value, split)
+        raise TypeError(
+            f"{option} must be an array here, got the path {value} (read it with "
+            "vpr_uncertainty.learned.inputs.resolve_btl_inputs)"
+        )
     array = np.asarray(value, dtype=np.float32)
     if array.ndim != 2:
         raise ValueError(f"{option} must be 2-D (n_images, dim), got shape {array.shape}")
     if expected is not None and len(array) != expected:
         raise ValueError(f"{option} has {len(array)} rows but the retrieval has {expected} {split}")
-    if file_names is not None and names is not None and list(file_names) != [str(name) for name in names]:
-        raise ValueError(f"{option}: the image names in the descriptor file differ from the retrieval's {split} names")
     return array
 
 
@@ -106,9 +99,10 @@ def btl_retrieval(
     variance : ndarray of shape (Q,), float32
         The head's variance of each query.
     """
-    head, head_path = _head(btl_head, device)
-    queries = _descriptors(query_descriptors, "queries", retrieval.n_queries, retrieval.query_names)
-    database = _descriptors(database_descriptors, "database", retrieval.n_database, retrieval.database_names)
+    head = _head(btl_head, device)
+    head_path = getattr(head, "source_path", None)
+    queries = _descriptors(query_descriptors, "queries", retrieval.n_queries)
+    database = _descriptors(database_descriptors, "database", retrieval.n_database)
     for option, array in (("query_descriptors", queries), ("database_descriptors", database)):
         if array.shape[1] != head.input_dim:
             raise ValueError(

@@ -152,7 +152,7 @@ def resolve_device(device: str | torch.device) -> torch.device:
         raise ValueError(f"invalid device {device!r}: expected 'cpu', 'cuda' or 'cuda:N'") from error
     if resolved.type == "cuda":
         if not torch.cuda.is_available():
-            raise ValueError(f"device {device!r} requested but PyTorch sees no CUDA GPU; use --device cpu")
+            raise ValueError(f"device {device!r} requested but PyTorch sees no CUDA GPU; use the CPU (argument device)")
         if resolved.index is not None and resolved.index >= torch.cuda.device_count():
             raise ValueError(f"device {device!r} requested but only {torch.cuda.device_count()} GPU(s) are visible")
     elif resolved.type != "cpu":
@@ -331,7 +331,8 @@ def train_btl_head(
                 terms = loss(head, train_triplets, rows)
                 if not torch.isfinite(terms.loss):
                     raise FloatingPointError(
-                        f"the BTL loss became {float(terms.loss)} at epoch {epoch}; lower --lr or check the inputs"
+                        f"the BTL loss became {float(terms.loss)} at epoch {epoch}; lower the learning rate "
+                        "(argument learning_rate) or check the inputs"
                     )
                 optimiser.zero_grad(set_to_none=True)
                 terms.loss.backward()

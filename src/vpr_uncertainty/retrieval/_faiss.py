@@ -31,7 +31,8 @@ def import_faiss() -> Any:
         import faiss
     except ImportError as error:
         raise ImportError(
-            "descriptor retrieval needs Faiss; install it with: pip install faiss-cpu (or faiss-gpu for --device cuda)"
+            "descriptor retrieval needs Faiss; install it with: pip install faiss-cpu (or faiss-gpu to search on a "
+            "CUDA device)"
         ) from error
     return faiss
 

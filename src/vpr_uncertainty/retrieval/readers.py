@@ -222,7 +222,9 @@ def read_results(
         return retrieval
     similarity = load_similarity_matrix(path, file_format=file_format)
     if ground_truth is None:
-        raise ValueError(f"{path} is a similarity matrix without ground truth; give the ground truth (--gt)")
+        raise ValueError(
+            f"{path} is a similarity matrix without ground truth; give the ground truth (argument ground_truth)"
+        )
     # Sized by the matrix: a positive beyond its columns, or a mask of another width, is an error naming the file.
     positives = load_ground_truth(ground_truth, n_queries=similarity.shape[0], n_database=similarity.shape[1])
     scores, indices = top_k_from_similarity(similarity, top_k)

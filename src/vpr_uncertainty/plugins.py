@@ -1,0 +1,173 @@
+"""One plugin mechanism for every extension point: uncertainty methods, GV presets, descriptor models, dataset
+formats and named datasets.
+
+A :class:`Registry` holds declarative entries, each with at least a ``name`` (most also declare a
+``description``, what they ``requires``, the pip ``extra`` they need and their default ``options``). It gives
+
+- :meth:`Registry.get`: the entry of a name, or a ``KeyError`` that suggests the closest name and lists the
+  valid ones;
+- :meth:`Registry.names` and :meth:`Registry.entries`, optionally filtered by attributes
+  (``registry.names(kind="score")``);
+- lazy targets: :func:`load_target` imports ``"package.module:attribute"`` on first use, and a missing
+  dependency is an ``ImportError`` that names the extra to install;
+- :func:`merge_options`: options given by a user merged over an entry's defaults (LightGlue's
+  ``default_conf`` style); an unknown option name is an error that lists the valid ones.
+
+Examples
+--------
+>>> from dataclasses import dataclass
+>>> @dataclass(frozen=True)
+... class Colour:
+...     name: str
+...     warm: bool
+>>> colours = Registry("colour")
+>>> _ = colours.register(Colour("red", True)); _ = colours.register(Colour("blue", False))
+>>> colours.names(warm=True)
+['red']
+>>> colours.get("bleu")
+Traceback (most recent call last):
+...
+KeyError: "unknown colour 'bleu'; did you mean 'blue'? valid: red, blue"
+>>> merge_options({"ratio": 0.8, "mutual": True}, {"ratio": 0.9}, what="matcher")
+{'ratio': 0.9, 'mutual': True}
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any, Generic, TypeVar
+
+__all__ = ["Registry", "load_target", "merge_options", "missing_extra_message"]
+
+T = TypeVar("T")
+
+
+def missing_extra_message(what: str, module: str | None, extra: str | None) -> str:
+    """``"<what> needs a missing dependency (<module>); install it with: pip install 'vpr-uncertainty[<extra>]'"``."""
+    hint = f"; install it with: pip install 'vpr-uncertainty[{extra}]'" if extra else ""
+    return f"{what} needs a missing dependency ({module}){hint}"
+
+
+def load_target(target: Any, *, what: str, extra: str | None = None) -> Any:
+    """``target`` itself, or the attribute a dotted path ``"package.module:attribute"`` names (imported now).
+
+    Raises
+    ------
+    ImportError
+        When the module (or a module it imports) is missing; the message names ``what`` and the pip ``extra``.
+    """
+    if not isinstance(target, str):
+        return target
+    module_name, colon, attribute = target.partition(":")
+    if not colon or not module_name or not attribute:
+        raise ValueError(f"{what}: a dotted target must read 'package.module:attribute', got {target!r}")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as error:
+        raise ImportError(missing_extra_message(what, error.name, extra), name=error.name) from error
+    try:
+        return getattr(module, attribute)
+    except AttributeError:
+        raise ImportError(f"{what}: module {module_name} has no attribute {attribute!r}") from None
+
+
+def merge_options(defaults: Mapping[str, Any], given: Mapping[str, Any], *, what: str) -> dict[str, Any]:
+    """``given`` merged over ``defaults``; a name not among the defaults is an error that lists the valid ones.
+
+    Nested mappings are merged recursively (``{"matcher": {"ratio": 0.9}}`` keeps the matcher's other options).
+    """
+    unknown = sorted(set(given) - set(defaults))
+    if unknown:
+        valid = ", ".join(sorted(defaults)) or "none"
+        names = ", ".join(repr(name) for name in unknown)
+        raise ValueError(f"{what} has no option {names} (valid options: {valid})")
+    merged = dict(defaults)
+    for key, value in given.items():
+        if isinstance(merged[key], Mapping) and isinstance(value, Mapping):
+            value = merge_options(merged[key], value, what=f"{what}, {key}")
+        merged[key] = value
+    return merged
+
+
+class Registry(Generic[T]):
+    """Named entries of one kind (``"uncertainty method"``, ``"dataset format"``, ...).
+
+    Parameters
+    ----------
+    kind : str
+        What an entry is, in words, for error messages.
+    normalise : callable, optional
+        Maps a name to its lookup key (default: the name itself, so lookups are exact). Registering two names
+        with the same key is an error.
+    label : str
+        What the list of valid names is called in the error of an unknown name.
+    """
+
+    def __init__(self, kind: str, *, normalise: Callable[[str], str] | None = None, label: str = "valid") -> None:
+        self.kind = kind
+        self.label = label
+        self._normalise = normalise or (lambda name: name)
+        self._entries: dict[str, T] = {}
+        self._aliases: dict[str, str] = {}
+
+    def register(self, entry: T, *, aliases: tuple[str, ...] = (), overwrite: bool = False) -> T:
+        """Add ``entry`` under ``entry.name`` (and ``aliases``) and return it."""
+        name = getattr(entry, "name", None)
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"a {self.kind} needs a non-empty string name, got {name!r}")
+        key = self._normalise(name)
+        if not overwrite and (key in self._entries or key in self._aliases):
+            raise ValueError(f"a {self.kind} named {name!r} is already registered; pass overwrite=True to replace it")
+        self._entries[key] = entry
+        for alias in aliases:
+            self._aliases[self._normalise(alias)] = key
+        return entry
+
+    def unregister(self, name: str) -> T:
+        """Remove the entry called ``name`` (and its aliases) and return it."""
+        key = self._key(name)
+        self._aliases = {alias: target for alias, target in self._aliases.items() if target != key}
+        return self._entries.pop(key)
+
+    def _key(self, name: str) -> str:
+        key = self._normalise(name)
+        key = self._aliases.get(key, key)
+        if key in self._entries:
+            return key
+        close = difflib.get_close_matches(key, [*self._entries, *self._aliases], n=1, cutoff=0.6)
+        close = close or [known for known in self._entries if known.lower() == key.lower()]
+        hint = ""
+        if close:
+            target = self._aliases.get(close[0], close[0])
+            hint = f"did you mean {getattr(self._entries[target], 'name', target)!r}? "
+        raise KeyError(f"unknown {self.kind} {name!r}; {hint}{self.label}: {', '.join(self.names())}")
+
+    def get(self, name: str) -> T:
+        """The entry called ``name``; a ``KeyError`` suggests the closest name and lists the valid ones."""
+        return self._entries[self._key(name)]
+
+    def __contains__(self, name: object) -> bool:
+        if not isinstance(name, str):
+            return False
+        key = self._normalise(name)
+        return key in self._entries or key in self._aliases
+
+    def __iter__(self) -> Iterator[T]:
+        return iter(list(self._entries.values()))
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def entries(self, **attributes: Any) -> list[T]:
+        """Entries in registration order whose attributes equal ``attributes`` (all entries without any)."""
+        return [
+            entry
+            for entry in self._entries.values()
+            if all(getattr(entry, key, None) == value for key, value in attributes.items())
+        ]
+
+    def names(self, **attributes: Any) -> list[str]:
+        """Names of :meth:`entries` (same filter)."""
+        return [entry.name for entry in self.entries(**attributes)]  # type: ignore[attr-defined]

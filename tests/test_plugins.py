@@ -1,0 +1,102 @@
+"""The one plugin mechanism (:mod:`vpr_uncertainty.plugins`) and its use for uncertainty methods."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
+from vpr_uncertainty.methods import METHODS, available_methods, register_method
+from vpr_uncertainty.plugins import Registry, load_target, merge_options
+from vpr_uncertainty.retrieval import Retrieval
+
+
+@dataclass(frozen=True)
+class _Entry:
+    name: str
+    kind: str = "a"
+
+
+def test_registry_lookup_suggests_and_lists_valid_names():
+    registry: Registry[_Entry] = Registry("widget", normalise=str.lower)
+    registry.register(_Entry("Alpha"), aliases=("first",))
+    registry.register(_Entry("Beta", kind="b"))
+    assert registry.get("alpha").name == "Alpha" and registry.get("FIRST").name == "Alpha"
+    assert registry.names() == ["Alpha", "Beta"] and registry.names(kind="b") == ["Beta"]
+    with pytest.raises(KeyError, match=r"unknown widget 'alpah'; did you mean 'Alpha'\? valid: Alpha, Beta"):
+        registry.get("alpah")
+    with pytest.raises(ValueError, match="already registered"):
+        registry.register(_Entry("ALPHA"))
+    registry.unregister("first")
+    assert "alpha" not in registry and "first" not in registry and len(registry) == 1
+
+
+def test_merge_options_rejects_unknown_names_listing_the_valid_ones():
+    defaults = {"ratio": 0.8, "nested": {"a": 1, "b": 2}}
+    assert merge_options(defaults, {"nested": {"b": 3}}, what="matcher") == {"ratio": 0.8, "nested": {"a": 1, "b": 3}}
+    with pytest.raises(ValueError, match=r"matcher has no option 'ratoi' \(valid options: nested, ratio\)"):
+        merge_options(defaults, {"ratoi": 0.9}, what="matcher")
+    with pytest.raises(ValueError, match=r"matcher, nested has no option 'c' \(valid options: a, b\)"):
+        merge_options(defaults, {"nested": {"c": 0}}, what="matcher")
+
+
+def test_lazy_target_names_the_extra_when_its_module_is_missing():
+    assert load_target("vpr_uncertainty.plugins:merge_options", what="x") is merge_options
+    with pytest.raises(ImportError, match=r"thing needs a missing dependency \(no_such_module_xyz\); .*\[gv\]"):
+        load_target("no_such_module_xyz:f", what="thing", extra="gv")
+
+
+def test_method_kinds_replace_the_parallel_lists():
+    assert available_methods(kind="score") == ["RS", "SD", "SU", "PA", "L2", "BM", "margin"]
+    assert available_methods(kind="geometric") == ["GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG", "GV-H5"]
+    assert DEFAULT_METHODS == ("RS", "SD", "SU", "PA", "L2", "BM")
+    assert METHODS.get("BTL").kind == "learned" and METHODS.get("SUE").kind == "spatial"
+
+
+def _retrieval() -> Retrieval:
+    return Retrieval(
+        scores=np.array([[0.9, 0.5], [0.8, 0.7], [0.6, 0.1]]),
+        indices=np.array([[0, 1], [0, 1], [0, 1]]),
+        positives=np.array([[True, False], [False, True], [True, False]]),
+    )
+
+
+def test_evaluate_rejects_an_option_no_selected_method_takes():
+    # Before: evaluate(..., btl_haed=...) silently dropped the misspelt option.
+    with pytest.raises(ValueError, match=r"no selected uncertainty method \(SU, BM\) takes the option 'btl_haed'"):
+        evaluate(_retrieval(), ["SU", "BM"], btl_haed="head.pt")
+    # Inputs a stage offers every method (image paths, a cache folder, a device) stay allowed.
+    evaluate(_retrieval(), ["BM"], cache_dir="x", device="cpu", timing_repeats=1)
+
+
+def test_evaluate_resolves_files_once_before_timing():
+    calls = []
+
+    def resolve(retrieval, options):  # reads a file when given a path; resolved inputs pass through
+        if isinstance(options["source"], str):
+            calls.append(options["source"])
+            return {**options, "source": np.asarray([0.3, 0.1, 0.2])}
+        return dict(options)
+
+    def method(retrieval, *, source=None):
+        return np.asarray(source, dtype=float)
+
+    register_method("RESOLVE-TEST", method, description="test", resolve=resolve)
+    try:
+        result = evaluate(_retrieval(), ["RESOLVE-TEST"], source="file.npy", timing_repeats=3)
+    finally:
+        METHODS.unregister("RESOLVE-TEST")
+    assert calls == ["file.npy"]  # read once; the timed calls received the array
+    np.testing.assert_array_equal(result.methods["RESOLVE-TEST"].uncertainty, [0.3, 0.1, 0.2])
+
+
+def test_descriptor_models_are_registry_entries():
+    from vpr_uncertainty.features.models import MODELS, available_models, get_model_spec
+
+    spec = get_model_spec("EfficientNet_Lite0-GEM")  # case, "-" and "_" ignored
+    assert spec.name == "efficientnet-lite0-gem" and spec.requires == ("images",) and spec.extra == "torch"
+    assert available_models() == MODELS.names()
+    with pytest.raises(KeyError, match=r"did you mean 'cosplace'\?.*or a TorchScript file"):
+        get_model_spec("cosplac")
