@@ -123,12 +123,12 @@ register_method(
 
 register_method(
     "BTL",
-    "vpr_uncertainty.learned.method:btl_uncertainty",
+    "vpr_uncertainty.btl.method:btl_uncertainty",
     description="Bayesian triplet loss: query variance of a trained head, with its own retrieval (Warburg et al. 2021)",
     extra="torch",
     requires=("btl_head", "descriptors"),
     kind="learned",
-    resolve="vpr_uncertainty.learned.inputs:resolve_btl_inputs",
+    resolve="vpr_uncertainty.btl.inputs:resolve_btl_inputs",
 )
 
 # Derived from the entries (for callers of the former constants): prefer available_methods(kind=...).

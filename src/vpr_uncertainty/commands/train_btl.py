@@ -101,13 +101,13 @@ _INPUTS = ("descriptors", "query_descriptors", "positions", "query_positions", "
 
 
 def _run_train_btl(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.learned import BTLTrainingConfig, save_btl_head, save_training_curve, train_btl_head
+    from vpr_uncertainty.btl import BTLTrainingConfig, save_btl_head, save_training_curve, train_btl_head
 
     if args.threads:
         import torch
 
         torch.set_num_threads(args.threads)
-    from vpr_uncertainty.learned.inputs import read_training_inputs
+    from vpr_uncertainty.btl.inputs import read_training_inputs
 
     flags = {name: "--" + name.replace("_", "-") for name in _INPUTS}
     with command_wording(**flags, learning_rate="--lr", device="--device cpu"):

@@ -14,7 +14,7 @@ head's means and searched by cosine similarity, so its correctness labels come f
     Where the head runs (``"cpu"``, ``"cuda"``).
 
 The functions here read no file: through :func:`vpr_uncertainty.evaluate` or ``get_method("BTL")``, the
-method's ``resolve`` hook (:func:`vpr_uncertainty.learned.inputs.resolve_btl_inputs`) first reads a head file
+method's ``resolve`` hook (:func:`vpr_uncertainty.btl.inputs.resolve_btl_inputs`) first reads a head file
 path and ``.npy`` / descriptor-cache ``.h5`` paths (checking the cache's image names against the retrieval's).
 """
 
@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.learned.model import BTLHead, embed
-from vpr_uncertainty.learned.training import resolve_device
+from vpr_uncertainty.btl.model import BTLHead, embed
+from vpr_uncertainty.btl.training import resolve_device
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
 from vpr_uncertainty.retrieval import Retrieval
 
@@ -42,7 +42,7 @@ def _head(value: object, device: str) -> BTLHead:
     if not isinstance(value, BTLHead):
         raise TypeError(
             f"btl_head must be a loaded BTLHead here, got {type(value).__name__} (read a head file with "
-            "vpr_uncertainty.learned.inputs.resolve_btl_inputs or load_btl_head)"
+            "vpr_uncertainty.btl.inputs.resolve_btl_inputs or load_btl_head)"
         )
     return value.to(resolve_device(device)).eval()
 
@@ -58,7 +58,7 @@ def _descriptors(value: object, split: str, expected: int | None) -> np.ndarray:
     if isinstance(value, (str, Path)):
         raise TypeError(
             f"{option} must be an array here, got the path {value} (read it with "
-            "vpr_uncertainty.learned.inputs.resolve_btl_inputs)"
+            "vpr_uncertainty.btl.inputs.resolve_btl_inputs)"
         )
     array = np.asarray(value, dtype=np.float32)
     if array.ndim != 2:

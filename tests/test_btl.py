@@ -1,6 +1,6 @@
 """BTL (Bayesian triplet loss) head: loss against Monte Carlo, gradients, mining, training, file, method, CLI.
 
-Synthetic data only; the real corridor descriptors are in test_learned_corridor.py.
+Synthetic data only; the real corridor descriptors are in test_btl_corridor.py.
 """
 
 from __future__ import annotations
@@ -15,9 +15,7 @@ from conftest import assert_close
 
 torch = pytest.importorskip("torch")
 
-from vpr_uncertainty.data import positives_within_radius  # noqa: E402
-from vpr_uncertainty.evaluation import evaluate  # noqa: E402
-from vpr_uncertainty.learned import (  # noqa: E402
+from vpr_uncertainty.btl import (  # noqa: E402
     BTLHead,
     BTLTrainingConfig,
     bayesian_triplet_loss,
@@ -32,7 +30,9 @@ from vpr_uncertainty.learned import (  # noqa: E402
     triplet_distance_moments,
     triplet_probability,
 )
-from vpr_uncertainty.learned.inputs import resolve_btl_inputs  # noqa: E402
+from vpr_uncertainty.btl.inputs import resolve_btl_inputs  # noqa: E402
+from vpr_uncertainty.data import positives_within_radius  # noqa: E402
+from vpr_uncertainty.evaluation import evaluate  # noqa: E402
 from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method  # noqa: E402
 from vpr_uncertainty.retrieval import Retrieval, top_k_from_similarity  # noqa: E402
 

@@ -2,7 +2,7 @@
 
 This is the method's declared ``resolve`` hook (see :class:`~vpr_uncertainty.methods.UncertaintyMethod`): the
 stage that evaluates methods calls :func:`resolve_btl_inputs` once, before timing, and the method itself
-(:func:`~vpr_uncertainty.learned.method.btl_uncertainty`) receives only a loaded :class:`BTLHead` and arrays.
+(:func:`~vpr_uncertainty.btl.method.btl_uncertainty`) receives only a loaded :class:`BTLHead` and arrays.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.learned.model import BTLHead, load_btl_head
-from vpr_uncertainty.learned.training import resolve_device
+from vpr_uncertainty.btl.model import BTLHead, load_btl_head
+from vpr_uncertainty.btl.training import resolve_device
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["read_btl_descriptors", "read_btl_head", "read_training_inputs", "resolve_btl_inputs"]
@@ -96,7 +96,7 @@ def read_training_inputs(
     run: str | Path | None = None,
     radius: float = 25.0,
 ) -> dict[str, Any]:
-    """Descriptors and positives for :func:`~vpr_uncertainty.learned.train_btl_head`, read from files.
+    """Descriptors and positives for :func:`~vpr_uncertainty.btl.train_btl_head`, read from files.
 
     Parameters
     ----------

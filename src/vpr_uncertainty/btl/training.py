@@ -9,7 +9,7 @@ Procedure (deterministic for a given ``seed`` on CPU):
 
 1. The anchors with at least one positive are split at random into training and validation anchors
    (``val_fraction``, 20 % by default).
-2. Triplets are mined once for each split (:func:`~vpr_uncertainty.learned.mining.mine_triplets`): the most
+2. Triplets are mined once for each split (:func:`~vpr_uncertainty.btl.mining.mine_triplets`): the most
    similar positives × the hardest negatives (nearest non-positives in descriptor space).
 3. Adam(W) on the Bayesian triplet loss, shuffled mini-batches of triplets; after every epoch the loss of the
    validation triplets (in eval mode, same loss with its KL term). Epoch 0 is the untrained head.
@@ -30,14 +30,14 @@ import numpy as np
 import torch
 from scipy import sparse
 
-from vpr_uncertainty.learned.loss import (
+from vpr_uncertainty.btl.loss import (
     DEFAULT_KL_WEIGHT,
     DEFAULT_MARGIN,
     DEFAULT_PRIOR_VARIANCE,
     bayesian_triplet_loss,
 )
-from vpr_uncertainty.learned.mining import Triplets, mine_triplets
-from vpr_uncertainty.learned.model import BTLHead
+from vpr_uncertainty.btl.mining import Triplets, mine_triplets
+from vpr_uncertainty.btl.model import BTLHead
 
 __all__ = ["BTLTrainingConfig", "TrainingHistory", "resolve_device", "save_training_curve", "train_btl_head"]
 

@@ -7,18 +7,18 @@ query is its uncertainty (higher = less trustworthy), and BTL answers with its o
 
 Typical use::
 
-    from vpr_uncertainty.learned import train_btl_head, save_btl_head
+    from vpr_uncertainty.btl import train_btl_head, save_btl_head
     head, history = train_btl_head(database_descriptors, positives, query_descriptors=query_descriptors)
     save_btl_head(head, "head.pt")
     evaluate(retrieval, ["BTL", "SU"], btl_head="head.pt",
              query_descriptors=query_descriptors, database_descriptors=database_descriptors)
 
-Modules: :mod:`~vpr_uncertainty.learned.loss` (the loss and its derivation), :mod:`~.model` (the head and its
+Modules: :mod:`~vpr_uncertainty.btl.loss` (the loss and its derivation), :mod:`~.model` (the head and its
 file), :mod:`~.mining` (triplets), :mod:`~.training` (training loop, early stopping, curve),
 :mod:`~.method` (the registered ``BTL`` method).
 """
 
-from vpr_uncertainty.learned.loss import (
+from vpr_uncertainty.btl.loss import (
     DEFAULT_KL_WEIGHT,
     DEFAULT_MARGIN,
     DEFAULT_PRIOR_VARIANCE,
@@ -28,10 +28,10 @@ from vpr_uncertainty.learned.loss import (
     triplet_distance_moments,
     triplet_probability,
 )
-from vpr_uncertainty.learned.method import btl_retrieval, btl_uncertainty
-from vpr_uncertainty.learned.mining import Triplets, mine_triplets
-from vpr_uncertainty.learned.model import BTLHead, embed, load_btl_head, save_btl_head
-from vpr_uncertainty.learned.training import BTLTrainingConfig, TrainingHistory, save_training_curve, train_btl_head
+from vpr_uncertainty.btl.method import btl_retrieval, btl_uncertainty
+from vpr_uncertainty.btl.mining import Triplets, mine_triplets
+from vpr_uncertainty.btl.model import BTLHead, embed, load_btl_head, save_btl_head
+from vpr_uncertainty.btl.training import BTLTrainingConfig, TrainingHistory, save_training_curve, train_btl_head
 
 __all__ = [
     "DEFAULT_KL_WEIGHT",
