@@ -291,7 +291,7 @@ def test_preprocessing_cap_validation_and_fingerprint():
 def test_geometric_loader_refuses_bombs_and_reads_any_file_name(tmp_path):
     """Regression: OpenCV raised cv2.error on the bomb header and crashed (SIGSEGV) on a non-UTF-8 path."""
     pytest.importorskip("cv2")
-    from vpr_uncertainty.geometric.features import load_image as load_local
+    from vpr_uncertainty.geometric.local_features import load_image as load_local
 
     with pytest.raises(ValueError, match=r"cannot read image .*bomb\.png: 10,000,000,000 pixels, more than"):
         load_local(write_bomb(tmp_path / "bomb.png"), max_side=640, grayscale=True)

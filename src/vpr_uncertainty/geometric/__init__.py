@@ -7,7 +7,6 @@ they are loaded when a method first runs.
 """
 
 from vpr_uncertainty.geometric.cache import extract_features, image_names, read_features, write_features
-from vpr_uncertainty.geometric.features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures, load_image
 from vpr_uncertainty.geometric.gv_methods import (
     gv_disk_lightglue,
     gv_h5,
@@ -16,6 +15,7 @@ from vpr_uncertainty.geometric.gv_methods import (
     gv_superpoint_superglue,
     gv_xfeat,
 )
+from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures, load_image
 from vpr_uncertainty.geometric.matching import NearestNeighborMatcher, match_nearest_neighbors
 from vpr_uncertainty.geometric.presets import GV_PRESETS, PRESETS, GVPreset, register_preset
 from vpr_uncertainty.geometric.ransac import count_inliers

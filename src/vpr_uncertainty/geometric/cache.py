@@ -28,7 +28,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from vpr_uncertainty.geometric.features import Extractor, LocalFeatures
+from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 
 __all__ = [
     "CACHE_FORMAT_VERSION",

@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from vpr_uncertainty.geometric.features import DEFAULT_MAX_SIDE
+from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE
 from vpr_uncertainty.geometric.matching import NearestNeighborMatcher
 from vpr_uncertainty.geometric.presets import H5_MODULES, require_modules
 from vpr_uncertainty.geometric.verify import GeometricVerifier, verify_retrieval

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.geometric.features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures
+from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures
 from vpr_uncertainty.geometric.weights import package_file, state_dict_fingerprint
 
 __all__ = [

@@ -1,7 +1,8 @@
 """Matchers: nearest neighbours with Lowe's ratio test for any descriptor, and the interface of learned matchers.
 
-A matcher maps two :class:`~vpr_uncertainty.geometric.features.LocalFeatures` (and the working resolution) to an
-array of shape (M, 2): row ``(i, j)`` matches keypoint ``i`` of the first image to keypoint ``j`` of the second.
+A matcher maps two :class:`~vpr_uncertainty.geometric.local_features.LocalFeatures` (and the working resolution)
+to an array of shape (M, 2): row ``(i, j)`` matches keypoint ``i`` of the first image to keypoint ``j`` of the
+second.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from vpr_uncertainty.geometric.features import LocalFeatures
+from vpr_uncertainty.geometric.local_features import LocalFeatures
 
 __all__ = ["Matcher", "NearestNeighborMatcher", "match_nearest_neighbors"]
 

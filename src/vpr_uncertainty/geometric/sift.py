@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.geometric.features import DEFAULT_MAX_SIDE, Extractor
+from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor
 
 __all__ = ["SIFTExtractor"]
 
@@ -23,7 +23,7 @@ class SIFTExtractor(Extractor):
     contrast_threshold : float
         OpenCV's ``contrastThreshold`` (its default, 0.04).
     max_side, device, batch_size
-        See :class:`~vpr_uncertainty.geometric.features.Extractor`.
+        See :class:`~vpr_uncertainty.geometric.local_features.Extractor`.
     """
 
     name = "sift"

@@ -8,7 +8,7 @@ Pipeline of one call
 1. The images that appear in a pair are extracted once each (database images shared by several queries
    included), read from the HDF5 cache in ``cache_dir`` when they are there (see
    :mod:`vpr_uncertainty.geometric.cache`). Images are shrunk to ``max_side`` (default 640, see
-   :mod:`vpr_uncertainty.geometric.features`).
+   :mod:`vpr_uncertainty.geometric.local_features`).
 2. Pairs are matched in ``workers`` threads at once (numpy and torch release the GIL; a torch matcher then
    runs on one torch thread per pair); on CUDA, torch matchers take the pairs one after another.
 3. RANSAC (USAC/MAGSAC++, :mod:`vpr_uncertainty.geometric.ransac`) in ``workers`` threads.
@@ -30,7 +30,7 @@ from typing import Any, Literal
 import numpy as np
 
 from vpr_uncertainty.geometric.cache import ExtractionStats, extract_features, image_names, read_features
-from vpr_uncertainty.geometric.features import (
+from vpr_uncertainty.geometric.local_features import (
     DEFAULT_MAX_SIDE,
     Extractor,
     LocalFeatures,
