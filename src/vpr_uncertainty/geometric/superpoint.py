@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.geometric.learned import _images_to_tensor, build_lightglue, torch_device
+from vpr_uncertainty.geometric.disk_xfeat_lightglue import _images_to_tensor, build_lightglue, torch_device
 from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures
 from vpr_uncertainty.geometric.weights import load_official_state_dict, state_dict_fingerprint
 
