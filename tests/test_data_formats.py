@@ -11,7 +11,7 @@ from scipy import sparse
 
 from vpr_uncertainty.data import Dataset, get_named_dataset, load_dataset
 from vpr_uncertainty.data.formats import DATASET_FORMAT_REGISTRY, DatasetFormat, detect_format, register_format
-from vpr_uncertainty.data.registry import NAMED_DATASETS, read_named_datasets
+from vpr_uncertainty.data.named_datasets import NAMED_DATASETS, read_named_datasets
 
 
 def test_named_datasets_are_read_from_the_shipped_json():

@@ -30,7 +30,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run_datasets(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.registry import (
+    from vpr_uncertainty.data.named_datasets import (
         DATA_ROOT_VARIABLE,
         NAMED_DATASETS,
         data_root,

@@ -18,9 +18,7 @@ from vpr_uncertainty.data.ground_truth import (
     positives_from_mask,
     positives_to_lists,
 )
-from vpr_uncertainty.data.poses import load_poses_dataset
-from vpr_uncertainty.data.positives import DEFAULT_RADIUS, positives_within_frames, positives_within_radius
-from vpr_uncertainty.data.registry import (
+from vpr_uncertainty.data.named_datasets import (
     DATA_ROOT_VARIABLE,
     NAMED_DATASETS,
     NamedDataset,
@@ -30,6 +28,8 @@ from vpr_uncertainty.data.registry import (
     get_named_dataset,
     load_dataset,
 )
+from vpr_uncertainty.data.poses import load_poses_dataset
+from vpr_uncertainty.data.positives import DEFAULT_RADIUS, positives_within_frames, positives_within_radius
 from vpr_uncertainty.data.table import load_table_dataset
 from vpr_uncertainty.data.vprbench import load_vprbench_dataset
 

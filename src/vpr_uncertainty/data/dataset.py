@@ -11,7 +11,7 @@ inherits (names, positions, positives). Every reader in :mod:`vpr_uncertainty.da
   latitude/longitude;
 * :func:`~vpr_uncertainty.data.poses.load_poses_dataset`: ``.npz`` with ``utmQ``, ``utmDb``, ``posDistThr``
   (positions only);
-* :func:`~vpr_uncertainty.data.registry.load_dataset`: any of the above, detected from the path, or a named
+* :func:`~vpr_uncertainty.data.named_datasets.load_dataset`: any of the above, detected from the path, or a named
   dataset of the paper.
 
 Positions and their kind
