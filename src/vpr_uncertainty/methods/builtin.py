@@ -1,4 +1,4 @@
-"""The built-in uncertainty methods, registered in :mod:`vpr_uncertainty.methods` on import.
+"""The built-in uncertainty methods, registered on import (by :mod:`vpr_uncertainty.methods`, which imports this).
 
 Score-only methods (RS, SD, SU, BM, L2, PA, margin) wrap :mod:`vpr_uncertainty.scores`; SUE, the geometric
 verification presets and BTL are registered by dotted path and imported when first called.
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from vpr_uncertainty import scores as _scores
-from vpr_uncertainty.methods import METHODS, register_method
+from vpr_uncertainty.methods.entries import METHODS, register_method
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["GEOMETRIC_METHODS", "SCORE_ONLY_METHODS"]

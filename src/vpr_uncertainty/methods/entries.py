@@ -1,30 +1,8 @@
-"""Registry of uncertainty methods: the names users type (``SU``, ``PA``, ``SUE``, ``GV-SIFT``, ...).
+"""Uncertainty-method entries: what one is (:class:`UncertaintyMethod`), where they are kept (:data:`METHODS`, a
+:class:`~vpr_uncertainty.plugins.Registry`), and the functions that add, find, parse and check them.
 
-Every registered method is called the same way, on a :class:`~vpr_uncertainty.retrieval.Retrieval`::
-
-    get_method("SU")(retrieval, k=10, alpha=0.5)   # -> ndarray of shape (Q,), higher = less trustworthy
-
-The registry is a :class:`~vpr_uncertainty.plugins.Registry` (:data:`METHODS`): each entry declares its
-``kind`` (``"score"``, ``"spatial"``, ``"geometric"``, ``"learned"``), whether it is evaluated by ``default``,
-what it ``requires``, its ``extra`` and its ``options``; ``available_methods(kind="score")`` queries them.
-Options a method does not use are ignored, so one set of options can be passed to all methods, but an option
-that no selected method takes is an error (:func:`check_options`). A method that needs heavy dependencies is
-registered by the dotted path of its function (``"package.module:function"``) and imported only when first
-called; a method that reads files declares a ``resolve`` hook, run once by the stage, that turns paths into the
-arrays and models the function receives.
-
-Method specs
-------------
-A name can carry the method's own options: ``"SUE:clip=one-sided,slope=300"`` (:func:`parse_method_spec`).
-Values are typed like the option's default, unknown option names are errors that list the valid ones, and
-:func:`get_method` returns an entry named by the spec, whose options override those passed at call time, so two
-variants of one method are evaluated (and shown) side by side.
-
-Needs
------
-``requires`` names what a method cannot run without: a retrieval field or an option, or one of the groups of
-:data:`NEEDS` (``"images"``, ``"btl_head"``, ``"descriptors"``, ``"local_features"``, ``"database_positions"``).
-:meth:`UncertaintyMethod.unmet_needs` says which are missing before any work.
+Import them from :mod:`vpr_uncertainty.methods`, which also registers the built-in methods
+(:mod:`vpr_uncertainty.methods.builtin`); this module registers none, so the built-ins can import it.
 """
 
 from __future__ import annotations
@@ -42,10 +20,8 @@ from vpr_uncertainty.plugins import Registry, load_target
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
-    "GEOMETRIC_METHODS",
     "METHODS",
     "NEEDS",
-    "SCORE_ONLY_METHODS",
     "STAGE_INPUTS",
     "OwnRetrievalUncertainty",
     "UncertaintyMethod",
@@ -379,7 +355,3 @@ def available_methods(**attributes: Any) -> list[str]:
     ['GV-SIFT', 'GV-DISK-LG']
     """
     return METHODS.names(**attributes)
-
-
-# The built-in methods register themselves on import.
-from vpr_uncertainty.builtin_methods import GEOMETRIC_METHODS, SCORE_ONLY_METHODS  # noqa: E402
