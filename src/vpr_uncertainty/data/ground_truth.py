@@ -30,10 +30,15 @@ __all__ = [
     "load_ground_truth",
     "positives_from_lists",
     "positives_from_mask",
+    "positives_from_vprbench_rows",
     "positives_to_lists",
 ]
 
 _INTEGER_FIELD = re.compile(r"[+-]?[0-9]+")
+#: What VPR-Bench's ``ground_truth_new.npy`` holds, for error messages.
+VPRBENCH_GROUND_TRUTH = (
+    "VPR-Bench ground truth (an object array of rows [query index, list of positive database indices])"
+)
 
 
 def _is_index(value: object) -> bool:
@@ -144,6 +149,41 @@ def positives_from_mask(mask: object, *, source: str | Path | None = None) -> sp
     return sparse.csr_array(array)
 
 
+def positives_from_vprbench_rows(rows: np.ndarray, path: str | Path, *, n_database: int | None) -> sparse.csr_array:
+    """Positives from VPR-Bench's ground-truth rows [query index, positives], validated; errors name ``path``.
+
+    Parameters
+    ----------
+    rows : ndarray of shape (Q, 2), dtype object
+        Row i = [query index, list (or array, or single int) of positive database indices]; the query indices
+        are a permutation of 0..Q-1.
+    path : str or Path
+        The file the rows come from, for error messages.
+    n_database : int, optional
+        Number of database images; by default the largest positive index + 1.
+
+    Returns
+    -------
+    scipy.sparse.csr_array of shape (Q, D), dtype bool
+    """
+    if not isinstance(rows, np.ndarray) or rows.dtype != object or rows.ndim != 2 or rows.shape[1] != 2:
+        found = f"a {rows.dtype} array of shape {rows.shape}" if isinstance(rows, np.ndarray) else type(rows).__name__
+        raise ValueError(f"{path}: expected {VPRBENCH_GROUND_TRUTH} of shape (n_queries, 2), got {found}")
+    n_queries = len(rows)
+    lists: list[object | None] = [None] * n_queries
+    for row, (query, positives) in enumerate(rows):
+        if not _is_index(query) or not 0 <= query < n_queries:
+            raise ValueError(
+                f"{path}: row {row}: the query index must be an integer in [0, {n_queries}), got {query!r}"
+            )
+        if lists[query] is not None:
+            raise ValueError(
+                f"{path}: row {row}: query {query} appears twice; expected each of 0..{n_queries - 1} once"
+            )
+        lists[query] = [positives] if _is_index(positives) else positives
+    return _lists_to_positives(lists, n_database, f"{path}: ")  # errors name the file, the query and the value
+
+
 def positives_to_lists(positives: sparse.csr_array) -> list[np.ndarray]:
     """One sorted int64 array of positive database indices per query."""
     positives = sparse.csr_array(positives)
@@ -244,8 +284,6 @@ def _from_npy(path: Path, n_database: int | None) -> sparse.csr_array:
         path, what="ground truth (a boolean mask or VPR-Bench's object array of positives)", allow_objects=True
     )
     if array.dtype == object:
-        from vpr_uncertainty.data.vprbench import positives_from_vprbench_rows
-
         return positives_from_vprbench_rows(array, path, n_database=n_database)
     return positives_from_mask(array, source=path)
 

@@ -19,7 +19,7 @@ import numpy as np
 from scipy import sparse
 
 from vpr_uncertainty.data.dataset import Dataset
-from vpr_uncertainty.data.ground_truth import _is_index, _lists_to_positives
+from vpr_uncertainty.data.ground_truth import VPRBENCH_GROUND_TRUTH, positives_from_vprbench_rows
 from vpr_uncertainty.data.npy import read_npy
 
 __all__ = [
@@ -27,10 +27,8 @@ __all__ = [
     "load_vprbench_dataset",
     "load_vprbench_ground_truth",
     "load_vprbench_similarity",
-    "positives_from_vprbench_rows",
 ]
 
-_GROUND_TRUTH = "VPR-Bench ground truth (an object array of rows [query index, list of positive database indices])"
 _MATCHES = (
     "VPR-Bench precomputed matches (an object array of 6 items: query indices, top-1 indices, top-1 scores, "
     "similarity matrix, encoding time, matching time)"
@@ -42,41 +40,6 @@ class PickleWarning(UserWarning):
 
     Kept so that code filtering it keeps working.
     """
-
-
-def positives_from_vprbench_rows(rows: np.ndarray, path: str | Path, *, n_database: int | None) -> sparse.csr_array:
-    """Positives from VPR-Bench's ground-truth rows [query index, positives], validated; errors name ``path``.
-
-    Parameters
-    ----------
-    rows : ndarray of shape (Q, 2), dtype object
-        Row i = [query index, list (or array, or single int) of positive database indices]; the query indices
-        are a permutation of 0..Q-1.
-    path : str or Path
-        The file the rows come from, for error messages.
-    n_database : int, optional
-        Number of database images; by default the largest positive index + 1.
-
-    Returns
-    -------
-    scipy.sparse.csr_array of shape (Q, D), dtype bool
-    """
-    if not isinstance(rows, np.ndarray) or rows.dtype != object or rows.ndim != 2 or rows.shape[1] != 2:
-        found = f"a {rows.dtype} array of shape {rows.shape}" if isinstance(rows, np.ndarray) else type(rows).__name__
-        raise ValueError(f"{path}: expected {_GROUND_TRUTH} of shape (n_queries, 2), got {found}")
-    n_queries = len(rows)
-    lists: list[object | None] = [None] * n_queries
-    for row, (query, positives) in enumerate(rows):
-        if not _is_index(query) or not 0 <= query < n_queries:
-            raise ValueError(
-                f"{path}: row {row}: the query index must be an integer in [0, {n_queries}), got {query!r}"
-            )
-        if lists[query] is not None:
-            raise ValueError(
-                f"{path}: row {row}: query {query} appears twice; expected each of 0..{n_queries - 1} once"
-            )
-        lists[query] = [positives] if _is_index(positives) else positives
-    return _lists_to_positives(lists, n_database, f"{path}: ")  # errors name the file, the query and the value
 
 
 def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = None) -> sparse.csr_array:
@@ -100,7 +63,7 @@ def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = Non
         payload names a global other than NumPy array reconstruction (nothing from the file is run).
     """
     path = Path(path)
-    rows = read_npy(path, what=_GROUND_TRUTH, allow_objects=True)
+    rows = read_npy(path, what=VPRBENCH_GROUND_TRUTH, allow_objects=True)
     return positives_from_vprbench_rows(rows, path, n_database=n_database)
 
 
