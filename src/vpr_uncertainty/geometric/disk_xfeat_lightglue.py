@@ -12,14 +12,13 @@ the same size are extracted in batches and pairs are matched one after another.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import re
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.geometric._torch import images_to_tensor, torch_device
 from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures
 from vpr_uncertainty.geometric.weights import package_file, state_dict_fingerprint
 
@@ -30,49 +29,9 @@ __all__ = [
     "build_lightglue",
     "load_disk",
     "load_xfeat",
-    "torch_device",
-    "torch_threads",
 ]
 
 LIGHTGLUE_FEATURES = ("disk", "superpoint", "xfeat")
-
-
-def torch_device(device: str | None) -> Any:
-    """A torch device from ``"cpu"``/``"cuda"``/``"cuda:1"`` (None = cpu), with a clear error without CUDA."""
-    import torch
-
-    device = "cpu" if device is None else str(device)
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device={device!r} was requested but torch sees no CUDA device; use device='cpu'")
-    try:
-        return torch.device(device)
-    except RuntimeError as error:
-        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}") from error
-
-
-@contextlib.contextmanager
-def torch_threads(workers: int | None) -> Iterator[None]:
-    """Run torch's CPU operators on ``workers`` threads inside the block, then restore the previous setting."""
-    import torch
-
-    if workers is None:
-        yield
-        return
-    previous = torch.get_num_threads()
-    torch.set_num_threads(max(1, int(workers)))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
-
-
-def _images_to_tensor(images: list[np.ndarray], device: Any) -> Any:
-    import torch
-
-    array = np.stack(images)
-    if array.ndim == 3:
-        array = array[..., None]
-    return torch.from_numpy(array).permute(0, 3, 1, 2).to(device=device, dtype=torch.float32).div_(255.0)
 
 
 # --- DISK --------------------------------------------------------------------------------------------------
@@ -138,7 +97,7 @@ class DISKExtractor(Extractor):
         import torch
 
         with torch.inference_mode():
-            batch = _images_to_tensor(images, next(self.model.parameters()).device)
+            batch = images_to_tensor(images, next(self.model.parameters()).device)
             outputs = self.model(
                 batch,
                 n=self.max_keypoints,
@@ -214,7 +173,7 @@ class XFeatExtractor(Extractor):
             empty = (np.zeros((0, 2), np.float32), np.zeros((0, 64), np.float32), np.zeros(0, np.float32))
             return [empty for _ in images]
         with torch.inference_mode():
-            batch = _images_to_tensor(images, self.model.dev)
+            batch = images_to_tensor(images, self.model.dev)
             outputs = self.model.detectAndCompute(
                 batch, top_k=self.max_keypoints, detection_threshold=self.detection_threshold
             )

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.geometric._torch import torch_threads
+
 __all__ = [
     "DEFAULT_MAX_SIDE",
     "Extractor",
@@ -168,8 +170,6 @@ def load_image(path: str | Path, *, max_side: int, grayscale: bool) -> tuple[np.
 def single_torch_thread(active: bool) -> contextlib.AbstractContextManager[None]:
     if not active:
         return contextlib.nullcontext()
-    from vpr_uncertainty.geometric.disk_xfeat_lightglue import torch_threads
-
     return torch_threads(1)
 
 
