@@ -45,7 +45,9 @@ def _check_paths(retrieval: Retrieval, query_paths: object, database_paths: obje
         )
 
 
-def _gv(name: str, function_name: str) -> Callable[..., np.ndarray]:
+def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
+    """The uncertainty-method function of the GV preset ``name``, called ``function_name``."""
+
     def method(
         retrieval: Retrieval,
         *,
@@ -84,11 +86,11 @@ def _gv(name: str, function_name: str) -> Callable[..., np.ndarray]:
     return method
 
 
-gv_sift = _gv("GV-SIFT", "gv_sift")
-gv_disk_lightglue = _gv("GV-DISK-LG", "gv_disk_lightglue")
-gv_xfeat = _gv("GV-XFEAT", "gv_xfeat")
-gv_superpoint_superglue = _gv("GV-SP-SG", "gv_superpoint_superglue")
-gv_superpoint_lightglue = _gv("GV-SP-LG", "gv_superpoint_lightglue")
+gv_sift = _preset_method("GV-SIFT", "gv_sift")
+gv_disk_lightglue = _preset_method("GV-DISK-LG", "gv_disk_lightglue")
+gv_xfeat = _preset_method("GV-XFEAT", "gv_xfeat")
+gv_superpoint_superglue = _preset_method("GV-SP-SG", "gv_superpoint_superglue")
+gv_superpoint_lightglue = _preset_method("GV-SP-LG", "gv_superpoint_lightglue")
 
 
 def gv_h5(
