@@ -378,7 +378,8 @@ def test_cli_trains_from_npy_and_positions(tmp_path, capsys):
         np.save(tmp_path / name, array)
     out = tmp_path / "heads" / "head.pt"
     common = ["--embedding-dim", "16", "--hidden-dim", "16", "--epochs", "3", "--negatives", "5", "--no-progress"]
-    argv = ["train-btl", "--descriptors", str(tmp_path / "db.npy"), "--positions", str(tmp_path / "db_pos.npy")]
+    argv = ["train-btl", "--descriptors", str(tmp_path / "db.npy")]
+    argv += ["--database-positions", str(tmp_path / "db_pos.npy")]
     assert _run_cli([*argv, "--query-descriptors", str(tmp_path / "q.npy"), "--query-positions",
                      str(tmp_path / "q_pos.npy"), "--out", str(out), *common]) == 0  # fmt: skip
     printed = capsys.readouterr().out
@@ -392,5 +393,5 @@ def test_cli_trains_from_npy_and_positions(tmp_path, capsys):
     # Without query ground truth the database trains on itself.
     assert _run_cli([*argv, "--out", str(tmp_path / "db_only.pt"), *common, "--epochs", "1"]) == 0
     assert "200 database images as anchors" in capsys.readouterr().out
-    with pytest.raises(ValueError, match="--positions"):
+    with pytest.raises(ValueError, match="--database-positions"):
         _run_cli(["train-btl", "--descriptors", str(tmp_path / "db.npy"), "--out", str(tmp_path / "x.pt")])

@@ -127,7 +127,7 @@ def test_cli_on_corridor_from_positive_lists_and_from_a_run_directory(corridor, 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         code = _run_cli(
-            ["train-btl", "--descriptors", str(corridor["h5"]), "--positives", str(corridor["gt_path"]),
+            ["train-btl", "--descriptors", str(corridor["h5"]), "--gt", str(corridor["gt_path"]),
              "--out", str(tmp_path / "gt.pt"), *quick]
         )  # fmt: skip
     assert code == 0 and "111 queries as anchors" in capsys.readouterr().out

@@ -22,7 +22,7 @@ pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench fil
 def demo_run(data_dir, tmp_path_factory):
     """One demo run shared by the tests of this module (extraction is the slow part)."""
     out = tmp_path_factory.mktemp("demo")
-    status = main(["demo", "--data-dir", str(data_dir), "--no-download", "--out", str(out)])
+    status = main(["demo", "--root", str(data_dir), "--no-download", "--out", str(out)])
     assert status == 0
     return out
 
@@ -51,7 +51,7 @@ def test_rerun_reuses_descriptors_and_retrieval(demo_run, data_dir, monkeypatch)
     monkeypatch.setattr(extract, "_forward", lambda *args: calls.append(1) or original(*args))
     retrieval_mtime = (demo_run / "retrieval.npz").stat().st_mtime_ns
     before = json.loads((demo_run / "results.json").read_text())
-    assert main(["demo", "--data-dir", str(data_dir), "--no-download", "--out", str(demo_run)]) == 0
+    assert main(["demo", "--root", str(data_dir), "--no-download", "--out", str(demo_run)]) == 0
     after = json.loads((demo_run / "results.json").read_text())
     assert calls == []  # no image went through the model again
     assert (demo_run / "retrieval.npz").stat().st_mtime_ns == retrieval_mtime

@@ -6,12 +6,15 @@ import argparse
 import math
 import os
 import re
+import sys
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 __all__ = [
+    "add_deprecated_alias",
     "candidate_count",
     "command_wording",
     "device_name",
@@ -139,3 +142,26 @@ def command_wording(**flags: str) -> Iterator[None]:
         if reworded == text:
             raise
         raise type(error)(reworded) from error
+
+
+def add_deprecated_alias(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    old: str,
+    *,
+    new: str,
+    dest: str | None = None,
+    **kwargs: Any,
+) -> None:
+    """Accept the former flag ``old`` as a hidden alias of ``new``, with a one-line note that names ``new``.
+
+    ``dest`` is that of ``new`` (default: derived from ``new``); ``kwargs`` are those of ``new`` that parse the
+    value (``type``, ``metavar``). The alias is left out of ``--help`` and does not change ``new``'s default.
+    """
+    dest = dest or new.lstrip("-").replace("-", "_")
+
+    class _Alias(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None) -> None:
+            print(f"note: {option_string} is deprecated; use {new}", file=sys.stderr)
+            setattr(namespace, self.dest, values)
+
+    parser.add_argument(old, dest=dest, action=_Alias, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)

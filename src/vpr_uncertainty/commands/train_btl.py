@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import (
+    add_deprecated_alias,
     command_wording,
     device_name,
     non_negative_float,
@@ -26,7 +27,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "Train a head that turns each frozen global descriptor into an isotropic Gaussian embedding (an\n"
             "L2-normalised mean and one variance) with the Bayesian triplet loss (Warburg et al., ICCV 2021).\n"
             "Triplets: each anchor with its most similar positives (within --radius of its position, or from\n"
-            "--positives) and its hardest negatives (most similar non-positives in descriptor space). Anchors are\n"
+            "--gt) and its hardest negatives (most similar non-positives in descriptor space). Anchors are\n"
             "the queries when they have descriptors and ground truth, else the database images themselves.\n"
             "A random --val-fraction of the anchors is held out for early stopping; the best head is written to\n"
             "--out, the training curve beside it (OUT.curve.json and OUT.curve.png).\n\n"
@@ -35,8 +36,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         ),
         epilog=(
             "examples:\n"
-            "  vpr-uncertainty train-btl --descriptors train_db.npy --positions train_db_utm.npy --out head.pt\n"
-            "  vpr-uncertainty train-btl --descriptors descriptors.h5 --positives ground_truth_new.npy --out head.pt\n"
+            "  vpr-uncertainty train-btl --descriptors train_db.npy --database-positions db_utm.npy --out head.pt\n"
+            "  vpr-uncertainty train-btl --descriptors descriptors.h5 --gt ground_truth_new.npy --out head.pt\n"
             "  vpr-uncertainty train-btl --run runs/pitts30k_train --out head.pt --device cuda"
         ),
     )
@@ -49,16 +50,23 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     source.add_argument("--query-descriptors", type=Path, metavar="Q", help="query descriptors (.npy or .h5)")
     source.add_argument(
-        "--positions", type=Path, metavar="POS.npy", help="database positions (D x 2, metres, or frame indices)"
+        "--database-positions",
+        dest="positions",
+        type=Path,
+        metavar="POS.npy",
+        help="database positions (D x 2, metres, or frame indices)",
     )
+    add_deprecated_alias(source, "--positions", new="--database-positions", dest="positions", type=Path)
     source.add_argument("--query-positions", type=Path, metavar="POS.npy", help="query positions (Q x 2)")
     source.add_argument(
-        "--positives",
+        "--gt",
+        dest="positives",
         type=Path,
         metavar="GT",
-        help="explicit positives instead of positions: VPR-Bench ground_truth_new.npy, bool .npy, .json, .txt, "
+        help="explicit ground truth instead of positions: VPR-Bench ground_truth_new.npy, bool .npy, .json, .txt, "
         ".npz (queries x database, or database x database without queries)",
     )
+    add_deprecated_alias(source, "--positives", new="--gt", dest="positives", type=Path)
     source.add_argument(
         "--run", type=Path, metavar="DIR", help="run directory holding descriptors.h5 and retrieval.npz (positives)"
     )
@@ -110,6 +118,7 @@ def _run_train_btl(args: argparse.Namespace) -> int:
     from vpr_uncertainty.btl.inputs import read_training_inputs
 
     flags = {name: "--" + name.replace("_", "-") for name in _INPUTS}
+    flags.update(positions="--database-positions", positives="--gt")
     with command_wording(**flags, learning_rate="--lr", device="--device cpu"):
         inputs = read_training_inputs(**{name: getattr(args, name) for name in _INPUTS}, radius=args.radius)
     database, queries = inputs["database"], inputs["queries"]

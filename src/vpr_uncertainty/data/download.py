@@ -18,7 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-__all__ = ["CORRIDOR_URL", "corridor_files", "default_data_dir", "ensure_corridor", "verify_corridor"]
+__all__ = ["CORRIDOR_URL", "corridor_files", "default_data_root", "ensure_corridor", "verify_corridor"]
 
 #: The VPR-Bench repository at a pinned commit; the corridor lives under ``datasets/corridor``.
 CORRIDOR_URL = (
@@ -27,7 +27,7 @@ CORRIDOR_URL = (
 )
 
 
-def default_data_dir() -> Path:
+def default_data_root() -> Path:
     """``VPR_UNCERTAINTY_DATA`` if set, else a per-user cache directory (``$XDG_CACHE_HOME/vpr-uncertainty``)."""
     if os.environ.get("VPR_UNCERTAINTY_DATA"):
         return Path(os.environ["VPR_UNCERTAINTY_DATA"])
@@ -55,13 +55,13 @@ def verify_corridor(folder: str | Path) -> list[str]:
     ]
 
 
-def ensure_corridor(data_dir: str | Path | None = None, *, download: bool = True, timeout: float = 20.0) -> Path:
-    """Return the corridor folder under ``data_dir/vprbench/corridor``, downloading missing files if allowed.
+def ensure_corridor(root: str | Path | None = None, *, download: bool = True, timeout: float = 20.0) -> Path:
+    """Return the corridor folder under ``root/vprbench/corridor``, downloading missing files if allowed.
 
     Parameters
     ----------
-    data_dir : str or Path, optional
-        The data directory; by default :func:`default_data_dir`.
+    root : str or Path, optional
+        The data root; by default :func:`default_data_root`.
     download : bool
         Fetch missing or corrupt files from :data:`CORRIDOR_URL`.
     timeout : float
@@ -73,13 +73,13 @@ def ensure_corridor(data_dir: str | Path | None = None, *, download: bool = True
         When files are missing and cannot be downloaded (offline, or ``download=False``); the message says which
         files and where to put them.
     """
-    folder = Path(data_dir or default_data_dir()) / "vprbench" / "corridor"
+    folder = Path(root or default_data_root()) / "vprbench" / "corridor"
     missing = verify_corridor(folder) if folder.is_dir() else list(corridor_files())
     if not missing:
         return folder
     where = (
         f"Put the VPR-Bench corridor dataset (query/, ref/, ground_truth_new.npy from {CORRIDOR_URL}) into "
-        f"{folder}, or point VPR_UNCERTAINTY_DATA at a data directory that holds vprbench/corridor."
+        f"{folder}, or point VPR_UNCERTAINTY_DATA at a data root that holds vprbench/corridor."
     )
     if not download:
         raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")

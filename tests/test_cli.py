@@ -1,0 +1,65 @@
+"""One flag name per concept across the commands; former names are hidden aliases that say what to type."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from vpr_uncertainty.cli import COMMANDS, build_parser
+
+#: Former flag names -> the name every command now uses for the same concept.
+RENAMED = {"--data-dir": "--root", "--positions": "--database-positions", "--positives": "--gt"}
+
+
+def _help(command: str, capsys: pytest.CaptureFixture[str]) -> str:
+    with pytest.raises(SystemExit):
+        build_parser().parse_args([command, "--help"])
+    return capsys.readouterr().out
+
+
+def _flags(command: str, capsys: pytest.CaptureFixture[str]) -> set[str]:
+    return set(re.findall(r"(?<![\w-])--[a-z][a-z0-9-]*", _help(command, capsys)))
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_no_command_shows_a_former_flag_name(command, capsys):
+    assert not _flags(command, capsys) & set(RENAMED)
+
+
+def test_the_data_root_is_root_in_every_command_that_reads_named_data(capsys):
+    for command in ("demo", "run", "datasets"):
+        assert "--root" in _flags(command, capsys), command
+
+
+@pytest.mark.parametrize(
+    ("argv", "dest", "old"),
+    [
+        (["demo", "--data-dir", "data"], "root", "--data-dir"),
+        (["train-btl", "--positions", "data", "--out", "head.pt"], "positions", "--positions"),
+        (["train-btl", "--positives", "data", "--out", "head.pt"], "positives", "--positives"),
+    ],
+)
+def test_former_names_still_parse_with_a_note(argv, dest, old, capsys):
+    args = build_parser().parse_args(argv)
+    assert getattr(args, dest) == Path("data")
+    assert f"{old} is deprecated; use {RENAMED[old]}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "dest"),
+    [
+        (["demo", "--root", "data"], "root"),
+        (["train-btl", "--database-positions", "data", "--out", "head.pt"], "positions"),
+        (["train-btl", "--gt", "data", "--out", "head.pt"], "positives"),
+    ],
+)
+def test_new_names_parse_without_a_note(argv, dest, capsys):
+    args = build_parser().parse_args(argv)
+    assert getattr(args, dest) == Path("data")
+    assert capsys.readouterr().err == ""
+
+
+def test_an_alias_does_not_change_the_default(capsys):
+    assert build_parser().parse_args(["demo"]).root is None
