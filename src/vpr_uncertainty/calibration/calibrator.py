@@ -57,8 +57,8 @@ class Calibrator:
 
     def raw_weights(self) -> tuple[float, list[float]]:
         """(b', w') with z = b' + Σ w'_i f_i on the raw features (standardisation folded in); logistic only."""
-        weights = [c / s for c, s in zip(self.coef, self.scale)]
-        return self.intercept - sum(w * m for w, m in zip(weights, self.mean)), weights
+        weights = [c / s for c, s in zip(self.coef, self.scale, strict=True)]
+        return self.intercept - sum(w * m for w, m in zip(weights, self.mean, strict=True)), weights
 
     def confidence(self, features: np.ndarray) -> np.ndarray:
         """A score of shape (Q,) in the order of P (higher = more likely correct): z, or −SU for isotonic."""

@@ -49,7 +49,7 @@ def stratified_split(correct: np.ndarray, fraction: float, rng: np.random.Genera
     first, second = [], []
     for label in (True, False):
         members = rng.permutation(np.flatnonzero(correct == label))
-        count = int(round(fraction * members.size))
+        count = round(fraction * members.size)
         if members.size >= 2:
             count = min(max(count, 1), members.size - 1)
         first.append(members[:count])
@@ -116,8 +116,13 @@ def calibrate_arrays(
             above = np.flatnonzero(np.asarray(calibrator.y) >= 0.5)
             first = int(above[0]) if above.size else -1
             # halfway to the next lower breakpoint, so that no calibration query sits exactly on the cut
-            cut = math.inf if first < 0 else (calibrator.x[first] - 1.0 if first == 0 else
-                                              0.5 * (calibrator.x[first - 1] + calibrator.x[first]))
+            cut = (
+                math.inf
+                if first < 0
+                else (
+                    calibrator.x[first] - 1.0 if first == 0 else 0.5 * (calibrator.x[first - 1] + calibrator.x[first])
+                )
+            )
         else:
             cut = 0.0
         info.update(precision_lower_bound=None, expected_recall=None, expected_coverage=None, certificate=None)
@@ -129,7 +134,11 @@ def calibrate_arrays(
     confidence = ranking.confidence(matrix)
     cuts = candidate_cuts(confidence[fit], test.size, target_precision, delta)
     certificate = certify_threshold(
-        confidence[test], correct[test], cuts, target_precision=target_precision, delta=delta,
+        confidence[test],
+        correct[test],
+        cuts,
+        target_precision=target_precision,
+        delta=delta,
         answerable=answerable[test],
     )
     calibrator, cut = _recalibrate(ranking, matrix, correct, confidence, certificate.cut)

@@ -99,7 +99,7 @@ class Gate:
             return
         bias, raw = self.calibrator.raw_weights()
         w = dict.fromkeys(("s1", "gap", "ratio", "RS", "SD", "SU", "zscore"), 0.0)
-        w.update(zip(self.calibrator.features, raw))
+        w.update(zip(self.calibrator.features, raw, strict=True))
         self._bias = bias
         self._w_best = w["s1"] + w["gap"]
         self._w_second = -w["gap"]
@@ -198,7 +198,7 @@ class Gate:
     def from_dict(cls, data: dict[str, Any], *, where: str = "gate") -> Gate:
         """The inverse of :meth:`to_dict`; a ValueError names the field that is wrong."""
         if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise ValueError(f"{where}: not a gate file (expected \"format\": \"{FORMAT}\")")
+            raise ValueError(f'{where}: not a gate file (expected "format": "{FORMAT}")')
         if data.get("format_version") != _FORMAT_VERSION:
             raise ValueError(f"{where}: format_version {data.get('format_version')!r} is not {_FORMAT_VERSION}")
         k = data.get("k")
