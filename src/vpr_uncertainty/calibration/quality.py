@@ -73,8 +73,8 @@ def expected_calibration_error(probability: object, correct: object, *, n_bins: 
 
     Examples
     --------
-    >>> expected_calibration_error([0.1, 0.15, 0.9], [False, True, True], n_bins=2)
-    0.28333333333333327
+    >>> round(expected_calibration_error([0.1, 0.15, 0.9], [False, True, True], n_bins=2), 4)
+    0.2833
     """
     diagram = reliability_diagram(probability, correct, n_bins=n_bins)
     total = sum(diagram.counts)
