@@ -9,6 +9,7 @@ Uncertainties are arrays of shape (Q,) where higher = less trustworthy; scores a
 array([0.528, 0.979])
 """
 
+from vpr_uncertainty.calibration import Gate, calibrate
 from vpr_uncertainty.evaluation import (
     Evaluation,
     auc_pr,
@@ -46,6 +47,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Evaluation",
+    "Gate",
     "Retrieval",
     "StatisticalUncertainty",
     "auc_pr",
@@ -53,6 +55,7 @@ __all__ = [
     "available_methods",
     "average_precision",
     "best_match",
+    "calibrate",
     "correct_at_n",
     "evaluate",
     "get_method",

@@ -20,7 +20,17 @@ from typing import NoReturn
 __all__ = ["COMMANDS", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_RUNTIME", "build_parser", "exit_status", "main"]
 
 #: Command modules in :mod:`vpr_uncertainty.commands`, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = ("demo", "run", "evaluate", "reproduce", "datasets", "extract", "retrieve", "train-btl")
+COMMANDS: tuple[str, ...] = (
+    "demo",
+    "run",
+    "evaluate",
+    "calibrate",
+    "reproduce",
+    "datasets",
+    "extract",
+    "retrieve",
+    "train-btl",
+)
 
 #: Exit statuses: a usage or input error (what the user can fix in the command line or the files it names), a
 #: failure while running (disk full, a library or device failure), an interrupt (Ctrl-C, as the shells do).

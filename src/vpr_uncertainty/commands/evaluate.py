@@ -6,7 +6,13 @@ import argparse
 import json
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import candidate_count, command_wording, output_file, write_output
+from vpr_uncertainty.commands._arguments import (
+    candidate_count,
+    command_wording,
+    output_file,
+    positive_int,
+    write_output,
+)
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
 from vpr_uncertainty.methods import available_methods, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
@@ -87,6 +93,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
     )
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    held_out = parser.add_argument_group(
+        "held-out evaluation (no leakage): every method on the same held-out queries of random splits; "
+        "CAL is fitted on the rest"
+    )
+    held_out.add_argument(
+        "--calibration-fraction",
+        type=_fraction,
+        metavar="F",
+        help="share of the queries used to fit CAL in each split, in (0, 1), e.g. 0.3",
+    )
+    held_out.add_argument("--repeats", type=positive_int, default=20, help="random splits (default 20)")
+    held_out.add_argument("--seed", type=int, default=0, help="seed of the splits (default 0)")
     learned = parser.add_argument_group("options of methods that need more than scores")
     learned.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: the head written by train-btl")
     learned.add_argument(
@@ -110,6 +128,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
     with command_wording(ground_truth="--gt GT", database_positions="--database-positions"):
         retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
+        if args.calibration_fraction is not None:
+            return _run_held_out(args, retrieval, options)
         evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha, **options)
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
     if args.json:
@@ -117,5 +137,57 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         print(f"wrote {args.json}")
     if args.plot:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must lie strictly between 0 and 1, got {text}")
+    return value
+
+
+def _run_held_out(args: argparse.Namespace, retrieval, options: dict) -> int:
+    from vpr_uncertainty.calibration.heldout import evaluate_held_out
+
+    result = evaluate_held_out(
+        retrieval,
+        args.methods,
+        calibration_fraction=args.calibration_fraction,
+        repeats=args.repeats,
+        seed=args.seed,
+        k=args.k,
+        alpha=args.alpha,
+        **options,
+    )
+    print(
+        f"{args.scores}: {result.repeats} random splits, {result.n_calibration} calibration / "
+        f"{result.n_held_out} held-out queries (seed {result.seed}); mean ± std over the splits"
+    )
+    print(f"{'method':<10} {'AUC-PR':>16} {'AP':>16} {'AURC':>16}")
+
+    def cell(name: str, metric: str) -> str:
+        mean, std = result.mean(name, metric), result.std(name, metric)
+        return "n/a" if mean is None else f"{mean:.4f} ± {std or 0.0:.4f}"
+
+    for name in result.values:
+        print(f"{name:<10} {cell(name, 'auc_pr'):>16} {cell(name, 'average_precision'):>16} {cell(name, 'aurc'):>16}")
+    if "CAL" in result.quality:
+        quality = result.quality["CAL"]
+        print(f"CAL calibration on held-out queries: ECE {quality['ece']:.3f}, Brier {quality['brier']:.3f}")
+    if args.json:
+        write_output(args.json, json.dumps(result.to_dict(), indent=2) + "\n")
+        print(f"wrote {args.json}")
+    if args.plot:
+        if "CAL" not in result.quality:
+            raise ValueError("--plot with --calibration-fraction draws CAL's reliability diagram: add CAL to --methods")
+        from vpr_uncertainty.calibration.quality import Reliability
+        from vpr_uncertainty.reports.reliability import plot_reliability
+
+        plot_reliability(Reliability(**result.quality["CAL"]["reliability"]), args.plot, title="held-out reliability")
         print(f"wrote {args.plot}")
     return 0

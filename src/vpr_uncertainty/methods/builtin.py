@@ -79,6 +79,16 @@ register_method(
     kind="spatial",
 )
 
+register_method(
+    "CAL",
+    "vpr_uncertainty.calibration.method:cal_uncertainty",
+    description="1 − calibrated P(correct) of a fitted gate (calibrate; fitted per split in held-out evaluate)",
+    requires=("gate",),
+    options={"gate": ""},
+    kind="calibrated",
+    resolve="vpr_uncertainty.calibration.method:resolve_gate",
+)
+
 # --- geometric verification: −(RANSAC inliers between each query and its top-1); needs the image files ----------
 
 _GV = "vpr_uncertainty.geometric.gv_methods:"

@@ -46,6 +46,7 @@ NEEDS: dict[str, tuple[tuple[str, ...], str]] = {
         "the frozen descriptors of queries and database (query_descriptors, database_descriptors)",
     ),
     "local_features": (("features_path",), "precomputed local features (option features_path=FILE.h5)"),
+    "gate": (("gate",), "a fitted gate (option gate=GATE.json, written by `vpr-uncertainty calibrate`)"),
 }
 
 

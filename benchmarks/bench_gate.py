@@ -1,0 +1,66 @@
+"""Latency of the single-query gate, next to StatisticalUncertainty measured in the same run.
+
+Target (issue 12): at most 3 microseconds per ``gate(row)`` call. The gate is calibrated on a real corridor matrix
+(AMOSNet, p* = 0.9) when VPR_UNCERTAINTY_DATA is set, else on synthetic scores. Each figure is the median over
+``--repeats`` timings of ``--number`` calls, per call, for a Python list and a (K,) float32 array of K = 10.
+
+    python benchmarks/bench_gate.py [--repeats 15] [--number 20000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import timeit
+from pathlib import Path
+
+import numpy as np
+
+from vpr_uncertainty import Retrieval, StatisticalUncertainty, calibrate
+
+
+def _retrieval() -> tuple[Retrieval, str]:
+    data = os.environ.get("VPR_UNCERTAINTY_DATA")
+    if data:
+        from vpr_uncertainty.retrieval import read_results
+
+        root = Path(data) / "vprbench"
+        matches = root / "precomputed_matches/corridor/AMOSNet/precomputed_data_corrected.npy"
+        if matches.is_file():
+            return read_results(matches, ground_truth=root / "corridor/ground_truth_new.npy"), "corridor AMOSNet"
+    rng = np.random.default_rng(0)
+    scores = -np.sort(-rng.uniform(0.2, 0.9, size=(400, 10)), axis=1).astype(np.float32)
+    positives = np.zeros((400, 10), bool)
+    positives[:, 0] = rng.uniform(size=400) < scores[:, 0]
+    return Retrieval(scores, np.tile(np.arange(10), (400, 1)), positives), "synthetic"
+
+
+def per_call_us(function, argument, repeats: int, number: int) -> float:
+    function(argument)
+    timings = timeit.repeat(lambda: function(argument), number=number, repeat=repeats)
+    return statistics.median(timings) / number * 1e6
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--number", type=int, default=20000)
+    args = parser.parse_args()
+    retrieval, source = _retrieval()
+    gates = {
+        "gate (logistic: s1, SU)": calibrate(retrieval, target_precision=0.9),
+        "gate (isotonic on SU)": calibrate(retrieval, target_precision=0.9, model="isotonic"),
+    }
+    su = StatisticalUncertainty(k=10)
+    row = retrieval.scores[0, :10].astype(np.float32)
+    print(f"calibrated on {source}; median of {args.repeats} x {args.number} calls, microseconds per call")
+    print(f"{'':28s} {'list':>8s} {'ndarray':>8s}")
+    for name, function in {"StatisticalUncertainty": su, **gates}.items():
+        as_list = per_call_us(function, row.tolist(), args.repeats, args.number)
+        as_array = per_call_us(function, row, args.repeats, args.number)
+        print(f"{name:28s} {as_list:8.2f} {as_array:8.2f}")
+
+
+if __name__ == "__main__":
+    main()

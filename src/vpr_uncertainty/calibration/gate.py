@@ -1,0 +1,239 @@
+"""The gate: P(correct top-1) and an accept/reject decision, for many queries or one at a time, saved as JSON.
+
+A :class:`Gate` is made by :func:`vpr_uncertainty.calibrate` (or read back with :meth:`Gate.load`). It accepts a
+query when its confidence (the calibrator's linear score, or −SU) is at least the cut, which is the same as
+P(correct) ≥ :attr:`Gate.threshold`. ``gate(row)`` decides one query in pure Python, with everything it needs
+folded into a few precomputed numbers: a couple of microseconds, like :class:`~vpr_uncertainty.StatisticalUncertainty`.
+
+The JSON file holds numbers only (no pickle): the calibrator (features, scaling, coefficients), k, the cut and the
+threshold, the certificate, the toolkit version, the calibration set's size and a fingerprint of its scores and
+labels.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vpr_uncertainty._validation import check_k
+from vpr_uncertainty.calibration.calibrator import Calibrator
+from vpr_uncertainty.calibration.features import feature_matrix, row_statistics
+
+__all__ = ["FORMAT", "Gate"]
+
+#: The ``format`` field of a gate file.
+FORMAT = "vpr-uncertainty gate"
+_FORMAT_VERSION = 1
+
+
+class Gate:
+    """Calibrated P(correct top-1) and an acceptance rule with (optionally) a certified precision.
+
+    Parameters
+    ----------
+    calibrator : Calibrator
+        The fitted map from features to P(correct).
+    k : int
+        Candidates per query the features read.
+    cut : float
+        Accept a query when its confidence (:meth:`Calibrator.confidence`) is ≥ ``cut``; ``inf`` accepts none.
+    info : dict, optional
+        What :func:`~vpr_uncertainty.calibrate` recorded: ``target_precision``, ``delta``,
+        ``precision_lower_bound``, ``expected_recall``, ``expected_coverage``, ``certificate``, ``calibration``
+        (size, fingerprint, seed) and ``toolkit_version``.
+
+    Attributes
+    ----------
+    threshold : float
+        P(correct) at the cut: the gate accepts P ≥ threshold (1.0 when it accepts nothing).
+    precision_lower_bound : float or None
+        The certified lower bound of the precision of accepted answers (None without a target or certificate).
+    expected_recall : float or None
+        Share of answerable test queries accepted and correct at the cut (None without a target).
+    """
+
+    __slots__ = (
+        "_bias",
+        "_cut",
+        "_k",
+        "_w_best",
+        "_w_median",
+        "_w_nonpositive",
+        "_w_ratio",
+        "_w_runners",
+        "_w_second",
+        "_w_spread",
+        "calibrator",
+        "cut",
+        "info",
+        "k",
+    )
+
+    def __init__(self, calibrator: Calibrator, k: int, cut: float, info: dict[str, Any] | None = None) -> None:
+        if not isinstance(calibrator, Calibrator):
+            raise TypeError(f"calibrator must be a Calibrator, got {type(calibrator).__name__}")
+        self.calibrator = calibrator
+        self.k = check_k(k)
+        cut = float(cut)
+        if math.isnan(cut):
+            raise ValueError("cut must be a number or inf, got nan")
+        self.cut = cut
+        self.info = dict(info or {})
+        self._prepare()
+
+    # --- the one-query fast path --------------------------------------------------------------------------------
+
+    def _prepare(self) -> None:
+        """Fold the features, the scaling and the coefficients into the weights of the row statistics."""
+        self._k, self._cut = self.k, self.cut
+        if self.calibrator.model == "isotonic":  # confidence = −SU = −(½ runners-up + ½ median) / s_1
+            self._bias, self._w_best, self._w_second, self._w_spread, self._w_ratio = 0.0, 0.0, 0.0, 0.0, 0.0
+            self._w_runners, self._w_median, self._w_nonpositive = -0.5, -0.5, -1.0
+            return
+        bias, raw = self.calibrator.raw_weights()
+        w = dict.fromkeys(("s1", "gap", "ratio", "RS", "SD", "SU", "zscore"), 0.0)
+        w.update(zip(self.calibrator.features, raw, strict=True))
+        self._bias = bias
+        self._w_best = w["s1"] + w["gap"]
+        self._w_second = -w["gap"]
+        self._w_spread = w["zscore"]
+        # Ratio features divided by s_1: s_2 (ratio), mean of the runners-up (RS, ½ of SU), median (SD, ½ of SU).
+        self._w_runners = w["RS"] + 0.5 * w["SU"]
+        self._w_median = w["SD"] + 0.5 * w["SU"]
+        self._w_nonpositive = w["ratio"] + w["RS"] + w["SD"] + w["SU"]
+        self._w_ratio = w["ratio"]
+
+    def __call__(self, scores: Sequence[float] | np.ndarray) -> bool:
+        """Accept one query? ``scores``: its top-K similarities, sorted descending (a list, a (K,) or (1, K) array)."""
+        if isinstance(scores, np.ndarray):
+            if scores.ndim != 1:
+                if scores.ndim != 2 or scores.shape[0] != 1:
+                    raise ValueError(f"scores must be one query's top-k, shape (K,) or (1, K), got {scores.shape}")
+                scores = scores[0]
+            values = scores.tolist()
+        else:
+            values = list(scores)
+        return self._confidence_of(values) >= self._cut
+
+    def _confidence_of(self, values: list[float]) -> float:
+        best, second, runners, median, last, _ = row_statistics(values, self._k)
+        if best > 0:
+            ratios = (self._w_ratio * second + self._w_runners * runners + self._w_median * median) / best
+        else:
+            ratios = self._w_nonpositive * (1.0 - best)
+        z = self._bias + self._w_best * best + self._w_second * second + ratios
+        if self._w_spread:
+            spread = best - last
+            z += self._w_spread * ((best - runners) / spread if spread > 0 else 0.0)
+        return z
+
+    def probability_one(self, scores: Sequence[float] | np.ndarray) -> float:
+        """P(correct) of one query (same input as ``gate(scores)``)."""
+        values = np.asarray(scores, dtype=np.float64).reshape(-1).tolist()
+        return float(self.calibrator.probability_from_confidence(np.array([self._confidence_of(values)]))[0])
+
+    # --- many queries -------------------------------------------------------------------------------------------
+
+    def confidence(self, scores: object) -> np.ndarray:
+        """The calibrator's confidence of shape (Q,) (higher = more likely correct)."""
+        return self.calibrator.confidence(feature_matrix(scores, k=self.k, features=self.calibrator.features))
+
+    def probability_correct(self, scores: object) -> np.ndarray:
+        """P(correct top-1) of shape (Q,), in [0, 1], from top-K similarities of shape (Q, K) sorted descending."""
+        return self.calibrator.probability_from_confidence(self.confidence(scores))
+
+    def accept(self, scores: object) -> np.ndarray:
+        """Whether each query is accepted, shape (Q,), bool."""
+        return self.confidence(scores) >= self.cut
+
+    # --- what calibrate recorded --------------------------------------------------------------------------------
+
+    @property
+    def threshold(self) -> float:
+        if math.isinf(self.cut):
+            return 1.0 if self.cut > 0 else 0.0
+        return float(self.calibrator.probability_from_confidence(np.array([self.cut]))[0])
+
+    @property
+    def precision_lower_bound(self) -> float | None:
+        return self.info.get("precision_lower_bound")
+
+    @property
+    def expected_recall(self) -> float | None:
+        return self.info.get("expected_recall")
+
+    @property
+    def expected_coverage(self) -> float | None:
+        return self.info.get("expected_coverage")
+
+    def __repr__(self) -> str:
+        bound = self.precision_lower_bound
+        return (
+            f"Gate(model={self.calibrator.model!r}, features={list(self.calibrator.features)}, k={self.k}, "
+            f"threshold={self.threshold:.4g}, precision_lower_bound={None if bound is None else round(bound, 4)})"
+        )
+
+    # --- JSON -----------------------------------------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        """The gate as JSON types (the content of :meth:`save`)."""
+        return {
+            "format": FORMAT,
+            "format_version": _FORMAT_VERSION,
+            "k": self.k,
+            "cut": None if math.isinf(self.cut) else self.cut,
+            "threshold": self.threshold,
+            "calibrator": self.calibrator.to_dict(),
+            **{key: value for key, value in self.info.items() if key not in {"k", "cut", "threshold"}},
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, where: str = "gate") -> Gate:
+        """The inverse of :meth:`to_dict`; a ValueError names the field that is wrong."""
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise ValueError(f'{where}: not a gate file (expected "format": "{FORMAT}")')
+        if data.get("format_version") != _FORMAT_VERSION:
+            raise ValueError(f"{where}: format_version {data.get('format_version')!r} is not {_FORMAT_VERSION}")
+        k = data.get("k")
+        if not isinstance(k, int) or isinstance(k, bool) or k < 2:
+            raise ValueError(f"{where}: k must be an integer >= 2, got {k!r}")
+        cut = data.get("cut")
+        if cut is not None and (not isinstance(cut, (int, float)) or not math.isfinite(cut)):
+            raise ValueError(f"{where}: cut must be a finite number or null (accept nothing), got {cut!r}")
+        calibrator = Calibrator.from_dict(data.get("calibrator") or {}, where=f"{where}: calibrator")
+        info = {key: value for key, value in data.items() if key not in {"format", "format_version", "calibrator"}}
+        return cls(calibrator, k, math.inf if cut is None else float(cut), info)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the gate as JSON (atomically: a temporary file, then a rename) and return the path."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        text = json.dumps(self.to_dict(), indent=2) + "\n"
+        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(handle, "w") as stream:
+                stream.write(text)
+            os.replace(temporary, path)
+        except BaseException:
+            Path(temporary).unlink(missing_ok=True)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Gate:
+        """Read a gate written by :meth:`save`."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"gate file not found: {path} (write one with `vpr-uncertainty calibrate`)")
+        try:
+            data = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise ValueError(f"{path}: not a JSON gate file: {error}") from None
+        return cls.from_dict(data, where=str(path))

@@ -1,0 +1,195 @@
+"""Held-out evaluation without leakage: every method on the same held-out queries of repeated random splits.
+
+Each repeat splits the queries (stratified by correctness, so both splits hold correct and wrong answers) into a
+calibration part (``calibration_fraction``) and a held-out part. ``CAL`` is fitted on the calibration part; every
+method, CAL included, is evaluated on the held-out part only. Reported: the mean and standard deviation over the
+repeats of AUC-PR, AP and AURC, and CAL's calibration quality (ECE, Brier, a reliability diagram of all held-out
+predictions pooled).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from vpr_uncertainty.calibration.fit import calibrate_arrays, stratified_split
+from vpr_uncertainty.calibration.quality import brier_score, expected_calibration_error, reliability_diagram
+from vpr_uncertainty.retrieval import Retrieval
+
+__all__ = ["HeldOutEvaluation", "evaluate_held_out", "subset_queries"]
+
+_METRICS = ("auc_pr", "average_precision", "aurc")
+
+
+def subset_queries(retrieval: Retrieval, rows: np.ndarray) -> Retrieval:
+    """The retrieval of the queries ``rows`` only (same database)."""
+    rows = np.asarray(rows)
+
+    def take(value: Any) -> Any:
+        return None if value is None else value[rows]
+
+    return dataclasses.replace(
+        retrieval,
+        scores=retrieval.scores[rows],
+        indices=retrieval.indices[rows],
+        positives=take(retrieval.positives),
+        distances=take(retrieval.distances),
+        query_names=take(retrieval.query_names),
+        query_positions=take(retrieval.query_positions),
+    )
+
+
+@dataclass
+class HeldOutEvaluation:
+    """Per method and metric, one value per repeat; CAL's calibration quality per repeat and pooled."""
+
+    calibration_fraction: float
+    repeats: int
+    seed: int
+    n_queries: int
+    n_calibration: int
+    n_held_out: int
+    k: int
+    values: dict[str, dict[str, list[float | None]]] = field(default_factory=dict)
+    quality: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    def mean(self, method: str, metric: str = "auc_pr") -> float | None:
+        """Mean over the repeats (None when the metric was undefined in every repeat)."""
+        finite = [v for v in self.values[method][metric] if v is not None]
+        return float(np.mean(finite)) if finite else None
+
+    def std(self, method: str, metric: str = "auc_pr") -> float | None:
+        finite = [v for v in self.values[method][metric] if v is not None]
+        return float(np.std(finite, ddof=1)) if len(finite) > 1 else None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON types: ``auc_pr`` of a method is the mean over the repeats."""
+        methods = {}
+        for name, metrics in self.values.items():
+            entry: dict[str, Any] = {}
+            for metric in _METRICS:
+                entry[metric] = self.mean(name, metric)
+                entry[f"{metric}_std"] = self.std(name, metric)
+            entry["auc_pr_per_repeat"] = metrics["auc_pr"]
+            methods[name] = entry
+        result: dict[str, Any] = {
+            "n_queries": self.n_queries,
+            "k": self.k,
+            "calibration": {
+                "fraction": self.calibration_fraction,
+                "repeats": self.repeats,
+                "seed": self.seed,
+                "n_calibration": self.n_calibration,
+                "n_held_out": self.n_held_out,
+            },
+            "methods": methods,
+        }
+        if self.quality:
+            result["calibration_quality"] = self.quality
+        if self.notes:
+            result["notes"] = list(self.notes)
+        return result
+
+
+def evaluate_held_out(
+    retrieval: Retrieval,
+    methods: Sequence[str],
+    *,
+    calibration_fraction: float = 0.3,
+    repeats: int = 20,
+    seed: int = 0,
+    k: int = 10,
+    alpha: float = 0.5,
+    model: str = "logistic",
+    **options: Any,
+) -> HeldOutEvaluation:
+    """Evaluate ``methods`` on held-out queries over ``repeats`` random splits (see the module docstring).
+
+    Parameters
+    ----------
+    retrieval : Retrieval
+        With its ground truth.
+    methods : sequence of str
+        Method names or specs; ``CAL`` gets a gate fitted on each split's calibration part.
+    calibration_fraction : float in (0, 1)
+        Share of the queries (of each outcome) used for calibration.
+    repeats : int >= 1
+        Random splits.
+    seed : int
+        Seed of the splits (repeat r uses ``numpy.random.default_rng([seed, r])``).
+    k, alpha : int, float
+        Options of the score-based methods; CAL's features read k candidates.
+    model : {"logistic", "isotonic"}
+        CAL's calibrator.
+    **options
+        Further method options (as :func:`vpr_uncertainty.evaluate`).
+    """
+    from vpr_uncertainty.evaluation import correct_at_n, evaluate
+    from vpr_uncertainty.methods import get_method
+
+    if retrieval.positives is None:
+        raise ValueError("the held-out evaluation needs the ground truth (argument ground_truth)")
+    if not 0.0 < calibration_fraction < 1.0:
+        raise ValueError(f"calibration_fraction must lie in (0, 1), got {calibration_fraction}")
+    if not isinstance(repeats, int) or repeats < 1:
+        raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
+    entries = [get_method(name) for name in methods]
+    uses_cal = any((entry.base or entry.name) == "CAL" for entry in entries)
+    correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
+    if min(int(correct.sum()), int((~correct).sum())) < 2:
+        raise ValueError("a held-out evaluation needs at least 2 correct and 2 wrong top-1 answers")
+    result = HeldOutEvaluation(
+        calibration_fraction=float(calibration_fraction),
+        repeats=repeats,
+        seed=seed,
+        n_queries=retrieval.n_queries,
+        n_calibration=0,
+        n_held_out=0,
+        k=min(int(k), retrieval.k),
+        values={entry.name: {metric: [] for metric in _METRICS} for entry in entries},
+    )
+    pooled_p, pooled_correct, eces, briers = [], [], [], []
+    for repeat in range(repeats):
+        calibration, held_out = stratified_split(correct, calibration_fraction, np.random.default_rng([seed, repeat]))
+        result.n_calibration, result.n_held_out = int(calibration.size), int(held_out.size)
+        extra = dict(options)
+        if uses_cal:
+            extra["gate"] = calibrate_arrays(
+                retrieval.scores[calibration], correct[calibration], k=k, seed=repeat, model=model
+            )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the notes of the first repeat are kept below
+            evaluation = evaluate(
+                subset_queries(retrieval, held_out),
+                [e.name for e in entries],
+                k=k,
+                alpha=alpha,
+                timing_repeats=1,
+                **extra,
+            )
+        if repeat == 0:
+            result.notes.extend(evaluation.notes)
+        for name, measured in evaluation.methods.items():
+            for metric in _METRICS:
+                result.values[name][metric].append(getattr(measured, metric))
+            if (get_method(name).base or name) == "CAL":
+                probability = 1.0 - measured.uncertainty
+                pooled_p.append(probability)
+                pooled_correct.append(correct[held_out])
+                eces.append(expected_calibration_error(probability, correct[held_out]))
+                briers.append(brier_score(probability, correct[held_out]))
+    if pooled_p:
+        result.quality["CAL"] = {
+            "ece": float(np.mean(eces)),
+            "ece_std": float(np.std(eces, ddof=1)) if len(eces) > 1 else None,
+            "brier": float(np.mean(briers)),
+            "brier_std": float(np.std(briers, ddof=1)) if len(briers) > 1 else None,
+            "reliability": reliability_diagram(np.concatenate(pooled_p), np.concatenate(pooled_correct)).to_dict(),
+        }
+    return result
