@@ -3,6 +3,11 @@
 Uncertainties are arrays of shape (Q,) where higher = less trustworthy; scores are top-k similarities of shape
 (Q, K), higher = more similar, sorted descending.
 
+The top level is the toolkit's core: the uncertainty functions, the retrieval result and its files, evaluation,
+and the registry of uncertainty methods (:func:`register_method`). The other extension points register beside
+their own registries: :func:`vpr_uncertainty.features.register_model`,
+:func:`vpr_uncertainty.data.register_format` and :func:`vpr_uncertainty.reports.register_report_figure`.
+
 >>> import numpy as np
 >>> from vpr_uncertainty import statistical_uncertainty
 >>> statistical_uncertainty(np.array([[0.9, 0.5, 0.4], [0.6, 0.59, 0.58]]), k=3).round(3)

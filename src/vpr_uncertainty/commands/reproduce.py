@@ -68,7 +68,8 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     paths = write_results(results, config)
     if not args.no_report:
         paths.update(write_reports(results, config))
-        print((config.out / "table1.md").read_text(), end="")
+        if "table1_md" in paths:
+            print(paths["table1_md"].read_text(), end="")
     for name in ("results_json", "results_csv", "report_html"):
         if name in paths:
             print(f"wrote {paths[name]}")

@@ -1,7 +1,8 @@
 """Dataset readers and ground truth.
 
 Every reader returns a :class:`Dataset` (image paths and names, positions when known, positives of each query);
-:func:`load_dataset` reads any supported format from a path, or a named benchmark from the data root.
+:func:`load_dataset` reads any supported format from a path, or a named benchmark from the data root; a new
+format is one :func:`register_format` call (see :mod:`vpr_uncertainty.data.formats`).
 """
 
 from vpr_uncertainty.data.dataset import (
@@ -11,6 +12,7 @@ from vpr_uncertainty.data.dataset import (
     detect_position_kind,
 )
 from vpr_uncertainty.data.folder import MalformedImageNameError, load_folder_dataset, parse_image_name
+from vpr_uncertainty.data.formats import DATASET_FORMAT_REGISTRY, DatasetFormat, register_format
 from vpr_uncertainty.data.geo import latlon_to_utm
 from vpr_uncertainty.data.ground_truth import (
     load_ground_truth,
@@ -34,11 +36,13 @@ from vpr_uncertainty.data.table import load_table_dataset
 from vpr_uncertainty.data.vprbench import load_vprbench_dataset
 
 __all__ = [
+    "DATASET_FORMAT_REGISTRY",
     "DATA_ROOT_VARIABLE",
     "DEFAULT_RADIUS",
     "NAMED_DATASETS",
     "POSITION_KINDS",
     "Dataset",
+    "DatasetFormat",
     "MalformedImageNameError",
     "NamedDataset",
     "PlaceholderPositionsWarning",
@@ -60,4 +64,5 @@ __all__ = [
     "positives_to_lists",
     "positives_within_frames",
     "positives_within_radius",
+    "register_format",
 ]

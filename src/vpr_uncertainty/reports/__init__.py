@@ -1,6 +1,10 @@
-"""Tables and figures of evaluation results."""
+"""Tables and figures of evaluation results, and the report figures of a grid (:data:`REPORT_FIGURES`).
+
+A new report figure is one :func:`register_report_figure` call (see :mod:`vpr_uncertainty.reports.figures`).
+"""
 
 from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablation
+from vpr_uncertainty.reports.figures import REPORT_FIGURES, ReportFigure, register_report_figure
 from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
 from vpr_uncertainty.reports.html import write_report
 from vpr_uncertainty.reports.plots import plot_rejection_curves
@@ -9,6 +13,8 @@ from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_late
 from vpr_uncertainty.reports.tables import format_table
 
 __all__ = [
+    "REPORT_FIGURES",
+    "ReportFigure",
     "build_table1",
     "format_table",
     "plot_alpha_ablation",
@@ -16,6 +22,7 @@ __all__ = [
     "plot_k_ablation",
     "plot_qualitative",
     "plot_rejection_curves",
+    "register_report_figure",
     "table1_csv",
     "table1_latex",
     "table1_markdown",

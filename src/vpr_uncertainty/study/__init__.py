@@ -29,7 +29,9 @@ A grid is described by a TOML file (read with :mod:`tomllib`) or a YAML file (ne
 
 ``methods`` may carry method options (``"SUE:clip=one-sided"``, see
 :func:`vpr_uncertainty.methods.parse_method_spec`); ``qualitative = ["NetVLAD"]`` picks the VPR methods whose cells
-get a qualitative figure (default: the first cell with images). One grid cell = one (VPR method, dataset). Each
+get a qualitative figure (default: the first cell with images); ``report = ["table1", "pr_curves"]`` picks the
+report figures to write (default: every registered one, see :mod:`vpr_uncertainty.reports.figures`; options as in
+a method spec, ``"qualitative:rank_by=RS"``). One grid cell = one (VPR method, dataset). Each
 cell is cached under ``out/cells``: a rerun skips the cells whose inputs and settings did not change
 (``force=True`` recomputes them). The whole configuration is validated (every file exists, every method is known,
 every need of every method is met by every cell's inputs) before any work
@@ -39,7 +41,8 @@ Modules: :mod:`~vpr_uncertainty.study.config` (the schema, checked once, all pro
 :mod:`~vpr_uncertainty.study.needs` (what each method needs from each cell); :mod:`~vpr_uncertainty.study.runner`
 (the cell runner and its cache); :mod:`~vpr_uncertainty.study.cell` (the typed result of a cell, with
 ``to_dict``/``from_dict``); :mod:`~vpr_uncertainty.study.ablations`; :mod:`~vpr_uncertainty.study.report` (results
-files, tables, figures and the HTML report). ``vpr-uncertainty reproduce`` composes them.
+files, the selected report figures and the HTML report; :mod:`~vpr_uncertainty.study.report_config` checks the
+``report`` and ``qualitative`` keys). ``vpr-uncertainty reproduce`` composes them.
 """
 
 from vpr_uncertainty.study.cell import Cell

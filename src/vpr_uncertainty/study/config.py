@@ -2,7 +2,8 @@
 
 :func:`load_config` reads a TOML or YAML file and reports every problem at once, before any work: syntax errors
 (one line naming the file and the line), unknown keys, values of the wrong type (naming the key and the value),
-missing files, unknown uncertainty methods or method options, ``vpr_methods`` that do not exist (with the
+missing files, unknown uncertainty methods or method options, unknown report figures (``report``) or their
+options, report figures whose needs no input meets, ``vpr_methods`` that do not exist (with the
 folders that do), names in ``qualitative`` that match no cell, and every need of every (cell, method) pair that
 the cell's inputs cannot meet (positions for SUE, images for GV-*, a head and descriptors for BTL).
 """
@@ -18,6 +19,7 @@ from typing import Any
 from vpr_uncertainty.evaluation import DEFAULT_METHODS
 from vpr_uncertainty.methods import get_method, split_method_list
 from vpr_uncertainty.study.needs import unmet_needs
+from vpr_uncertainty.study.report_config import qualitative_methods, report_figures
 
 __all__ = ["DEFAULT_ALPHAS", "DEFAULT_KS", "GridConfig", "InputEntry", "load_config"]
 
@@ -90,6 +92,7 @@ class GridConfig:
     alphas: list[float] = field(default_factory=lambda: list(DEFAULT_ALPHAS))
     ks: list[int] = field(default_factory=lambda: list(DEFAULT_KS))
     qualitative: list[str] | None = None
+    report: list[str] | None = None
 
     def settings(self) -> dict[str, Any]:
         return {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
@@ -329,7 +332,8 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
             )
     keys = [entry.key for entry in entries]
     problems += [f"the cell {key} appears more than once" for key in sorted({k for k in keys if keys.count(k) > 1})]
-    qualitative = _qualitative(data.get("qualitative"), entries, problems)
+    qualitative = qualitative_methods(data.get("qualitative"), entries, problems)
+    report = report_figures(data.get("report"), entries, bool(alphas or ks), problems)
 
     problems += unmet_needs(entries, methods)  # of the inputs that exist
     if problems:
@@ -343,27 +347,5 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
         alphas=alphas,
         ks=ks,
         qualitative=qualitative,
+        report=report,
     )
-
-
-def _qualitative(raw: Any, entries: list[InputEntry], problems: list[str]) -> list[str] | None:
-    """The VPR methods whose cells get a qualitative figure; a name that matches no cell is a problem."""
-    if raw is None:
-        return None
-    names = [raw] if isinstance(raw, str) else raw
-    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
-        problems.append(f"qualitative must be a list of VPR method names (cells of the grid), got {raw!r}")
-        return None
-    known = sorted({entry.vpr_method for entry in entries})
-    with_images = {entry.vpr_method for entry in entries if entry.images is not None or entry.model is not None}
-    lower = {name.lower(): name for name in known}
-    for name in names:
-        if name not in known:
-            close = difflib.get_close_matches(name.lower(), list(lower), n=1, cutoff=0.6)
-            hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
-            problems.append(
-                f"qualitative names {name!r}, which is no VPR method of the grid{hint} VPR methods: {', '.join(known)}"
-            )
-        elif name not in with_images:
-            problems.append(f"qualitative names {name!r}, but no input of that VPR method has images (images = ...)")
-    return names

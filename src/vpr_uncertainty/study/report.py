@@ -1,5 +1,6 @@
-"""What the grid writes: ``results.json`` and ``results.csv`` (:func:`write_results`), then Table 1, the ΔAUC-PR
-heatmaps, the ablations, the PR curves, the qualitative figures and ``report.html`` (:func:`write_reports`).
+"""What the grid writes: ``results.json`` and ``results.csv`` (:func:`write_results`), then the selected report
+figures (Table 1, the ΔAUC-PR heatmaps, the ablations, the PR curves, the qualitative figures and any registered
+one, see :mod:`vpr_uncertainty.reports.figures`) and ``report.html`` (:func:`write_reports`).
 
 Both receive the typed results (:class:`~vpr_uncertainty.study.cell.Cell`, whose evaluations hold the stored
 uncertainties); nothing is recomputed or read back from disk.
@@ -14,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty.study.cell import CSV_FIELDS, Cell
-from vpr_uncertainty.study.config import GridConfig, slug
+from vpr_uncertainty.study.config import GridConfig
 
 __all__ = ["write_reports", "write_results"]
 
@@ -49,83 +50,83 @@ def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
     return {"results_json": json_path, "results_csv": csv_path}
 
 
-def write_reports(cells: Sequence[Cell], config: GridConfig, *, html: bool = True) -> dict[str, Any]:
-    """Table 1 (md, csv, tex), ΔAUC-PR heatmaps, ablations, PR curves, qualitative figures and ``report.html``.
+def write_reports(
+    cells: Sequence[Cell], config: GridConfig, *, html: bool = True, figures: Sequence[str] | None = None
+) -> dict[str, Any]:
+    """Every selected report figure (:data:`~vpr_uncertainty.reports.figures.REPORT_FIGURES`), then ``report.html``.
+
+    The built-in figures are Table 1 (md, csv, tex), the ΔAUC-PR heatmaps, the ablations, the PR curves and the
+    qualitative figures; a registered figure (:func:`~vpr_uncertainty.reports.register_report_figure`) is written
+    after them and gets its own section of ``report.html``. A figure whose needs the cells do not meet (no
+    images, no ablation) is not written; its section says why.
 
     Parameters
     ----------
     cells : sequence of Cell
-        The grid's results; the qualitative figures show their stored uncertainties.
+        The grid's results; the figures receive them with their stored uncertainties.
     config : GridConfig
-        The grid's settings and output folder; ``config.qualitative`` picks the VPR methods with a qualitative
-        figure (default: the first cell with images).
+        The grid's settings and output folder; ``config.report`` selects the figures (default: every registered
+        one) and ``config.qualitative`` the VPR methods with a qualitative figure.
     html : bool, default=True
         Also write ``report.html``.
+    figures : sequence of str, optional
+        Figure names or specs (``"qualitative:rank_by=RS"``) to write instead of ``config.report``.
 
     Returns
     -------
-    dict of str to Path or list of Path
-        Every file written, by kind.
+    dict of str to list of Path or Path
+        The files each figure wrote, by figure name; each file other than a PNG also under ``<name>_<suffix>``
+        when it is the figure's only file of that suffix (``table1_md``, ``table1_csv``, ``table1_tex``); and
+        ``report_html``.
+
+    Raises
+    ------
+    KeyError
+        For an unknown figure name (naming the closest one and listing the available ones).
+    ValueError
+        For an unknown option of a figure, or a bad value.
     """
     from html import escape
 
-    from vpr_uncertainty.reports import plot_rejection_curves
-    from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablation
-    from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
+    from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
     from vpr_uncertainty.reports.html import Section, write_report
-    from vpr_uncertainty.reports.qualitative import plot_qualitative
-    from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_html, table1_latex, table1_markdown
 
+    specs = figures if figures is not None else config.report
+    selected = [parse_figure_spec(spec) for spec in (REPORT_FIGURES.names() if specs is None else specs)]
     out = Path(config.out)
-    figures = out / "figures"
+    available = _available_needs(cells)
     paths: dict[str, Any] = {}
-    table = build_table1(cells)
-    for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex)):
-        paths[f"table1_{suffix}"] = out / f"table1.{suffix}"
-        paths[f"table1_{suffix}"].write_text(render(table))
-    paths["heatmaps"] = plot_delta_heatmaps(cells, figures)
-    paths["ablations"] = []
-    if any(c.ablation_alpha for c in cells):
-        paths["ablations"].append(plot_alpha_ablation(cells, figures / "ablation_alpha.png"))
-    if any(curve for c in cells for curve in c.ablation_k.values()):
-        paths["ablations"].append(plot_k_ablation(cells, figures / "ablation_k.png"))
-    paths["pr_curves"] = [
-        plot_rejection_curves(
-            cell.evaluation,
-            figures / "pr" / f"{slug(cell.vpr_method)}__{slug(cell.dataset)}.png",
-            title=f"{cell.vpr_method} on {cell.dataset}",
-        )
-        for cell in cells
-    ]
-    chosen = [c for c in cells if c.query_paths and (config.qualitative is None or c.vpr_method in config.qualitative)]
-    if config.qualitative is None:
-        chosen = chosen[:1]
-    paths["qualitative"] = [
-        p
-        for c in chosen
-        if (
-            p := plot_qualitative(
-                c,
-                figures / f"qualitative__{slug(c.vpr_method)}__{slug(c.dataset)}.png",
-                alpha=config.alpha,
-            )
-        )
-        is not None
-    ]
+    sections = []
+    for name, options in selected:
+        entry = REPORT_FIGURES.get(name)
+        note = unmet_figure_needs(entry, available)
+        written = [] if note else entry.write(cells, config, out, **options)
+        paths[name] = written
+        suffixes = [path.suffix for path in written]
+        for path in written:
+            if path.suffix != ".png" and suffixes.count(path.suffix) == 1:
+                paths[f"{name}_{path.suffix.lstrip('.')}"] = path
+        body = "" if note else entry.section_html(cells, config, written, **options)
+        if entry.title and entry.description:
+            body = f'<p class="note">{escape(entry.description)}</p>' + body
+        if note:
+            body += f'<p class="note">Not written: {escape(note)}.</p>'
+        pngs = [(path.stem, path) for path in written if path.suffix.lower() == ".png"]
+        sections.append(Section(entry.heading, body, figures=pngs))
     if html:
         settings = escape(json.dumps(config.settings()))
-        sections = [
-            Section(
-                "Table 1: AUC-PR averaged over datasets",
-                table1_html(table) + '<p class="note">Best per column in bold. ms/query: mean time per query.</p>',
-            ),
-            Section("ΔAUC-PR of RS, SD and SU against each baseline", figures=[(p.stem, p) for p in paths["heatmaps"]]),
-            Section("Ablations", figures=[(p.stem, p) for p in paths["ablations"]]),
-            Section("End-to-end precision-recall with rejection", figures=[(p.stem, p) for p in paths["pr_curves"]]),
-            Section("Qualitative examples", figures=[(p.stem, p) for p in paths["qualitative"]]),
-        ]
         intro = f"{len(cells)} cells (VPR method × dataset). Settings: <code>{settings}</code>"
         paths["report_html"] = write_report(
             out / "report.html", "vpr-uncertainty: reproduction report", sections, intro=intro
         )
     return paths
+
+
+def _available_needs(cells: Sequence[Cell]) -> set[str]:
+    """The needs of report figures (:data:`~vpr_uncertainty.reports.figures.FIGURE_NEEDS`) the cells meet."""
+    available = {"evaluation", "uncertainties"}
+    if any(cell.query_paths and cell.database_paths for cell in cells):
+        available.add("images")
+    if any(cell.ablation_alpha for cell in cells) or any(curve for c in cells for curve in c.ablation_k.values()):
+        available.add("ablations")
+    return available
