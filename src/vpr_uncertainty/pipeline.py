@@ -20,6 +20,7 @@ Each stage writes one file into the run directory (atomically), and a rerun reus
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from collections.abc import Sequence
@@ -65,8 +66,9 @@ class RunConfig:
 
     Attributes
     ----------
-    dataset : str or Path
-        A dataset folder in any format :func:`vpr_uncertainty.data.load_dataset` reads, or a registered name.
+    dataset : str, Path or Dataset
+        A dataset folder in any format :func:`vpr_uncertainty.data.load_dataset` reads, a registered name, or a
+        :class:`~vpr_uncertainty.data.Dataset` already loaded (``root``, ``split`` and ``radius`` then unused).
     out : Path
         The run directory.
     model : str
@@ -98,7 +100,7 @@ class RunConfig:
         inliers; results.json then reports the re-ranked recall@N beside the global one.
     """
 
-    dataset: str | Path
+    dataset: Any
     out: Path
     model: str = "efficientnet-lite0-gem"
     methods: Sequence[str] | None = None
@@ -117,7 +119,11 @@ class RunConfig:
     rerank: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        values = asdict(self)
+        dataset = self.dataset
+        if not isinstance(dataset, (str, Path)):  # a loaded Dataset: its folder, else its name
+            dataset = dataset.root if getattr(dataset, "root", None) is not None else dataset.name
+        values = asdict(dataclasses.replace(self, dataset=None))
+        values["dataset"] = dataset
         return {key: str(value) if isinstance(value, Path) else value for key, value in values.items()}
 
 
@@ -189,7 +195,10 @@ def _load_and_check(config: RunConfig, methods: list[str] | None) -> Any:
         raise ValueError(
             f"rerank needs a geometric verification method ({', '.join(GEOMETRIC_METHODS)}), got {config.rerank!r}"
         )
-    dataset = load_dataset(config.dataset, root=config.root, split=config.split, radius=config.radius)
+    if isinstance(config.dataset, (str, Path)):
+        dataset = load_dataset(config.dataset, root=config.root, split=config.split, radius=config.radius)
+    else:
+        dataset = config.dataset
     if not dataset.has_images:
         raise ValueError(f"dataset {dataset.name!r} has no image paths; `run` needs images to extract descriptors")
     fields = dataset.retrieval_fields()
