@@ -178,7 +178,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` (same suffix) to write to; renamed over ``path`` when the block succeeds.
 
     The temporary file is fsynced before the rename; on any exception (KeyboardInterrupt included) it is removed
-    and ``path`` is left as it was.
+    and ``path`` is left as it was. A symbolic link is followed (the file it points to is replaced); a path that
+    exists and is not a regular file (a device, a pipe) is yielded itself and written in place.
 
     Examples
     --------
@@ -189,7 +190,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     >>> target.read_text(), [p.name for p in target.parent.iterdir()]
     ('whole', ['a.txt'])
     """
-    path = Path(path)
+    path = Path(os.path.realpath(path))  # through a symbolic link: replace the file it points to, not the link
+    if path.exists() and not path.is_file():  # a device or a pipe (/dev/stdout, /dev/full): written in place
+        yield path
+        return
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
     os.close(handle)

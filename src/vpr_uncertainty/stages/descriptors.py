@@ -91,8 +91,9 @@ def model_of(conf: DescriptorsConfig) -> Any:
     from vpr_uncertainty.features.models import load_model
 
     model = load_model(conf.model, device=conf.device)
-    changes = {key: value for key, value in (("image_size", conf.image_size), ("max_side", conf.max_side))
-               if value is not None}
+    changes = {
+        key: value for key, value in (("image_size", conf.image_size), ("max_side", conf.max_side)) if value is not None
+    }
     if changes:
         model.preprocessing = model.preprocessing.replace(**changes)
     return model
