@@ -326,7 +326,11 @@ class DescriptorCache:
         group = self._handle.require_group(split)
         count = _valid_length(group)
         stored = list(group["names"].asstr()[:count]) if count else []
-        if stored != list(names) or count != group["names"].shape[0]:
+        failed_text = json.dumps(list(failed))
+        unchanged = stored == list(names) and "names" in group and count == group["names"].shape[0]
+        if unchanged and group.attrs.get("complete", False) and group.attrs.get("failed") == failed_text:
+            return  # a rerun that computed nothing leaves the file untouched
+        if not unchanged:
             index = {name: row for row, name in enumerate(stored)}  # the newest row of a name wins
             missing = [name for name in names if name not in index]
             if missing:
@@ -348,7 +352,7 @@ class DescriptorCache:
                         if key in group:
                             del group[key]
         with self._writing():
-            group.attrs["failed"] = json.dumps(list(failed))
+            group.attrs["failed"] = failed_text
             group.attrs["complete"] = True
             self._handle.flush()
 

@@ -175,7 +175,7 @@ def load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None:
         if meta.get("fingerprint") != fingerprint:
             return None
         data = meta["cell"] if "cell" in meta else _version_1(meta)
-        with np.load(npz_path, allow_pickle=False) as archive:
+        with open(npz_path, "rb") as file, np.load(file, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
         return Cell.from_dict(
             data,
