@@ -100,7 +100,7 @@ def test_layout_contract(images, tmp_path):
         assert handle["database/descriptors"].dtype == np.float32
         assert list(handle["database/names"].asstr()[:]) == names[:4]
         assert h5py.check_string_dtype(handle["queries/names"].dtype).encoding == "utf-8"
-        fingerprint = json.loads(handle.attrs["fingerprint"])
+        fingerprint = json.loads(handle.attrs["config"])
     assert fingerprint["model"] == "counting" and fingerprint["preprocessing"]["image_size"] is None
     info = cache_info(path)
     assert info["database"]["complete"] and info["queries"]["count"] == 6
@@ -199,7 +199,7 @@ def test_changed_preprocessing_invalidates_cache(images, tmp_path):
         _, after = extract_descriptors(resized, paths, names, path, "database", progress=False)
     assert network.images == 10
     assert not np.allclose(before, after)
-    assert json.loads(h5py.File(path, "r").attrs["fingerprint"])["preprocessing"]["image_size"] == 8
+    assert json.loads(h5py.File(path, "r").attrs["config"])["preprocessing"]["image_size"] == 8
     assert "queries" not in h5py.File(path, "r")  # stale descriptors of the other split are gone too
 
 

@@ -57,7 +57,7 @@ def test_default_model_descriptors_are_finite_unit_vectors(corridor_descriptors)
         np.testing.assert_array_equal(read, descriptors)
     info = cache_info(cache)
     assert info["model"] == DEFAULT_MODEL
-    assert info["fingerprint"]["weights"].startswith("efficientnet-lite0-57934424.pth:sha256:57934424")
+    assert info["config"]["weights"].startswith("efficientnet-lite0-57934424.pth:sha256:57934424")
 
 
 def test_default_model_recall_at_1_well_above_chance(corridor_descriptors, corridor_dir):

@@ -11,6 +11,7 @@ import pytest
 
 from conftest import assert_close
 from vpr_uncertainty import Retrieval, get_method
+from vpr_uncertainty.cache import CacheWarning
 from vpr_uncertainty.geometric import (
     GeometricVerifier,
     LocalFeatures,
@@ -202,7 +203,7 @@ def test_a_corrupt_cache_file_is_extracted_again(scene: dict[str, list[Path]], t
 
     extractor = SIFTExtractor(max_side=160)
     cache_path(tmp_path, extractor).write_bytes(b"not hdf5: a run killed while writing")
-    with pytest.warns(RuntimeWarning, match="unreadable"):
+    with pytest.warns(CacheWarning, match="unreadable"):
         _, stats = extract_features(scene["query"], extractor, cache_dir=tmp_path, workers=1)
     assert stats.extracted == 2
     _, stats = extract_features(scene["query"], extractor, cache_dir=tmp_path, workers=1)

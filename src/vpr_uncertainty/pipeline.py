@@ -1,13 +1,15 @@
-"""Images to answers: dataset → descriptors → retrieval → uncertainties → evaluation → report files.
+"""Images to answers: :func:`run` composes the stages of :mod:`vpr_uncertainty.stages` on a dataset of images.
 
-Each stage writes one file into the run directory, and a rerun reuses what is there:
+Each stage writes one file into the run directory (atomically), and a rerun reuses what is still valid
+(:mod:`vpr_uncertainty.cache`):
 
 ======================  =========================================================================================
-``descriptors.h5``      global descriptors keyed by image name (resumable; invalidated when the model or its
-                        preprocessing changes)
+``descriptors.h5``      global descriptors keyed by image name and content key (resumed per image; an image
+                        replaced on disk is recomputed; rebuilt when the model or its preprocessing changes)
 ``retrieval.npz``       top-k scores, indices, distances, positives, names and positions (reused while the
-                        descriptors, k and index are unchanged)
-``uncertainties.npz``   one (Q,) array per uncertainty method, higher = less trustworthy, and ``correct``
+                        descriptors, the ground truth, k and the index are unchanged)
+``uncertainties.npz``   one (Q,) array per uncertainty method, higher = less trustworthy, ``correct`` and the
+                        ``fingerprint`` of what produced them
 ``results.json``        the schema of ``evaluate --json``, plus the run configuration, the time of each stage
                         and, under ``dataset``, the images left out (``images_left_out``) and the folders
                         that could not be listed (``unlisted``) with ``on_error="skip"``
@@ -18,8 +20,7 @@ Each stage writes one file into the run directory, and a rerun reuses what is th
 
 from __future__ import annotations
 
-import hashlib
-import json
+import dataclasses
 import time
 import warnings
 from collections.abc import Sequence
@@ -29,10 +30,20 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.evaluation import Evaluation, evaluate
+from vpr_uncertainty.evaluation import Evaluation
 from vpr_uncertainty.methods import GEOMETRIC_METHODS, SCORE_ONLY_METHODS, describe_needs, get_method
-from vpr_uncertainty.reports import format_table, plot_rejection_curves
-from vpr_uncertainty.retrieval import Retrieval, load_retrieval, save_retrieval
+from vpr_uncertainty.retrieval import Retrieval
+from vpr_uncertainty.stages import (
+    DescriptorsConfig,
+    RetrievalConfig,
+    UncertaintyConfig,
+    evaluate,
+    extract,
+    search,
+    write_reports,
+)
+from vpr_uncertainty.stages.reports import format_reranking
+from vpr_uncertainty.stages.retrieval import search_device
 
 __all__ = ["RunConfig", "RunResult", "default_methods", "format_reranking", "run"]
 
@@ -55,8 +66,9 @@ class RunConfig:
 
     Attributes
     ----------
-    dataset : str or Path
-        A dataset folder in any format :func:`vpr_uncertainty.data.load_dataset` reads, or a registered name.
+    dataset : str, Path or Dataset
+        A dataset folder in any format :func:`vpr_uncertainty.data.load_dataset` reads, a registered name, or a
+        :class:`~vpr_uncertainty.data.Dataset` already loaded (``root``, ``split`` and ``radius`` then unused).
     out : Path
         The run directory.
     model : str
@@ -88,7 +100,7 @@ class RunConfig:
         inliers; results.json then reports the re-ranked recall@N beside the global one.
     """
 
-    dataset: str | Path
+    dataset: Any
     out: Path
     model: str = "efficientnet-lite0-gem"
     methods: Sequence[str] | None = None
@@ -107,18 +119,41 @@ class RunConfig:
     rerank: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        values = asdict(self)
+        dataset = self.dataset
+        if not isinstance(dataset, (str, Path)):  # a loaded Dataset: its folder, else its name
+            dataset = dataset.root if getattr(dataset, "root", None) is not None else dataset.name
+        values = asdict(dataclasses.replace(self, dataset=None))
+        values["dataset"] = dataset
         return {key: str(value) if isinstance(value, Path) else value for key, value in values.items()}
 
 
 @dataclass
 class RunResult:
-    """What :func:`run` produced: the evaluation, the files it wrote and the seconds spent in each stage."""
+    """What :func:`run` produced.
+
+    Attributes
+    ----------
+    evaluation : Evaluation
+    retrieval : Retrieval
+    paths : dict of str to Path
+        ``descriptors``, ``retrieval``, ``uncertainties``, ``results``, ``table``, ``plot``.
+    stage_seconds : dict of str to float
+        Seconds spent in each stage.
+    dataset : Dataset, optional
+        The dataset the run read.
+    reranking : dict, optional
+        The re-ranking summary (with ``rerank``).
+    notes : list of str
+        Remarks for the user (e.g. a search moved from the GPU to the CPU).
+    """
 
     evaluation: Evaluation
     retrieval: Retrieval
     paths: dict[str, Path]
     stage_seconds: dict[str, float]
+    dataset: Any = None
+    reranking: dict[str, Any] | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 def default_methods(has_metric_positions: bool) -> list[str]:
@@ -126,65 +161,44 @@ def default_methods(has_metric_positions: bool) -> list[str]:
     return [*SCORE_ONLY_METHODS, *(["SUE"] if has_metric_positions else [])]
 
 
-def _subset(names: Sequence[str], kept: np.ndarray) -> np.ndarray:
-    """Indices into ``names`` of the names in ``kept`` (extraction leaves out images that failed to decode)."""
+def _positions_of(names: Sequence[str], kept: np.ndarray) -> np.ndarray:
+    """Indices into ``names`` of the names in ``kept`` (extraction leaves out images that cannot be used)."""
     position = {name: index for index, name in enumerate(names)}
     return np.array([position[name] for name in kept], dtype=np.int64)
 
 
-def _left_out(dataset: Any, descriptors_path: Path, extracted: dict[str, Any]) -> dict[str, Any] | None:
+def _left_out(dataset: Any, descriptors: Any) -> dict[str, Any] | None:
     """The images left out of the run, by split, with their reasons (None when there is none).
 
     Folders that could not be listed are in the dataset summary (``unlisted``): how many images they held is
     unknown.
     """
-    from vpr_uncertainty.features.cache import cache_info
-
-    info = cache_info(descriptors_path) if descriptors_path.is_file() else {}
     report: dict[str, Any] = {"count": 0}
     for split, requested in (("database", dataset.database_names), ("queries", dataset.query_names)):
-        reasons = {entry["name"]: entry for entry in info.get(split, {}).get("failed", [])}
-        kept = {str(name) for name in extracted[split][0]}
+        reasons = {entry["name"]: entry for entry in descriptors.failed.get(split, [])}
+        kept = {str(name) for name in descriptors.names[split]}
         missing = [name for name in requested if name not in kept]
         report[split] = [reasons.get(name, {"name": name, "error": "no descriptor"}) for name in missing]
         report["count"] += len(missing)
     return report if report["count"] else None
 
 
-def _digest(*arrays: np.ndarray) -> str:
-    hasher = hashlib.sha256()
-    for array in arrays:
-        hasher.update(np.ascontiguousarray(array).tobytes())
-    return hasher.hexdigest()[:16]
-
-
-def run(config: RunConfig) -> RunResult:
-    """Run the whole evaluation of ``config`` and write every stage into ``config.out``.
-
-    Returns
-    -------
-    RunResult
-    """
+def _load_and_check(config: RunConfig, methods: list[str] | None) -> Any:
+    """The dataset of ``config``, after every check that can fail before extraction (the slow part)."""
     from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.data.attach import attach_ground_truth
-    from vpr_uncertainty.features import extract_descriptors, load_model
-    from vpr_uncertainty.retrieval import faiss_gpu_available, retrieve
 
     if config.retrieval_k < config.k:
         raise ValueError(f"retrieval_k ({config.retrieval_k}) must be >= k ({config.k})")
-    methods = list(config.methods) if config.methods else None
     for name in methods or []:
         get_method(name)  # unknown names fail before any work
     if config.rerank is not None and get_method(config.rerank).name not in GEOMETRIC_METHODS:
         raise ValueError(
             f"rerank needs a geometric verification method ({', '.join(GEOMETRIC_METHODS)}), got {config.rerank!r}"
         )
-    out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
-    seconds: dict[str, float] = {}
-
-    start = time.perf_counter()
-    dataset = load_dataset(config.dataset, root=config.root, split=config.split, radius=config.radius)
+    if isinstance(config.dataset, (str, Path)):
+        dataset = load_dataset(config.dataset, root=config.root, split=config.split, radius=config.radius)
+    else:
+        dataset = config.dataset
     if not dataset.has_images:
         raise ValueError(f"dataset {dataset.name!r} has no image paths; `run` needs images to extract descriptors")
     fields = dataset.retrieval_fields()
@@ -195,7 +209,7 @@ def run(config: RunConfig) -> RunResult:
         for name in methods or []
         if (need := get_method(name).unmet_needs(available))
     ]
-    if unmet:  # every unmet need at once, before extraction (the slow part)
+    if unmet:  # every unmet need at once
         raise ValueError("; ".join(unmet))
     if dataset.unlisted:
         from vpr_uncertainty.data.folder import ImageListingError, describe_unlisted
@@ -205,93 +219,99 @@ def run(config: RunConfig) -> RunResult:
         warnings.warn(
             f"left out the images under {len(dataset.unlisted)} path(s) of dataset {dataset.name!r} that cannot be "
             f"listed: {describe_unlisted(dataset.unlisted)}",
-            stacklevel=2,
+            stacklevel=3,
         )
-    seconds["dataset"] = time.perf_counter() - start
+    return dataset
 
-    start = time.perf_counter()
-    model = load_model(config.model, device=config.device)
-    descriptors_path = out / "descriptors.h5"
-    extracted = {}
-    for split, paths, names in (
-        ("database", dataset.database_paths, dataset.database_names),
-        ("queries", dataset.query_paths, dataset.query_names),
-    ):
-        extracted[split] = extract_descriptors(
-            model,
-            paths,
-            names,
-            descriptors_path,
-            split,
-            batch_size=config.batch_size,
-            device=config.device,
-            half=config.half,
-            on_error=config.on_error,
-        )
-    seconds["extraction"] = time.perf_counter() - start
-    left_out = _left_out(dataset, descriptors_path, extracted)
 
-    start = time.perf_counter()
-    database_names, database = extracted["database"]
-    query_names, queries = extracted["queries"]
-    kept_database = _subset(dataset.database_names, database_names)
-    kept_queries = _subset(dataset.query_names, query_names)
-    positives = fields["positives"][kept_queries][:, kept_database]
+def _ground_truth(dataset: Any, descriptors: Any) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+    """The ground-truth fields of the images that have descriptors, and their indices in the dataset."""
+    from vpr_uncertainty.data.attach import ground_truth_fields
+
+    fields = dataset.retrieval_fields()
+    kept_database = _positions_of(dataset.database_names, descriptors.names["database"])
+    kept_queries = _positions_of(dataset.query_names, descriptors.names["queries"])
     positions = {
         name: None if fields[name] is None else np.asarray(fields[name])[kept]
         for name, kept in (("query_positions", kept_queries), ("database_positions", kept_database))
     }
-    retrieval_config = {
-        **fields["config"],
-        "model": model.name,
-        "k": config.retrieval_k,
-        "index": config.index,
-        "descriptors": _digest(database, queries),
+    ground_truth = ground_truth_fields(
+        len(kept_queries),
+        len(kept_database),
+        positives=fields["positives"][kept_queries][:, kept_database],
+        database_names=descriptors.names["database"],
+        query_names=descriptors.names["queries"],
+        position_kind=dataset.position_kind,
+        **positions,
+    )
+    return ground_truth, kept_database, kept_queries
+
+
+def run(config: RunConfig) -> RunResult:
+    """Run the whole evaluation of ``config`` and write every stage into ``config.out``.
+
+    Returns
+    -------
+    RunResult
+    """
+    methods = list(config.methods) if config.methods else None
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    dataset = _load_and_check(config, methods)
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    seconds["dataset"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    conf = DescriptorsConfig(
+        model=config.model,
+        device=config.device,
+        batch_size=config.batch_size,
+        half=config.half,
+        on_error=config.on_error,
+    )
+    images = {
+        "database": (dataset.database_paths, dataset.database_names),
+        "queries": (dataset.query_paths, dataset.query_names),
     }
-    retrieval_path = out / "retrieval.npz"
-    retrieval = None
-    if retrieval_path.is_file():
-        cached = load_retrieval(retrieval_path)
-        # The stored config holds what we asked for plus what the search added (dimension, metric, ...).
-        wanted = json.loads(json.dumps(retrieval_config, default=str))
-        if all(cached.config.get(key) == value for key, value in wanted.items()):
-            retrieval = cached
-    if retrieval is None:
-        # --device picks the device of the model; Faiss searches on the GPU only where GPU Faiss is installed.
-        search_device = "cuda" if config.device.startswith("cuda") and faiss_gpu_available() else "cpu"
-        if search_device != config.device.split(":")[0]:
-            print(f"note: Faiss has no GPU support here; searching on the CPU (descriptors came from {config.device})")
-        retrieval = attach_ground_truth(
-            retrieve(
-                database,
-                queries,
-                config.retrieval_k,
-                index=config.index,
-                device=search_device,
-                config=retrieval_config,
-            ),
-            positives=positives,
-            database_names=database_names,
-            query_names=query_names,
-            position_kind=dataset.position_kind,
-            **positions,
-        )
-        save_retrieval(retrieval, retrieval_path)
+    descriptors = extract(conf, images, out / "descriptors.h5")
+    seconds["extraction"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    ground_truth, kept_database, kept_queries = _ground_truth(dataset, descriptors)
+    device, note = search_device(config.device)  # --device picks the model's device; Faiss may lack the GPU
+    found = search(
+        RetrievalConfig(k=config.retrieval_k, index=config.index, device=device),
+        descriptors.split("database"),
+        descriptors.split("queries"),
+        ground_truth,
+        out / "retrieval.npz",
+        describe={**dataset.retrieval_fields()["config"], "model": descriptors.model_name},
+    )
+    retrieval = found.retrieval
     seconds["retrieval"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    if methods is None:
-        methods = default_methods(dataset.has_metric_positions)
-    options = {
+    inputs = {
         "query_paths": [dataset.query_paths[i] for i in kept_queries],
         "database_paths": [dataset.database_paths[i] for i in kept_database],
-        "query_descriptors": queries,
-        "database_descriptors": database,
+        "query_descriptors": descriptors.descriptors["queries"],
+        "database_descriptors": descriptors.descriptors["database"],
         "cache_dir": out,
         "device": config.device,
-        **config.method_options,
     }
-    evaluation = evaluate(retrieval, methods, k=config.k, alpha=config.alpha, **options)
+    uncertainty = evaluate(
+        UncertaintyConfig(
+            methods=methods or default_methods(dataset.has_metric_positions),
+            k=config.k,
+            alpha=config.alpha,
+            options=dict(config.method_options),
+        ),
+        retrieval,
+        out / "uncertainties.npz",
+        inputs=inputs,
+        retrieval_fingerprint=found.fingerprint,
+    )
     seconds["uncertainty_and_evaluation"] = time.perf_counter() - start
 
     reranking = None
@@ -303,67 +323,39 @@ def run(config: RunConfig) -> RunResult:
             retrieval,
             config.rerank,
             top_k=config.k,
-            query_paths=options["query_paths"],
-            database_paths=options["database_paths"],
+            query_paths=inputs["query_paths"],
+            database_paths=inputs["database_paths"],
             cache_dir=out,
             device=config.device,
         )
         reranking = {"method": config.rerank, "top_k": config.k, **result.recall}
         seconds["reranking"] = time.perf_counter() - start
 
-    start = time.perf_counter()
-    summary = {**dataset.summary(), **({"images_left_out": left_out} if left_out else {})}
-    paths = _write_outputs(out, evaluation, config, summary, seconds, reranking)
-    seconds["reports"] = time.perf_counter() - start
-    _rewrite_seconds(paths["results"], seconds)
-    paths.update(descriptors=descriptors_path, retrieval=retrieval_path)
-    return RunResult(evaluation=evaluation, retrieval=retrieval, paths=paths, stage_seconds=seconds)
-
-
-def _write_outputs(
-    out: Path,
-    evaluation: Evaluation,
-    config: RunConfig,
-    dataset_summary: dict[str, Any],
-    seconds: dict[str, float],
-    reranking: dict[str, Any] | None = None,
-) -> dict[str, Path]:
-    uncertainties = out / "uncertainties.npz"
-    np.savez_compressed(
-        uncertainties,
-        correct=evaluation.correct,
-        **{name: method.uncertainty for name, method in evaluation.methods.items()},
+    left_out = _left_out(dataset, descriptors)
+    reports = write_reports(
+        out,
+        uncertainty.evaluation,
+        dataset=dataset.summary().get("name", str(config.dataset)),
+        model=config.model,
+        document={
+            "config": config.to_dict(),
+            "dataset": {**dataset.summary(), **({"images_left_out": left_out} if left_out else {})},
+        },
+        stage_seconds=seconds,
+        reranking=reranking,
     )
-    results = out / "results.json"
-    content = {
-        **evaluation.to_dict(),
-        "config": config.to_dict(),
-        "dataset": dataset_summary,
-        "stage_seconds": seconds,
-        **({"reranking": reranking} if reranking else {}),
+    paths = {
+        **reports.paths,
+        "uncertainties": uncertainty.path,
+        "descriptors": descriptors.path,
+        "retrieval": found.path,
     }
-    results.write_text(json.dumps(content, indent=2, default=str) + "\n")
-    table = out / "results.md"
-    title = f"# {dataset_summary.get('name', config.dataset)} with {config.model}\n"
-    text = title + "\n" + format_table(evaluation, markdown=True) + "\n"
-    if reranking:
-        text += "\n" + format_reranking(reranking) + "\n"
-    table.write_text(text)
-    plot = plot_rejection_curves(
-        evaluation, out / "pr_curves.png", title=f"{dataset_summary.get('name')} · {config.model}"
+    return RunResult(
+        evaluation=uncertainty.evaluation,
+        retrieval=retrieval,
+        paths=paths,
+        stage_seconds=seconds,
+        dataset=dataset,
+        reranking=reranking,
+        notes=[note] if note else [],
     )
-    return {"uncertainties": uncertainties, "results": results, "table": table, "plot": plot}
-
-
-def format_reranking(reranking: dict[str, Any]) -> str:
-    """recall@N of the global retrieval and after re-ranking its top-k by inliers, in one line."""
-    pairs = ", ".join(
-        f"R@{n} {reranking['global'][n]:.3f} → {reranking['reranked'][n]:.3f}" for n in reranking["reranked"]
-    )
-    return f"re-ranking the top {reranking['top_k']} by {reranking['method']} inliers: {pairs}"
-
-
-def _rewrite_seconds(results: Path, seconds: dict[str, float]) -> None:
-    content = json.loads(results.read_text())
-    content["stage_seconds"] = seconds
-    results.write_text(json.dumps(content, indent=2, default=str) + "\n")

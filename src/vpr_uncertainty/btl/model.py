@@ -35,6 +35,8 @@ import torch
 from torch import nn
 from torch.nn import functional
 
+from vpr_uncertainty.cache import atomic_path
+
 __all__ = [
     "DEFAULT_MAX_EMBEDDING_DIM",
     "HEAD_FORMAT",
@@ -189,7 +191,8 @@ def save_btl_head(head: BTLHead, path: str | Path, *, metadata: dict[str, Any] |
         "state_dict": {key: value.detach().cpu() for key, value in head.state_dict().items()},
         "metadata": dict(metadata or {}),
     }
-    torch.save(state, path)
+    with atomic_path(path) as temporary:
+        torch.save(state, temporary)
     return path
 
 

@@ -38,6 +38,7 @@ from vpr_uncertainty.btl.loss import (
 )
 from vpr_uncertainty.btl.mining import Triplets, mine_triplets
 from vpr_uncertainty.btl.model import BTLHead
+from vpr_uncertainty.cache import atomic_path, write_text
 
 __all__ = ["BTLTrainingConfig", "TrainingHistory", "resolve_device", "save_training_curve", "train_btl_head"]
 
@@ -360,7 +361,7 @@ def save_training_curve(history: TrainingHistory, json_path: str | Path, png_pat
     """Write the training curve as JSON (every epoch's losses) and, optionally, as a PNG plot."""
     json_path = Path(json_path)
     json_path.parent.mkdir(parents=True, exist_ok=True)
-    json_path.write_text(json.dumps(history.to_dict(), indent=2) + "\n")
+    write_text(json_path, json.dumps(history.to_dict(), indent=2) + "\n")
     if png_path is None:
         return
     from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global state
@@ -377,4 +378,5 @@ def save_training_curve(history: TrainingHistory, json_path: str | Path, png_pat
     axes.legend()
     png_path = Path(png_path)
     png_path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(png_path, dpi=120)
+    with atomic_path(png_path) as temporary:
+        figure.savefig(temporary, dpi=120)

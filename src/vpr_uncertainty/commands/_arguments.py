@@ -116,9 +116,11 @@ def output_directory(text: str) -> Path:
 
 def write_output(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` (creating its folder); an OSError always names the file (disk full included)."""
+    from vpr_uncertainty.cache import write_text
+
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(text)
+        write_text(path, text)  # atomically: never a truncated file
     except OSError as error:
         if error.filename is None and error.errno is not None:
             raise OSError(error.errno, error.strerror, str(path)) from error

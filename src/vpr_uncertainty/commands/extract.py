@@ -180,8 +180,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def _run_extract(args: argparse.Namespace) -> int:
     from vpr_uncertainty.data.folder import describe_unlisted
-    from vpr_uncertainty.features.extract import extract_descriptors
-    from vpr_uncertainty.features.models import load_model
+    from vpr_uncertainty.stages.descriptors import DescriptorsConfig, extract
 
     unlisted: list[dict[str, str]] | None = [] if args.on_error == "skip" else None
     splits = dataset_images(args.dataset, unlisted=unlisted)
@@ -194,28 +193,22 @@ def _run_extract(args: argparse.Namespace) -> int:
         import torch
 
         torch.set_num_threads(args.threads)
-    model = load_model(args.model, device=args.device)
-    changes = {"image_size": args.image_size, "max_side": args.max_side}
-    changes = {key: value for key, value in changes.items() if value is not None}
-    if changes:
-        model.preprocessing = model.preprocessing.replace(**changes)
+    conf = DescriptorsConfig(
+        model=args.model,
+        device=args.device,
+        batch_size=args.batch_size,
+        half=args.half,
+        on_error=args.on_error,
+        image_size=args.image_size,
+        max_side=args.max_side,
+        num_workers=args.workers,
+        overwrite=args.overwrite,
+        progress=not args.no_progress,
+    )
+    result = extract(conf, splits, args.out)
     for split in ("database", "queries"):
-        paths, names = splits[split]
-        kept, descriptors = extract_descriptors(
-            model,
-            paths,
-            names,
-            args.out,
-            split,
-            batch_size=args.batch_size,
-            device=args.device,
-            half=args.half,
-            on_error=args.on_error,
-            num_workers=args.workers,
-            overwrite=args.overwrite and split == "database",
-            progress=not args.no_progress,
-        )
-        skipped = len(names) - len(kept)
+        kept, descriptors = result.split(split)
+        skipped = len(splits[split][1]) - len(kept)
         note = f", {skipped} skipped (cannot be used; listed in the file's 'failed' attribute)" if skipped else ""
         print(f"{split}: {len(kept)} descriptors of size {descriptors.shape[1]}{note}")
     print(f"wrote {args.out}")

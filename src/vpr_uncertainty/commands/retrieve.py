@@ -1,4 +1,4 @@
-"""``vpr-uncertainty retrieve``: descriptors in, retrieval file out (Faiss top-k search)."""
+"""``vpr-uncertainty retrieve``: descriptors in, retrieval file out (the retrieval stage, Faiss top-k search)."""
 
 from __future__ import annotations
 
@@ -90,9 +90,10 @@ def _load_positions(path: Path | None, expected: int, what: str):
 
 
 def _run_retrieve(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.attach import attach_ground_truth, ground_truth_fields
+    from vpr_uncertainty.data.attach import ground_truth_fields
     from vpr_uncertainty.evaluation import recall_at_n
-    from vpr_uncertainty.retrieval import load_descriptors, retrieve, save_retrieval
+    from vpr_uncertainty.retrieval import load_descriptors
+    from vpr_uncertainty.stages.retrieval import RetrievalConfig, search
 
     if args.out.suffix.lower() != ".npz":
         raise ValueError(f"--out must name a .npz file, got {args.out}")
@@ -116,28 +117,34 @@ def _run_retrieve(args: argparse.Namespace) -> int:
         query_names=query_names,
         position_kind=args.position_kind,
     )
-    config = {"database": str(args.database), "queries": str(args.queries)}
+    describe = {"database": str(args.database), "queries": str(args.queries)}
     if args.gt is not None:
-        config["ground_truth"] = str(args.gt)
-    start = time.perf_counter()
-    result = retrieve(
-        database,
-        queries,
-        args.k,
+        describe["ground_truth"] = str(args.gt)
+    conf = RetrievalConfig(
+        k=args.k,
         index=args.index,
+        search_params=args.search_params,
         device=args.device,
         batch_size=args.batch_size,
-        search_params=args.search_params,
-        config=config,
-        copy=False,  # the arrays were just read from disk: normalise them in place
         progress=False if args.no_progress else None,
     )
+    start = time.perf_counter()
+    found = search(
+        conf,
+        (database_names, database),
+        (query_names, queries),
+        ground_truth,
+        args.out,
+        describe=describe,
+        copy=False,  # the arrays were just read from disk: normalise them in place
+    )
     seconds = time.perf_counter() - start
-    result = attach_ground_truth(result, ground_truth)
-    save_retrieval(result, args.out)
+    result = found.retrieval
+    done = "kept" if found.reused else "wrote"
+    why = " (same descriptors, ground truth and options)" if found.reused else f" ({args.index}, {args.device}"
     print(
-        f"wrote {args.out}: {result.n_queries} queries x {result.k} candidates among {len(database)} database "
-        f"images ({args.index}, {args.device}, {seconds:.1f} s)"
+        f"{done} {args.out}: {result.n_queries} queries x {result.k} candidates among {len(database)} database "
+        f"images{why}" + ("" if found.reused else f", {seconds:.1f} s)")
     )
     if result.positives is not None:
         answerable = int((result.positives.sum(axis=1) > 0).sum())

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -94,17 +93,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def print_summary(result: RunResult) -> None:
-    """Print the table, the time per stage and where the files are."""
+    """Print the notes of the run, the table, the time per stage and where the files are."""
     from vpr_uncertainty.reports import format_table
 
+    for note in result.notes:
+        print(f"note: {note}")
     print(format_table(result.evaluation))
     stages = ", ".join(f"{stage} {seconds:.1f} s" for stage, seconds in result.stage_seconds.items())
     print(f"time per stage: {stages}")
-    reranking = json.loads(result.paths["results"].read_text()).get("reranking")
-    if reranking:
+    if result.reranking:
         from vpr_uncertainty.pipeline import format_reranking
 
-        print(format_reranking(reranking))
+        print(format_reranking(result.reranking))
     print(f"report: {result.paths['table']}  plot: {result.paths['plot']}  json: {result.paths['results']}")
 
 

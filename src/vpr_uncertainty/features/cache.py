@@ -1,19 +1,24 @@
-"""HDF5 descriptor cache: one row per image name, resumable, invalidated when the model or preprocessing changes.
+"""HDF5 descriptor cache: one row per image, resumable per image, following :mod:`vpr_uncertainty.cache`.
 
-Layout (format version 1), read by :func:`read_descriptors`::
+Layout (format version 2), read by :func:`read_descriptors`::
 
-    /                   attrs: format = "vpr-uncertainty descriptors", format_version = 1,
-                               fingerprint (JSON: model name, weights identity, preprocessing, storage dtype),
+    /                   attrs: format = "vpr-uncertainty descriptors", format_version = 2,
+                               config (JSON: model name, weights identity, preprocessing, storage dtype),
+                               fingerprint (:func:`vpr_uncertainty.cache.fingerprint` of the stage and config),
                                model (name), dtype ("float32" or "float16")
     /database           attrs: complete (bool), failed (JSON list of {"name", "path", "error"} of skipped images)
-        names           (N,) variable-length UTF-8 strings, unique
+        names           (N,) variable-length UTF-8 strings, unique once complete
         descriptors     (N, D) float32 or float16, L2-normalised rows, row i belongs to names[i]
+        keys            (N,) :func:`vpr_uncertainty.cache.content_key` of the image file row i was computed from
     /queries            same as /database
 
-Rows are appended and flushed batch by batch, so a killed extraction loses at most the batch in flight and a
-rerun computes only the missing names. When extraction of a split completes, its rows are put in the order of
-the requested image list (skipped images left out) and ``complete`` is set. A cache whose fingerprint differs
-from the current model's is recomputed from scratch, never mixed.
+Rows are appended and flushed batch by batch, so a killed extraction loses at most the batch in flight. A rerun
+computes exactly the images whose name is missing or whose content key differs (an image replaced on disk,
+another dataset with the same names) and keeps the others. When extraction of a split completes, its rows are put
+in the order of the requested image list (skipped images left out, the newest row of a recomputed name kept) and
+``complete`` is set. A file of another fingerprint (another model or preprocessing), of version 1 (no content
+keys), empty or truncated is rebuilt from scratch with a one-line :class:`~vpr_uncertainty.cache.CacheWarning`;
+a file that is not one of ours is never overwritten. Version 1 files are still read by :func:`read_descriptors`.
 """
 
 from __future__ import annotations
@@ -30,10 +35,14 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty import cache as protocol
+
 __all__ = ["FORMAT", "FORMAT_VERSION", "SPLITS", "DescriptorCache", "cache_info", "read_descriptors"]
 
 FORMAT = "vpr-uncertainty descriptors"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Name of the stage in the fingerprint.
+STAGE = "descriptors"
 SPLITS = ("database", "queries")
 DTYPES = ("float32", "float16")
 _CHUNK_ROWS = 256
@@ -56,10 +65,11 @@ def _import_h5py() -> Any:
 
 
 def _valid_length(group: Any) -> int:
-    """Rows present in both datasets (a kill between the two writes leaves at most one batch unmatched)."""
+    """Rows present in every dataset (a kill between the writes leaves at most one batch unmatched)."""
     if "names" not in group or "descriptors" not in group:
         return 0
-    return min(group["names"].shape[0], group["descriptors"].shape[0])
+    lengths = [group[key].shape[0] for key in ("names", "descriptors", "keys") if key in group]
+    return min(lengths)
 
 
 def read_descriptors(
@@ -121,11 +131,14 @@ def cache_info(path: str | Path) -> dict[str, Any]:
     """Summary of a descriptor file: fingerprint, dtype, and per split the row count, size D, completeness."""
     h5py = _import_h5py()
     with h5py.File(path, "r") as handle:
+        version = int(handle.attrs.get("format_version", 0))
+        config = handle.attrs.get("config" if version >= 2 else "fingerprint", "{}")
         info: dict[str, Any] = {
-            "format_version": int(handle.attrs.get("format_version", 0)),
+            "format_version": version,
             "model": str(handle.attrs.get("model", "")),
             "dtype": str(handle.attrs.get("dtype", "")),
-            "fingerprint": json.loads(handle.attrs.get("fingerprint", "{}")),
+            "config": json.loads(config),
+            "fingerprint": str(handle.attrs.get("fingerprint", "")) if version >= 2 else "",
         }
         for split in SPLITS:
             if split in handle:
@@ -145,18 +158,19 @@ class DescriptorCache:
     Parameters
     ----------
     path : str or Path
-    fingerprint : dict
-        What produced the descriptors (JSON-serialisable). A file with another fingerprint is recreated.
+    config : dict
+        What produced the descriptors (JSON-serialisable: the model's fingerprint). A file of another
+        configuration is rebuilt.
     dtype : {"float32", "float16"}
     model_name : str
     overwrite : bool
-        Recreate the file even when the fingerprint matches.
+        Recreate the file even when the configuration matches.
     """
 
     def __init__(
         self,
         path: str | Path,
-        fingerprint: dict[str, Any],
+        config: dict[str, Any],
         *,
         dtype: str = "float32",
         model_name: str = "",
@@ -167,7 +181,8 @@ class DescriptorCache:
         self.path = Path(path)
         self.dtype = dtype
         self.model_name = model_name
-        self.fingerprint = json.dumps({**fingerprint, "dtype": dtype}, sort_keys=True)
+        self.config = json.dumps({**config, "dtype": dtype}, sort_keys=True)
+        self.fingerprint = protocol.fingerprint(STAGE, json.loads(self.config))
         self.overwrite = overwrite
         self.invalidated = False
         self._handle: Any = None
@@ -187,20 +202,20 @@ class DescriptorCache:
             if reason is None:
                 self._handle = h5py.File(self.path, "a", **_WRITER_OPTIONS)
                 return
-            warnings.warn(f"descriptor cache {self.path}: {reason}; recomputing all descriptors", stacklevel=3)
+            protocol.stale_notice(self.path, reason, "recomputing all descriptors", stacklevel=4)
             self.invalidated = True
-        if self.path.exists():
-            os.remove(self.path)
-        self._handle = h5py.File(self.path, "w", **_WRITER_OPTIONS)
-        with self._writing():
-            self._handle.attrs["format"] = FORMAT
-            self._handle.attrs["format_version"] = FORMAT_VERSION
-            self._handle.attrs["fingerprint"] = self.fingerprint
-            self._handle.attrs["model"] = self.model_name
-            self._handle.attrs["dtype"] = self.dtype
-            self._handle.flush()
+        with self._writing(), protocol.atomic_path(self.path) as temporary:  # created whole, then renamed
+            with h5py.File(temporary, "w") as handle:
+                handle.attrs["format"] = FORMAT
+                handle.attrs["format_version"] = FORMAT_VERSION
+                handle.attrs["config"] = self.config
+                handle.attrs["fingerprint"] = self.fingerprint
+                handle.attrs["model"] = self.model_name
+                handle.attrs["dtype"] = self.dtype
+        self._handle = h5py.File(self.path, "a", **_WRITER_OPTIONS)
 
     def _stale_reason(self, h5py: Any) -> str | None:
+        """Why the existing file cannot be resumed (None: it can); ValueError for a file that is not ours."""
         try:
             with h5py.File(self.path, "r") as handle:
                 if handle.attrs.get("format") != FORMAT:
@@ -209,21 +224,24 @@ class DescriptorCache:
                             f"{self.path} exists and is not a vpr-uncertainty descriptor file; "
                             "choose another path or delete it"
                         )
-                    return "empty file"
-                if int(handle.attrs.get("format_version", 0)) != FORMAT_VERSION:
-                    return f"format version {handle.attrs.get('format_version')} instead of {FORMAT_VERSION}"
-                stored = handle.attrs.get("fingerprint", "")
+                    return "empty HDF5 file"
+                version = int(handle.attrs.get("format_version", 0))
+                if version != FORMAT_VERSION:
+                    return f"written by an earlier version (format version {version}, without per-image content keys)"
+                stored, stored_config = handle.attrs.get("fingerprint", ""), handle.attrs.get("config", "")
         except OSError as error:
-            if "lock" in str(error).lower():
+            if _is_lock_error(error):
                 raise ValueError(
                     f"{self.path} is open for writing in another process (HDF5 file lock); wait for it to finish "
                     "or choose another path"
                 ) from error
-            if self.path.stat().st_size == 0 or _looks_like_hdf5(self.path):
-                return f"unreadable ({error})"
+            if self.path.stat().st_size == 0:
+                return "empty file (0 bytes)"
+            if _looks_like_hdf5(self.path):
+                return f"truncated or damaged HDF5 file ({_first_line(error)})"
             raise ValueError(f"{self.path} exists and is not an HDF5 file; choose another path or delete it") from error
         if stored != self.fingerprint:
-            return f"made by another model or preprocessing ({_describe_change(stored, self.fingerprint)})"
+            return f"made by another model or preprocessing ({_describe_change(stored_config, self.config)})"
         return None
 
     def close(self) -> None:
@@ -241,19 +259,31 @@ class DescriptorCache:
             raise _write_error(self.path, error) from error
 
     def names(self, split: str) -> list[str]:
-        """Names already stored for ``split``."""
+        """Names already stored for ``split`` (a name recomputed after its image changed appears twice)."""
+        return list(self.keys(split))
+
+    def keys(self, split: str) -> dict[str, str]:
+        """The content key of each name stored for ``split`` (the newest row of a name wins)."""
         _check_split(split)
         if split not in self._handle:
-            return []
+            return {}
         group = self._handle[split]
-        return list(group["names"].asstr()[: _valid_length(group)]) if "names" in group else []
+        count = _valid_length(group)
+        if not count:
+            return {}
+        names = group["names"].asstr()[:count]
+        keys = group["keys"].asstr()[:count] if "keys" in group else [""] * count
+        return dict(zip(names, keys, strict=True))
 
-    def append(self, split: str, names: Sequence[str], descriptors: np.ndarray) -> None:
-        """Append rows and flush them to disk."""
+    def append(self, split: str, names: Sequence[str], descriptors: np.ndarray, keys: Sequence[str]) -> None:
+        """Append rows (with the content key of each image) and flush them to disk."""
         _check_split(split)
         descriptors = np.asarray(descriptors)
-        if descriptors.ndim != 2 or descriptors.shape[0] != len(names):
-            raise ValueError(f"expected descriptors of shape ({len(names)}, D), got {descriptors.shape}")
+        if descriptors.ndim != 2 or descriptors.shape[0] != len(names) or len(keys) != len(names):
+            raise ValueError(
+                f"expected descriptors of shape ({len(names)}, D) and {len(names)} keys, got {descriptors.shape} "
+                f"and {len(keys)}"
+            )
         if not len(names):
             return
         group = self._handle.require_group(split)
@@ -268,33 +298,40 @@ class DescriptorCache:
         start = _valid_length(group)
         stop = start + len(names)
         with self._writing():
-            # Descriptors first, names second: a name on disk always has its descriptor.
+            # Descriptors and keys first, names last: a name on disk always has its descriptor and key.
             stored.resize((stop, stored.shape[1]))
             stored[start:stop] = descriptors.astype(self.dtype)
+            group["keys"].resize((stop,))
+            group["keys"][start:stop] = np.asarray(list(keys), dtype=object)
             group["names"].resize((stop,))
             group["names"][start:stop] = np.asarray(list(names), dtype=object)
             self._handle.flush()
 
     def _create(self, group: Any, dim: int) -> None:
         h5py = _import_h5py()
-        for key in ("names", "descriptors"):
+        for key in ("names", "descriptors", "keys"):
             if key in group:
                 del group[key]
         group.create_dataset(
             "descriptors", shape=(0, dim), maxshape=(None, dim), dtype=self.dtype, chunks=(_CHUNK_ROWS, dim)
         )
-        group.create_dataset(
-            "names", shape=(0,), maxshape=(None,), dtype=h5py.string_dtype("utf-8"), chunks=(_CHUNK_ROWS,)
-        )
+        for key in ("names", "keys"):
+            group.create_dataset(
+                key, shape=(0,), maxshape=(None,), dtype=h5py.string_dtype("utf-8"), chunks=(_CHUNK_ROWS,)
+            )
 
     def finalize(self, split: str, names: Sequence[str], failed: Sequence[dict[str, str]] = ()) -> None:
-        """Mark ``split`` complete, its rows exactly ``names`` in this order (rows of other names dropped)."""
+        """Mark ``split`` complete, its rows exactly ``names`` in this order (other and older rows dropped)."""
         _check_split(split)
         group = self._handle.require_group(split)
         count = _valid_length(group)
         stored = list(group["names"].asstr()[:count]) if count else []
-        if stored != list(names):
-            index = {name: row for row, name in enumerate(stored)}
+        failed_text = json.dumps(list(failed))
+        unchanged = stored == list(names) and "names" in group and count == group["names"].shape[0]
+        if unchanged and group.attrs.get("complete", False) and group.attrs.get("failed") == failed_text:
+            return  # a rerun that computed nothing leaves the file untouched
+        if not unchanged:
+            index = {name: row for row, name in enumerate(stored)}  # the newest row of a name wins
             missing = [name for name in names if name not in index]
             if missing:
                 raise RuntimeError(f"cannot finalise {split!r}: {len(missing)} names were never written")
@@ -302,19 +339,32 @@ class DescriptorCache:
                 if names:
                     rows = np.array([index[name] for name in names], dtype=np.int64)
                     descriptors = np.asarray(group["descriptors"][:count])[rows]
+                    keys = np.asarray(group["keys"].asstr()[:count], dtype=object)[rows]
                     self._create(group, descriptors.shape[1])
                     group["descriptors"].resize((len(names), descriptors.shape[1]))
                     group["descriptors"][:] = descriptors
+                    group["keys"].resize((len(names),))
+                    group["keys"][:] = keys
                     group["names"].resize((len(names),))
                     group["names"][:] = np.asarray(list(names), dtype=object)
                 else:
-                    for key in ("names", "descriptors"):
+                    for key in ("names", "descriptors", "keys"):
                         if key in group:
                             del group[key]
         with self._writing():
-            group.attrs["failed"] = json.dumps(list(failed))
+            group.attrs["failed"] = failed_text
             group.attrs["complete"] = True
             self._handle.flush()
+
+
+def _is_lock_error(error: OSError) -> bool:
+    """Whether HDF5 refused to open the file because another process holds its lock (not "sblock" of truncation)."""
+    text = str(error).lower()
+    return "unable to lock file" in text or getattr(error, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK)
+
+
+def _first_line(error: BaseException) -> str:
+    return (str(error).strip().splitlines() or [type(error).__name__])[0]
 
 
 def _write_error(path: Path, error: BaseException) -> OSError:
@@ -327,8 +377,10 @@ def _write_error(path: Path, error: BaseException) -> OSError:
 
 
 def _looks_like_hdf5(path: Path) -> bool:
+    """Whether the file starts with the HDF5 signature (or with a part of it: a file cut within its first bytes)."""
     with open(path, "rb") as handle:
-        return handle.read(8) == b"\x89HDF\r\n\x1a\n"
+        head = handle.read(8)
+    return bool(head) and b"\x89HDF\r\n\x1a\n".startswith(head)
 
 
 def _describe_change(stored: str, current: str) -> str:

@@ -1,4 +1,4 @@
-"""Batched descriptor extraction from image files, on CPU or CUDA, with a resumable HDF5 cache.
+"""Batched descriptor extraction from image files, on CPU or CUDA, with an HDF5 cache resumed image by image.
 
 :func:`extract_descriptors` decodes images in worker threads (the next batch while the model runs on the current
 one), runs the model batch by batch and appends each batch to the cache (see :mod:`vpr_uncertainty.features.cache`)
@@ -114,6 +114,16 @@ def _decoded_batches(
             yield [future.result() for future in pending]
 
 
+def _content_key(path: Path) -> str:
+    """The image's content key, or "" when it cannot be read (the decoder then reports why)."""
+    from vpr_uncertainty.cache import content_key
+
+    try:
+        return content_key(path)
+    except OSError:
+        return ""
+
+
 def _forward(model: DescriptorModel, images: list[np.ndarray]) -> np.ndarray:
     """Descriptors (B, D) float32 of decoded images; images of different sizes run in separate sub-batches."""
     groups: dict[tuple[int, ...], list[int]] = {}
@@ -147,8 +157,9 @@ def extract_descriptors(
     overwrite: bool = False,
     progress: bool = True,
     on_batch: Callable[[list[str]], None] | None = None,
+    failed: list[dict[str, str]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Global descriptors of images, cached by image name in an HDF5 file.
+    """Global descriptors of images, cached in an HDF5 file by image name and content key.
 
     Parameters
     ----------
@@ -181,6 +192,8 @@ def extract_descriptors(
         Show a tqdm progress bar.
     on_batch : callable, optional
         Called with the names of each batch after it has been written to the cache.
+    failed : list, optional
+        Receives ``{"name", "path", "error"}`` of each image left out (``on_error="skip"``).
 
     Returns
     -------
@@ -215,11 +228,14 @@ def extract_descriptors(
         else None
     )
     memory: dict[str, np.ndarray] = {}
-    failed: list[dict[str, str]] = []
+    failed = [] if failed is None else failed
     try:
+        keys: dict[str, str] = {}
         if cache is not None:
             cache.open()
-            done = set(cache.names(split))
+            stored = cache.keys(split)
+            keys = {name: _content_key(path) for name, path in zip(names, paths, strict=True)}
+            done = {name for name in names if keys[name] and stored.get(name) == keys[name]}
         else:
             done = set()
         todo = [(index, name, path) for index, (name, path) in enumerate(zip(names, paths, strict=True))]
@@ -249,7 +265,7 @@ def extract_descriptors(
                 if images:
                     descriptors = _forward(model, images)
                     if cache is not None:
-                        cache.append(split, good_names, descriptors)
+                        cache.append(split, good_names, descriptors, [keys[name] for name in good_names])
                     else:
                         for name, row in zip(good_names, descriptors.astype(dtype), strict=True):
                             memory[name] = row

@@ -8,18 +8,19 @@ Layout (the one ``hloc.extract_features`` writes, so hloc and this package read 
         scores               (N,) float32
         image_size           (2,) (width, height) of the original image
 
-The cache writes one file per extractor configuration, ``<extractor>-<hash of its config>.h5``, and records the
-configuration in the file's ``config`` attribute: changing the extractor, its options, its weights or ``max_side``
-starts a new file, while the same configuration reuses (and resumes) the old one. Each group also records the
-image file's size and modification time; an image that changed on disk is extracted again.
+The cache follows :mod:`vpr_uncertainty.cache`: one file per extractor configuration,
+``<extractor>-<fingerprint>.h5``, holding the configuration (``config``) and its
+:func:`~vpr_uncertainty.cache.fingerprint` (``fingerprint``) as attributes: changing the extractor, its options,
+its weights or ``max_side`` starts a new file, while the same configuration reuses (and resumes) the old one. Each
+group records the :func:`~vpr_uncertainty.cache.content_key` of its image file (attribute ``content_key``); an
+image that changed on disk (or a group of the previous layout, without a key) is extracted again. The file is
+created whole (atomically); a truncated or unreadable file is reported in one line and rebuilt.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from vpr_uncertainty import cache
 from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 
 __all__ = [
@@ -40,7 +42,8 @@ __all__ = [
     "write_features",
 ]
 
-CACHE_FORMAT_VERSION = 1
+CACHE_FORMAT_VERSION = 2
+STAGE = "local features"
 
 
 def image_names(paths: Sequence[str | Path], root: str | Path | None = None) -> list[str]:
@@ -63,19 +66,14 @@ def image_names(paths: Sequence[str | Path], root: str | Path | None = None) -> 
     return [path.relative_to(root).as_posix() for path in resolved]
 
 
-def config_hash(config: Mapping[str, Any]) -> str:
-    text = json.dumps({"cache_format": CACHE_FORMAT_VERSION, **config}, sort_keys=True, default=str)
-    return hashlib.sha1(text.encode()).hexdigest()[:12]
+def config_fingerprint(config: Mapping[str, Any]) -> str:
+    """The :func:`~vpr_uncertainty.cache.fingerprint` of an extractor configuration."""
+    return cache.fingerprint(STAGE, {"cache_format": CACHE_FORMAT_VERSION, **config})
 
 
 def cache_path(cache_dir: str | Path, extractor: Extractor) -> Path:
     """The cache file of an extractor's configuration inside ``cache_dir``."""
-    return Path(cache_dir) / f"{extractor.name}-{config_hash(extractor.config())}.h5"
-
-
-def _source_stamp(path: str | Path) -> tuple[int, int]:
-    stat = Path(path).stat()
-    return int(stat.st_size), int(stat.st_mtime_ns)
+    return Path(cache_dir) / f"{extractor.name}-{config_fingerprint(extractor.config())[:16]}.h5"
 
 
 def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
@@ -126,7 +124,7 @@ def write_features(file: h5py.File, name: str, features: LocalFeatures, *, sourc
     group.create_dataset("scores", data=features.scores)
     group.create_dataset("image_size", data=features.image_size)
     if source is not None:
-        group.attrs["source_size"], group.attrs["source_mtime_ns"] = _source_stamp(source)
+        group.attrs["content_key"] = cache.content_key(source)
 
 
 def _group_names(file: h5py.File) -> list[str]:
@@ -140,13 +138,22 @@ def _group_names(file: h5py.File) -> list[str]:
     return names
 
 
-def _open_cache(path: Path) -> h5py.File:
-    try:
-        return h5py.File(path, "a")
-    except OSError as error:  # e.g. a run killed while writing
-        warnings.warn(f"feature cache {path} is unreadable ({error}); extracting again", RuntimeWarning, stacklevel=3)
-        path.unlink()
-        return h5py.File(path, "a")
+def _open_cache(path: Path, config: str) -> h5py.File:
+    """The cache file for appending: created whole when missing; rebuilt (one-line notice) when unusable."""
+    if path.exists():
+        try:
+            handle = h5py.File(path, "a")
+        except OSError as error:  # e.g. a run killed while writing
+            cache.stale_notice(path, f"unreadable (truncated or foreign: {str(error).splitlines()[0]})")
+        else:
+            if handle.attrs.get("fingerprint") == config_fingerprint(json.loads(config)):
+                return handle
+            handle.close()
+            cache.stale_notice(path, "made by another configuration or an earlier version")
+    with cache.atomic_path(path) as temporary, h5py.File(temporary, "w") as handle:
+        handle.attrs["config"] = config
+        handle.attrs["fingerprint"] = config_fingerprint(json.loads(config))
+    return h5py.File(path, "a")
 
 
 @dataclass
@@ -198,17 +205,12 @@ def extract_features(
         if cache_dir is not None:
             file_path = cache_path(cache_dir, extractor)
             file_path.parent.mkdir(parents=True, exist_ok=True)
-            handle = _open_cache(file_path)
             config = json.dumps(extractor.config(), sort_keys=True, default=str)
-            if handle.attrs.get("config", config) != config:  # hash collision or a file edited by hand
-                handle.close()
-                file_path.unlink()
-                handle = h5py.File(file_path, "a")
-            handle.attrs["config"] = config
+            handle = _open_cache(file_path, config)
             for name, path in unique.items():
                 if name in handle and "image_size" in handle[name]:
-                    stamp = (handle[name].attrs.get("source_size"), handle[name].attrs.get("source_mtime_ns"))
-                    if stamp == _source_stamp(path):
+                    stored = handle[name].attrs.get("content_key")
+                    if stored is not None and Path(path).is_file() and stored == cache.content_key(path):
                         features[name] = read_features(handle, name)
         todo = [name for name in unique if name not in features]
         stats.cached = len(features)

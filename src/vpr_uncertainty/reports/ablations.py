@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr_uncertainty.cache import atomic_path
+
 __all__ = ["ABLATION_SIZE", "DPI", "ablation_alpha_means", "ablation_k_means", "plot_alpha_ablation", "plot_k_ablation"]
 
 DPI = 100
@@ -72,7 +74,8 @@ def plot_alpha_ablation(cells: Sequence, path: str | Path) -> Path:
         axis.set_title("SU: AUC-PR versus α")
         figure.tight_layout()
         path.parent.mkdir(parents=True, exist_ok=True)
-        figure.savefig(path, dpi=DPI)
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary, dpi=DPI)
     finally:
         plt.close(figure)
     return path
@@ -108,7 +111,8 @@ def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
         axis.set_title("RS and SD: AUC-PR versus k")
         figure.tight_layout()
         path.parent.mkdir(parents=True, exist_ok=True)
-        figure.savefig(path, dpi=DPI)
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary, dpi=DPI)
     finally:
         plt.close(figure)
     return path

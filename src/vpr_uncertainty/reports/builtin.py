@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablation
 from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
 from vpr_uncertainty.reports.plots import plot_rejection_curves
@@ -37,7 +38,7 @@ def write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> li
     paths = []
     for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex)):
         path = out_dir / f"table1.{suffix}"
-        path.write_text(render(table))
+        write_text(path, render(table))
         paths.append(path)
     return paths
 

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr_uncertainty.cache import atomic_path
+
 __all__ = ["DPI", "PROPOSED", "delta_matrix", "heatmap_figsize", "plot_delta_heatmaps"]
 
 PROPOSED: tuple[str, ...] = ("RS", "SD", "SU")
@@ -77,7 +79,8 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path) -> list[Path]:
             figure.colorbar(image, ax=list(axes[0]), shrink=0.8, label="Δ AUC-PR")
             figure.suptitle(f"{proposed}: Δ AUC-PR against each baseline (> 0: {proposed} better)", fontsize=10)
             path = out_dir / f"delta_{proposed}.png"
-            figure.savefig(path, dpi=DPI)
+            with atomic_path(path) as temporary:
+                figure.savefig(temporary, dpi=DPI)
         finally:
             plt.close(figure)
         paths.append(path)

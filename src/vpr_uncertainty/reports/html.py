@@ -7,6 +7,8 @@ from collections.abc import Sequence
 from html import escape
 from pathlib import Path
 
+from vpr_uncertainty.cache import write_text
+
 __all__ = ["Section", "embed_png", "render_report", "write_report"]
 
 _STYLE = """
@@ -73,5 +75,5 @@ def write_report(path: str | Path, title: str, sections: Sequence[Section], *, i
     """Write :func:`render_report` to ``path`` (UTF-8) and return it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(render_report(title, sections, intro=intro), encoding="utf-8")
+    write_text(path, render_report(title, sections, intro=intro))
     return path

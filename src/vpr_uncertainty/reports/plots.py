@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from vpr_uncertainty.cache import atomic_path
 from vpr_uncertainty.evaluation import Evaluation
 
 __all__ = ["plot_rejection_curves"]
@@ -55,7 +56,8 @@ def plot_rejection_curves(evaluation: Evaluation, path: str | Path, *, title: st
         axes.set_title(title or f"Rejecting uncertain answers ({evaluation.n_queries} queries)")
         figure.tight_layout()
         path.parent.mkdir(parents=True, exist_ok=True)
-        figure.savefig(path)
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary)
     finally:
         plt.close(figure)
     return path

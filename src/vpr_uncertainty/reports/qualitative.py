@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.cache import atomic_path
+
 __all__ = ["CATEGORIES", "DPI", "SHOWN", "TOP", "choose_queries", "plot_qualitative", "qualitative_figsize"]
 
 CATEGORIES: tuple[str, ...] = ("confident correct", "confident wrong", "uncertain correct", "uncertain wrong")
@@ -138,7 +140,8 @@ def plot_qualitative(
         figure.suptitle(f"{cell.vpr_method} on {cell.dataset}: answers ranked by {rank_by}{suffix}", fontsize=10)
         figure.tight_layout()
         path.parent.mkdir(parents=True, exist_ok=True)
-        figure.savefig(path, dpi=DPI)
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary, dpi=DPI)
     finally:
         plt.close(figure)
     return path

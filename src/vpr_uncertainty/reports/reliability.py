@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from vpr_uncertainty.cache import atomic_path
 from vpr_uncertainty.calibration.quality import Reliability
 
 __all__ = ["plot_reliability"]
@@ -49,7 +50,8 @@ def plot_reliability(reliability: Reliability, path: str | Path, *, title: str |
             axes.set_title(title)
         figure.tight_layout()
         path.parent.mkdir(parents=True, exist_ok=True)
-        figure.savefig(path)
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary)
     finally:
         plt.close(figure)
     return path

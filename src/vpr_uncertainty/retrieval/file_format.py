@@ -22,17 +22,17 @@ Retrieval file (``.npz``, no pickles), format version 1
     ``"placeholder"`` (ids laid out on a line that only encode which images match). Methods that work in
     metric space (SUE) warn when ``position_kind`` is present and not ``"metres"``; an absent key means metres.
 
-Writes are atomic: the archive is written whole to a temporary file beside the target, then renamed over it, so
-an interrupted write never leaves a truncated file. Reading checks every field (see
-:mod:`vpr_uncertainty.retrieval._checks`) and what only a file has: ``format_version`` an integer between 1 and
-:data:`FORMAT_VERSION`; the CSR ground truth (``positives_indptr``, ``positives_indices``, ``n_database``)
-consistent; ``config`` a JSON object. A zero-byte, truncated or non-``.npz`` file is reported as such.
+Writes are atomic (:func:`vpr_uncertainty.cache.atomic_write`): the archive is written whole to a temporary file
+beside the target, fsynced, then renamed over it, so an interrupted write never leaves a truncated file. Reading
+checks every field (see :mod:`vpr_uncertainty.retrieval._checks`) and what only a file has: ``format_version``
+an integer between 1 and :data:`FORMAT_VERSION`; the CSR ground truth (``positives_indptr``,
+``positives_indices``, ``n_database``) consistent; ``config`` a JSON object.
+A zero-byte, truncated or non-``.npz`` file is reported as such.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 import zlib
 from pathlib import Path
@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+from vpr_uncertainty.cache import atomic_write
 from vpr_uncertainty.retrieval._checks import check_indices, check_integers, check_scores
 from vpr_uncertainty.retrieval.result import Retrieval
 
@@ -73,14 +74,8 @@ def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
         value = getattr(retrieval, name)
         if value is not None:
             arrays[name] = np.asarray(value, dtype=np.float64)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.partial")  # written whole, then renamed: never a truncated file
-    try:
-        with partial.open("wb") as handle:
-            np.savez_compressed(handle, **arrays)
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
+    with atomic_write(path, "wb") as handle:  # written whole, then renamed: never a truncated file
+        np.savez_compressed(handle, **arrays)
     return path
 
 

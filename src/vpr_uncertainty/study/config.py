@@ -65,12 +65,19 @@ class InputEntry:
         return f"{slug(self.vpr_method)}__{slug(self.dataset)}"
 
     def fingerprint(self) -> dict[str, Any]:
+        """What the cell's result depends on: the content keys of its files and its options.
+
+        Files are keyed by :func:`vpr_uncertainty.cache.content_key` (size, modification time, hash), so an
+        edited results file or ground truth recomputes the cell. Image inputs (``model``) are covered by the
+        stages' own caches, whose fingerprints the cell's result carries through the run.
+        """
+        from vpr_uncertainty.cache import content_key
+
         files = {}
         for name in ("scores", "ground_truth"):
             path = getattr(self, name)
             if path is not None:
-                stat = path.stat()
-                files[name] = [str(path.resolve()), stat.st_size, stat.st_mtime_ns]
+                files[name] = [str(path.resolve()), content_key(path)]
         return {
             **files,
             "model": self.model,

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from vpr_uncertainty.cache import atomic_write, write_text
 from vpr_uncertainty.study.cell import CSV_FIELDS, Cell
 from vpr_uncertainty.study.config import GridConfig
 
@@ -39,11 +40,11 @@ def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
     document = {"settings": config.settings(), "cells": [cell.to_dict() for cell in cells]}
     json_path = out / "results.json"
-    json_path.write_text(json.dumps(document, indent=2) + "\n")
+    write_text(json_path, json.dumps(document, indent=2) + "\n")
     rows = [row for cell in cells for row in cell.rows()]
     recall_fields = sorted({key for row in rows for key in row if key.startswith("recall@")}, key=lambda s: int(s[7:]))
     csv_path = out / "results.csv"
-    with csv_path.open("w", newline="") as file:
+    with atomic_write(csv_path, newline="") as file:
         writer = csv.DictWriter(file, fieldnames=[*CSV_FIELDS, *recall_fields])
         writer.writeheader()
         writer.writerows(rows)

@@ -1,25 +1,27 @@
 """Run the grid: every (VPR method, dataset) cell evaluated, or read from its cache under ``out/cells``.
 
-A cell's cache is two files named by the cell's key: ``KEY.json`` (a fingerprint of the cell's inputs and the
-grid's settings, :meth:`Cell.to_dict` and the image paths) and ``KEY.npz`` (:meth:`Cell.arrays`). Both are written
-atomically (a temporary file, then a rename). A cell is read back only when its fingerprint matches; a cell cut
-short or unreadable is recomputed, and a cell of the previous cache layout (version 1) is still read.
+A cell's cache is two files named by the cell's key: ``KEY.json`` (the :func:`~vpr_uncertainty.cache.fingerprint`
+of the cell's inputs and the grid's settings, :meth:`Cell.to_dict` and the image paths) and ``KEY.npz``
+(:meth:`Cell.arrays`). Both are written atomically (:mod:`vpr_uncertainty.cache`). The inputs are keyed by content:
+results and ground-truth files by :func:`~vpr_uncertainty.cache.content_key`; for a cell computed from images
+(``model``), every image and the dataset's ground truth as well. A cell is read back only when its fingerprint
+matches; a cell cut short or unreadable is reported in one line and recomputed. Cells of the previous layouts
+(fingerprints of file sizes and times) no longer match and are recomputed.
+
+Image inputs run :func:`vpr_uncertainty.pipeline.run` (the stage spine) on the dataset loaded once here.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
-import tempfile
 import warnings
 import zipfile
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty import cache
 from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, correct_at_n, evaluate
 from vpr_uncertainty.study.ablations import ablation_curves, ks_left_out_note
 from vpr_uncertainty.study.cell import Cell
@@ -29,8 +31,9 @@ __all__ = ["HIT_COLUMNS", "candidates_needed", "load_cell", "run_cell", "run_gri
 
 #: Candidates per query whose correctness is kept for the qualitative figure.
 HIT_COLUMNS = 4
-#: Layout of the cell cache files (1: the layout before :meth:`Cell.to_dict`, still read).
+#: Layout of the cell cache files (1: the layout before :meth:`Cell.to_dict`, read when its fingerprint matches).
 CACHE_VERSION = 2
+STAGE = "grid cell"
 
 
 def candidates_needed(config: GridConfig) -> int:
@@ -47,7 +50,9 @@ def candidates_needed(config: GridConfig) -> int:
     return max([config.k, *config.ks, max(RECALL_NS)])
 
 
-def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[Any, Evaluation | None, Any]:
+def _load_cell_input(
+    entry: InputEntry, config: GridConfig, out: Path, dataset: Any = None
+) -> tuple[Any, Evaluation | None, Any]:
     """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None)."""
     if entry.model is None:
         from vpr_uncertainty.retrieval import MATRIX_TOP_K, read_results
@@ -64,7 +69,7 @@ def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[
     options = dict(entry.run_options)
     result = run(
         RunConfig(
-            dataset=entry.dataset_source,
+            dataset=dataset if dataset is not None else entry.dataset_source,
             out=out / "runs" / entry.key,
             model=entry.model,
             methods=config.methods,
@@ -74,10 +79,7 @@ def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[
             **options,
         )
     )
-    from vpr_uncertainty.data import load_dataset
-
-    dataset = load_dataset(entry.dataset_source, root=options.get("root"), split=options.get("split"))
-    return result.retrieval, result.evaluation, dataset
+    return result.retrieval, result.evaluation, dataset if dataset is not None else result.dataset
 
 
 def positive_hits(retrieval: Any, n: int) -> np.ndarray:
@@ -88,22 +90,32 @@ def positive_hits(retrieval: Any, n: int) -> np.ndarray:
     return hits.astype(bool) & (indices >= 0)
 
 
-def _cell_fingerprint(entry: InputEntry, config: GridConfig) -> str:
+def _image_dataset(entry: InputEntry) -> Any:
+    """The image dataset of a cell computed from images (None for a results file)."""
+    if entry.model is None:
+        return None
+    from vpr_uncertainty.data import load_dataset
+
+    options = entry.run_options
+    return load_dataset(entry.dataset_source, root=options.get("root"), split=options.get("split"))
+
+
+def _images_key(dataset: Any) -> str | None:
+    """The content of a dataset's images and ground truth, for the fingerprint of a cell computed from images."""
+    if dataset is None or not dataset.has_images:
+        return None
+    from vpr_uncertainty.stages.retrieval import ground_truth_key
+
+    keys = {
+        split: [cache.content_key(path) if Path(path).is_file() else "missing" for path in paths]
+        for split, paths in (("queries", dataset.query_paths), ("database", dataset.database_paths))
+    }
+    return cache.fingerprint("images", {}, {**keys, "ground_truth": ground_truth_key(dataset.retrieval_fields())})
+
+
+def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None) -> str:
     settings = {**config.settings(), "candidates": candidates_needed(config)}
-    text = json.dumps({"input": entry.fingerprint(), "settings": settings}, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _write_atomically(path: Path, write: Callable[[Any], None], mode: str) -> None:
-    """Call ``write(file)`` on a temporary file beside ``path``, then rename it to ``path``."""
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, mode) as file:
-            write(file)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    return cache.fingerprint(STAGE, settings, {"input": entry.fingerprint(), "images": _images_key(dataset)})
 
 
 def save_cell(cell: Cell, json_path: Path, npz_path: Path, fingerprint: str) -> None:
@@ -117,7 +129,8 @@ def save_cell(cell: Cell, json_path: Path, npz_path: Path, fingerprint: str) -> 
     fingerprint : str
         The fingerprint of the cell's inputs and settings, checked by :func:`load_cell`.
     """
-    _write_atomically(npz_path, lambda file: np.savez_compressed(file, **cell.arrays()), "wb")
+    with cache.atomic_write(npz_path, "wb") as file:
+        np.savez_compressed(file, **cell.arrays())
     document = {
         "version": CACHE_VERSION,
         "fingerprint": fingerprint,
@@ -125,7 +138,7 @@ def save_cell(cell: Cell, json_path: Path, npz_path: Path, fingerprint: str) -> 
         "query_paths": cell.query_paths,
         "database_paths": cell.database_paths,
     }
-    _write_atomically(json_path, lambda file: file.write(json.dumps(document, indent=1) + "\n"), "w")
+    cache.write_text(json_path, json.dumps(document, indent=1) + "\n")
 
 
 def _version_1(meta: dict[str, Any]) -> dict[str, Any]:
@@ -141,6 +154,8 @@ def _version_1(meta: dict[str, Any]) -> dict[str, Any]:
 
 def load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None:
     """A cell read from its cache, or None when the cache is missing, stale (another fingerprint) or unreadable.
+
+    An unreadable cell (cut short, foreign) is reported in one line (:class:`~vpr_uncertainty.cache.CacheWarning`).
 
     Parameters
     ----------
@@ -160,7 +175,7 @@ def load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None:
         if meta.get("fingerprint") != fingerprint:
             return None
         data = meta["cell"] if "cell" in meta else _version_1(meta)
-        with np.load(npz_path, allow_pickle=False) as archive:
+        with open(npz_path, "rb") as file, np.load(file, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
         return Cell.from_dict(
             data,
@@ -169,7 +184,8 @@ def load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None:
             database_paths=meta.get("database_paths"),
             cached=True,
         )
-    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):  # a cell cut short: recompute
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as error:  # cut short: recompute
+        cache.stale_notice(json_path, f"unreadable cell (truncated or foreign: {error or type(error).__name__})")
         return None
 
 
@@ -193,12 +209,13 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
     cells = out / "cells"
     cells.mkdir(parents=True, exist_ok=True)
     json_path, npz_path = cells / f"{entry.key}.json", cells / f"{entry.key}.npz"
-    fingerprint = _cell_fingerprint(entry, config)
+    dataset = _image_dataset(entry)
+    fingerprint = _cell_fingerprint(entry, config, dataset)
     if not force:
         cached = load_cell(json_path, npz_path, fingerprint)
         if cached is not None:
             return cached
-    retrieval, evaluation, dataset = _load_cell_input(entry, config, out)
+    retrieval, evaluation, dataset = _load_cell_input(entry, config, out, dataset)
     query_paths = database_paths = None
     if dataset is None and entry.images is not None:
         from vpr_uncertainty.data import load_vprbench_dataset

@@ -1,0 +1,87 @@
+"""Stage 4, reports: an evaluation → ``results.md``, ``pr_curves.png`` and, last, ``results.json``.
+
+Every file is written atomically (:mod:`vpr_uncertainty.cache`) and exactly once: ``results.json`` is written
+after the table and the plot, so the time it records for this stage includes them.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from vpr_uncertainty import cache
+
+__all__ = ["ReportsResult", "format_reranking", "write_reports"]
+
+
+@dataclass
+class ReportsResult:
+    """The files :func:`write_reports` wrote, by role: ``table``, ``plot``, ``results``."""
+
+    paths: dict[str, Path]
+
+    @property
+    def path(self) -> Path:
+        """``results.json``."""
+        return self.paths["results"]
+
+
+def format_reranking(reranking: Mapping[str, Any]) -> str:
+    """recall@N of the global retrieval and after re-ranking its top-k by inliers, in one line."""
+    pairs = ", ".join(
+        f"R@{n} {reranking['global'][n]:.3f} → {reranking['reranked'][n]:.3f}" for n in reranking["reranked"]
+    )
+    return f"re-ranking the top {reranking['top_k']} by {reranking['method']} inliers: {pairs}"
+
+
+def write_reports(
+    out: str | Path,
+    evaluation: Any,
+    *,
+    dataset: str,
+    model: str,
+    document: Mapping[str, Any],
+    stage_seconds: dict[str, float],
+    reranking: Mapping[str, Any] | None = None,
+) -> ReportsResult:
+    """Write the table, the precision-recall plot and ``results.json`` into ``out``.
+
+    Parameters
+    ----------
+    out : str or Path
+        The run directory.
+    evaluation : Evaluation
+    dataset, model : str
+        The names in the titles of the table and the plot.
+    document : mapping
+        Entries of ``results.json`` beside :meth:`Evaluation.to_dict` (``config``, ``dataset``).
+    stage_seconds : dict
+        Seconds of the earlier stages; this stage adds ``"reports"`` (in place).
+    reranking : mapping, optional
+        The re-ranking summary, reported in the table and in ``results.json``.
+
+    Returns
+    -------
+    ReportsResult
+    """
+    from vpr_uncertainty.reports import format_table, plot_rejection_curves
+
+    start = time.perf_counter()
+    out = Path(out)
+    text = f"# {dataset} with {model}\n\n" + format_table(evaluation, markdown=True) + "\n"
+    if reranking:
+        text += "\n" + format_reranking(reranking) + "\n"
+    table = cache.write_text(out / "results.md", text)
+    plot = plot_rejection_curves(evaluation, out / "pr_curves.png", title=f"{dataset} · {model}")
+    stage_seconds["reports"] = time.perf_counter() - start
+    content = {
+        **evaluation.to_dict(),
+        **document,
+        "stage_seconds": stage_seconds,
+        **({"reranking": dict(reranking)} if reranking else {}),
+    }
+    results = cache.write_json(out / "results.json", content)
+    return ReportsResult(paths={"results": results, "table": table, "plot": plot})
