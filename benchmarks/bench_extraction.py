@@ -19,8 +19,8 @@ import statistics
 import time
 from pathlib import Path
 
-from vpr_uncertainty.features import DEFAULT_MODEL, extract_descriptors, load_image, load_model
-from vpr_uncertainty.features.images import to_model_input
+from vpr_uncertainty.descriptors import DEFAULT_MODEL, extract_descriptors, load_image, load_model
+from vpr_uncertainty.descriptors.images import to_model_input
 
 
 def default_folder() -> Path | None:

@@ -25,8 +25,8 @@ from vpr_uncertainty.btl import btl_retrieval, load_btl_head, save_btl_head, tra
 from vpr_uncertainty.btl.inputs import resolve_btl_inputs  # noqa: E402
 from vpr_uncertainty.data.attach import attach_ground_truth  # noqa: E402
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth  # noqa: E402
+from vpr_uncertainty.descriptors import extract_descriptors, load_model  # noqa: E402
 from vpr_uncertainty.evaluation import evaluate  # noqa: E402
-from vpr_uncertainty.features import extract_descriptors, load_model  # noqa: E402
 from vpr_uncertainty.retrieval import retrieve, save_retrieval  # noqa: E402
 
 pytestmark = pytest.mark.realdata

@@ -44,7 +44,7 @@ def test_demo_evaluates_every_score_only_method_on_every_query(demo_run):
 
 
 def test_rerun_reuses_descriptors_and_retrieval(demo_run, data_dir, monkeypatch):
-    from vpr_uncertainty.features import extract
+    from vpr_uncertainty.descriptors import extract
 
     calls = []
     original = extract._forward
@@ -114,7 +114,7 @@ def test_cuda_extraction_searches_on_cpu_without_gpu_faiss(monkeypatch, tmp_path
         descriptors = rng.normal(size=(len(names), 8)).astype(np.float32)
         return np.asarray(names), descriptors / np.linalg.norm(descriptors, axis=1, keepdims=True)
 
-    from vpr_uncertainty.features import extract, models
+    from vpr_uncertainty.descriptors import extract, models
 
     monkeypatch.setattr(retrieval, "retrieve", spy)
     monkeypatch.setattr(retrieval, "faiss_gpu_available", lambda: False)
@@ -144,7 +144,7 @@ def test_rerank_reports_recall_before_and_after(demo_run, corridor_dir, capsys):
 
 
 def test_method_needing_positions_fails_before_extraction(tmp_path, corridor_dir, capsys, monkeypatch):
-    import vpr_uncertainty.features as features
+    import vpr_uncertainty.descriptors as features
 
     monkeypatch.setattr(features, "extract_descriptors", lambda *a, **k: pytest.fail("extraction started"))
     assert main(["run", "--dataset", str(corridor_dir), "--out", str(tmp_path / "run"), "--methods", "SU,SUE"]) == 2

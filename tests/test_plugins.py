@@ -93,7 +93,7 @@ def test_evaluate_resolves_files_once_before_timing():
 
 
 def test_descriptor_models_are_registry_entries():
-    from vpr_uncertainty.features.models import MODELS, available_models, get_model_spec
+    from vpr_uncertainty.descriptors.models import MODELS, available_models, get_model_spec
 
     spec = get_model_spec("EfficientNet_Lite0-GEM")  # case, "-" and "_" ignored
     assert spec.name == "efficientnet-lite0-gem" and spec.requires == ("images",) and spec.extra == "torch"

@@ -29,7 +29,7 @@ def _extending_blocks() -> list[str]:
 
 def _registries() -> dict:
     from vpr_uncertainty.data import DATASET_FORMAT_REGISTRY
-    from vpr_uncertainty.features.models import MODELS, available_models
+    from vpr_uncertainty.descriptors.models import MODELS, available_models
     from vpr_uncertainty.methods import METHODS
     from vpr_uncertainty.reports import REPORT_FIGURES
 

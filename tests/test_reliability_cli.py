@@ -220,7 +220,7 @@ def test_device_names_accepted(device):
 
 def test_library_rejects_a_bogus_device_with_a_value_error():
     pytest.importorskip("torch")
-    from vpr_uncertainty.features.models import from_callable
+    from vpr_uncertainty.descriptors.models import from_callable
 
     with pytest.raises(ValueError, match="invalid device 'bogus'"):
         from_callable(lambda images: images.mean(dim=(2, 3)), device="bogus")
@@ -301,7 +301,7 @@ _PAUSING = textwrap.dedent(
     """
     import sys, time
     from vpr_uncertainty.cli import main
-    from vpr_uncertainty.features import extract
+    from vpr_uncertainty.descriptors import extract
 
     original, calls = extract._forward, []
 
@@ -339,7 +339,7 @@ def interrupt_in_third_batch(*args: str) -> subprocess.CompletedProcess:
 
 
 def count_forwarded_images(monkeypatch) -> list[int]:
-    from vpr_uncertainty.features import extract
+    from vpr_uncertainty.descriptors import extract
 
     counted: list[int] = []
     original = extract._forward
@@ -350,7 +350,7 @@ def count_forwarded_images(monkeypatch) -> list[int]:
 
 
 def test_ctrl_c_during_extract_exits_130_and_the_rerun_resumes(tmp_path, tiny_dataset, monkeypatch, capsys):
-    from vpr_uncertainty.features import cache_info, read_descriptors
+    from vpr_uncertainty.descriptors import cache_info, read_descriptors
 
     table, model = tiny_dataset
     out = tmp_path / "descriptors.h5"

@@ -23,15 +23,15 @@ Image = pytest.importorskip("PIL.Image")
 
 from vpr_uncertainty.data import listing as listing_module  # noqa: E402
 from vpr_uncertainty.data.folder import ImageListingError, list_images, load_folder_dataset  # noqa: E402
-from vpr_uncertainty.features import (  # noqa: E402
+from vpr_uncertainty.descriptors import (  # noqa: E402
     ImageDecodeError,
     Preprocessing,
     cache_info,
     extract_descriptors,
     load_image,
 )
-from vpr_uncertainty.features.images import DEFAULT_MAX_SIDE, DEFAULT_MIN_SIDE, read_image_size  # noqa: E402
-from vpr_uncertainty.features.models import from_callable, get_model_spec  # noqa: E402
+from vpr_uncertainty.descriptors.images import DEFAULT_MAX_SIDE, DEFAULT_MIN_SIDE, read_image_size  # noqa: E402
+from vpr_uncertainty.descriptors.models import from_callable, get_model_spec  # noqa: E402
 
 NOT_UTF8 = os.fsdecode(b"caf\xe9.png")  # Latin-1 bytes: Python's name for it holds a surrogate escape
 
@@ -136,7 +136,7 @@ def test_a_summary_names_the_first_few_and_counts_all(tmp_path):
 def test_the_default_model_skips_tiny_images_instead_of_crashing(tmp_path):
     """Regression: a 10 x 10 image made EfficientNet-Lite0 raise a RuntimeError (kernel larger than input)."""
     pytest.importorskip("efficientnet_lite_pytorch")
-    from vpr_uncertainty.features import load_model
+    from vpr_uncertainty.descriptors import load_model
 
     assert get_model_spec("efficientnet-lite0-gem").preprocessing.min_side == DEFAULT_MIN_SIDE
     effnet = load_model("efficientnet-lite0-gem")
@@ -208,11 +208,11 @@ def _folder_dataset(root: Path) -> Path:
 @pytest.mark.filterwarnings("ignore:AUC-PR and AP are undefined")
 def test_run_skip_reports_every_image_left_out_and_fail_names_it(tmp_path, monkeypatch):
     """Regression: an unreadable sub-folder silently dropped its queries and `run` exited 0 under fail."""
-    from vpr_uncertainty import features, pipeline
+    from vpr_uncertainty import descriptors, pipeline
 
     root = _folder_dataset(tmp_path / "dataset")
     _unreadable(root / "queries" / "locked", monkeypatch)
-    monkeypatch.setattr(features, "load_model", lambda name, device: model()[1])
+    monkeypatch.setattr(descriptors, "load_model", lambda name, device: model()[1])
     try:
         dataset = load_folder_dataset(root)
         assert dataset.n_queries == 5 and [Path(item["path"]).name for item in dataset.unlisted] == ["locked"]
@@ -306,7 +306,7 @@ def test_geometric_loader_refuses_bombs_and_reads_any_file_name(tmp_path):
 
 def test_extract_command_skips_and_reports_or_fails_naming_the_image(tmp_path, monkeypatch, capsys):
     from vpr_uncertainty import cli
-    from vpr_uncertainty.features import models
+    from vpr_uncertainty.descriptors import models
 
     root = tmp_path / "dataset"
     for split in ("database", "queries"):

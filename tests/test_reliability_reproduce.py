@@ -242,7 +242,7 @@ def _btl_importable() -> bool:
 
 
 def test_run_lists_every_unmet_need_before_extraction(tmp_path, corridor_dir, capsys, monkeypatch):
-    import vpr_uncertainty.features as features
+    import vpr_uncertainty.descriptors as features
 
     monkeypatch.setattr(features, "extract_descriptors", lambda *a, **k: pytest.fail("extraction started"))
     argv = ["run", "--dataset", str(corridor_dir), "--out", str(tmp_path / "run"), "--methods", "SUE,BTL,GV-H5"]

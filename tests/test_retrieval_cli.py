@@ -171,7 +171,7 @@ def test_sue_on_real_pittsburgh_positions(data_dir):
 def test_retrieve_from_a_descriptor_cache(tmp_path, capsys):
     """The HDF5 cache of the feature extraction, written here by hand in its documented layout."""
     h5py = pytest.importorskip("h5py")
-    cache = pytest.importorskip("vpr_uncertainty.features.cache")
+    cache = pytest.importorskip("vpr_uncertainty.descriptors.cache")
     rng = np.random.default_rng(3)
     path = tmp_path / "descriptors.h5"
     with h5py.File(path, "w") as handle:

@@ -84,16 +84,16 @@ def test_load_descriptors_from_npy(tmp_path):
 
 
 def test_load_descriptors_from_the_cache_contract(tmp_path, monkeypatch):
-    """The .h5 branch calls vpr_uncertainty.features.cache.read_descriptors(path, split) -> (names, array)."""
+    """The .h5 branch calls vpr_uncertainty.descriptors.cache.read_descriptors(path, split) -> (names, array)."""
     calls = []
 
     def read_descriptors(path, split):
         calls.append((path, split))
         return [f"{split}/{i}.jpg" for i in range(3)], np.ones((3, 4), np.float32) * (split == "database")
 
-    module = types.ModuleType("vpr_uncertainty.features.cache")
+    module = types.ModuleType("vpr_uncertainty.descriptors.cache")
     module.read_descriptors = read_descriptors
-    monkeypatch.setitem(sys.modules, "vpr_uncertainty.features.cache", module)
+    monkeypatch.setitem(sys.modules, "vpr_uncertainty.descriptors.cache", module)
     path = tmp_path / "descriptors.h5"
     path.write_bytes(b"")
     names, descriptors = load_descriptors(path, "database")

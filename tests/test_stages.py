@@ -61,7 +61,7 @@ def run(dataset: Path, out: Path):
 
 
 def forwarded(monkeypatch) -> list[int]:
-    from vpr_uncertainty.features import extract
+    from vpr_uncertainty.descriptors import extract
 
     counted: list[int] = []
     original = extract._forward

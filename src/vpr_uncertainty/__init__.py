@@ -5,7 +5,7 @@ Uncertainties are arrays of shape (Q,) where higher = less trustworthy; scores a
 
 The top level is the toolkit's core: the uncertainty functions, the retrieval result and its files, evaluation,
 and the registry of uncertainty methods (:func:`register_method`). The other extension points register beside
-their own registries: :func:`vpr_uncertainty.features.register_model`,
+their own registries: :func:`vpr_uncertainty.descriptors.register_model`,
 :func:`vpr_uncertainty.data.register_format` and :func:`vpr_uncertainty.reports.register_report_figure`.
 
 >>> import numpy as np

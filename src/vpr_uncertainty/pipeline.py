@@ -72,7 +72,7 @@ class RunConfig:
     out : Path
         The run directory.
     model : str
-        A descriptor model name (:func:`vpr_uncertainty.features.available_models`) or a TorchScript file.
+        A descriptor model name (:func:`vpr_uncertainty.descriptors.available_models`) or a TorchScript file.
     methods : sequence of str, optional
         Uncertainty methods; by default every score-only method, plus SUE when the dataset has metric positions.
     k, alpha : int, float
@@ -88,7 +88,7 @@ class RunConfig:
     half : bool
         Store descriptors as float16.
     on_error : {"fail", "skip"}
-        What to do with an image that cannot be used (see :mod:`vpr_uncertainty.features.images`) or a folder
+        What to do with an image that cannot be used (see :mod:`vpr_uncertainty.descriptors.images`) or a folder
         that cannot be listed: stop with an error naming it, or leave it out; the images left out are counted
         and named in a warning and in ``results.json`` (``dataset.images_left_out``).
     root, split, radius

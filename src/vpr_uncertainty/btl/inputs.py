@@ -81,7 +81,7 @@ def _load_positions(path: Path, name: str) -> np.ndarray:
 
 
 def _h5_has_queries(path: Path) -> bool:
-    from vpr_uncertainty.features.cache import cache_info
+    from vpr_uncertainty.descriptors.cache import cache_info
 
     return bool(cache_info(path).get("queries", {}).get("count", 0))
 

@@ -7,9 +7,9 @@ import warnings
 from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import device_name, integer_at_least, output_file, positive_int
-from vpr_uncertainty.features.extract import ON_ERROR
-from vpr_uncertainty.features.images import DEFAULT_MAX_SIDE
-from vpr_uncertainty.features.models import DEFAULT_MODEL, available_models, get_model_spec
+from vpr_uncertainty.descriptors.extract import ON_ERROR
+from vpr_uncertainty.descriptors.images import DEFAULT_MAX_SIDE
+from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, available_models, get_model_spec
 
 __all__ = ["IMAGE_SUFFIXES", "SPLIT_FOLDERS", "add_parser", "dataset_images"]
 

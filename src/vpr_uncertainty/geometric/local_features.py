@@ -124,7 +124,7 @@ def load_image(path: str | Path, *, max_side: int, grayscale: bool) -> tuple[np.
     """Read an image and shrink it so its longer side is at most ``max_side`` (area interpolation).
 
     The header is checked first with the loader of the global descriptors
-    (:func:`~vpr_uncertainty.features.images.read_image_size`): broken links, files that are not images and images
+    (:func:`~vpr_uncertainty.descriptors.images.read_image_size`): broken links, files that are not images and images
     over PIL's decompression-bomb limit (``PIL.Image.MAX_IMAGE_PIXELS``) are refused before OpenCV allocates
     anything, so decoding needs at most that many pixels. OpenCV then decodes the bytes (``cv2.imdecode``, which
     accepts any file name, including names that are not valid UTF-8).
@@ -141,7 +141,7 @@ def load_image(path: str | Path, *, max_side: int, grayscale: bool) -> tuple[np.
     """
     import cv2
 
-    from vpr_uncertainty.features.images import ImageDecodeError, printable, read_image_size
+    from vpr_uncertainty.descriptors.images import ImageDecodeError, printable, read_image_size
 
     path = Path(path)
     if not path.is_file() and not path.is_symlink():

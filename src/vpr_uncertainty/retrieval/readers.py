@@ -10,7 +10,7 @@ Ground truth comes from the retrieval file or from a separate file (any format t
 :func:`vpr_uncertainty.data.load_ground_truth` reads).
 
 Descriptors (:func:`load_descriptors`) come from a ``.npy`` array or from the HDF5 descriptor cache, which only
-:func:`vpr_uncertainty.features.cache.read_descriptors` reads.
+:func:`vpr_uncertainty.descriptors.cache.read_descriptors` reads.
 """
 
 from __future__ import annotations
@@ -236,7 +236,7 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     """Read descriptors from a ``.npy`` array (N × dim) or from the HDF5 descriptor cache.
 
     A dispatcher on the suffix: ``.npy`` files are read by :func:`vpr_uncertainty.data.npy.read_npy` (which never
-    runs code from the file), descriptor caches by :func:`vpr_uncertainty.features.cache.read_descriptors`.
+    runs code from the file), descriptor caches by :func:`vpr_uncertainty.descriptors.cache.read_descriptors`.
 
     Parameters
     ----------
@@ -273,7 +273,7 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     elif suffix in (".h5", ".hdf5"):
         if split not in DESCRIPTOR_SPLITS:
             raise ValueError(f"reading the descriptor cache {path} needs split in {DESCRIPTOR_SPLITS}, got {split!r}")
-        from vpr_uncertainty.features.cache import read_descriptors  # imported here: h5py only when needed
+        from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
 
         names, array = read_descriptors(path, split)
         names = None if names is None else np.asarray(names, dtype=str)

@@ -2,7 +2,7 @@
 
 The artefact follows :mod:`vpr_uncertainty.cache`: the file stores the fingerprint of the model and its
 preprocessing and, per image, the content key of the file it was computed from, so a rerun computes exactly the
-images that are new or changed (see :mod:`vpr_uncertainty.features.cache`).
+images that are new or changed (see :mod:`vpr_uncertainty.descriptors.cache`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.features.models import DEFAULT_MODEL
+from vpr_uncertainty.descriptors.models import DEFAULT_MODEL
 
 __all__ = ["DescriptorsConfig", "DescriptorsResult", "extract", "model_of"]
 
@@ -88,7 +88,7 @@ class DescriptorsResult:
 
 def model_of(conf: DescriptorsConfig) -> Any:
     """The descriptor model of ``conf``, with its preprocessing overrides applied."""
-    from vpr_uncertainty.features.models import load_model
+    from vpr_uncertainty.descriptors.models import load_model
 
     model = load_model(conf.model, device=conf.device)
     changes = {
@@ -122,7 +122,7 @@ def extract(
     -------
     DescriptorsResult
     """
-    from vpr_uncertainty.features.extract import extract_descriptors
+    from vpr_uncertainty.descriptors.extract import extract_descriptors
 
     unknown = set(images) - set(_SPLITS)
     if unknown:

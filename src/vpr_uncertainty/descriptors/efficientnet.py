@@ -17,9 +17,9 @@ import hashlib
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.features._torch import TORCH_EXTRA_HINT, require_torch
-from vpr_uncertainty.features.images import DEFAULT_MIN_SIDE, Preprocessing
-from vpr_uncertainty.features.models import DescriptorModel, ModelSpec
+from vpr_uncertainty.descriptors._torch import TORCH_EXTRA_HINT, require_torch
+from vpr_uncertainty.descriptors.images import DEFAULT_MIN_SIDE, Preprocessing
+from vpr_uncertainty.descriptors.wrapper import DescriptorModel, ModelSpec
 
 __all__ = ["GEM_P", "SPEC", "load_efficientnet_lite0_gem", "weights_path"]
 

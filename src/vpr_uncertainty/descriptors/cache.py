@@ -80,7 +80,7 @@ def read_descriptors(
     Parameters
     ----------
     path : str or Path
-        The HDF5 file written by :func:`~vpr_uncertainty.features.extract.extract_descriptors`.
+        The HDF5 file written by :func:`~vpr_uncertainty.descriptors.extract.extract_descriptors`.
     split : {"database", "queries"}
     names : sequence of str, optional
         Return exactly these images, in this order (KeyError naming the missing ones otherwise). By default

@@ -8,7 +8,7 @@ multiple of 14; Conv-AP and MixVPR take 320 x 320; CricaVPR 224 x 224).
 Loading calls ``torch.hub.load(repo, entrypoint, trust_repo=True, **kwargs)``: with internet it downloads the
 code and the weights into the torch.hub cache (``torch.hub.get_dir()``, by default ``~/.cache/torch/hub``), and
 afterwards works offline from that cache. When neither the cache nor the network has them, one
-:class:`~vpr_uncertainty.features.models.ModelUnavailableError` names the model and the folder to fill. The
+:class:`~vpr_uncertainty.descriptors.models.ModelUnavailableError` names the model and the folder to fill. The
 hub code of these repositories needs torchvision (and AnyLoc also ``einops`` and ``fast_pytorch_kmeans``).
 
 Entry points, from the authors unless noted:
@@ -48,9 +48,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.features._torch import require_torch
-from vpr_uncertainty.features.images import DEFAULT_MIN_SIDE, Preprocessing
-from vpr_uncertainty.features.models import DescriptorModel, ModelSpec, ModelUnavailableError, from_torchscript
+from vpr_uncertainty.descriptors._torch import require_torch
+from vpr_uncertainty.descriptors.images import DEFAULT_MIN_SIDE, Preprocessing
+from vpr_uncertainty.descriptors.wrapper import DescriptorModel, ModelSpec, ModelUnavailableError, from_torchscript
 
 __all__ = ["HUB_MODELS", "HUB_TIMEOUT_S", "hub_cache_dir", "load_hub_model", "torchscript_cache_path"]
 

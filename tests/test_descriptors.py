@@ -24,7 +24,7 @@ torch = pytest.importorskip("torch")
 Image = pytest.importorskip("PIL.Image")
 
 from vpr_uncertainty.commands import extract as extract_command  # noqa: E402
-from vpr_uncertainty.features import (  # noqa: E402
+from vpr_uncertainty.descriptors import (  # noqa: E402
     ImageDecodeError,
     Preprocessing,
     cache_info,
@@ -32,7 +32,7 @@ from vpr_uncertainty.features import (  # noqa: E402
     load_model,
     read_descriptors,
 )
-from vpr_uncertainty.features.models import from_callable  # noqa: E402
+from vpr_uncertainty.descriptors.models import from_callable  # noqa: E402
 
 
 class CountingModel:
@@ -152,8 +152,8 @@ def test_killed_process_loses_at_most_the_batch_in_flight(images, tmp_path):
     script = textwrap.dedent(
         f"""
         import os, signal, torch
-        from vpr_uncertainty.features import Preprocessing, extract_descriptors
-        from vpr_uncertainty.features.models import from_callable
+        from vpr_uncertainty.descriptors import Preprocessing, extract_descriptors
+        from vpr_uncertainty.descriptors.models import from_callable
         class CountingModel:  # same identity as the test's CountingModel, so the rerun resumes
             def __call__(self, images):
                 return torch.cat([images.mean(dim=(2, 3)), images.std(dim=(2, 3))], dim=1)
@@ -396,8 +396,8 @@ def test_preprocessing_validation_and_sizes():
 
 def test_package_import_does_not_import_torch():
     code = (
-        "import sys, vpr_uncertainty.features, vpr_uncertainty.commands.extract\n"
-        "vpr_uncertainty.features.available_models()\n"
+        "import sys, vpr_uncertainty.descriptors, vpr_uncertainty.commands.extract\n"
+        "vpr_uncertainty.descriptors.available_models()\n"
         "assert 'torch' not in sys.modules, 'torch imported'"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)

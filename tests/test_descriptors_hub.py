@@ -11,13 +11,13 @@ from conftest import assert_close
 
 torch = pytest.importorskip("torch")
 
-from vpr_uncertainty.features import (  # noqa: E402
+from vpr_uncertainty.descriptors import (  # noqa: E402
     ModelUnavailableError,
     available_models,
     get_model_spec,
     load_model,
 )
-from vpr_uncertainty.features.hub import HUB_MODELS, torchscript_cache_path  # noqa: E402
+from vpr_uncertainty.descriptors.hub import HUB_MODELS, torchscript_cache_path  # noqa: E402
 
 IMAGENET = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
 

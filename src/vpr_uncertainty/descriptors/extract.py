@@ -1,14 +1,14 @@
 """Batched descriptor extraction from image files, on CPU or CUDA, with an HDF5 cache resumed image by image.
 
 :func:`extract_descriptors` decodes images in worker threads (the next batch while the model runs on the current
-one), runs the model batch by batch and appends each batch to the cache (see :mod:`vpr_uncertainty.features.cache`)
+one), runs the model batch by batch and appends each batch to the cache (see :mod:`vpr_uncertainty.descriptors.cache`)
 before starting the next, so an interrupted run resumes where it stopped. Images that cannot be used (see
-:mod:`vpr_uncertainty.features.images`: unreadable, corrupt, decompression bombs, smaller than the model's minimum;
+:mod:`vpr_uncertainty.descriptors.images`: unreadable, corrupt, decompression bombs, smaller than the model's minimum;
 also names that are not valid UTF-8, which the cache cannot store) either stop the extraction with an error naming
 the first of them (``on_error="fail"``) or are left out, counted in one warning per split that names the first
 few, and recorded with their reasons in the cache's ``failed`` attribute (``on_error="skip"``).
 
-Memory is bounded by the model's :attr:`~vpr_uncertainty.features.images.Preprocessing.max_side`: at most
+Memory is bounded by the model's :attr:`~vpr_uncertainty.descriptors.images.Preprocessing.max_side`: at most
 ``batch_size`` images of at most ``max_side`` x ``max_side`` pixels go through the model at once (about 2 GB for
 the default model at 16 x 640 x 640 on CPU), plus the images being decoded ahead by the worker threads.
 """
@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.features.cache import SPLITS, DescriptorCache
-from vpr_uncertainty.features.images import ImageDecodeError, load_image, printable, to_model_input
-from vpr_uncertainty.features.models import DEFAULT_MODEL, DescriptorModel, load_model
+from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache
+from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, printable, to_model_input
+from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, DescriptorModel, load_model
 
 __all__ = ["ON_ERROR", "describe_left_out", "extract_descriptors"]
 
@@ -165,8 +165,8 @@ def extract_descriptors(
     ----------
     model : str, Path, DescriptorModel or callable
         A registered model name (default model: ``"efficientnet-lite0-gem"``), a TorchScript file, a loaded
-        :class:`~vpr_uncertainty.features.models.DescriptorModel`, or a callable (see
-        :func:`~vpr_uncertainty.features.models.load_model`).
+        :class:`~vpr_uncertainty.descriptors.models.DescriptorModel`, or a callable (see
+        :func:`~vpr_uncertainty.descriptors.models.load_model`).
     image_paths : sequence of str or Path, length N
     names : sequence of str, length N, optional
         Unique key of each image in the cache (default: the file names, which must then be unique).
@@ -182,7 +182,7 @@ def extract_descriptors(
         Store float16 instead of float32 (the model still computes in float32).
     on_error : {"fail", "skip"}
         What to do with an image that cannot be used: raise
-        :class:`~vpr_uncertainty.features.images.ImageDecodeError` naming it, or leave it out (one warning per
+        :class:`~vpr_uncertainty.descriptors.images.ImageDecodeError` naming it, or leave it out (one warning per
         call counts them and names the first few; the cache records all of them with their reasons).
     num_workers : int, optional
         Threads that decode images ahead of the model (default: min(4, CPU count); 0 decodes in this thread).
@@ -280,7 +280,7 @@ def extract_descriptors(
         if cache is not None:
             cache.finalize(split, kept, failed)
             cache.close()
-            from vpr_uncertainty.features.cache import read_descriptors
+            from vpr_uncertainty.descriptors.cache import read_descriptors
 
             return read_descriptors(cache_path, split)  # type: ignore[arg-type]
         dim = next(iter(memory.values())).shape[0] if memory else 0

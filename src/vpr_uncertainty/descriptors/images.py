@@ -366,7 +366,7 @@ def load_image(path: str | Path, preprocessing: Preprocessing, *, name: str | No
 
 def to_model_input(images: Sequence[np.ndarray], preprocessing: Preprocessing, device: Any) -> Any:
     """Stack equally sized ``uint8`` (H, W, 3) arrays into a normalised float tensor (B, 3, H, W) on ``device``."""
-    from vpr_uncertainty.features._torch import require_torch
+    from vpr_uncertainty.descriptors._torch import require_torch
 
     torch = require_torch()
     batch = torch.from_numpy(np.stack(images)).to(device)
