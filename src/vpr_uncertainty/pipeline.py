@@ -86,6 +86,8 @@ class RunConfig:
     rerank : str, optional
         A geometric verification method (``"GV-SIFT"``, ...) that re-ranks the top ``k`` of each query by
         inliers; results.json then reports the re-ranked recall@N beside the global one.
+    bootstrap, seed, reference : int, int, str or None
+        Paired bootstrap of the evaluation (0 resamples: none); see :func:`vpr_uncertainty.evaluate`.
     """
 
     dataset: str | Path
@@ -105,6 +107,9 @@ class RunConfig:
     radius: float | None = None
     method_options: dict[str, Any] = field(default_factory=dict)
     rerank: str | None = None
+    bootstrap: int = 0
+    seed: int = 0
+    reference: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         values = asdict(self)
@@ -291,7 +296,16 @@ def run(config: RunConfig) -> RunResult:
         "device": config.device,
         **config.method_options,
     }
-    evaluation = evaluate(retrieval, methods, k=config.k, alpha=config.alpha, **options)
+    evaluation = evaluate(
+        retrieval,
+        methods,
+        k=config.k,
+        alpha=config.alpha,
+        bootstrap=config.bootstrap,
+        seed=config.seed,
+        reference=config.reference,
+        **options,
+    )
     seconds["uncertainty_and_evaluation"] = time.perf_counter() - start
 
     reranking = None
