@@ -245,3 +245,27 @@ register_report_figure(
     requires=("images", "uncertainties"),
     options={"rank_by": "SU"},
 )
+register_report_figure(
+    "table1_ap",
+    _HERE + "write_table1_ap",
+    title="Table 1 by average precision",
+    description="average precision (step-wise area, no interpolation between tied groups), as Table 1 (md, csv, tex)",
+    requires=("evaluation",),
+    section=_HERE + "table1_ap_section",
+)
+register_report_figure(
+    "table1_aurc",
+    _HERE + "write_table1_aurc",
+    title="Table 1 by AURC (lower is better)",
+    description="area under the risk-coverage curve, as Table 1 (md, csv, tex)",
+    requires=("evaluation",),
+    section=_HERE + "table1_aurc_section",
+)
+register_report_figure(
+    "ties",
+    _HERE + "write_ties",
+    title="Tied uncertainties",
+    description="share of queries tied with another and distinct uncertainty values of each method (md, csv)",
+    requires=("uncertainties",),
+    section=_HERE + "ties_section",
+)

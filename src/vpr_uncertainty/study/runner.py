@@ -71,6 +71,9 @@ def _load_cell_input(entry: InputEntry, config: GridConfig, out: Path) -> tuple[
             k=config.k,
             alpha=config.alpha,
             retrieval_k=candidates_needed(config),
+            bootstrap=config.bootstrap,
+            seed=config.seed,
+            reference=config.reference,
             **options,
         )
     )
@@ -218,6 +221,9 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
             k=config.k,
             alpha=config.alpha,
             cache_dir=out / "local_features",
+            bootstrap=config.bootstrap,
+            seed=config.seed,
+            reference=config.reference,
             **options,
         )
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
