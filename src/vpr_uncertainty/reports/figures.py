@@ -16,7 +16,7 @@ is selected by name, optionally with options as in a method spec (``"qualitative
 Examples
 --------
 >>> REPORT_FIGURES.names()
-['table1', 'heatmaps', 'ablations', 'pr_curves', 'qualitative']
+['table1', 'heatmaps', 'ablations', 'pr_curves', 'qualitative', 'table1_ap', 'table1_aurc', 'ties']
 >>> parse_figure_spec("qualitative:rank_by=RS")
 ('qualitative', {'rank_by': 'RS'})
 """
