@@ -98,6 +98,8 @@ class RunConfig:
     rerank : str, optional
         A geometric verification method (``"GV-SIFT"``, ...) that re-ranks the top ``k`` of each query by
         inliers; results.json then reports the re-ranked recall@N beside the global one.
+    bootstrap, seed, reference : int, int, str or None
+        Paired bootstrap of the evaluation (0 resamples: none); see :func:`vpr_uncertainty.evaluate`.
     """
 
     dataset: Any
@@ -117,6 +119,9 @@ class RunConfig:
     radius: float | None = None
     method_options: dict[str, Any] = field(default_factory=dict)
     rerank: str | None = None
+    bootstrap: int = 0
+    seed: int = 0
+    reference: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         dataset = self.dataset
@@ -306,6 +311,9 @@ def run(config: RunConfig) -> RunResult:
             k=config.k,
             alpha=config.alpha,
             options=dict(config.method_options),
+            bootstrap=config.bootstrap,
+            seed=config.seed,
+            reference=config.reference,
         ),
         retrieval,
         out / "uncertainties.npz",

@@ -13,6 +13,7 @@ from vpr_uncertainty.commands._arguments import (
     positive_int,
     write_output,
 )
+from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
 from vpr_uncertainty.methods import available_methods, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
@@ -104,7 +105,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="share of the queries used to fit CAL in each split, in (0, 1), e.g. 0.3",
     )
     held_out.add_argument("--repeats", type=positive_int, default=20, help="random splits (default 20)")
-    held_out.add_argument("--seed", type=int, default=0, help="seed of the splits (default 0)")
+    held_out.add_argument(
+        "--seed", type=int, default=0, help="seed of the splits, and of the bootstrap resamples (default 0)"
+    )
+    add_bootstrap_options(parser, seed=False)
     learned = parser.add_argument_group("options of methods that need more than scores")
     learned.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: the head written by train-btl")
     learned.add_argument(
@@ -129,8 +133,22 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     with command_wording(ground_truth="--gt GT", database_positions="--database-positions"):
         retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
         if args.calibration_fraction is not None:
+            if args.bootstrap:
+                raise ValueError(
+                    "--bootstrap and --calibration-fraction cannot be combined: the held-out evaluation reports its "
+                    "spread over the random splits instead"
+                )
             return _run_held_out(args, retrieval, options)
-        evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha, **options)
+        evaluation = evaluate(
+            retrieval,
+            args.methods,
+            k=args.k,
+            alpha=args.alpha,
+            bootstrap=args.bootstrap,
+            seed=args.seed,
+            reference=args.reference,
+            **options,
+        )
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
     if args.json:
         write_output(args.json, json.dumps(evaluation.to_dict(), indent=2) + "\n")

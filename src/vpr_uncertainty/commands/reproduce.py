@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import output_directory
+from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 
 __all__ = ["add_parser"]
 
@@ -50,13 +51,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "from every cell (positions, images, a head), all problems listed at once",
     )
     parser.add_argument("--no-report", action="store_true", help="write results.json/csv only (no tables, figures)")
+    add_bootstrap_options(parser, defaults_from_config=True)
     parser.set_defaults(handler=_run_reproduce)
 
 
 def _run_reproduce(args: argparse.Namespace) -> int:
     from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 
-    config = load_config(args.config, out=args.out)
+    config = load_config(args.config, out=args.out, bootstrap=args.bootstrap, seed=args.seed, reference=args.reference)
     cells = {(e.vpr_method, e.dataset) for e in config.inputs}
     print(f"{args.config}: {len(cells)} cells x {len(config.methods)} uncertainty methods -> {config.out}")
     if args.check:

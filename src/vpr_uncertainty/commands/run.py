@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vpr_uncertainty.commands._arguments import candidate_count, device_name, output_directory, positive_int
+from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 from vpr_uncertainty.commands.evaluate import METHOD_SPEC_HELP, method_list
 
 if TYPE_CHECKING:
@@ -89,6 +90,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "the re-ranked recall@N beside the global one",
     )
     add_common_run_options(parser)
+    add_bootstrap_options(parser)
     parser.set_defaults(handler=_handle)
 
 
@@ -130,6 +132,9 @@ def _handle(args: argparse.Namespace) -> int:
         radius=args.radius,
         method_options={} if args.btl_head is None else {"btl_head": args.btl_head},
         rerank=args.rerank,
+        bootstrap=args.bootstrap,
+        seed=args.seed,
+        reference=args.reference,
     )
     print_summary(run(config))
     return 0

@@ -26,6 +26,7 @@ from vpr_uncertainty.evaluation.metrics import (
     rejection_curve,
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
+from vpr_uncertainty.evaluation.significance import add_bootstrap, check_bootstrap, resolve_reference
 from vpr_uncertainty.methods import OwnRetrievalUncertainty, available_methods, check_options, get_method
 
 if TYPE_CHECKING:
@@ -68,6 +69,9 @@ def evaluate(
     alpha: float = 0.5,
     recall_levels: Sequence[float] = RECALL_LEVELS,
     timing_repeats: int = 5,
+    bootstrap: int = 0,
+    seed: int = 0,
+    reference: str | None = None,
     **options: Any,
 ) -> Evaluation:
     """Compute every requested uncertainty on a retrieval and measure how well it predicts correct answers.
@@ -86,6 +90,14 @@ def evaluate(
         Recall levels at which the end-to-end precision is reported.
     timing_repeats : int
         Calls per method for the time per query (median; fewer when a call is slow).
+    bootstrap : int, default=0
+        Paired bootstrap resamples over queries (0: none): 95 % intervals of AUC-PR, AP and AURC, a paired test of
+        each method's AUC-PR against ``reference`` (Holm-corrected), and the leaders of each metric; see
+        :func:`vpr_uncertainty.evaluation.significance.add_bootstrap`.
+    seed : int, default=0
+        Seed of the bootstrap resamples.
+    reference : str, optional
+        The method of the paired tests; default SU when evaluated, else the first method.
     **options
         Further options passed to the methods that accept them; an option that no selected method takes
         (besides the inputs of :data:`~vpr_uncertainty.methods.STAGE_INPUTS`) is a ValueError. Files the
@@ -106,6 +118,9 @@ def evaluate(
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work
     check_options(entries, options)  # and so do options that no selected method takes
+    check_bootstrap(bootstrap, seed)
+    if bootstrap:
+        resolve_reference(reference, [entry.name for entry in entries])
     positives = retrieval.positives
     answerable = np.asarray(positives.sum(axis=1)).ravel() > 0
     correct = correct_at_n(retrieval.indices, positives, 1)
@@ -171,4 +186,6 @@ def evaluate(
     tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
     if tied:
         evaluation.notes.append(tied)
+    if bootstrap:
+        add_bootstrap(evaluation, n_resamples=bootstrap, seed=seed, reference=reference)
     return evaluation

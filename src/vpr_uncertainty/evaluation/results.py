@@ -39,11 +39,23 @@ class MethodEvaluation:
     precision_at_recall: dict[float, float | None]
     own_recall_at_1: float | None = None
     correct: np.ndarray | None = None
+    auc_pr_ci: tuple[float, float] | None = None
+    average_precision_ci: tuple[float, float] | None = None
+    aurc_ci: tuple[float, float] | None = None
+    vs_reference: dict[str, Any] | None = None
 
     @property
     def n_distinct(self) -> int:
         """Number of distinct uncertainty values (1: every query tied)."""
         return int(np.unique(self.uncertainty).size)
+
+    @property
+    def tied_share(self) -> float:
+        """Share of the queries whose uncertainty equals that of at least one other query (0: no ties)."""
+        if self.uncertainty.size == 0:
+            return 0.0
+        _, counts = np.unique(self.uncertainty, return_counts=True)
+        return float(counts[counts > 1].sum() / self.uncertainty.size)
 
     @property
     def informative(self) -> bool:
@@ -55,6 +67,7 @@ class MethodEvaluation:
         return {
             "informative": self.informative,
             "distinct_values": self.n_distinct,
+            "tied_share": self.tied_share,
             "auc_pr": self.auc_pr,
             "average_precision": self.average_precision,
             "aurc": self.aurc,
@@ -66,6 +79,15 @@ class MethodEvaluation:
                 if self.own_recall_at_1 is not None
                 else {}
             ),
+            **{key: list(value) for key, value in self._intervals().items() if value is not None},
+            **({"vs_reference": dict(self.vs_reference)} if self.vs_reference is not None else {}),
+        }
+
+    def _intervals(self) -> dict[str, tuple[float, float] | None]:
+        return {
+            "auc_pr_ci": self.auc_pr_ci,
+            "average_precision_ci": self.average_precision_ci,
+            "aurc_ci": self.aurc_ci,
         }
 
     @classmethod
@@ -115,7 +137,13 @@ class MethodEvaluation:
             precision_at_recall={float(level): value for level, value in data["precision_at_recall"].items()},
             own_recall_at_1=data.get("own_recall@1"),
             correct=None if own_correct is None else labels,
+            **{key: _interval(data.get(key)) for key in ("auc_pr_ci", "average_precision_ci", "aurc_ci")},
+            vs_reference=dict(data["vs_reference"]) if data.get("vs_reference") is not None else None,
         )
+
+
+def _interval(value: Any) -> tuple[float, float] | None:
+    return None if value is None else (float(value[0]), float(value[1]))
 
 
 @dataclass
@@ -130,6 +158,7 @@ class Evaluation:
     notes: list[str] = field(default_factory=list)
     k: int | None = None
     k_requested: int | None = None
+    bootstrap: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON schema of ``evaluate --json``."""
@@ -142,6 +171,8 @@ class Evaluation:
         result.update({f"recall@{n}": value for n, value in self.recall_at_n.items() if n != 1})
         result["n_queries_without_positives"] = self.n_queries - self.n_answerable
         result["methods"] = {name: method.to_dict() for name, method in self.methods.items()}
+        if self.bootstrap is not None:
+            result["bootstrap"] = dict(self.bootstrap)
         if self.notes:
             result["notes"] = list(self.notes)
         return result
@@ -211,4 +242,5 @@ class Evaluation:
             notes=list(data.get("notes", [])),
             k=data.get("k"),
             k_requested=data.get("k_requested", data.get("k")),
+            bootstrap=dict(data["bootstrap"]) if data.get("bootstrap") is not None else None,
         )

@@ -7,6 +7,7 @@ Each is ``write(cells, config, out_dir, **options) -> list[Path]``: it receives 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from html import escape
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -15,38 +16,93 @@ from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablati
 from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
 from vpr_uncertainty.reports.plots import plot_rejection_curves
 from vpr_uncertainty.reports.qualitative import plot_qualitative
-from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_html, table1_latex, table1_markdown
+from vpr_uncertainty.reports.table1 import (
+    build_table1,
+    marks_note,
+    table1_csv,
+    table1_html,
+    table1_latex,
+    table1_markdown,
+)
+from vpr_uncertainty.reports.ties import build_ties_table, ties_csv, ties_markdown
 from vpr_uncertainty.study.config import slug
 
 if TYPE_CHECKING:
     from vpr_uncertainty.study import Cell, GridConfig
 
 __all__ = [
+    "table1_ap_section",
+    "table1_aurc_section",
     "table1_section",
+    "ties_section",
     "write_ablations",
     "write_heatmaps",
     "write_pr_curves",
     "write_qualitative",
     "write_table1",
+    "write_table1_ap",
+    "write_table1_aurc",
+    "write_ties",
 ]
 
 
-def write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
-    """``table1.md``, ``table1.csv`` and ``table1.tex`` (booktabs) in ``out_dir``."""
-    table = build_table1(cells)
+def _table1(cells: Sequence[Cell], config: GridConfig, metric: str):
+    return build_table1(cells, metric, bootstrap=getattr(config, "bootstrap", 0), seed=getattr(config, "seed", 0))
+
+
+def _write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path, metric: str, stem: str) -> list[Path]:
+    table = _table1(cells, config, metric)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex)):
-        path = out_dir / f"table1.{suffix}"
+        path = out_dir / f"{stem}.{suffix}"
         write_text(path, render(table))
         paths.append(path)
     return paths
 
 
-def table1_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
-    """Table 1 as HTML, with its note."""
-    note = '<p class="note">Best per column in bold. ms/query: mean time per query.</p>'
-    return table1_html(build_table1(cells)) + note
+def write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+    """``table1.md``, ``table1.csv`` and ``table1.tex`` (booktabs): AUC-PR, with intervals when bootstrapped."""
+    return _write_table1(cells, config, out_dir, "auc_pr", "table1")
+
+
+def write_table1_ap(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+    """``table1_ap.{md,csv,tex}``: Table 1 of average precision."""
+    return _write_table1(cells, config, out_dir, "average_precision", "table1_ap")
+
+
+def write_table1_aurc(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+    """``table1_aurc.{md,csv,tex}``: Table 1 of AURC (lower is better)."""
+    return _write_table1(cells, config, out_dir, "aurc", "table1_aurc")
+
+
+def _section(metric: str):
+    def section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+        table = _table1(cells, config, metric)
+        return table1_html(table) + f'<p class="note">{escape(marks_note(table))} ms/query: mean time per query.</p>'
+
+    section.__name__ = f"{metric}_section"
+    return section
+
+
+table1_section = _section("auc_pr")
+table1_ap_section = _section("average_precision")
+table1_aurc_section = _section("aurc")
+
+
+def write_ties(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+    """``ties.md`` and ``ties.csv``: the share of tied queries and the distinct values of every method."""
+    table = build_ties_table(cells)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [out_dir / "ties.md", out_dir / "ties.csv"]
+    write_text(paths[0], ties_markdown(table))
+    write_text(paths[1], ties_csv(table))
+    return paths
+
+
+def ties_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+    """The ties table as preformatted Markdown."""
+    return f"<pre>{escape(ties_markdown(build_ties_table(cells)))}</pre>"
 
 
 def write_heatmaps(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:

@@ -16,7 +16,7 @@ is selected by name, optionally with options as in a method spec (``"qualitative
 Examples
 --------
 >>> REPORT_FIGURES.names()
-['table1', 'heatmaps', 'ablations', 'pr_curves', 'qualitative']
+['table1', 'heatmaps', 'ablations', 'pr_curves', 'qualitative', 'table1_ap', 'table1_aurc', 'ties']
 >>> parse_figure_spec("qualitative:rank_by=RS")
 ('qualitative', {'rank_by': 'RS'})
 """
@@ -244,4 +244,28 @@ register_report_figure(
     "(cells of config.qualitative, default: the first cell with images)",
     requires=("images", "uncertainties"),
     options={"rank_by": "SU"},
+)
+register_report_figure(
+    "table1_ap",
+    _HERE + "write_table1_ap",
+    title="Table 1 by average precision",
+    description="average precision (step-wise area, no interpolation between tied groups), as Table 1 (md, csv, tex)",
+    requires=("evaluation",),
+    section=_HERE + "table1_ap_section",
+)
+register_report_figure(
+    "table1_aurc",
+    _HERE + "write_table1_aurc",
+    title="Table 1 by AURC (lower is better)",
+    description="area under the risk-coverage curve, as Table 1 (md, csv, tex)",
+    requires=("evaluation",),
+    section=_HERE + "table1_aurc_section",
+)
+register_report_figure(
+    "ties",
+    _HERE + "write_ties",
+    title="Tied uncertainties",
+    description="share of queries tied with another and distinct uncertainty values of each method (md, csv)",
+    requires=("uncertainties",),
+    section=_HERE + "ties_section",
 )

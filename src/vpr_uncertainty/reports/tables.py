@@ -1,4 +1,11 @@
-"""Evaluation results as text tables (plain for the terminal, or Markdown)."""
+"""Evaluation results as text tables (plain for the terminal, or Markdown).
+
+Without a bootstrap the best AUC-PR is starred. With one (``Evaluation.bootstrap``), each metric shows its 95 %
+interval in brackets, the star marks the leaders of AUC-PR (the best alone when it is significantly better than
+every other method; otherwise every method not significantly worse than it) and a column gives the difference in
+AUC-PR to the reference method with its Holm-adjusted p-value. ``values`` and ``tied`` count the distinct
+uncertainty values and the share of queries that share theirs with another query.
+"""
 
 from __future__ import annotations
 
@@ -12,12 +19,51 @@ _COLUMNS = (
     ("AP", "{:.4f}"),
     ("AURC", "{:.4f}"),
     ("R@100%P", "{:.3f}"),
+    ("values", "{:d}"),
+    ("tied", "{:.0%}"),
     ("ms/query", "{:.5f}"),
 )
 
 
 def _fmt(template: str, value: object) -> str:
     return "n/a" if value is None else template.format(value)
+
+
+def _with_interval(value: float | None, interval: tuple[float, float] | None) -> str:
+    text = _fmt("{:.4f}", value)
+    return text if value is None or interval is None else f"{text} [{interval[0]:.3f}, {interval[1]:.3f}]"
+
+
+def _vs_reference(method, reference: str) -> str:
+    if method.name == reference:
+        return "reference"
+    test = method.vs_reference
+    if test is None:
+        return "n/a"
+    return f"{test['delta_auc_pr']:+.3f} (p {test['p_value_holm']:.3f}){'s' if test['significant'] else ''}"
+
+
+def _marked(evaluation: Evaluation) -> set[str]:
+    """The methods starred: the bootstrap's AUC-PR leaders, or (no bootstrap) those with the best AUC-PR."""
+    if evaluation.bootstrap is not None:
+        return set(evaluation.bootstrap["best"]["auc_pr"]["methods"])
+    best = best_auc_pr(evaluation)
+    return {m.name for m in evaluation.methods.values() if best is not None and m.informative and m.auc_pr == best}
+
+
+def _legend(evaluation: Evaluation, compared: int) -> str:
+    if compared < 2:
+        return "no best AUC-PR (fewer than two informative methods)"
+    if evaluation.bootstrap is None:
+        return "* best AUC-PR"
+    settings = evaluation.bootstrap
+    how = (
+        f"paired bootstrap over queries, {settings['resamples']} resamples, seed {settings['seed']}, "
+        f"Holm-corrected at {settings['level']:g}"
+    )
+    if settings["best"]["auc_pr"]["significant"]:
+        return f"* best AUC-PR, significantly better than every other method ({how})"
+    return f"* tied leaders by AUC-PR: the best and every method not significantly worse than it ({how})"
 
 
 def best_auc_pr(evaluation: Evaluation) -> float | None:
@@ -46,10 +92,11 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
         A first line naming what was evaluated.
     """
     rows = []
-    best = best_auc_pr(evaluation)
+    marked = _marked(evaluation)
     tied = [m.name for m in evaluation.methods.values() if not m.informative]
+    reference = evaluation.bootstrap["reference"] if evaluation.bootstrap is not None else None
     for method in evaluation.methods.values():
-        marker = "*" if best is not None and method.informative and method.auc_pr == best else ""
+        marker = "*" if method.name in marked and method.informative else ""
         marker += "" if method.informative else "†"
         values = (
             method.name + marker,
@@ -57,15 +104,21 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
             method.average_precision,
             method.aurc,
             method.recall_at_full_precision,
+            method.n_distinct,
+            method.tied_share,
             method.time_per_query_ms,
         )
-        rows.append(
-            [
-                _fmt(template, value) if index else str(value)
-                for index, ((_, template), value) in enumerate(zip(_COLUMNS, values, strict=True))
-            ]
-        )
-    header = [name for name, _ in _COLUMNS]
+        row = [
+            _fmt(template, value) if index else str(value)
+            for index, ((_, template), value) in enumerate(zip(_COLUMNS, values, strict=True))
+        ]
+        if reference is not None:
+            row[1] = _with_interval(method.auc_pr, method.auc_pr_ci)
+            row[2] = _with_interval(method.average_precision, method.average_precision_ci)
+            row[3] = _with_interval(method.aurc, method.aurc_ci)
+            row.append(_vs_reference(method, reference))
+        rows.append(row)
+    header = [name for name, _ in _COLUMNS] + ([f"vs {reference}"] if reference is not None else [])
     recalls = "  ".join(f"R@{n} {value:.3f}" for n, value in evaluation.recall_at_n.items())
     summary = f"{evaluation.n_queries} queries, {recalls}"
     lines = [title] if title else []
@@ -85,10 +138,16 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
                 )
             )
     compared = sum(1 for m in evaluation.methods.values() if m.informative and m.auc_pr is not None)
-    star = "* best AUC-PR" if compared >= 2 else "no best AUC-PR (fewer than two informative methods)"
     lines.append(
-        f"{star}. AUC-PR, AP: higher is better; AURC: lower is better; R@100%P: recall with no wrong answer accepted."
+        f"{_legend(evaluation, compared)}. AUC-PR, AP: higher is better; AURC: lower is better; R@100%P: recall with "
+        "no wrong answer accepted; values: distinct uncertainty values; tied: share of queries tied with another."
     )
+    if reference is not None:
+        confidence = evaluation.bootstrap["confidence"]
+        lines.append(
+            f"[low, high]: {confidence:.0%} percentile bootstrap interval; vs {reference}: AUC-PR difference "
+            f"(Holm-adjusted p; s = significant)."
+        )
     if tied:
         lines.append("† uninformative: the same uncertainty for every query (no ranking, chance-level AUC-PR).")
     for note in evaluation.notes:

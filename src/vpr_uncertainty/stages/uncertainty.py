@@ -34,12 +34,17 @@ class UncertaintyConfig:
         Options of RS, SD and SU.
     options : mapping
         Further method options (e.g. ``btl_head``).
+    bootstrap, seed, reference : int, int, str or None
+        Paired bootstrap of the evaluation (0 resamples: none); see :func:`vpr_uncertainty.evaluate`.
     """
 
     methods: Sequence[str]
     k: int = 10
     alpha: float = 0.5
     options: Mapping[str, Any] = field(default_factory=dict)
+    bootstrap: int = 0
+    seed: int = 0
+    reference: str | None = None
 
 
 @dataclass
@@ -82,7 +87,16 @@ def evaluate(
 
     path = Path(path)
     options = {**dict(inputs or {}), **dict(conf.options)}
-    evaluation = evaluate_methods(retrieval, list(conf.methods), k=conf.k, alpha=conf.alpha, **options)
+    evaluation = evaluate_methods(
+        retrieval,
+        list(conf.methods),
+        k=conf.k,
+        alpha=conf.alpha,
+        bootstrap=conf.bootstrap,
+        seed=conf.seed,
+        reference=conf.reference,
+        **options,
+    )
     described = {"methods": list(conf.methods), "k": conf.k, "alpha": conf.alpha, "options": dict(conf.options)}
     fingerprint = cache.fingerprint(STAGE, described, {"retrieval": retrieval_fingerprint})
     arrays = {name: method.uncertainty for name, method in evaluation.methods.items()}

@@ -18,6 +18,7 @@ from typing import Any
 
 from vpr_uncertainty.evaluation import DEFAULT_METHODS
 from vpr_uncertainty.methods import get_method, split_method_list
+from vpr_uncertainty.study.bootstrap_config import bootstrap_settings
 from vpr_uncertainty.study.needs import unmet_needs
 from vpr_uncertainty.study.report_config import qualitative_methods, report_figures
 
@@ -26,7 +27,8 @@ __all__ = ["DEFAULT_ALPHAS", "DEFAULT_KS", "GridConfig", "InputEntry", "load_con
 DEFAULT_ALPHAS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
 DEFAULT_KS: tuple[int, ...] = (2, 3, 5, 10, 15, 20, 30, 50)
 VPRBENCH_FILE = "precomputed_data_corrected.npy"
-_TOP_KEYS = {"out", "methods", "k", "alpha", "alphas", "ks", "inputs", "report", "qualitative"}
+_BOOTSTRAP_KEYS = ("bootstrap", "seed", "reference")
+_TOP_KEYS = {"out", "methods", "k", "alpha", "alphas", "ks", "inputs", "report", "qualitative", *_BOOTSTRAP_KEYS}
 _INPUT_KEYS = {
     "precomputed_matches",
     "scores",
@@ -100,9 +102,15 @@ class GridConfig:
     ks: list[int] = field(default_factory=lambda: list(DEFAULT_KS))
     qualitative: list[str] | None = None
     report: list[str] | None = None
+    bootstrap: int = 0
+    seed: int = 0
+    reference: str | None = None
 
     def settings(self) -> dict[str, Any]:
-        return {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
+        settings = {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
+        if self.bootstrap:  # only then: the caches of grids without a bootstrap stay valid
+            settings.update(bootstrap=self.bootstrap, seed=self.seed, reference=self.reference)
+        return settings
 
 
 def slug(text: str) -> str:
@@ -219,8 +227,11 @@ def _inputs(raw_inputs: Any, problems: list[str]) -> list:
     return raw_inputs
 
 
-def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfig:
+def load_config(path: str | Path, *, out: str | Path | None = None, **overrides: Any) -> GridConfig:
     """Read and validate a grid configuration; every problem is reported at once, before any work.
+
+    ``overrides`` (``bootstrap``, ``seed``, ``reference``; None = keep the config's) replace the config's values
+    before the checks.
 
     Raises
     ------
@@ -234,6 +245,10 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
     if not path.is_file():
         raise FileNotFoundError(f"configuration file not found: {path}")
     data = _read_mapping(path)
+    unknown = sorted(set(overrides) - set(_BOOTSTRAP_KEYS))
+    if unknown:
+        raise TypeError(f"load_config got unexpected overrides {unknown} (valid: {', '.join(_BOOTSTRAP_KEYS)})")
+    data.update({key: value for key, value in overrides.items() if value is not None})
     base = path.resolve().parent
     problems: list[str] = []
 
@@ -342,6 +357,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
     qualitative = qualitative_methods(data.get("qualitative"), entries, problems)
     report = report_figures(data.get("report"), entries, bool(alphas or ks), problems)
 
+    bootstrap, seed, reference = bootstrap_settings(data, methods, problems)
     problems += unmet_needs(entries, methods)  # of the inputs that exist
     if problems:
         raise ValueError(f"{path}: {len(problems)} problem(s) in the configuration:\n  - " + "\n  - ".join(problems))
@@ -355,4 +371,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
         ks=ks,
         qualitative=qualitative,
         report=report,
+        bootstrap=bootstrap,
+        seed=seed,
+        reference=reference,
     )

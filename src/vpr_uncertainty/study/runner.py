@@ -76,6 +76,9 @@ def _load_cell_input(
             k=config.k,
             alpha=config.alpha,
             retrieval_k=candidates_needed(config),
+            bootstrap=config.bootstrap,
+            seed=config.seed,
+            reference=config.reference,
             **options,
         )
     )
@@ -235,6 +238,9 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
             k=config.k,
             alpha=config.alpha,
             cache_dir=out / "local_features",
+            bootstrap=config.bootstrap,
+            seed=config.seed,
+            reference=config.reference,
             **options,
         )
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)

@@ -1,0 +1,322 @@
+"""Paired bootstrap over queries: confidence intervals of AUC-PR, AP and AURC and paired tests between methods.
+
+Every method is measured on the **same** resamples of the queries (a paired bootstrap), so the difference between
+two methods is computed resample by resample. The resamples depend only on the number of queries, the number of
+resamples and the seed (:func:`resample_indices`): a cell, a table column and a slow reference loop that use the
+same three get the same resamples.
+
+Conventions
+-----------
+* Uncertainty: higher = less trustworthy, as everywhere in the toolkit; the metrics are those of
+  :mod:`vpr_uncertainty.evaluation.metrics` (trapezoid AUC-PR, average precision, AURC), computed on the resample
+  with a query drawn m times counted m times (the resampled copies of one query are tied).
+* A resample in which a method's correctness labels hold only one class (every answer correct, or none) has no
+  precision-recall curve: it is **skipped** for that method, for all three metrics alike (NaN in the
+  distributions), and counted.
+* Interval: the percentile interval (2.5th and 97.5th percentiles for 95 %, linear interpolation) of the
+  resampled values.
+* Paired test of a difference d = a - b: the two-sided percentile-bootstrap p-value
+  ``p = min(1, 2 (1 + min(#{d_b <= 0}, #{d_b >= 0})) / (B' + 1))`` over the B' resamples where both are defined:
+  twice the share of resamples where the difference has the other sign (or is zero), with the +1 correction that
+  keeps p > 0. A difference that is exactly zero on every resample (a method against itself) gets p = 1.
+* Multiple comparisons: Holm's step-down correction (:func:`holm`).
+
+The computation is vectorised over resamples: each method's queries are sorted once by uncertainty and grouped by
+tied values; a block of resamples is a matrix of query counts (resamples × queries), reduced per tied group and
+accumulated along the sorted order, which gives every threshold's true and false positives of every resample at
+once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+
+import numpy as np
+
+__all__ = [
+    "BOOTSTRAP_METRICS",
+    "bootstrap_metrics",
+    "holm",
+    "paired_p_value",
+    "percentile_interval",
+    "resample_indices",
+    "weighted_metrics",
+]
+
+#: The metrics resampled, and whether higher is better.
+BOOTSTRAP_METRICS: dict[str, bool] = {"auc_pr": True, "average_precision": True, "aurc": False}
+#: Resamples drawn per block: bounds the memory (block × queries integers) and fixes the random stream.
+_BLOCK = 100
+
+
+def _check_count(value: object, name: str, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def resample_indices(n_queries: int, n_resamples: int, seed: int) -> Iterator[np.ndarray]:
+    """The bootstrap resamples of ``n_queries`` queries, in blocks of at most 100 resamples.
+
+    Parameters
+    ----------
+    n_queries : int
+        Queries to draw from (with replacement), >= 1.
+    n_resamples : int
+        Resamples in all, >= 1.
+    seed : int
+        Seed of :func:`numpy.random.default_rng`; the same three arguments give the same resamples.
+
+    Yields
+    ------
+    ndarray of shape (b, n_queries), int64
+        Query indices, one resample per row (b <= 100).
+
+    Examples
+    --------
+    >>> [block.shape for block in resample_indices(5, 150, seed=0)]
+    [(100, 5), (50, 5)]
+    """
+    n_queries = _check_count(n_queries, "n_queries", 1)
+    n_resamples = _check_count(n_resamples, "n_resamples", 1)
+    rng = np.random.default_rng(seed)
+    for start in range(0, n_resamples, _BLOCK):
+        yield rng.integers(0, n_queries, size=(min(_BLOCK, n_resamples - start), n_queries), dtype=np.int64)
+
+
+def _counts(indices: np.ndarray, n_queries: int) -> np.ndarray:
+    """(b, Q) how many times each query is drawn in each resample."""
+    rows = np.arange(indices.shape[0])[:, None] * n_queries
+    return np.bincount((indices + rows).ravel(), minlength=indices.shape[0] * n_queries).reshape(-1, n_queries)
+
+
+def _check_arrays(correct: object, uncertainty: object) -> tuple[np.ndarray, np.ndarray]:
+    correct = np.asarray(correct)
+    uncertainty = np.asarray(uncertainty, dtype=np.float64)
+    if correct.ndim != 1 or uncertainty.shape != correct.shape or correct.size == 0:
+        raise ValueError(
+            f"correct and uncertainty must both have shape (n_queries,) with n_queries >= 1, got {correct.shape} "
+            f"and {uncertainty.shape}"
+        )
+    if correct.dtype != bool:
+        if not np.isin(correct, (0, 1)).all():
+            raise ValueError(f"correct must be boolean, got values {np.unique(correct)[:5]}")
+        correct = correct.astype(bool)
+    if not np.isfinite(uncertainty).all():
+        raise ValueError(f"uncertainty contains {int((~np.isfinite(uncertainty)).sum())} NaN or inf values")
+    return correct, uncertainty
+
+
+def weighted_metrics(correct: object, uncertainty: object, weights: object) -> dict[str, np.ndarray]:
+    """AUC-PR, AP and AURC of one method on many weighted copies of its queries at once.
+
+    With integer weights (how many times a resample draws each query) this equals the metrics of
+    :mod:`vpr_uncertainty.evaluation.metrics` on the resampled arrays; with all weights 1, the metrics themselves.
+
+    Parameters
+    ----------
+    correct : array-like of shape (Q,), bool
+        Whether each query's top-1 answer is correct.
+    uncertainty : array-like of shape (Q,)
+        Higher = less trustworthy; equal values are one threshold.
+    weights : array-like of shape (B, Q), non-negative
+        One row per resample.
+
+    Returns
+    -------
+    dict of str to ndarray of shape (B,)
+        ``auc_pr``, ``average_precision`` and ``aurc``; NaN for a row whose weighted labels hold one class only.
+
+    Examples
+    --------
+    >>> metrics = weighted_metrics([True, False, True], [0.1, 0.5, 0.2], [[1, 1, 1], [2, 1, 0]])
+    >>> metrics["average_precision"], metrics["aurc"]
+    (array([1., 1.]), array([0.11111111, 0.11111111]))
+    """
+    correct, uncertainty = _check_arrays(correct, uncertainty)
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.ndim != 2 or weights.shape[1] != correct.size:
+        raise ValueError(f"weights must have shape (n_resamples, {correct.size}), got {weights.shape}")
+    order = np.argsort(uncertainty, kind="stable")
+    sorted_uncertainty = uncertainty[order]
+    starts = np.flatnonzero(np.diff(sorted_uncertainty, prepend=-np.inf) > 0)  # first query of each tied group
+    sorted_weights = weights[:, order]
+    group_weight = np.add.reduceat(sorted_weights, starts, axis=1)
+    group_true = np.add.reduceat(sorted_weights * correct[order], starts, axis=1)
+    accepted = np.cumsum(group_weight, axis=1)  # the most confident groups first
+    true_accepted = np.cumsum(group_true, axis=1)
+    total, positives = accepted[:, -1:], true_accepted[:, -1:]
+    defined = ((positives > 0) & (positives < total)).ravel()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # Before the first drawn group nothing is accepted: the curve's starting point (recall 0, precision 1).
+        precision = np.where(accepted > 0, true_accepted / np.where(accepted > 0, accepted, 1), 1.0)
+        recall = true_accepted / np.where(positives > 0, positives, 1)
+    previous_recall = np.concatenate([np.zeros_like(recall[:, :1]), recall[:, :-1]], axis=1)
+    previous_precision = np.concatenate([np.ones_like(precision[:, :1]), precision[:, :-1]], axis=1)
+    gained = recall - previous_recall
+    auc_pr = np.sum(gained * (precision + previous_precision) / 2, axis=1)
+    average_precision = np.sum(gained * precision, axis=1)
+    aurc = np.sum(group_weight / np.where(total > 0, total, 1) * (1.0 - precision), axis=1)
+    return {
+        name: np.where(defined, values, np.nan)
+        for name, values in (("auc_pr", auc_pr), ("average_precision", average_precision), ("aurc", aurc))
+    }
+
+
+def bootstrap_metrics(
+    correct: object | Mapping[str, object],
+    uncertainties: Mapping[str, object],
+    *,
+    n_resamples: int = 1000,
+    seed: int = 0,
+) -> dict[str, dict[str, np.ndarray]]:
+    """The paired bootstrap distributions of AUC-PR, AP and AURC of several methods on the same resamples.
+
+    Parameters
+    ----------
+    correct : array-like of shape (Q,), bool, or mapping of str to such arrays
+        Correctness of each query's top-1 answer; a mapping gives a method its own labels (a method that retrieves
+        with its own embeddings), and the methods it leaves out use ``correct[None]`` if present.
+    uncertainties : mapping of str to array-like of shape (Q,)
+        Each method's uncertainties, higher = less trustworthy.
+    n_resamples : int, default=1000
+        Bootstrap resamples.
+    seed : int, default=0
+        Seed of the resamples (see :func:`resample_indices`).
+
+    Returns
+    -------
+    dict of str to dict of str to ndarray of shape (n_resamples,)
+        ``metric -> method -> values``; NaN on the resamples skipped for that method (one class only).
+
+    Examples
+    --------
+    >>> dist = bootstrap_metrics([True, False, True, False], {"A": [0.1, 0.9, 0.2, 0.8]}, n_resamples=50)
+    >>> float(np.nanmin(dist["auc_pr"]["A"]))
+    1.0
+    """
+    if not uncertainties:
+        raise ValueError("no uncertainties given to bootstrap")
+    labels: dict[str, object] = {}
+    for name in uncertainties:
+        if isinstance(correct, Mapping):
+            if name not in correct and None not in correct:
+                raise ValueError(f"no correctness labels for method {name!r}")
+            labels[name] = correct.get(name, correct.get(None))
+        else:
+            labels[name] = correct
+    arrays = {}
+    for name in uncertainties:
+        try:
+            arrays[name] = _check_arrays(labels[name], uncertainties[name])
+        except ValueError as error:
+            raise ValueError(f"method {name!r}: {error}") from None
+    sizes = {name: pair[0].size for name, pair in arrays.items()}
+    n_queries = next(iter(sizes.values()))
+    if any(size != n_queries for size in sizes.values()):
+        raise ValueError(f"every method must have the same number of queries, got {sizes}")
+    blocks: dict[str, dict[str, list[np.ndarray]]] = {
+        metric: {name: [] for name in arrays} for metric in BOOTSTRAP_METRICS
+    }
+    for indices in resample_indices(n_queries, n_resamples, seed):
+        counts = _counts(indices, n_queries)
+        for name, (labels_of, uncertainty) in arrays.items():
+            for metric, values in weighted_metrics(labels_of, uncertainty, counts).items():
+                blocks[metric][name].append(values)
+    return {
+        metric: {name: np.concatenate(parts) for name, parts in by_method.items()}
+        for metric, by_method in blocks.items()
+    }
+
+
+def percentile_interval(values: object, confidence: float = 0.95) -> tuple[float, float] | None:
+    """The percentile bootstrap interval of ``values`` (NaN entries, the skipped resamples, are left out).
+
+    Parameters
+    ----------
+    values : array-like of shape (B,)
+        Resampled values of a metric.
+    confidence : float, default=0.95
+        In (0, 1).
+
+    Returns
+    -------
+    (low, high) or None
+        None when no resample is defined.
+
+    Examples
+    --------
+    >>> [round(bound, 6) for bound in percentile_interval(np.arange(101.0), 0.9)]
+    [5.0, 95.0]
+    """
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
+    values = np.asarray(values, dtype=np.float64)
+    kept = values[~np.isnan(values)]
+    if kept.size == 0:
+        return None
+    tail = (1.0 - confidence) / 2 * 100
+    low, high = np.percentile(kept, [tail, 100 - tail])
+    return float(low), float(high)
+
+
+def paired_p_value(first: object, second: object) -> float | None:
+    """Two-sided paired-bootstrap p-value of the difference ``first - second`` (see the module conventions).
+
+    Parameters
+    ----------
+    first, second : array-like of shape (B,)
+        The two methods' values on the same resamples (NaN where skipped; such resamples are left out).
+
+    Returns
+    -------
+    float or None
+        In (0, 1]; None when no resample is defined for both.
+
+    Examples
+    --------
+    >>> paired_p_value([0.9, 0.8, 0.85, 0.95], [0.5, 0.6, 0.55, 0.4])  # first better on every resample
+    0.4
+    >>> paired_p_value([0.5, 0.6], [0.5, 0.6])  # no difference at all
+    1.0
+    """
+    first, second = np.asarray(first, dtype=np.float64), np.asarray(second, dtype=np.float64)
+    if first.shape != second.shape or first.ndim != 1:
+        raise ValueError(f"first and second must have the same shape (n_resamples,), got {first.shape}, {second.shape}")
+    difference = (first - second)[~(np.isnan(first) | np.isnan(second))]
+    if difference.size == 0:
+        return None
+    other_sign = min(int((difference <= 0).sum()), int((difference >= 0).sum()))
+    return float(min(1.0, 2.0 * (1 + other_sign) / (difference.size + 1)))
+
+
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm's step-down adjustment of p-values for multiple comparisons (family-wise error control).
+
+    The i-th smallest of m p-values becomes ``max_{j <= i} min(1, (m - j + 1) p_(j))``; a hypothesis is rejected
+    at level α when its adjusted p-value is <= α.
+
+    Parameters
+    ----------
+    p_values : sequence of float
+        In [0, 1].
+
+    Returns
+    -------
+    list of float
+        Adjusted p-values, in the order given.
+
+    Examples
+    --------
+    >>> holm([0.01, 0.04, 0.03])
+    [0.03, 0.06, 0.06]
+    """
+    p = np.asarray(p_values, dtype=np.float64)
+    if p.ndim != 1 or np.isnan(p).any() or (p < 0).any() or (p > 1).any():
+        raise ValueError(f"p_values must be a sequence of numbers in [0, 1], got {list(p_values)}")
+    order = np.argsort(p, kind="stable")
+    m = p.size
+    adjusted = np.maximum.accumulate(np.minimum(1.0, (m - np.arange(m)) * p[order]))
+    result = np.empty(m)
+    result[order] = adjusted
+    return [float(value) for value in result]
