@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablation
 from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
+from vpr_uncertainty.reports.held_out import table1_cells, table1_note
 from vpr_uncertainty.reports.plots import plot_rejection_curves
 from vpr_uncertainty.reports.qualitative import plot_qualitative
 from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_html, table1_latex, table1_markdown
@@ -32,13 +33,15 @@ __all__ = [
 
 
 def write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
-    """``table1.md``, ``table1.csv`` and ``table1.tex`` (booktabs) in ``out_dir``."""
-    table = build_table1(cells)
+    """``table1.md``, ``table1.csv`` and ``table1.tex`` (booktabs) in ``out_dir``; held-out means with the grid's
+    calibration option (:mod:`vpr_uncertainty.reports.held_out`), which ``table1.md`` then states."""
+    table = build_table1(table1_cells(cells))
+    note = table1_note(cells)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex)):
         path = out_dir / f"table1.{suffix}"
-        write_text(path, render(table))
+        write_text(path, render(table) + (f"\n{note}\n" if note and suffix == "md" else ""))
         paths.append(path)
     return paths
 
@@ -46,7 +49,10 @@ def write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> li
 def table1_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
     """Table 1 as HTML, with its note."""
     note = '<p class="note">Best per column in bold. ms/query: mean time per query.</p>'
-    return table1_html(build_table1(cells)) + note
+    held_out = table1_note(cells)
+    if held_out:
+        note += f'<p class="note">{held_out}</p>'
+    return table1_html(build_table1(table1_cells(cells))) + note
 
 
 def write_heatmaps(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
