@@ -46,7 +46,10 @@ def subset_queries(retrieval: Retrieval, rows: np.ndarray) -> Retrieval:
 
 @dataclass
 class HeldOutEvaluation:
-    """Per method and metric, one value per repeat; CAL's calibration quality per repeat and pooled."""
+    """Per method and metric, one value per repeat; CAL's calibration quality per repeat and pooled.
+
+    ``times`` holds each method's time per query (ms) of every repeat, on the held-out queries.
+    """
 
     calibration_fraction: float
     repeats: int
@@ -57,6 +60,7 @@ class HeldOutEvaluation:
     k: int
     values: dict[str, dict[str, list[float | None]]] = field(default_factory=dict)
     quality: dict[str, Any] = field(default_factory=dict)
+    times: dict[str, list[float]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
     def mean(self, method: str, metric: str = "auc_pr") -> float | None:
@@ -77,6 +81,8 @@ class HeldOutEvaluation:
                 entry[metric] = self.mean(name, metric)
                 entry[f"{metric}_std"] = self.std(name, metric)
             entry["auc_pr_per_repeat"] = metrics["auc_pr"]
+            if self.times.get(name):
+                entry["time_per_query_ms"] = float(np.mean(self.times[name]))
             methods[name] = entry
         result: dict[str, Any] = {
             "n_queries": self.n_queries,
@@ -128,7 +134,8 @@ def evaluate_held_out(
     model : {"logistic", "isotonic"}
         CAL's calibrator.
     **options
-        Further method options (as :func:`vpr_uncertainty.evaluate`).
+        Further method options (as :func:`vpr_uncertainty.evaluate`); ``query_paths`` (one per query) is cut to
+        the held-out queries of each split.
     """
     from vpr_uncertainty.evaluation import correct_at_n, evaluate
     from vpr_uncertainty.methods import get_method
@@ -159,6 +166,8 @@ def evaluate_held_out(
         calibration, held_out = stratified_split(correct, calibration_fraction, np.random.default_rng([seed, repeat]))
         result.n_calibration, result.n_held_out = int(calibration.size), int(held_out.size)
         extra = dict(options)
+        if options.get("query_paths") is not None:  # the images of the held-out queries only
+            extra["query_paths"] = [options["query_paths"][int(row)] for row in held_out]
         if uses_cal:
             extra["gate"] = calibrate_arrays(
                 retrieval.scores[calibration], correct[calibration], k=k, seed=repeat, model=model
@@ -178,6 +187,7 @@ def evaluate_held_out(
         for name, measured in evaluation.methods.items():
             for metric in _METRICS:
                 result.values[name][metric].append(getattr(measured, metric))
+            result.times.setdefault(name, []).append(measured.time_per_query_ms)
             if (get_method(name).base or name) == "CAL":
                 probability = 1.0 - measured.uncertainty
                 pooled_p.append(probability)

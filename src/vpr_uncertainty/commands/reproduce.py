@@ -14,6 +14,7 @@ _EXAMPLE = """example config (TOML; relative paths are relative to the config fi
   out = "runs/reproduce"
   methods = ["RS", "SD", "SU", "PA", "L2", "BM"]   # options in the name: "SUE:clip=one-sided" (needs positions)
   k = 10
+  # calibration = {fraction = 0.3, repeats = 20, seed = 0}   # held-out Table 1 (add "CAL" to methods)
 
   [[inputs]]
   precomputed_matches = "data/vprbench/precomputed_matches/corridor"

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablation
 from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
+from vpr_uncertainty.reports.held_out import table1_cells, table1_note
 from vpr_uncertainty.reports.plots import plot_rejection_curves
 from vpr_uncertainty.reports.qualitative import plot_qualitative
 from vpr_uncertainty.reports.table1 import (
@@ -47,16 +48,19 @@ __all__ = [
 
 
 def _table1(cells: Sequence[Cell], config: GridConfig, metric: str):
-    return build_table1(cells, metric, bootstrap=getattr(config, "bootstrap", 0), seed=getattr(config, "seed", 0))
+    # With the calibration option, Table 1 (AUC-PR) holds the held-out means; AP and AURC stay on all queries.
+    chosen = table1_cells(cells) if metric == "auc_pr" else cells
+    return build_table1(chosen, metric, bootstrap=getattr(config, "bootstrap", 0), seed=getattr(config, "seed", 0))
 
 
 def _write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path, metric: str, stem: str) -> list[Path]:
     table = _table1(cells, config, metric)
+    note = table1_note(cells) if metric == "auc_pr" else None
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex)):
         path = out_dir / f"{stem}.{suffix}"
-        write_text(path, render(table))
+        write_text(path, render(table) + (f"\n{note}\n" if note and suffix == "md" else ""))
         paths.append(path)
     return paths
 
@@ -79,7 +83,9 @@ def write_table1_aurc(cells: Sequence[Cell], config: GridConfig, out_dir: Path) 
 def _section(metric: str):
     def section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
         table = _table1(cells, config, metric)
-        return table1_html(table) + f'<p class="note">{escape(marks_note(table))} ms/query: mean time per query.</p>'
+        html = table1_html(table) + f'<p class="note">{escape(marks_note(table))} ms/query: mean time per query.</p>'
+        held_out = table1_note(cells) if metric == "auc_pr" else None
+        return html + (f'<p class="note">{escape(held_out)}</p>' if held_out else "")
 
     section.__name__ = f"{metric}_section"
     return section

@@ -16,7 +16,7 @@ is selected by name, optionally with options as in a method spec (``"qualitative
 Examples
 --------
 >>> REPORT_FIGURES.names()
-['table1', 'heatmaps', 'ablations', 'pr_curves', 'qualitative', 'table1_ap', 'table1_aurc', 'ties']
+['table1', 'heatmaps', 'ablations', 'pr_curves', 'qualitative', 'table1_ap', 'table1_aurc', 'ties', 'reliability']
 >>> parse_figure_spec("qualitative:rank_by=RS")
 ('qualitative', {'rank_by': 'RS'})
 """
@@ -48,6 +48,7 @@ FIGURE_NEEDS: dict[str, str] = {
     "uncertainties": "every cell's stored per-query uncertainties",
     "images": "a cell with query and database images (images = ... in an input, or a model input)",
     "ablations": "the α or k ablation (non-empty alphas or ks)",
+    "calibration": "CAL evaluated on held-out queries (CAL in methods and calibration = {fraction, repeats, seed})",
 }
 
 
@@ -268,4 +269,13 @@ register_report_figure(
     description="share of queries tied with another and distinct uncertainty values of each method (md, csv)",
     requires=("uncertainties",),
     section=_HERE + "ties_section",
+)
+register_report_figure(
+    "reliability",
+    "vpr_uncertainty.reports.held_out:write_reliability",
+    title="Calibration of CAL on held-out queries",
+    description="reliability diagram of CAL (held-out predictions of all splits, count per bin), ECE and Brier, "
+    "per cell",
+    requires=("calibration",),
+    section="vpr_uncertainty.reports.held_out:reliability_section",
 )

@@ -8,6 +8,7 @@ A grid is described by a TOML file (read with :mod:`tomllib`) or a YAML file (ne
     alpha = 0.5
     alphas = [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]   # α ablation (SU); [] to skip
     ks = [2, 3, 5, 10, 15, 20, 30, 50]                                  # k ablation (RS, SD); [] to skip
+    calibration = {fraction = 0.3, repeats = 20, seed = 0}   # optional: held-out Table 1 (study.heldout)
 
     [[inputs]]                          # a VPR-Bench precomputed_matches folder: one cell per method subfolder
     precomputed_matches = "precomputed_matches/corridor"

@@ -57,6 +57,9 @@ class Cell:
         Whether each of the first H candidates is a positive.
     query_paths, database_paths : list of str, optional
         The images, when the cell has them.
+    held_out : dict, optional
+        The held-out evaluation of the grid's ``calibration`` option (every method's mean and std over the splits,
+        CAL's calibration quality; :func:`vpr_uncertainty.study.heldout.held_out_evaluation`); None without it.
     cached : bool
         Whether the cell was read from the cache.
     """
@@ -71,6 +74,7 @@ class Cell:
     hits: np.ndarray | None = None
     query_paths: list[str] | None = None
     database_paths: list[str] | None = None
+    held_out: dict[str, Any] | None = None
     cached: bool = False
 
     def uncertainties(self) -> dict[str, np.ndarray]:
@@ -96,13 +100,15 @@ class Cell:
         return rows
 
     def to_dict(self) -> dict[str, Any]:
-        """The cell's entry in ``results.json``: its names, ``Evaluation.to_dict()`` and the ablations."""
+        """The cell's entry in ``results.json``: its names, ``Evaluation.to_dict()``, the ablations and, with the
+        grid's calibration option, ``held_out``."""
         return {
             "vpr_method": self.vpr_method,
             "dataset": self.dataset,
             **self.evaluation.to_dict(),
             "ablation_alpha": {_float_key(a): v for a, v in self.ablation_alpha.items()},
             "ablation_k": {name: {str(k): v for k, v in c.items()} for name, c in self.ablation_k.items()},
+            **({"held_out": self.held_out} if self.held_out is not None else {}),
         }
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -166,5 +172,6 @@ class Cell:
             ablation_k={name: {int(k): v for k, v in c.items()} for name, c in data["ablation_k"].items()},
             query_paths=query_paths,
             database_paths=database_paths,
+            held_out=data.get("held_out"),
             cached=cached,
         )

@@ -19,6 +19,7 @@ from typing import Any
 from vpr_uncertainty.evaluation import DEFAULT_METHODS
 from vpr_uncertainty.methods import get_method, split_method_list
 from vpr_uncertainty.study.bootstrap_config import bootstrap_settings
+from vpr_uncertainty.study.heldout import calibration_option, full_query_methods, runs_cal
 from vpr_uncertainty.study.needs import unmet_needs
 from vpr_uncertainty.study.report_config import qualitative_methods, report_figures
 
@@ -28,7 +29,19 @@ DEFAULT_ALPHAS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
 DEFAULT_KS: tuple[int, ...] = (2, 3, 5, 10, 15, 20, 30, 50)
 VPRBENCH_FILE = "precomputed_data_corrected.npy"
 _BOOTSTRAP_KEYS = ("bootstrap", "seed", "reference")
-_TOP_KEYS = {"out", "methods", "k", "alpha", "alphas", "ks", "inputs", "report", "qualitative", *_BOOTSTRAP_KEYS}
+_TOP_KEYS = {
+    "out",
+    "methods",
+    "k",
+    "alpha",
+    "alphas",
+    "ks",
+    "inputs",
+    "report",
+    "qualitative",
+    "calibration",
+    *_BOOTSTRAP_KEYS,
+}
 _INPUT_KEYS = {
     "precomputed_matches",
     "scores",
@@ -105,11 +118,14 @@ class GridConfig:
     bootstrap: int = 0
     seed: int = 0
     reference: str | None = None
+    calibration: dict[str, Any] | None = None  # {fraction, repeats, seed}: see vpr_uncertainty.study.heldout
 
     def settings(self) -> dict[str, Any]:
         settings = {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
         if self.bootstrap:  # only then: the caches of grids without a bootstrap stay valid
             settings.update(bootstrap=self.bootstrap, seed=self.seed, reference=self.reference)
+        if self.calibration is not None:  # only then: the settings (and cell fingerprints) without it are unchanged
+            settings["calibration"] = dict(self.calibration)
         return settings
 
 
@@ -355,10 +371,14 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
     keys = [entry.key for entry in entries]
     problems += [f"the cell {key} appears more than once" for key in sorted({k for k in keys if keys.count(k) > 1})]
     qualitative = qualitative_methods(data.get("qualitative"), entries, problems)
-    report = report_figures(data.get("report"), entries, bool(alphas or ks), problems)
+    calibration = calibration_option(data.get("calibration"), methods, problems)
+    calibrated = calibration is not None and runs_cal(methods)
+    report = report_figures(data.get("report"), entries, bool(alphas or ks), problems, calibrated=calibrated)
 
     bootstrap, seed, reference = bootstrap_settings(data, methods, problems)
-    problems += unmet_needs(entries, methods)  # of the inputs that exist
+    if bootstrap and calibration is not None:
+        problems.append("bootstrap and calibration cannot be combined yet (the held-out evaluation repeats splits)")
+    problems += unmet_needs(entries, full_query_methods(methods, data.get("calibration")))  # of the inputs that exist
     if problems:
         raise ValueError(f"{path}: {len(problems)} problem(s) in the configuration:\n  - " + "\n  - ".join(problems))
     return GridConfig(
@@ -374,4 +394,5 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
         bootstrap=bootstrap,
         seed=seed,
         reference=reference,
+        calibration=calibration,
     )

@@ -29,6 +29,8 @@ _HINTS = {
     "btl_head": 'the option in the method name, e.g. "BTL:btl_head=HEAD.pt"',
     "descriptors": "a model input, or BTL:query_descriptors=DESC.h5,database_descriptors=DESC.h5",
     "local_features": 'the option in the method name, e.g. "GV-H5:features_path=FEATURES.h5"',
+    "gate": 'the option in the method name ("CAL:gate=GATE.json"), or calibration = {fraction = 0.3, repeats = 20, '
+    "seed = 0} to fit CAL on each split of a held-out evaluation",
 }
 
 

@@ -24,6 +24,9 @@ __all__ = ["write_reports", "write_results"]
 def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
     """Write ``results.json`` (every cell's evaluation and ablations) and the long-format ``results.csv``.
 
+    With the grid's calibration option, ``results.json`` records it (``"calibration": {fraction, repeats, seed}``)
+    and each cell's held-out means and standard deviations (``"held_out"``).
+
     Parameters
     ----------
     cells : sequence of Cell
@@ -38,7 +41,10 @@ def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
     """
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
-    document = {"settings": config.settings(), "cells": [cell.to_dict() for cell in cells]}
+    document: dict[str, Any] = {"settings": config.settings()}
+    if config.calibration is not None:  # the held-out option: each cell then holds "held_out"
+        document["calibration"] = dict(config.calibration)
+    document["cells"] = [cell.to_dict() for cell in cells]
     json_path = out / "results.json"
     write_text(json_path, json.dumps(document, indent=2) + "\n")
     rows = [row for cell in cells for row in cell.rows()]
@@ -130,4 +136,6 @@ def _available_needs(cells: Sequence[Cell]) -> set[str]:
         available.add("images")
     if any(cell.ablation_alpha for cell in cells) or any(curve for c in cells for curve in c.ablation_k.values()):
         available.add("ablations")
+    if any("CAL" in (cell.held_out or {}).get("calibration_quality", {}) for cell in cells):
+        available.add("calibration")
     return available

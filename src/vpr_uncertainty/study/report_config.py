@@ -39,8 +39,13 @@ def qualitative_methods(raw: Any, entries: list[InputEntry], problems: list[str]
     return names
 
 
-def report_figures(raw: Any, entries: list[InputEntry], ablations: bool, problems: list[str]) -> list[str] | None:
-    """The report figures to write (names or specs, see :mod:`vpr_uncertainty.reports.figures`); None: all."""
+def report_figures(
+    raw: Any, entries: list[InputEntry], ablations: bool, problems: list[str], *, calibrated: bool = False
+) -> list[str] | None:
+    """The report figures to write (names or specs, see :mod:`vpr_uncertainty.reports.figures`); None: all.
+
+    ``calibrated``: CAL runs on held-out queries (the ``calibration`` option with CAL among the methods).
+    """
     if raw is None:
         return None
     try:
@@ -54,6 +59,8 @@ def report_figures(raw: Any, entries: list[InputEntry], ablations: bool, problem
     if not specs:
         problems.append(f"report is empty: name at least one report figure ({', '.join(REPORT_FIGURES.names())})")
     available = {"evaluation", "uncertainties"} | ({"ablations"} if ablations else set())
+    if calibrated:
+        available.add("calibration")
     if any(entry.images is not None or entry.model is not None for entry in entries):
         available.add("images")
     names = []

@@ -9,6 +9,9 @@ matches; a cell cut short or unreadable is reported in one line and recomputed. 
 (fingerprints of file sizes and times) no longer match and are recomputed.
 
 Image inputs run :func:`vpr_uncertainty.pipeline.run` (the stage spine) on the dataset loaded once here.
+
+With the grid's ``calibration`` option, each cell also holds every method's held-out evaluation
+(:mod:`vpr_uncertainty.study.heldout`); the option is part of the settings, hence of the fingerprint.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWar
 from vpr_uncertainty.study.ablations import ablation_curves, ks_left_out_note
 from vpr_uncertainty.study.cell import Cell
 from vpr_uncertainty.study.config import GridConfig, InputEntry
+from vpr_uncertainty.study.heldout import full_query_methods, held_out_evaluation
 
 __all__ = ["HIT_COLUMNS", "candidates_needed", "load_cell", "run_cell", "run_grid", "save_cell"]
 
@@ -72,7 +76,7 @@ def _load_cell_input(
             dataset=dataset if dataset is not None else entry.dataset_source,
             out=out / "runs" / entry.key,
             model=entry.model,
-            methods=config.methods,
+            methods=full_query_methods(config.methods, config.calibration),
             k=config.k,
             alpha=config.alpha,
             retrieval_k=candidates_needed(config),
@@ -229,12 +233,12 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         database_paths = [str(p) for p in dataset.database_paths]
         if len(query_paths) != retrieval.n_queries:
             query_paths = database_paths = None
+    # Image-based methods (geometric verification) get the images and one local-feature cache for the grid.
+    options = {} if query_paths is None else {"query_paths": query_paths, "database_paths": database_paths}
     if evaluation is None:
-        # Image-based methods (geometric verification) get the images and one local-feature cache for the grid.
-        options = {} if query_paths is None else {"query_paths": query_paths, "database_paths": database_paths}
         evaluation = evaluate(
             retrieval,
-            config.methods,
+            full_query_methods(config.methods, config.calibration),
             k=config.k,
             alpha=config.alpha,
             cache_dir=out / "local_features",
@@ -260,6 +264,9 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         hits=positive_hits(retrieval, HIT_COLUMNS),
         query_paths=query_paths,
         database_paths=database_paths,
+        held_out=None
+        if config.calibration is None
+        else held_out_evaluation(retrieval, config, cache_dir=out / "local_features", **options),
     )
     save_cell(cell, json_path, npz_path, fingerprint)
     return cell
