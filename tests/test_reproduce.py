@@ -20,8 +20,8 @@ from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 from conftest import assert_close
 from vpr_uncertainty import evaluate
 from vpr_uncertainty.commands import reproduce as reproduce_command
-from vpr_uncertainty.reports.ablations import ABLATION_SIZE
 from vpr_uncertainty.reports.ablations import DPI as ABLATION_DPI
+from vpr_uncertainty.reports.ablations import ablation_figsize
 from vpr_uncertainty.reports.heatmaps import DPI as HEATMAP_DPI
 from vpr_uncertainty.reports.heatmaps import heatmap_figsize
 from vpr_uncertainty.reports.qualitative import DPI as QUALITATIVE_DPI
@@ -160,8 +160,9 @@ def test_figures_are_pngs_of_the_expected_size(grid):
     for path in paths["heatmaps"]:
         assert _png_size(path) == (round(heatmap[0] * HEATMAP_DPI), round(heatmap[1] * HEATMAP_DPI))
     assert [p.name for p in paths["ablations"]] == ["ablation_alpha.png", "ablation_k.png"]
-    for path in paths["ablations"]:
-        assert _png_size(path) == (round(ABLATION_SIZE[0] * ABLATION_DPI), round(ABLATION_SIZE[1] * ABLATION_DPI))
+    # One α panel per VPR method (10, in two rows of five); RS and SD panels with one line per VPR method.
+    for path, size in zip(paths["ablations"], (ablation_figsize(10, None, 1), ablation_figsize(2, 2, 10)), strict=True):
+        assert _png_size(path) == (round(size[0] * ABLATION_DPI), round(size[1] * ABLATION_DPI))
     assert len(paths["pr_curves"]) == len(cells)
     for path in paths["pr_curves"]:
         assert _png_size(path) == (768, 576)
