@@ -93,6 +93,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
     )
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    parser.add_argument(
+        "--latency",
+        action="store_true",
+        help="also measure each score-based method's latency at batch size 1 (median of 3 runs of 200 "
+        "single-query calls; latency_ms_batch1 in --json)",
+    )
     held_out = parser.add_argument_group(
         "held-out evaluation (no leakage): every method on the same held-out queries of random splits; "
         "CAL is fitted on the rest"
@@ -130,8 +136,10 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
         if args.calibration_fraction is not None:
             return _run_held_out(args, retrieval, options)
-        evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha, **options)
+        evaluation = evaluate(retrieval, args.methods, k=args.k, alpha=args.alpha, latency=args.latency, **options)
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
+    if args.latency:
+        print(_latency_line(evaluation))
     if args.json:
         write_output(args.json, json.dumps(evaluation.to_dict(), indent=2) + "\n")
         print(f"wrote {args.json}")
@@ -139,6 +147,16 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)
         print(f"wrote {args.plot}")
     return 0
+
+
+def _latency_line(evaluation) -> str:
+    """``latency at batch size 1 (ms/query): RS 0.0123, ...`` beside the batched figures of the table."""
+    pairs = [
+        f"{name} {method.timings['latency_ms_batch1']:.4f}"
+        for name, method in evaluation.methods.items()
+        if "latency_ms_batch1" in method.timings
+    ]
+    return "latency at batch size 1 (ms/query, median of 3 runs of 200 calls): " + (", ".join(pairs) or "none")
 
 
 def _fraction(text: str) -> float:

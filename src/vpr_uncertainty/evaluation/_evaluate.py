@@ -26,6 +26,7 @@ from vpr_uncertainty.evaluation.metrics import (
     rejection_curve,
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
+from vpr_uncertainty.evaluation.timing import LATENCY_KINDS, latency_batch1, time_geometric
 from vpr_uncertainty.methods import OwnRetrievalUncertainty, available_methods, check_options, get_method
 
 if TYPE_CHECKING:
@@ -68,6 +69,7 @@ def evaluate(
     alpha: float = 0.5,
     recall_levels: Sequence[float] = RECALL_LEVELS,
     timing_repeats: int = 5,
+    latency: bool = False,
     **options: Any,
 ) -> Evaluation:
     """Compute every requested uncertainty on a retrieval and measure how well it predicts correct answers.
@@ -85,7 +87,13 @@ def evaluate(
     recall_levels : sequence of float
         Recall levels at which the end-to-end precision is reported.
     timing_repeats : int
-        Calls per method for the time per query (median; fewer when a call is slow).
+        Calls per method for the time per query (median; fewer when a call is slow). A geometric method's
+        ``time_per_query_ms`` is its cold figure (every local feature extracted); its ``timings`` hold
+        ``time_per_query_ms_cold`` and ``time_per_query_ms_warm`` (features read from the cache in
+        ``cache_dir``; absent without one), see :func:`~vpr_uncertainty.evaluation.timing.time_geometric`.
+    latency : bool, default=False
+        Also measure each score-based method's latency at batch size 1 (``timings["latency_ms_batch1"]``: the
+        median over 3 runs of 200 single-query calls of its registered function on a (1, K) row).
     **options
         Further options passed to the methods that accept them; an option that no selected method takes
         (besides the inputs of :data:`~vpr_uncertainty.methods.STAGE_INPUTS`) is a ValueError. Files the
@@ -136,11 +144,24 @@ def evaluate(
         evaluation.notes.append(nonpositive)
     for entry in entries:
         inputs = entry.resolve_inputs(retrieval, {"k": k, "alpha": alpha, **options})  # files read once
-        result, seconds = time_per_query(
-            lambda entry=entry, inputs=inputs: entry(retrieval, **inputs),
-            retrieval.n_queries,
-            repeats=timing_repeats,
-        )
+        timings: dict[str, float] = {}
+        if entry.kind == "geometric":
+            result, cold, warm = time_geometric(
+                lambda given, entry=entry: entry(retrieval, **given), inputs, repeats=timing_repeats
+            )
+            seconds = cold / retrieval.n_queries
+            timings["time_per_query_ms_cold"] = seconds * 1e3
+            if warm is not None:
+                timings["time_per_query_ms_warm"] = warm / retrieval.n_queries * 1e3
+        else:
+            result, seconds = time_per_query(
+                lambda entry=entry, inputs=inputs: entry(retrieval, **inputs),
+                retrieval.n_queries,
+                repeats=timing_repeats,
+            )
+        if latency and entry.kind in LATENCY_KINDS:
+            call = lambda row, entry=entry, inputs=inputs: entry(row, **inputs)  # noqa: E731
+            timings["latency_ms_batch1"] = latency_batch1(call, retrieval) * 1e3
         method_correct, method_both, own_recall = correct, both_classes, None
         if isinstance(result, OwnRetrievalUncertainty):
             uncertainty = result.uncertainty
@@ -167,6 +188,7 @@ def evaluate(
             precision_at_recall={level: precision_at_recall(curve, level) for level in recall_levels},
             own_recall_at_1=own_recall,
             correct=None if own_recall is None else method_correct,
+            timings=timings,
         )
     tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
     if tied:

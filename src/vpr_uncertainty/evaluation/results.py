@@ -17,7 +17,10 @@ import numpy as np
 
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
 
-__all__ = ["Evaluation", "MethodEvaluation"]
+__all__ = ["TIMING_KEYS", "Evaluation", "MethodEvaluation"]
+
+#: Optional time figures of a method (see :mod:`vpr_uncertainty.evaluation.timing`), in ms.
+TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms_warm")
 
 
 @dataclass
@@ -39,6 +42,8 @@ class MethodEvaluation:
     precision_at_recall: dict[float, float | None]
     own_recall_at_1: float | None = None
     correct: np.ndarray | None = None
+    #: Time figures beside ``time_per_query_ms`` (:data:`TIMING_KEYS`), written as keys of :meth:`to_dict`.
+    timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def n_distinct(self) -> int:
@@ -59,6 +64,7 @@ class MethodEvaluation:
             "average_precision": self.average_precision,
             "aurc": self.aurc,
             "time_per_query_ms": self.time_per_query_ms,
+            **{key: self.timings[key] for key in TIMING_KEYS if key in self.timings},
             "recall_at_100_precision": self.recall_at_full_precision,
             "precision_at_recall": {f"{level:g}": value for level, value in self.precision_at_recall.items()},
             **(
@@ -115,6 +121,7 @@ class MethodEvaluation:
             precision_at_recall={float(level): value for level, value in data["precision_at_recall"].items()},
             own_recall_at_1=data.get("own_recall@1"),
             correct=None if own_correct is None else labels,
+            timings={key: data[key] for key in TIMING_KEYS if data.get(key) is not None},
         )
 
 
