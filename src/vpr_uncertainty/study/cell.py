@@ -59,6 +59,9 @@ class Cell:
         The images, when the cell has them.
     cached : bool
         Whether the cell was read from the cache.
+    stage_seconds : dict of str to float, optional
+        Seconds of each stage of the run that computed the cell (``input``: reading the results file, or the
+        pipeline with its own stages as ``pipeline_<stage>``; ``uncertainty_and_evaluation``; ``ablations``).
     """
 
     vpr_method: str
@@ -72,6 +75,7 @@ class Cell:
     query_paths: list[str] | None = None
     database_paths: list[str] | None = None
     cached: bool = False
+    stage_seconds: dict[str, float] | None = None
 
     def uncertainties(self) -> dict[str, np.ndarray]:
         """Each uncertainty method's stored uncertainties, shape (Q,), by method name."""
@@ -103,6 +107,7 @@ class Cell:
             **self.evaluation.to_dict(),
             "ablation_alpha": {_float_key(a): v for a, v in self.ablation_alpha.items()},
             "ablation_k": {name: {str(k): v for k, v in c.items()} for name, c in self.ablation_k.items()},
+            **({"stage_seconds": dict(self.stage_seconds)} if self.stage_seconds is not None else {}),
         }
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -167,4 +172,5 @@ class Cell:
             query_paths=query_paths,
             database_paths=database_paths,
             cached=cached,
+            stage_seconds=data.get("stage_seconds"),
         )
