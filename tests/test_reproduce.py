@@ -295,7 +295,8 @@ def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_
 
     def fake_run(config):
         calls.append(config)
-        return types.SimpleNamespace(retrieval=retrieval, evaluation=evaluate(retrieval, config.methods, k=config.k))
+        evaluation = evaluate(retrieval, config.methods, k=config.k)
+        return types.SimpleNamespace(retrieval=retrieval, evaluation=evaluation, stage_seconds={"extraction": 1.5})
 
     monkeypatch.setattr(pipeline, "run", fake_run)
     config_path = tmp_path / "grid.toml"
@@ -313,6 +314,7 @@ def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_
     assert call.retrieval_k == 30 and call.out == tmp_path / "out" / "runs" / "efficientnet-lite0-gem__corridor"
     cell = json.loads((tmp_path / "out" / "cells" / "efficientnet-lite0-gem__corridor.json").read_text())
     assert len(cell["query_paths"]) == 111 and cell["query_paths"][0].endswith("query/0000000.jpg")
+    assert cell["cell"]["stage_seconds"]["pipeline_extraction"] == 1.5  # the pipeline's stages, per cell
     assert (tmp_path / "out" / "figures" / "qualitative__efficientnet-lite0-gem__corridor.png").is_file()
     assert (tmp_path / "out" / "report.html").is_file()
 
