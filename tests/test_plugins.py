@@ -49,7 +49,7 @@ def test_lazy_target_names_the_extra_when_its_module_is_missing():
 
 
 def test_method_kinds_replace_the_parallel_lists():
-    assert available_methods(kind="score") == ["RS", "SD", "SU", "PA", "L2", "BM", "margin"]
+    assert available_methods(kind="score") == ["RS", "SD", "SU", "PA", "L2", "BM", "SU-adaptive", "margin"]
     assert available_methods(kind="geometric") == ["GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG", "GV-H5"]
     assert DEFAULT_METHODS == ("RS", "SD", "SU", "PA", "L2", "BM")
     assert METHODS.get("BTL").kind == "learned" and METHODS.get("SUE").kind == "spatial"

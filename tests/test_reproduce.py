@@ -20,8 +20,8 @@ from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 from conftest import assert_close
 from vpr_uncertainty import evaluate
 from vpr_uncertainty.commands import reproduce as reproduce_command
-from vpr_uncertainty.reports.ablations import ABLATION_SIZE
 from vpr_uncertainty.reports.ablations import DPI as ABLATION_DPI
+from vpr_uncertainty.reports.ablations import ablation_figsize
 from vpr_uncertainty.reports.heatmaps import DPI as HEATMAP_DPI
 from vpr_uncertainty.reports.heatmaps import heatmap_figsize
 from vpr_uncertainty.reports.qualitative import DPI as QUALITATIVE_DPI
@@ -160,8 +160,9 @@ def test_figures_are_pngs_of_the_expected_size(grid):
     for path in paths["heatmaps"]:
         assert _png_size(path) == (round(heatmap[0] * HEATMAP_DPI), round(heatmap[1] * HEATMAP_DPI))
     assert [p.name for p in paths["ablations"]] == ["ablation_alpha.png", "ablation_k.png"]
-    for path in paths["ablations"]:
-        assert _png_size(path) == (round(ABLATION_SIZE[0] * ABLATION_DPI), round(ABLATION_SIZE[1] * ABLATION_DPI))
+    # One α panel per VPR method (10, in two rows of five); RS and SD panels with one line per VPR method.
+    for path, size in zip(paths["ablations"], (ablation_figsize(10, None, 1), ablation_figsize(2, 2, 10)), strict=True):
+        assert _png_size(path) == (round(size[0] * ABLATION_DPI), round(size[1] * ABLATION_DPI))
     assert len(paths["pr_curves"]) == len(cells)
     for path in paths["pr_curves"]:
         assert _png_size(path) == (768, 576)
@@ -294,7 +295,8 @@ def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_
 
     def fake_run(config):
         calls.append(config)
-        return types.SimpleNamespace(retrieval=retrieval, evaluation=evaluate(retrieval, config.methods, k=config.k))
+        evaluation = evaluate(retrieval, config.methods, k=config.k)
+        return types.SimpleNamespace(retrieval=retrieval, evaluation=evaluation, stage_seconds={"extraction": 1.5})
 
     monkeypatch.setattr(pipeline, "run", fake_run)
     config_path = tmp_path / "grid.toml"
@@ -312,6 +314,7 @@ def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_
     assert call.retrieval_k == 30 and call.out == tmp_path / "out" / "runs" / "efficientnet-lite0-gem__corridor"
     cell = json.loads((tmp_path / "out" / "cells" / "efficientnet-lite0-gem__corridor.json").read_text())
     assert len(cell["query_paths"]) == 111 and cell["query_paths"][0].endswith("query/0000000.jpg")
+    assert cell["cell"]["stage_seconds"]["pipeline_extraction"] == 1.5  # the pipeline's stages, per cell
     assert (tmp_path / "out" / "figures" / "qualitative__efficientnet-lite0-gem__corridor.png").is_file()
     assert (tmp_path / "out" / "report.html").is_file()
 

@@ -27,6 +27,7 @@ from vpr_uncertainty.evaluation.metrics import (
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 from vpr_uncertainty.evaluation.significance import add_bootstrap, check_bootstrap, resolve_reference
+from vpr_uncertainty.evaluation.timing import LATENCY_KINDS, latency_batch1, time_geometric
 from vpr_uncertainty.methods import OwnRetrievalUncertainty, available_methods, check_options, get_method
 
 if TYPE_CHECKING:
@@ -72,6 +73,7 @@ def evaluate(
     bootstrap: int = 0,
     seed: int = 0,
     reference: str | None = None,
+    latency: bool = False,
     **options: Any,
 ) -> Evaluation:
     """Compute every requested uncertainty on a retrieval and measure how well it predicts correct answers.
@@ -89,7 +91,10 @@ def evaluate(
     recall_levels : sequence of float
         Recall levels at which the end-to-end precision is reported.
     timing_repeats : int
-        Calls per method for the time per query (median; fewer when a call is slow).
+        Calls per method for the time per query (median; fewer when a call is slow). A geometric method's
+        ``time_per_query_ms`` is its cold figure (every local feature extracted); its ``timings`` hold
+        ``time_per_query_ms_cold`` and ``time_per_query_ms_warm`` (features read from the cache in
+        ``cache_dir``; absent without one), see :func:`~vpr_uncertainty.evaluation.timing.time_geometric`.
     bootstrap : int, default=0
         Paired bootstrap resamples over queries (0: none): 95 % intervals of AUC-PR, AP and AURC, a paired test of
         each method's AUC-PR against ``reference`` (Holm-corrected), and the leaders of each metric; see
@@ -98,6 +103,9 @@ def evaluate(
         Seed of the bootstrap resamples.
     reference : str, optional
         The method of the paired tests; default SU when evaluated, else the first method.
+    latency : bool, default=False
+        Also measure each score-based method's latency at batch size 1 (``timings["latency_ms_batch1"]``: the
+        median over 3 runs of 200 single-query calls of its registered function on a (1, K) row).
     **options
         Further options passed to the methods that accept them; an option that no selected method takes
         (besides the inputs of :data:`~vpr_uncertainty.methods.STAGE_INPUTS`) is a ValueError. Files the
@@ -151,11 +159,24 @@ def evaluate(
         evaluation.notes.append(nonpositive)
     for entry in entries:
         inputs = entry.resolve_inputs(retrieval, {"k": k, "alpha": alpha, **options})  # files read once
-        result, seconds = time_per_query(
-            lambda entry=entry, inputs=inputs: entry(retrieval, **inputs),
-            retrieval.n_queries,
-            repeats=timing_repeats,
-        )
+        timings: dict[str, float] = {}
+        if entry.kind == "geometric":
+            result, cold, warm = time_geometric(
+                lambda given, entry=entry: entry(retrieval, **given), inputs, repeats=timing_repeats
+            )
+            seconds = cold / retrieval.n_queries
+            timings["time_per_query_ms_cold"] = seconds * 1e3
+            if warm is not None:
+                timings["time_per_query_ms_warm"] = warm / retrieval.n_queries * 1e3
+        else:
+            result, seconds = time_per_query(
+                lambda entry=entry, inputs=inputs: entry(retrieval, **inputs),
+                retrieval.n_queries,
+                repeats=timing_repeats,
+            )
+        if latency and entry.kind in LATENCY_KINDS:
+            call = lambda row, entry=entry, inputs=inputs: entry(row, **inputs)  # noqa: E731
+            timings["latency_ms_batch1"] = latency_batch1(call, retrieval) * 1e3
         method_correct, method_both, own_recall = correct, both_classes, None
         if isinstance(result, OwnRetrievalUncertainty):
             uncertainty = result.uncertainty
@@ -182,6 +203,7 @@ def evaluate(
             precision_at_recall={level: precision_at_recall(curve, level) for level in recall_levels},
             own_recall_at_1=own_recall,
             correct=None if own_recall is None else method_correct,
+            timings=timings,
         )
     tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
     if tied:

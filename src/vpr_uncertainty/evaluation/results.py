@@ -17,7 +17,10 @@ import numpy as np
 
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
 
-__all__ = ["Evaluation", "MethodEvaluation"]
+__all__ = ["TIMING_KEYS", "Evaluation", "MethodEvaluation"]
+
+#: Optional time figures of a method (see :mod:`vpr_uncertainty.evaluation.timing`), in ms.
+TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms_warm")
 
 
 @dataclass
@@ -43,6 +46,8 @@ class MethodEvaluation:
     average_precision_ci: tuple[float, float] | None = None
     aurc_ci: tuple[float, float] | None = None
     vs_reference: dict[str, Any] | None = None
+    #: Time figures beside ``time_per_query_ms`` (:data:`TIMING_KEYS`), written as keys of :meth:`to_dict`.
+    timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def n_distinct(self) -> int:
@@ -72,6 +77,7 @@ class MethodEvaluation:
             "average_precision": self.average_precision,
             "aurc": self.aurc,
             "time_per_query_ms": self.time_per_query_ms,
+            **{key: self.timings[key] for key in TIMING_KEYS if key in self.timings},
             "recall_at_100_precision": self.recall_at_full_precision,
             "precision_at_recall": {f"{level:g}": value for level, value in self.precision_at_recall.items()},
             **(
@@ -139,6 +145,7 @@ class MethodEvaluation:
             correct=None if own_correct is None else labels,
             **{key: _interval(data.get(key)) for key in ("auc_pr_ci", "average_precision_ci", "aurc_ci")},
             vs_reference=dict(data["vs_reference"]) if data.get("vs_reference") is not None else None,
+            timings={key: data[key] for key in TIMING_KEYS if data.get(key) is not None},
         )
 
 

@@ -37,6 +37,12 @@ def _statistical_uncertainty(retrieval: Retrieval, *, k: int = 10, alpha: float 
     return _scores.statistical_uncertainty(retrieval.scores, k, alpha)
 
 
+def _adaptive_statistical_uncertainty(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
+    from vpr_uncertainty.adaptive import adaptive_statistical_uncertainty
+
+    return adaptive_statistical_uncertainty(retrieval.scores, k)
+
+
 def _best_match(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
     return _scores.best_match(retrieval.scores, k)
 
@@ -67,6 +73,12 @@ register_method(
 register_method("PA", _perceptual_aliasing, description="Perceptual aliasing: d_1/d_2", **_SCORE)
 register_method("L2", _l2_distance, description="Top-1 L2 descriptor distance d_1", **_SCORE)
 register_method("BM", _best_match, description="Best match: −s_1", **_SCORE)
+register_method(
+    "SU-adaptive",
+    _adaptive_statistical_uncertainty,
+    description="SU with α per query: 1 − |mean − median|/std of the runners-up (training-free)",
+    **{**_SCORE, "default": False},
+)
 register_method("margin", _margin, description="Negated margin s_2 − s_1", **{**_SCORE, "default": False})
 
 register_method(

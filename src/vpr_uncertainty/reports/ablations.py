@@ -1,10 +1,16 @@
-"""Ablation figures: AUC-PR of SU versus α (Figure 5) and of RS and SD versus k (Figure 6), per dataset.
+"""Ablation figures, as in the paper: AUC-PR of SU versus α (Figure 5) and of RS and SD versus k (Figure 6).
 
-Each line is one dataset, its AUC-PR averaged over the VPR methods of the grid. α = 1 is RS and α = 0 is SD.
+The α figure has **one panel per VPR method** (small multiples, each with its own y range), one line per dataset, and a
+star on each line's best α: the paper shows APGeM and EigenPlaces separately because the preference for RS
+(α → 1) or SD (α → 0) depends on the VPR method, and an average over methods hides it. The k figure has one panel
+per (dataset, metric) pair, RS on the left and SD on the right, with **one line per VPR method**. α = 1 is RS and
+α = 0 is SD. The averages over VPR methods are still available as numbers (:func:`ablation_alpha_means`,
+:func:`ablation_k_means`).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -12,11 +18,30 @@ import numpy as np
 
 from vpr_uncertainty.cache import atomic_path
 
-__all__ = ["ABLATION_SIZE", "DPI", "ablation_alpha_means", "ablation_k_means", "plot_alpha_ablation", "plot_k_ablation"]
+__all__ = [
+    "ABLATION_SIZE",
+    "DPI",
+    "PANEL_SIZE",
+    "ablation_alpha_means",
+    "ablation_figsize",
+    "ablation_k_means",
+    "alpha_panels",
+    "best_alpha",
+    "k_panels",
+    "plot_alpha_ablation",
+    "plot_k_ablation",
+]
 
 DPI = 100
-#: Figure size in inches; the PNGs are (640, 400) pixels.
+#: Size in inches of a figure of one panel (kept for callers of the former single-panel figures).
 ABLATION_SIZE: tuple[float, float] = (6.4, 4.0)
+#: Size in inches of one panel of the small multiples.
+PANEL_SIZE: tuple[float, float] = (2.8, 2.3)
+#: Room in inches for the title above the panels, and for each row of the legend below them.
+_TITLE_HEIGHT, _LEGEND_ROW = 0.55, 0.22
+_MAX_COLUMNS = 5
+_LINE_STYLES = ("-", "--", "-.", ":")
+_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "*")
 
 
 def _mean_curves(curves: Sequence[dict]) -> dict:
@@ -43,6 +68,83 @@ def ablation_k_means(cells: Sequence) -> dict[str, dict[str, dict[int, float]]]:
     }
 
 
+def _defined(curve: dict) -> dict:
+    """The points of a curve whose value is defined (not None), sorted by x."""
+    return {x: y for x, y in sorted(curve.items()) if y is not None}
+
+
+def best_alpha(curve: dict[float, float | None]) -> float | None:
+    """The α of the highest AUC-PR of a curve (the smallest such α on a tie), or None when no point is defined.
+
+    Examples
+    --------
+    >>> best_alpha({0.0: 0.61, 0.5: 0.70, 1.0: 0.70})
+    0.5
+    >>> best_alpha({0.0: None}) is None
+    True
+    """
+    defined = _defined(curve)
+    if not defined:
+        return None
+    top = max(defined.values())
+    return min(a for a, value in defined.items() if value == top)
+
+
+def alpha_panels(cells: Sequence) -> dict[str, dict[str, dict[float, float]]]:
+    """VPR method -> dataset -> {α: AUC-PR of SU}: the panels of the α figure, in the order of the cells.
+
+    VPR methods whose α curves are all undefined (every answer correct, or none) are left out.
+    """
+    panels: dict[str, dict[str, dict[float, float]]] = {}
+    for cell in cells:
+        curve = _defined(cell.ablation_alpha)
+        if curve:
+            panels.setdefault(cell.vpr_method, {})[cell.dataset] = curve
+    return panels
+
+
+def k_panels(cells: Sequence) -> dict[tuple[str, str], dict[str, dict[int, float]]]:
+    """(dataset, "RS" or "SD") -> VPR method -> {k: AUC-PR}: the panels of the k figure, in the order of the cells."""
+    panels: dict[tuple[str, str], dict[str, dict[int, float]]] = {}
+    for dataset in dict.fromkeys(c.dataset for c in cells):
+        for name in ("RS", "SD"):
+            lines = {
+                c.vpr_method: curve
+                for c in cells
+                if c.dataset == dataset and (curve := _defined(c.ablation_k.get(name, {})))
+            }
+            if lines:
+                panels[(dataset, name)] = lines
+    return panels
+
+
+def _layout(n_panels: int, columns: int | None = None) -> tuple[int, int]:
+    columns = min(max(n_panels, 1), _MAX_COLUMNS) if columns is None else columns
+    return math.ceil(max(n_panels, 1) / columns), columns
+
+
+def _legend_columns(n_entries: int, columns: int) -> int:
+    """Legend entries per row: about two per panel column, at most five."""
+    return max(1, min(n_entries, 2 * columns, 5))
+
+
+def ablation_figsize(n_panels: int, columns: int | None = None, legend_entries: int = 1) -> tuple[float, float]:
+    """Size in inches of a figure of ``n_panels`` small multiples (at most five per row, or ``columns`` per row),
+    with room for the title above and a legend of ``legend_entries`` entries below.
+
+    Examples
+    --------
+    >>> ablation_figsize(10)
+    (14.0, 5.57)
+    """
+    rows, columns = _layout(n_panels, columns)
+    legend_rows = math.ceil(max(legend_entries, 1) / _legend_columns(legend_entries, columns))
+    return (
+        round(PANEL_SIZE[0] * columns, 2),
+        round(PANEL_SIZE[1] * rows + _TITLE_HEIGHT + _LEGEND_ROW * legend_rows + 0.2, 2),
+    )
+
+
 def _pyplot():
     import matplotlib
 
@@ -58,61 +160,114 @@ def _ticker():
     return matplotlib.ticker
 
 
+def _style(index: int) -> dict:
+    """Colour, line style and marker of the index-th line: distinct for up to 40 lines."""
+    return {
+        "color": f"C{index % 10}",
+        "linestyle": _LINE_STYLES[(index // 10) % len(_LINE_STYLES)],
+        "marker": _MARKERS[index % len(_MARKERS)],
+    }
+
+
+def _subplots(plt, n_panels: int, columns: int | None, legend_entries: int):
+    """Constrained-layout small multiples; each panel keeps its own y range (the differences between α or k
+    within one VPR method are small next to those between methods)."""
+    rows, columns = _layout(n_panels, columns)
+    size = ablation_figsize(n_panels, columns, legend_entries)
+    figure, axes = plt.subplots(rows, columns, figsize=size, dpi=DPI, squeeze=False, layout="constrained")
+    for axis in axes.ravel()[n_panels:]:
+        axis.set_visible(False)
+    return figure, axes
+
+
+def _legend_below(figure, handles: dict, columns: int) -> None:
+    """One legend for the whole figure, below the panels (outside the data)."""
+    if handles:
+        figure.legend(
+            list(handles.values()),
+            list(handles),
+            loc="outside lower center",
+            ncol=_legend_columns(len(handles), columns),
+            fontsize="small",
+            frameon=False,
+        )
+
+
+def _save(figure, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as temporary:
+        figure.savefig(temporary, dpi=DPI)
+    return path
+
+
 def plot_alpha_ablation(cells: Sequence, path: str | Path) -> Path:
-    """AUC-PR of SU versus α, one line per dataset."""
+    """AUC-PR of SU versus α: one panel per VPR method, one line per dataset, a star on each line's best α."""
     plt = _pyplot()
     path = Path(path)
-    figure, axis = plt.subplots(figsize=ABLATION_SIZE, dpi=DPI)
+    panels = alpha_panels(cells)
+    datasets = list(dict.fromkeys(d for lines in panels.values() for d in lines))
+    entries = 1 + (len(datasets) if len(datasets) > 1 else 0)
+    figure, axes = _subplots(plt, len(panels), None, entries)
     try:
-        for dataset, curve in ablation_alpha_means(cells).items():
-            axis.plot(list(curve), list(curve.values()), marker="o", label=dataset)
-        axis.set_xlabel("α (weight of RS in SU; 0 = SD, 1 = RS)")
-        axis.set_ylabel("AUC-PR (mean over VPR methods)")
-        axis.set_xlim(-0.02, 1.02)
-        axis.grid(alpha=0.3)
-        axis.legend(fontsize="small")
-        axis.set_title("SU: AUC-PR versus α")
-        figure.tight_layout()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary:
-            figure.savefig(temporary, dpi=DPI)
+        handles: dict = {}
+        for axis, (vpr_method, lines) in zip(axes.ravel(), panels.items(), strict=False):
+            bests = []
+            for dataset, curve in lines.items():
+                style = _style(datasets.index(dataset))
+                (line,) = axis.plot(list(curve), list(curve.values()), markersize=3, label=dataset, **style)
+                handles.setdefault(dataset, line)
+                best = best_alpha(curve)
+                axis.plot([best], [curve[best]], marker="*", markersize=12, color=style["color"], linestyle="none")
+                bests.append(f"{best:g} ({curve[best]:.3f})")
+            best_text = bests[0] if len(bests) == 1 else ", ".join(bests)
+            axis.set_title(f"{vpr_method}\nbest α = {best_text}", fontsize="small")
+            axis.set_xlim(-0.05, 1.05)
+            axis.set_xticks([0, 0.5, 1], ["0\nSD", "0.5", "1\nRS"])
+            axis.tick_params(labelsize="small")
+            axis.grid(alpha=0.3)
+        for axis in axes[:, 0]:
+            axis.set_ylabel("AUC-PR of SU", fontsize="small")
+        star = plt.Line2D([], [], marker="*", markersize=10, color="0.3", linestyle="none")
+        shown = dict(handles) if len(datasets) > 1 else {}
+        _legend_below(figure, {**shown, "best α (star)": star}, axes.shape[1])
+        where = f" on {datasets[0]}" if len(datasets) == 1 else ""
+        figure.suptitle(f"SU = α·RS + (1−α)·SD: AUC-PR versus α, per VPR method{where}", fontsize="medium")
+        return _save(figure, path)
     finally:
         plt.close(figure)
-    return path
 
 
 def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
-    """AUC-PR of RS (solid) and SD (dashed) versus k, one colour per dataset."""
+    """AUC-PR of RS and SD versus k: per dataset a panel for RS and one for SD, one line per VPR method."""
     plt = _pyplot()
     path = Path(path)
-    figure, axis = plt.subplots(figsize=ABLATION_SIZE, dpi=DPI)
+    panels = k_panels(cells)
+    methods = list(dict.fromkeys(m for lines in panels.values() for m in lines))
+    figure, axes = _subplots(plt, len(panels), min(max(len(panels), 1), 2), len(methods))
     try:
-        means = ablation_k_means(cells)
-        for index, dataset in enumerate(means["RS"]):
-            for name, style in (("RS", "-"), ("SD", "--")):
-                curve = means[name][dataset]
-                axis.plot(
+        handles: dict = {}
+        ticks = sorted({k for lines in panels.values() for curve in lines.values() for k in curve})
+        for axis, ((dataset, name), lines) in zip(axes.ravel(), panels.items(), strict=False):
+            for vpr_method, curve in lines.items():
+                (line,) = axis.plot(
                     list(curve),
                     list(curve.values()),
-                    style,
-                    marker="o",
-                    color=f"C{index % 10}",
-                    label=f"{name} · {dataset}",
+                    markersize=3,
+                    label=vpr_method,
+                    **_style(methods.index(vpr_method)),
                 )
-        axis.set_xscale("log")
-        ticks = sorted({k for c in cells for curve in c.ablation_k.values() for k in curve})
-        axis.xaxis.set_minor_locator(_ticker().NullLocator())
-        if ticks:
+                handles.setdefault(vpr_method, line)
+            axis.set_xscale("log")
+            axis.xaxis.set_minor_locator(_ticker().NullLocator())
             axis.set_xticks(ticks, [str(t) for t in ticks])
-        axis.set_xlabel("k (candidates used)")
-        axis.set_ylabel("AUC-PR (mean over VPR methods)")
-        axis.grid(alpha=0.3)
-        axis.legend(fontsize="small")
-        axis.set_title("RS and SD: AUC-PR versus k")
-        figure.tight_layout()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary:
-            figure.savefig(temporary, dpi=DPI)
+            axis.tick_params(labelsize="small")
+            axis.set_xlabel("k (candidates used)", fontsize="small")
+            axis.set_title(f"{name} · {dataset}", fontsize="small")
+            axis.grid(alpha=0.3)
+        for axis in axes[:, 0]:
+            axis.set_ylabel("AUC-PR", fontsize="small")
+        _legend_below(figure, handles, axes.shape[1])
+        figure.suptitle("RS and SD: AUC-PR versus k, per VPR method", fontsize="medium")
+        return _save(figure, path)
     finally:
         plt.close(figure)
-    return path

@@ -62,6 +62,9 @@ class Cell:
         CAL's calibration quality; :func:`vpr_uncertainty.study.heldout.held_out_evaluation`); None without it.
     cached : bool
         Whether the cell was read from the cache.
+    stage_seconds : dict of str to float, optional
+        Seconds of each stage of the run that computed the cell (``input``: reading the results file, or the
+        pipeline with its own stages as ``pipeline_<stage>``; ``uncertainty_and_evaluation``; ``ablations``).
     """
 
     vpr_method: str
@@ -76,6 +79,7 @@ class Cell:
     database_paths: list[str] | None = None
     held_out: dict[str, Any] | None = None
     cached: bool = False
+    stage_seconds: dict[str, float] | None = None
 
     def uncertainties(self) -> dict[str, np.ndarray]:
         """Each uncertainty method's stored uncertainties, shape (Q,), by method name."""
@@ -109,6 +113,7 @@ class Cell:
             "ablation_alpha": {_float_key(a): v for a, v in self.ablation_alpha.items()},
             "ablation_k": {name: {str(k): v for k, v in c.items()} for name, c in self.ablation_k.items()},
             **({"held_out": self.held_out} if self.held_out is not None else {}),
+            **({"stage_seconds": dict(self.stage_seconds)} if self.stage_seconds is not None else {}),
         }
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -174,4 +179,5 @@ class Cell:
             database_paths=database_paths,
             held_out=data.get("held_out"),
             cached=cached,
+            stage_seconds=data.get("stage_seconds"),
         )

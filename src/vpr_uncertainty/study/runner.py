@@ -17,6 +17,7 @@ With the grid's ``calibration`` option, each cell also holds every method's held
 from __future__ import annotations
 
 import json
+import time
 import warnings
 import zipfile
 from pathlib import Path
@@ -55,9 +56,10 @@ def candidates_needed(config: GridConfig) -> int:
 
 
 def _load_cell_input(
-    entry: InputEntry, config: GridConfig, out: Path, dataset: Any = None
+    entry: InputEntry, config: GridConfig, out: Path, dataset: Any = None, seconds: dict | None = None
 ) -> tuple[Any, Evaluation | None, Any]:
-    """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None)."""
+    """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None); the
+    pipeline's stage times are added to ``seconds`` (as ``pipeline_<stage>``)."""
     if entry.model is None:
         from vpr_uncertainty.retrieval import MATRIX_TOP_K, read_results
 
@@ -86,6 +88,8 @@ def _load_cell_input(
             **options,
         )
     )
+    if seconds is not None:
+        seconds.update({f"pipeline_{stage}": value for stage, value in result.stage_seconds.items()})
     return result.retrieval, result.evaluation, dataset if dataset is not None else result.dataset
 
 
@@ -222,7 +226,10 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         cached = load_cell(json_path, npz_path, fingerprint)
         if cached is not None:
             return cached
-    retrieval, evaluation, dataset = _load_cell_input(entry, config, out, dataset)
+    seconds: dict[str, float] = {}
+    start = time.perf_counter()
+    retrieval, evaluation, dataset = _load_cell_input(entry, config, out, dataset, seconds)
+    seconds["input"] = time.perf_counter() - start
     query_paths = database_paths = None
     if dataset is None and entry.images is not None:
         from vpr_uncertainty.data import load_vprbench_dataset
@@ -235,6 +242,7 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
             query_paths = database_paths = None
     # Image-based methods (geometric verification) get the images and one local-feature cache for the grid.
     options = {} if query_paths is None else {"query_paths": query_paths, "database_paths": database_paths}
+    start = time.perf_counter()
     if evaluation is None:
         evaluation = evaluate(
             retrieval,
@@ -247,12 +255,15 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
             reference=config.reference,
             **options,
         )
+    seconds["uncertainty_and_evaluation"] = time.perf_counter() - start
+    start = time.perf_counter()
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     alpha_curve, k_curve = ablation_curves(retrieval, correct, k=config.k, alphas=config.alphas, ks=config.ks)
     left_out = ks_left_out_note(config.ks, retrieval.k)
     if left_out:
         evaluation.notes.append(left_out)
         warnings.warn(f"{entry.key}: {left_out}", FewerCandidatesWarning, stacklevel=2)
+    seconds["ablations"] = time.perf_counter() - start
     cell = Cell(
         vpr_method=entry.vpr_method,
         dataset=entry.dataset,
@@ -267,6 +278,7 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         held_out=None
         if config.calibration is None
         else held_out_evaluation(retrieval, config, cache_dir=out / "local_features", **options),
+        stage_seconds=seconds,
     )
     save_cell(cell, json_path, npz_path, fingerprint)
     return cell
