@@ -26,7 +26,13 @@ from vpr_uncertainty.evaluation.metrics import (
     rejection_curve,
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
-from vpr_uncertainty.methods import OwnRetrievalUncertainty, available_methods, check_options, get_method
+from vpr_uncertainty.methods import (
+    DetailedUncertainty,
+    OwnRetrievalUncertainty,
+    available_methods,
+    check_options,
+    get_method,
+)
 
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
@@ -141,7 +147,9 @@ def evaluate(
             retrieval.n_queries,
             repeats=timing_repeats,
         )
-        method_correct, method_both, own_recall = correct, both_classes, None
+        method_correct, method_both, own_recall, details = correct, both_classes, None, {}
+        if isinstance(result, DetailedUncertainty):
+            result, details = result.uncertainty, dict(result.details)
         if isinstance(result, OwnRetrievalUncertainty):
             uncertainty = result.uncertainty
             own = result.retrieval
@@ -167,6 +175,7 @@ def evaluate(
             precision_at_recall={level: precision_at_recall(curve, level) for level in recall_levels},
             own_recall_at_1=own_recall,
             correct=None if own_recall is None else method_correct,
+            details=details,
         )
     tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
     if tied:

@@ -17,7 +17,11 @@ import numpy as np
 
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
 
-__all__ = ["Evaluation", "MethodEvaluation"]
+__all__ = ["DETAIL_KEYS", "Evaluation", "MethodEvaluation"]
+
+#: Numbers a method reports about its own run (:class:`~vpr_uncertainty.methods.DetailedUncertainty`), written
+#: beside its metrics and read back by :meth:`MethodEvaluation.from_dict`.
+DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries")
 
 
 @dataclass
@@ -25,7 +29,8 @@ class MethodEvaluation:
     """Everything measured for one uncertainty method.
 
     ``correct`` is set only for a method that retrieves with its own embeddings: its own top-1 correctness, the
-    labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`).
+    labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`). ``details`` holds
+    what the method reported about its run (a cascade's ``verified_fraction`` and ``verified_queries``).
     """
 
     name: str
@@ -39,6 +44,7 @@ class MethodEvaluation:
     precision_at_recall: dict[float, float | None]
     own_recall_at_1: float | None = None
     correct: np.ndarray | None = None
+    details: dict[str, Any] = field(default_factory=dict)
 
     @property
     def n_distinct(self) -> int:
@@ -66,6 +72,7 @@ class MethodEvaluation:
                 if self.own_recall_at_1 is not None
                 else {}
             ),
+            **self.details,
         }
 
     @classmethod
@@ -115,6 +122,7 @@ class MethodEvaluation:
             precision_at_recall={float(level): value for level, value in data["precision_at_recall"].items()},
             own_recall_at_1=data.get("own_recall@1"),
             correct=None if own_correct is None else labels,
+            details={key: data[key] for key in DETAIL_KEYS if key in data},
         )
 
 

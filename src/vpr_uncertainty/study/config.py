@@ -26,7 +26,7 @@ __all__ = ["DEFAULT_ALPHAS", "DEFAULT_KS", "GridConfig", "InputEntry", "load_con
 DEFAULT_ALPHAS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
 DEFAULT_KS: tuple[int, ...] = (2, 3, 5, 10, 15, 20, 30, 50)
 VPRBENCH_FILE = "precomputed_data_corrected.npy"
-_TOP_KEYS = {"out", "methods", "k", "alpha", "alphas", "ks", "inputs", "report", "qualitative"}
+_TOP_KEYS = {"out", "methods", "k", "alpha", "alphas", "ks", "inputs", "report", "qualitative", "verify_fraction"}
 _INPUT_KEYS = {
     "precomputed_matches",
     "scores",
@@ -100,9 +100,17 @@ class GridConfig:
     ks: list[int] = field(default_factory=lambda: list(DEFAULT_KS))
     qualitative: list[str] | None = None
     report: list[str] | None = None
+    verify_fraction: float | None = None
 
     def settings(self) -> dict[str, Any]:
-        return {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
+        settings = {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
+        if self.verify_fraction is not None:  # cascades SCORE+GV only
+            settings["verify_fraction"] = self.verify_fraction
+        return settings
+
+    def method_options(self) -> dict[str, Any]:
+        """Options for the uncertainty methods beyond k and α (the cascades' ``verify_fraction``)."""
+        return {} if self.verify_fraction is None else {"verify_fraction": self.verify_fraction}
 
 
 def slug(text: str) -> str:
@@ -258,6 +266,14 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
         problems.append(f"alpha and alphas must lie in [0, 1], got {alpha!r} and {alphas}")
     if any(v < 2 for v in ks):
         problems.append(f"every k of the k ablation must be >= 2, got {ks}")
+    verify_fraction = data.get("verify_fraction")
+    if verify_fraction is not None:
+        if isinstance(verify_fraction, bool) or not isinstance(verify_fraction, (int, float)):
+            problems.append(f"verify_fraction must be a number in [0, 1], got {verify_fraction!r}")
+        elif not 0.0 <= verify_fraction <= 1.0:
+            problems.append(f"verify_fraction must lie in [0, 1], got {verify_fraction!r}")
+        elif not any("+" in name.split(":")[0] for name in methods):
+            problems.append("verify_fraction is set but methods has no cascade SCORE+GV (e.g. SU+GV-SIFT)")
 
     entries: list[InputEntry] = []
     raw_inputs = _inputs(data.get("inputs") or [], problems)
@@ -340,7 +356,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
     keys = [entry.key for entry in entries]
     problems += [f"the cell {key} appears more than once" for key in sorted({k for k in keys if keys.count(k) > 1})]
     qualitative = qualitative_methods(data.get("qualitative"), entries, problems)
-    report = report_figures(data.get("report"), entries, bool(alphas or ks), problems)
+    report = report_figures(data.get("report"), entries, bool(alphas or ks), problems, methods)
 
     problems += unmet_needs(entries, methods)  # of the inputs that exist
     if problems:
@@ -355,4 +371,5 @@ def load_config(path: str | Path, *, out: str | Path | None = None) -> GridConfi
         ks=ks,
         qualitative=qualitative,
         report=report,
+        verify_fraction=None if verify_fraction is None else float(verify_fraction),
     )

@@ -76,6 +76,7 @@ def _load_cell_input(
             k=config.k,
             alpha=config.alpha,
             retrieval_k=candidates_needed(config),
+            method_options=config.method_options(),
             **options,
         )
     )
@@ -235,6 +236,7 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
             k=config.k,
             alpha=config.alpha,
             cache_dir=out / "local_features",
+            **config.method_options(),
             **options,
         )
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
