@@ -199,9 +199,11 @@ def test_reproduce_config_takes_verify_fraction_for_a_cascade_only(tmp_path, cor
             corridor_dir,
             'methods = ["SU"]',
             "verify_fraction = 1.5",
+            'report = ["cascade"]',
         )
     text = str(error.value)
     assert "verify_fraction must lie in [0, 1], got 1.5" in text
+    assert "report figure 'cascade' needs a cascade SCORE+GV among the methods" in text
 
 
 def test_verify_fraction_flag_is_checked():

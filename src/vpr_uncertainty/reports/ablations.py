@@ -10,12 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.cache import atomic_path
+from vpr_uncertainty.reports.style import DPI, legend_outside, save_figure
 
 __all__ = ["ABLATION_SIZE", "DPI", "ablation_alpha_means", "ablation_k_means", "plot_alpha_ablation", "plot_k_ablation"]
 
-DPI = 100
-#: Figure size in inches; the PNGs are (640, 400) pixels.
+#: Figure size in inches (the PNGs, cropped to their content with the legend outside, at DPI = 300).
 ABLATION_SIZE: tuple[float, float] = (6.4, 4.0)
 
 
@@ -70,12 +69,10 @@ def plot_alpha_ablation(cells: Sequence, path: str | Path) -> Path:
         axis.set_ylabel("AUC-PR (mean over VPR methods)")
         axis.set_xlim(-0.02, 1.02)
         axis.grid(alpha=0.3)
-        axis.legend(fontsize="small")
+        legend_outside(axis)
         axis.set_title("SU: AUC-PR versus α")
         figure.tight_layout()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary:
-            figure.savefig(temporary, dpi=DPI)
+        save_figure(figure, path)  # and a PDF beside it
     finally:
         plt.close(figure)
     return path
@@ -107,12 +104,10 @@ def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
         axis.set_xlabel("k (candidates used)")
         axis.set_ylabel("AUC-PR (mean over VPR methods)")
         axis.grid(alpha=0.3)
-        axis.legend(fontsize="small")
+        legend_outside(axis)
         axis.set_title("RS and SD: AUC-PR versus k")
         figure.tight_layout()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary:
-            figure.savefig(temporary, dpi=DPI)
+        save_figure(figure, path)  # and a PDF beside it
     finally:
         plt.close(figure)
     return path
