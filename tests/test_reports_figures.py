@@ -103,7 +103,7 @@ def test_report_key_selects_figures_and_their_options(tmp_path, histogram_figure
 
 def test_figures_argument_overrides_the_config(tmp_path):
     _, _, paths = _run(_grid(tmp_path, 'report = ["table1"]'), figures=["pr_curves"], html=False)
-    assert list(paths) == ["pr_curves"] and len(paths["pr_curves"]) == 1
+    assert list(paths) == ["pr_curves"] and [p.suffix for p in paths["pr_curves"]] == [".png", ".pdf"]
 
 
 def test_report_key_errors_are_listed_together(tmp_path):

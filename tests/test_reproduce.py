@@ -155,18 +155,19 @@ def test_alpha_ablation_ends_at_sd_and_rs(grid):
 @pytest.mark.realdata
 def test_figures_are_pngs_of_the_expected_size(grid):
     _, cells, paths = grid
-    heatmap = heatmap_figsize(10, 1, 3)
-    assert [p.name for p in paths["heatmaps"]] == ["delta_RS.png", "delta_SD.png", "delta_SU.png"]
-    for path in paths["heatmaps"]:
+    heatmap = heatmap_figsize(10, 1, 2)  # PA, and BM = L2 in one panel (the same Δ everywhere)
+    pngs = {name: [p for p in paths[name] if p.suffix == ".png"] for name in ("heatmaps", "ablations", "pr_curves")}
+    assert [p.name for p in pngs["heatmaps"]] == ["delta_RS.png", "delta_SD.png", "delta_SU.png"]
+    for path in pngs["heatmaps"]:
         assert _png_size(path) == (round(heatmap[0] * HEATMAP_DPI), round(heatmap[1] * HEATMAP_DPI))
-    assert [p.name for p in paths["ablations"]] == ["ablation_alpha.png", "ablation_k.png"]
+    assert [p.name for p in pngs["ablations"]] == ["ablation_alpha.png", "ablation_k.png"]
     # One α panel per VPR method (10, in two rows of five); RS and SD panels with one line per VPR method.
-    for path, size in zip(paths["ablations"], (ablation_figsize(10, None, 1), ablation_figsize(2, 2, 10)), strict=True):
+    for path, size in zip(pngs["ablations"], (ablation_figsize(10, None, 1), ablation_figsize(2, 2, 10)), strict=True):
         assert _png_size(path) == (round(size[0] * ABLATION_DPI), round(size[1] * ABLATION_DPI))
-    assert len(paths["pr_curves"]) == len(cells)
-    for path in paths["pr_curves"]:
-        assert _png_size(path) == (768, 576)
-    (qualitative,) = paths["qualitative"]
+    assert len(pngs["pr_curves"]) == len(cells)
+    for name in ("heatmaps", "ablations", "pr_curves"):  # each PNG has its vector PDF beside it
+        assert [p.with_suffix(".png") for p in paths[name] if p.suffix == ".pdf"] == pngs[name]
+    (qualitative, _) = paths["qualitative"]
     size = qualitative_figsize(4)
     assert _png_size(qualitative) == (round(size[0] * QUALITATIVE_DPI), round(size[1] * QUALITATIVE_DPI))
     # Not blank: the qualitative figure shows photographs (many distinct colours).
@@ -217,7 +218,8 @@ def test_report_html_is_self_contained(grid):
     _, _, paths = grid
     text = paths["report_html"].read_text()
     sources = re.findall(r'<img[^>]*src="([^"]*)"', text)
-    n_figures = sum(len(paths[key]) for key in ("heatmaps", "ablations", "pr_curves", "qualitative"))
+    figures = ("heatmaps", "ablations", "pr_curves", "qualitative")
+    n_figures = sum(path.suffix == ".png" for key in figures for path in paths[key])  # the PDFs are not embedded
     assert len(sources) == n_figures == 3 + 2 + 10 + 1
     assert all(source.startswith("data:image/png;base64,") for source in sources)
     assert "http://" not in text and "https://" not in text

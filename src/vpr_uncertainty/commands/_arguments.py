@@ -14,10 +14,12 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "VERIFY_FRACTION_HELP",
     "add_deprecated_alias",
     "candidate_count",
     "command_wording",
     "device_name",
+    "fraction",
     "integer_at_least",
     "non_negative_float",
     "output_directory",
@@ -58,6 +60,24 @@ def non_negative_float(text: str) -> float:
     if not 0 <= value < math.inf:
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
     return value
+
+
+def fraction(text: str) -> float:
+    """An argparse type accepting numbers in [0, 1] (e.g. ``--verify-fraction``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must lie in [0, 1], got {text}")
+    return value
+
+
+#: Help of ``--verify-fraction`` (evaluate, run, reproduce).
+VERIFY_FRACTION_HELP = (
+    "cascades SCORE+GV (e.g. SU+GV-SIFT): the fraction of the queries, the most uncertain by SCORE, that are "
+    "geometrically verified, in [0, 1] (default 0.3; per method: SU+GV-SIFT:verify_fraction=0.5)"
+)
 
 
 _DEVICE = re.compile(r"(cpu|mps|cuda(:\d+)?)")

@@ -7,8 +7,10 @@ import json
 from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import (
+    VERIFY_FRACTION_HELP,
     candidate_count,
     command_wording,
+    fraction,
     output_file,
     positive_int,
     write_output,
@@ -89,6 +91,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help=f"comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided "
         f"(default {','.join(DEFAULT_METHODS)})",
     )
+    parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
     parser.add_argument("--json", type=output_file, metavar="FILE", help="write the results as JSON")
     parser.add_argument(
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
@@ -136,6 +139,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         options["btl_head"] = args.btl_head
     if args.descriptors is not None:
         options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
+    if args.verify_fraction is not None:
+        options["verify_fraction"] = args.verify_fraction
     with command_wording(ground_truth="--gt GT", database_positions="--database-positions"):
         retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
         if args.calibration_fraction is not None:

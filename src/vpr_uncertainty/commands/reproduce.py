@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import output_directory
+from vpr_uncertainty.commands._arguments import VERIFY_FRACTION_HELP, fraction, output_directory
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 
 __all__ = ["add_parser"]
@@ -53,6 +53,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--no-report", action="store_true", help="write results.json/csv only (no tables, figures)")
     add_bootstrap_options(parser, defaults_from_config=True)
+    parser.add_argument(
+        "--verify-fraction",
+        type=fraction,
+        metavar="F",
+        help=VERIFY_FRACTION_HELP.replace("(default 0.3;", "(default: verify_fraction of CONFIG, else 0.3;"),
+    )
     parser.set_defaults(handler=_run_reproduce)
 
 
@@ -60,6 +66,10 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 
     config = load_config(args.config, out=args.out, bootstrap=args.bootstrap, seed=args.seed, reference=args.reference)
+    if args.verify_fraction is not None:
+        if not any("+" in name.split(":")[0] for name in config.methods):
+            raise ValueError(f"--verify-fraction: {args.config} selects no cascade SCORE+GV (e.g. SU+GV-SIFT)")
+        config.verify_fraction = args.verify_fraction
     cells = {(e.vpr_method, e.dataset) for e in config.inputs}
     print(f"{args.config}: {len(cells)} cells x {len(config.methods)} uncertainty methods -> {config.out}")
     if args.check:

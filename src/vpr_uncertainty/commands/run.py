@@ -6,7 +6,14 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from vpr_uncertainty.commands._arguments import candidate_count, device_name, output_directory, positive_int
+from vpr_uncertainty.commands._arguments import (
+    VERIFY_FRACTION_HELP,
+    candidate_count,
+    device_name,
+    fraction,
+    output_directory,
+    positive_int,
+)
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 from vpr_uncertainty.commands.evaluate import METHOD_SPEC_HELP, method_list
 
@@ -83,6 +90,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "most 640 px on the longer side (larger images are shrunk), so memory per batch is bounded",
     )
     parser.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: head written by train-btl")
+    parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
     parser.add_argument(
         "--rerank",
         metavar="GV-METHOD",
@@ -130,7 +138,11 @@ def _handle(args: argparse.Namespace) -> int:
         root=args.root,
         split=args.split,
         radius=args.radius,
-        method_options={} if args.btl_head is None else {"btl_head": args.btl_head},
+        method_options={
+            key: value
+            for key, value in (("btl_head", args.btl_head), ("verify_fraction", args.verify_fraction))
+            if value is not None
+        },
         rerank=args.rerank,
         bootstrap=args.bootstrap,
         seed=args.seed,

@@ -28,7 +28,13 @@ from vpr_uncertainty.evaluation.metrics import (
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 from vpr_uncertainty.evaluation.significance import add_bootstrap, check_bootstrap, resolve_reference
 from vpr_uncertainty.evaluation.timing import LATENCY_KINDS, latency_batch1, time_geometric
-from vpr_uncertainty.methods import OwnRetrievalUncertainty, available_methods, check_options, get_method
+from vpr_uncertainty.methods import (
+    DetailedUncertainty,
+    OwnRetrievalUncertainty,
+    available_methods,
+    check_options,
+    get_method,
+)
 
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
@@ -177,7 +183,9 @@ def evaluate(
         if latency and entry.kind in LATENCY_KINDS:
             call = lambda row, entry=entry, inputs=inputs: entry(row, **inputs)  # noqa: E731
             timings["latency_ms_batch1"] = latency_batch1(call, retrieval) * 1e3
-        method_correct, method_both, own_recall = correct, both_classes, None
+        method_correct, method_both, own_recall, details = correct, both_classes, None, {}
+        if isinstance(result, DetailedUncertainty):
+            result, details = result.uncertainty, dict(result.details)
         if isinstance(result, OwnRetrievalUncertainty):
             uncertainty = result.uncertainty
             own = result.retrieval
@@ -204,6 +212,7 @@ def evaluate(
             own_recall_at_1=own_recall,
             correct=None if own_recall is None else method_correct,
             timings=timings,
+            details=details,
         )
     tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
     if tied:

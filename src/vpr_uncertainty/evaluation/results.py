@@ -17,10 +17,13 @@ import numpy as np
 
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
 
-__all__ = ["TIMING_KEYS", "Evaluation", "MethodEvaluation"]
+__all__ = ["DETAIL_KEYS", "TIMING_KEYS", "Evaluation", "MethodEvaluation"]
 
 #: Optional time figures of a method (see :mod:`vpr_uncertainty.evaluation.timing`), in ms.
 TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms_warm")
+#: Numbers a method reports about its own run (:class:`~vpr_uncertainty.methods.DetailedUncertainty`), written
+#: beside its metrics and read back by :meth:`MethodEvaluation.from_dict`.
+DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries")
 
 
 @dataclass
@@ -28,7 +31,8 @@ class MethodEvaluation:
     """Everything measured for one uncertainty method.
 
     ``correct`` is set only for a method that retrieves with its own embeddings: its own top-1 correctness, the
-    labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`).
+    labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`). ``details`` holds
+    what the method reported about its run (a cascade's ``verified_fraction`` and ``verified_queries``).
     """
 
     name: str
@@ -48,6 +52,8 @@ class MethodEvaluation:
     vs_reference: dict[str, Any] | None = None
     #: Time figures beside ``time_per_query_ms`` (:data:`TIMING_KEYS`), written as keys of :meth:`to_dict`.
     timings: dict[str, float] = field(default_factory=dict)
+    #: Numbers the method reported about its own run (:data:`DETAIL_KEYS`), written as keys of :meth:`to_dict`.
+    details: dict[str, Any] = field(default_factory=dict)
 
     @property
     def n_distinct(self) -> int:
@@ -87,6 +93,7 @@ class MethodEvaluation:
             ),
             **{key: list(value) for key, value in self._intervals().items() if value is not None},
             **({"vs_reference": dict(self.vs_reference)} if self.vs_reference is not None else {}),
+            **self.details,
         }
 
     def _intervals(self) -> dict[str, tuple[float, float] | None]:
@@ -146,6 +153,7 @@ class MethodEvaluation:
             **{key: _interval(data.get(key)) for key in ("auc_pr_ci", "average_precision_ci", "aurc_ci")},
             vs_reference=dict(data["vs_reference"]) if data.get("vs_reference") is not None else None,
             timings={key: data[key] for key in TIMING_KEYS if data.get(key) is not None},
+            details={key: data[key] for key in DETAIL_KEYS if key in data},
         )
 
 

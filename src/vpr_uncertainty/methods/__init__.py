@@ -20,6 +20,12 @@ Values are typed like the option's default, unknown option names are errors that
 :func:`get_method` returns an entry named by the spec, whose options override those passed at call time, so two
 variants of one method are evaluated (and shown) side by side.
 
+Cascades
+--------
+``"SU+GV-SIFT"`` (any score method ``+`` any ``GV-*`` method) ranks every query by the score method and runs
+geometric verification only on the ``verify_fraction`` (default 0.3) it doubts most
+(:mod:`vpr_uncertainty.methods.cascade`); ``"SU+GV-SIFT:verify_fraction=0.5"`` sets the fraction.
+
 Needs
 -----
 ``requires`` names what a method cannot run without: a retrieval field or an option, or one of the groups of
@@ -33,6 +39,7 @@ from vpr_uncertainty.methods.entries import (
     METHODS,
     NEEDS,
     STAGE_INPUTS,
+    DetailedUncertainty,
     OwnRetrievalUncertainty,
     UncertaintyMethod,
     available_methods,
@@ -50,6 +57,7 @@ __all__ = [
     "NEEDS",
     "SCORE_ONLY_METHODS",
     "STAGE_INPUTS",
+    "DetailedUncertainty",
     "OwnRetrievalUncertainty",
     "UncertaintyMethod",
     "available_methods",

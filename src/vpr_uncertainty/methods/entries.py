@@ -23,6 +23,7 @@ __all__ = [
     "METHODS",
     "NEEDS",
     "STAGE_INPUTS",
+    "DetailedUncertainty",
     "OwnRetrievalUncertainty",
     "UncertaintyMethod",
     "available_methods",
@@ -34,7 +35,7 @@ __all__ = [
     "split_method_list",
 ]
 
-MethodFunction = Callable[..., "np.ndarray | OwnRetrievalUncertainty"]
+MethodFunction = Callable[..., "np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty"]
 
 #: Named needs: the retrieval fields or options that satisfy each (all of them), and how to say it.
 NEEDS: dict[str, tuple[tuple[str, ...], str]] = {
@@ -67,6 +68,22 @@ class OwnRetrievalUncertainty:
 
     uncertainty: np.ndarray
     retrieval: Retrieval
+
+
+@dataclass
+class DetailedUncertainty:
+    """What a method returns when it also reports numbers about its run (e.g. a cascade's ``verified_fraction``).
+
+    Attributes
+    ----------
+    uncertainty : ndarray of shape (Q,)
+        Higher = less trustworthy.
+    details : dict of str to JSON values
+        Reported beside the method's metrics (``results.json``, ``evaluate --json``).
+    """
+
+    uncertainty: np.ndarray
+    details: dict[str, Any] = field(default_factory=dict)
 
 
 #: Inputs a stage offers every selected method: used by the methods that take them, ignored by the others.
@@ -170,7 +187,9 @@ class UncertaintyMethod:
         given = set(available) | {key for key, value in self.bound.items() if value is not None}
         return [need for need in self.requires if not all(key in given for key in NEEDS.get(need, ((need,), ""))[0])]
 
-    def __call__(self, retrieval: Retrieval, **options: Any) -> np.ndarray | OwnRetrievalUncertainty:
+    def __call__(
+        self, retrieval: Retrieval, **options: Any
+    ) -> np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty:
         options = self.resolve_inputs(retrieval, options)
         present = [name for name in vars(retrieval) if getattr(retrieval, name) is not None]
         missing = self.unmet_needs([*present, *(key for key, value in options.items() if value is not None)])
@@ -180,7 +199,8 @@ class UncertaintyMethod:
         if accepted is not None:
             options = {key: value for key, value in options.items() if key in accepted}
         result = self.function(retrieval, **options)
-        uncertainty = np.asarray(result.uncertainty if isinstance(result, OwnRetrievalUncertainty) else result)
+        wrapped = isinstance(result, (OwnRetrievalUncertainty, DetailedUncertainty))
+        uncertainty = np.asarray(result.uncertainty if wrapped else result)
         if isinstance(result, OwnRetrievalUncertainty) and result.retrieval.n_queries != retrieval.n_queries:
             raise RuntimeError(f"uncertainty method {self.name!r} answered a different number of queries")
         if uncertainty.shape != (retrieval.n_queries,):
@@ -246,7 +266,7 @@ def register_method(
     Parameters
     ----------
     name : str
-        The name users type; must be new unless ``overwrite=True``, and hold no ``:``, ``,`` or ``=``.
+        The name users type; must be new unless ``overwrite=True``, and hold no ``:``, ``,``, ``=`` or ``+``.
     target : callable or str
         ``function(retrieval, **options) -> ndarray (Q,)``, higher = less trustworthy, or its dotted path.
     description : str
@@ -271,8 +291,8 @@ def register_method(
     """
     if name in METHODS and not overwrite:
         raise ValueError(f"an uncertainty method named {name!r} is already registered")
-    if not name or any(character in name for character in ":,="):
-        raise ValueError(f"a method name must be non-empty and hold no ':', ',' or '=', got {name!r}")
+    if not name or any(character in name for character in ":,=+"):
+        raise ValueError(f"a method name must be non-empty and hold no ':', ',', '=' or '+', got {name!r}")
     entry = UncertaintyMethod(
         name=name,
         description=description,
@@ -304,7 +324,7 @@ def parse_method_spec(spec: str) -> tuple[str, dict[str, Any]]:
     if not isinstance(spec, str):
         raise TypeError(f"a method spec must be a string, got {spec!r}")
     name, colon, rest = (part.strip() for part in spec.partition(":"))
-    entry = METHODS.get(name)
+    entry = _lookup(name)
     if not colon:
         return name, {}
     defaults = entry.option_defaults()
@@ -334,13 +354,22 @@ def get_method(name: str) -> UncertaintyMethod:
     entry with those options bound, named by the spec (its options separated by ``,``, without spaces).
     """
     if isinstance(name, str) and ":" not in name:
-        return METHODS.get(name.strip() if name.strip() in METHODS else name)
+        return _lookup(name.strip() if name.strip() in METHODS or "+" in name else name)
     base, options = parse_method_spec(name)
-    entry = METHODS.get(base)
+    entry = _lookup(base)
     if not options:
         return entry
     text = ",".join(f"{key}={value}" for key, value in _spec_items(name))
     return dataclasses.replace(entry, name=f"{base}:{text}", bound={**entry.bound, **options}, base=base)
+
+
+def _lookup(name: str) -> UncertaintyMethod:
+    """The registered entry ``name``, or the cascade it names (``"SU+GV-SIFT"``, :mod:`.cascade`)."""
+    if "+" in name and name not in METHODS:
+        from vpr_uncertainty.methods.cascade import cascade_entry
+
+        return cascade_entry(name)
+    return METHODS.get(name)
 
 
 def _spec_items(spec: str) -> list[tuple[str, str]]:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.cache import atomic_path
+from vpr_uncertainty.reports.style import DPI, save_figure
 
 __all__ = [
     "ABLATION_SIZE",
@@ -32,7 +32,6 @@ __all__ = [
     "plot_k_ablation",
 ]
 
-DPI = 100
 #: Size in inches of a figure of one panel (kept for callers of the former single-panel figures).
 ABLATION_SIZE: tuple[float, float] = (6.4, 4.0)
 #: Size in inches of one panel of the small multiples.
@@ -194,9 +193,9 @@ def _legend_below(figure, handles: dict, columns: int) -> None:
 
 
 def _save(figure, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as temporary:
-        figure.savefig(temporary, dpi=DPI)
+    """The PNG at :data:`DPI` and a vector PDF beside it; the PNG's path. The constrained layout already keeps the
+    legend below the panels inside the figure, so the figure keeps its size (no cropping)."""
+    save_figure(figure, path, tight=False)
     return path
 
 

@@ -15,8 +15,9 @@ from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablation
 from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
 from vpr_uncertainty.reports.held_out import table1_cells, table1_note
-from vpr_uncertainty.reports.plots import plot_rejection_curves
+from vpr_uncertainty.reports.plots import write_rejection_curves
 from vpr_uncertainty.reports.qualitative import plot_qualitative
+from vpr_uncertainty.reports.style import VECTOR_SUFFIX
 from vpr_uncertainty.reports.table1 import (
     build_table1,
     marks_note,
@@ -32,11 +33,14 @@ if TYPE_CHECKING:
     from vpr_uncertainty.study import Cell, GridConfig
 
 __all__ = [
+    "cascade_section",
+    "pr_curves_section",
     "table1_ap_section",
     "table1_aurc_section",
     "table1_section",
     "ties_section",
     "write_ablations",
+    "write_cascade",
     "write_heatmaps",
     "write_pr_curves",
     "write_qualitative",
@@ -45,6 +49,16 @@ __all__ = [
     "write_table1_aurc",
     "write_ties",
 ]
+
+
+def _with_vectors(pngs: Sequence[Path]) -> list[Path]:
+    """Each PNG followed by the vector file written beside it (:func:`~vpr_uncertainty.reports.style.save_figure`)."""
+    paths = []
+    for png in pngs:
+        paths.append(png)
+        if png.with_suffix(VECTOR_SUFFIX).is_file():
+            paths.append(png.with_suffix(VECTOR_SUFFIX))
+    return paths
 
 
 def _table1(cells: Sequence[Cell], config: GridConfig, metric: str):
@@ -112,30 +126,78 @@ def ties_section(cells: Sequence[Cell], config: GridConfig, written: list[Path])
 
 
 def write_heatmaps(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
-    """``figures/delta_<RS|SD|SU>.png``: ΔAUC-PR against each baseline."""
-    return plot_delta_heatmaps(cells, out_dir / "figures")
+    """``figures/delta_<RS|SD|SU>.png`` (and ``.pdf``): ΔAUC-PR against each baseline."""
+    return _with_vectors(plot_delta_heatmaps(cells, out_dir / "figures"))
 
 
 def write_ablations(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
-    """``figures/ablation_alpha.png`` and ``figures/ablation_k.png``, for the ablations the cells hold."""
+    """``figures/ablation_alpha.png`` and ``figures/ablation_k.png`` (and ``.pdf``), for the ablations the cells
+    hold."""
     paths = []
     if any(cell.ablation_alpha for cell in cells):
         paths.append(plot_alpha_ablation(cells, out_dir / "figures" / "ablation_alpha.png"))
     if any(curve for cell in cells for curve in cell.ablation_k.values()):
         paths.append(plot_k_ablation(cells, out_dir / "figures" / "ablation_k.png"))
-    return paths
+    return _with_vectors(paths)
 
 
 def write_pr_curves(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
-    """``figures/pr/<vpr method>__<dataset>.png`` for every cell."""
+    """``figures/pr/<vpr method>__<dataset>.png`` (and ``.pdf``) for every cell."""
     return [
-        plot_rejection_curves(
+        path
+        for cell in cells
+        for path in write_rejection_curves(
             cell.evaluation,
             out_dir / "figures" / "pr" / f"{slug(cell.vpr_method)}__{slug(cell.dataset)}.png",
-            title=f"{cell.vpr_method} on {cell.dataset}",
+            title=f"{cell.vpr_method} on {cell.dataset} ({cell.evaluation.n_queries} queries)",
         )
-        for cell in cells
     ]
+
+
+def pr_curves_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+    """The note under the PR curves: what their axes and their area are."""
+    return (
+        '<p class="note">x: recall = correct answers accepted / answerable queries; y: precision = correct '
+        "answers / accepted answers, as the most uncertain answers are rejected. The area under a curve is not "
+        "the AUC-PR of the legend (which is over the correct answers only): the x axis is shrunk by recall@1. "
+        "Methods that rank the queries identically share one line (e.g. “BM = L2”).</p>"
+    )
+
+
+def write_cascade(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+    """``figures/cascade__<SCORE>_<GV>.png`` (and ``.pdf``): AUC-PR against the fraction verified."""
+    from vpr_uncertainty.reports.cascade import plot_cascade
+
+    return plot_cascade(cells, out_dir / "figures")
+
+
+def cascade_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+    """Each cascade's measured fraction verified, AUC-PR and time per query beside its two methods, as a table."""
+    from html import escape
+
+    from vpr_uncertainty.reports.cascade import cascades
+
+    rows = []
+    for name, score, gv in cascades(cells):
+        for cell in cells:
+            methods = cell.evaluation.methods
+            if not {name, score, gv} <= set(methods):
+                continue
+            values = [methods[m] for m in (score, gv, name)]
+            auc = ["n/a" if m.auc_pr is None else f"{m.auc_pr:.3f}" for m in values]
+            rows.append(
+                f"<tr><td>{escape(cell.vpr_method)} on {escape(cell.dataset)}</td><td>{escape(name)}</td>"
+                f"<td>{methods[name].details.get('verified_fraction', float('nan')):.2f}</td>"
+                + "".join(f"<td>{a}</td>" for a in auc)
+                + f"<td>{values[1].time_per_query_ms:.3g}</td><td>{values[2].time_per_query_ms:.3g}</td></tr>"
+            )
+    if not rows:
+        return ""
+    head = (
+        "<tr><th>cell</th><th>cascade</th><th>verified</th><th>AUC-PR score alone</th><th>AUC-PR GV alone</th>"
+        "<th>AUC-PR cascade</th><th>ms/query GV</th><th>ms/query cascade</th></tr>"
+    )
+    return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
 
 
 def write_qualitative(cells: Sequence[Cell], config: GridConfig, out_dir: Path, *, rank_by: str = "SU") -> list[Path]:
@@ -150,4 +212,4 @@ def write_qualitative(cells: Sequence[Cell], config: GridConfig, out_dir: Path, 
         written = plot_qualitative(cell, path, rank_by=rank_by, alpha=config.alpha)
         if written is not None:
             paths.append(written)
-    return paths
+    return _with_vectors(paths)

@@ -15,8 +15,9 @@ is selected by name, optionally with options as in a method spec (``"qualitative
 
 Examples
 --------
->>> REPORT_FIGURES.names()
-['table1', 'heatmaps', 'ablations', 'pr_curves', 'qualitative', 'table1_ap', 'table1_aurc', 'ties', 'reliability']
+>>> REPORT_FIGURES.names()  # doctest: +NORMALIZE_WHITESPACE
+['table1', 'heatmaps', 'ablations', 'pr_curves', 'cascade', 'qualitative', 'table1_ap', 'table1_aurc', 'ties',
+ 'reliability']
 >>> parse_figure_spec("qualitative:rank_by=RS")
 ('qualitative', {'rank_by': 'RS'})
 """
@@ -49,6 +50,8 @@ FIGURE_NEEDS: dict[str, str] = {
     "images": "a cell with query and database images (images = ... in an input, or a model input)",
     "ablations": "the α or k ablation (non-empty alphas or ks)",
     "calibration": "CAL evaluated on held-out queries (CAL in methods and calibration = {fraction, repeats, seed})",
+    "cascade": "a cascade SCORE+GV among the methods, with SCORE and GV also evaluated alone (e.g. SU, GV-SIFT, "
+    "SU+GV-SIFT)",
 }
 
 
@@ -236,6 +239,16 @@ register_report_figure(
     title="End-to-end precision-recall with rejection",
     description="precision against recall when the most uncertain answers are rejected, one figure per cell",
     requires=("evaluation",),
+    section=_HERE + "pr_curves_section",
+)
+register_report_figure(
+    "cascade",
+    _HERE + "write_cascade",
+    title="Cascade: geometric verification of the most uncertain queries only",
+    description="AUC-PR of each cascade SCORE+GV against the fraction of queries verified (0: SCORE alone, 1: GV "
+    "on every query); grey: one VPR method, blue: their mean, red: the cascade as run",
+    requires=("evaluation", "uncertainties", "cascade"),
+    section=_HERE + "cascade_section",
 )
 register_report_figure(
     "qualitative",

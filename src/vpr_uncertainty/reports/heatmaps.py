@@ -1,7 +1,9 @@
 """ΔAUC-PR heatmaps (the study's Figure 3): RS, SD and SU against each baseline, per VPR method × dataset.
 
 Δ = AUC-PR(proposed) − AUC-PR(baseline); positive (blue) means the proposed method predicts correct answers
-better. One figure per proposed method, one panel per baseline; rows = VPR methods, columns = datasets.
+better. One figure per proposed method, one panel per baseline (baselines with the same Δ in every cell, such
+as BM and L2 on L2-normalised descriptors, share a panel titled "vs BM = L2"); rows = VPR methods, columns =
+datasets.
 """
 
 from __future__ import annotations
@@ -11,12 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.cache import atomic_path
+from vpr_uncertainty.reports.style import DPI, save_figure
 
 __all__ = ["DPI", "PROPOSED", "delta_matrix", "heatmap_figsize", "plot_delta_heatmaps"]
 
 PROPOSED: tuple[str, ...] = ("RS", "SD", "SU")
-DPI = 100
 
 
 def heatmap_figsize(n_vpr: int, n_datasets: int, n_baselines: int) -> tuple[float, float]:
@@ -54,20 +55,28 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path) -> list[Path]:
     for proposed in (p for p in PROPOSED if p in names):
         if not baselines:
             break
-        matrices = [delta_matrix(cells, proposed, b) for b in baselines]
+        matrices, titles = [], []
+        for baseline in baselines:  # baselines with the same Δ everywhere (BM and L2) share one panel
+            matrix = delta_matrix(cells, proposed, baseline)
+            same = [i for i, m in enumerate(matrices) if np.array_equal(m[2], matrix[2], equal_nan=True)]
+            if same:
+                titles[same[0]] += f" = {baseline}"
+            else:
+                matrices.append(matrix)
+                titles.append(baseline)
         vpr_methods, datasets = matrices[0][0], matrices[0][1]
         finite = np.concatenate([m[2][np.isfinite(m[2])] for m in matrices])
         limit = max(float(np.abs(finite).max()) if finite.size else 0.0, 1e-3)
         figure, axes = plt.subplots(
             1,
-            len(baselines),
-            figsize=heatmap_figsize(len(vpr_methods), len(datasets), len(baselines)),
+            len(matrices),
+            figsize=heatmap_figsize(len(vpr_methods), len(datasets), len(matrices)),
             dpi=DPI,
             squeeze=False,
             layout="constrained",
         )
         try:
-            for axis, baseline, (_, _, delta) in zip(axes[0], baselines, matrices, strict=True):
+            for axis, baseline, (_, _, delta) in zip(axes[0], titles, matrices, strict=True):
                 image = axis.imshow(delta, cmap="RdBu", vmin=-limit, vmax=limit, aspect="auto")
                 for (i, j), value in np.ndenumerate(delta):
                     if np.isfinite(value):
@@ -79,8 +88,7 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path) -> list[Path]:
             figure.colorbar(image, ax=list(axes[0]), shrink=0.8, label="Δ AUC-PR")
             figure.suptitle(f"{proposed}: Δ AUC-PR against each baseline (> 0: {proposed} better)", fontsize=10)
             path = out_dir / f"delta_{proposed}.png"
-            with atomic_path(path) as temporary:
-                figure.savefig(temporary, dpi=DPI)
+            save_figure(figure, path, tight=False)  # and a PDF beside it
         finally:
             plt.close(figure)
         paths.append(path)

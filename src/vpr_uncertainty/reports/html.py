@@ -9,28 +9,32 @@ from pathlib import Path
 
 from vpr_uncertainty.cache import write_text
 
-__all__ = ["Section", "embed_png", "render_report", "write_report"]
+__all__ = ["Section", "embed_png", "png_display_width", "render_report", "write_report"]
 
 _STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:1em 0;font-size:0.9em}th,td{border:1px solid #ccc;padding:3px 8px}
 td{text-align:right}thead th{background:#f0f0f0}figure{margin:1em 0}img{max-width:100%;height:auto}
-figcaption{font-size:0.85em;color:#555}.note{font-size:0.85em;color:#555}
+figcaption{font-size:0.9em;color:#333;max-width:900px}.note{font-size:0.85em;color:#555}
+img.figure{max-width:100%}table.settings td{text-align:left}
 """
 
 
-#: After loading, appends ``<p id="render-check">figures rendered: N/M</p>``: N of the M figures decoded (used by
-#: the headless-browser test; harmless offline).
+#: After loading, appends a hidden ``<p id="render-check">figures rendered: N/M</p>``: N of the M figures decoded
+#: (read from the DOM by the headless-browser test; not shown to a reader).
 _RENDER_CHECK = (
     '<script>window.addEventListener("load",function(){var all=document.querySelectorAll("img.figure"),n=0;'
     "all.forEach(function(e){if(e.complete&&e.naturalWidth>0)n++;});"
-    'var p=document.createElement("p");p.id="render-check";p.className="note";'
+    'var p=document.createElement("p");p.id="render-check";p.hidden=true;'
     'p.textContent="figures rendered: "+n+"/"+all.length;document.body.appendChild(p);});</script>'
 )
 
 
 class Section:
-    """A report section: a title, optional HTML (tables, text) and figures as (caption, PNG path)."""
+    """A report section: a title, optional HTML (tables, text) and figures as (caption, PNG path).
+
+    The caption is the figure's text for a reader (what it shows, on which data); it is also its ``alt`` text.
+    """
 
     def __init__(self, title: str, html: str = "", figures: Sequence[tuple[str, str | Path]] = ()) -> None:
         self.title = title
@@ -46,6 +50,17 @@ def embed_png(path: str | Path) -> str:
     return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
 
 
+def png_display_width(path: str | Path) -> int | None:
+    """CSS pixels (96 per inch) of a PNG's width at its stored resolution (pHYs), or None without one."""
+    data = Path(path).read_bytes()
+    width = int.from_bytes(data[16:20], "big")
+    at = data.find(b"pHYs")
+    if at < 0 or data[at + 12] != 1:  # unit 1: pixels per metre
+        return None
+    per_metre = int.from_bytes(data[at + 4 : at + 8], "big")
+    return round(width / (per_metre * 0.0254) * 96) if per_metre else None
+
+
 def render_report(title: str, sections: Sequence[Section], *, intro: str = "") -> str:
     """The HTML text; every ``<img>`` has the class ``figure`` and an inline PNG."""
     parts = [
@@ -55,15 +70,18 @@ def render_report(title: str, sections: Sequence[Section], *, intro: str = "") -
         f"<h1>{escape(title)}</h1>",
     ]
     if intro:
-        parts.append(f'<p class="note">{intro}</p>')
+        parts.append(intro if intro.lstrip().startswith("<") else f'<p class="note">{intro}</p>')
     parts.append("<ul>" + "".join(f'<li><a href="#s{i}">{escape(s.title)}</a></li>' for i, s in enumerate(sections)))
     parts.append("</ul>")
     for number, section in enumerate(sections):
         parts.append(f'<section id="s{number}"><h2>{escape(section.title)}</h2>{section.html}')
-        for caption, path in section.figures:
+        for number_in_section, (caption, path) in enumerate(section.figures, 1):
+            label = f"Figure {number + 1}" + (f".{number_in_section}" if len(section.figures) > 1 else "") + ". "
+            width = png_display_width(path)
+            size = f' style="width:{width}px"' if width else ""
             parts.append(
-                f'<figure><img class="figure" alt="{escape(caption)}" src="{embed_png(path)}">'
-                f"<figcaption>{escape(caption)}</figcaption></figure>"
+                f'<figure><img class="figure"{size} alt="{escape(caption)}" src="{embed_png(path)}">'
+                f"<figcaption><b>{label}</b>{escape(caption)}</figcaption></figure>"
             )
         parts.append("</section>")
     parts.append(_RENDER_CHECK)

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.cache import atomic_path
+from vpr_uncertainty.reports.style import DPI, save_figure
 
 __all__ = ["CATEGORIES", "DPI", "SHOWN", "TOP", "choose_queries", "plot_qualitative", "qualitative_figsize"]
 
@@ -26,7 +26,6 @@ CATEGORIES: tuple[str, ...] = ("confident correct", "confident wrong", "uncertai
 TOP = 4
 #: The uncertainty methods shown under each query, when the cell has them.
 SHOWN: tuple[str, ...] = ("RS", "SD", "SU")
-DPI = 100
 
 
 def qualitative_figsize(n_rows: int) -> tuple[float, float]:
@@ -139,9 +138,7 @@ def plot_qualitative(
         suffix = f" ({', '.join(settings)})" if settings else ""
         figure.suptitle(f"{cell.vpr_method} on {cell.dataset}: answers ranked by {rank_by}{suffix}", fontsize=10)
         figure.tight_layout()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary:
-            figure.savefig(temporary, dpi=DPI)
+        save_figure(figure, path, tight=False)  # and a PDF beside it
     finally:
         plt.close(figure)
     return path

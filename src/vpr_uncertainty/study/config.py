@@ -19,6 +19,7 @@ from typing import Any
 from vpr_uncertainty.evaluation import DEFAULT_METHODS
 from vpr_uncertainty.methods import get_method, split_method_list
 from vpr_uncertainty.study.bootstrap_config import bootstrap_settings
+from vpr_uncertainty.study.config_file import read_mapping
 from vpr_uncertainty.study.heldout import calibration_option, full_query_methods, runs_cal
 from vpr_uncertainty.study.needs import unmet_needs
 from vpr_uncertainty.study.report_config import qualitative_methods, report_figures
@@ -40,6 +41,7 @@ _TOP_KEYS = {
     "report",
     "qualitative",
     "calibration",
+    "verify_fraction",
     *_BOOTSTRAP_KEYS,
 }
 _INPUT_KEYS = {
@@ -119,6 +121,7 @@ class GridConfig:
     seed: int = 0
     reference: str | None = None
     calibration: dict[str, Any] | None = None  # {fraction, repeats, seed}: see vpr_uncertainty.study.heldout
+    verify_fraction: float | None = None
 
     def settings(self) -> dict[str, Any]:
         settings = {"methods": self.methods, "k": self.k, "alpha": self.alpha, "alphas": self.alphas, "ks": self.ks}
@@ -126,47 +129,18 @@ class GridConfig:
             settings.update(bootstrap=self.bootstrap, seed=self.seed, reference=self.reference)
         if self.calibration is not None:  # only then: the settings (and cell fingerprints) without it are unchanged
             settings["calibration"] = dict(self.calibration)
+        if self.verify_fraction is not None:  # cascades SCORE+GV only
+            settings["verify_fraction"] = self.verify_fraction
         return settings
+
+    def method_options(self) -> dict[str, Any]:
+        """Options for the uncertainty methods beyond k and α (the cascades' ``verify_fraction``)."""
+        return {} if self.verify_fraction is None else {"verify_fraction": self.verify_fraction}
 
 
 def slug(text: str) -> str:
     """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
-
-
-def _read_mapping(path: Path) -> dict[str, Any]:
-    """The top-level mapping of a TOML or YAML file; a syntax error is one line naming the file and the line."""
-    suffix = path.suffix.lower()
-    if suffix == ".toml":
-        import tomllib
-
-        try:
-            with path.open("rb") as file:
-                return tomllib.load(file)
-        except tomllib.TOMLDecodeError as error:  # its message ends with "(at line L, column C)"
-            raise ValueError(f"{path}: invalid TOML: {error}") from None
-        except UnicodeDecodeError as error:
-            raise ValueError(f"{path}: not a UTF-8 text file ({error.reason} at byte {error.start})") from None
-    if suffix in (".yaml", ".yml"):
-        try:
-            import yaml
-        except ImportError as error:
-            raise ImportError(
-                f"reading {path} needs pyyaml (pip install pyyaml), or write the config as TOML"
-            ) from error
-        try:
-            data = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except yaml.YAMLError as error:
-            mark = getattr(error, "problem_mark", None)
-            where = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-            problem = getattr(error, "problem", None) or str(error).splitlines()[0]
-            raise ValueError(f"{path}{where}: invalid YAML: {problem}") from None
-        except UnicodeDecodeError as error:
-            raise ValueError(f"{path}: not a UTF-8 text file ({error.reason} at byte {error.start})") from None
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: the configuration must be a mapping at the top level")
-        return data
-    raise ValueError(f"unsupported configuration file {path}: expected .toml, .yaml or .yml")
 
 
 def _numbers(data: dict, key: str, default: Any, kind: type, problems: list[str]) -> list:
@@ -260,7 +234,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"configuration file not found: {path}")
-    data = _read_mapping(path)
+    data = read_mapping(path)
     unknown = sorted(set(overrides) - set(_BOOTSTRAP_KEYS))
     if unknown:
         raise TypeError(f"load_config got unexpected overrides {unknown} (valid: {', '.join(_BOOTSTRAP_KEYS)})")
@@ -289,6 +263,14 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
         problems.append(f"alpha and alphas must lie in [0, 1], got {alpha!r} and {alphas}")
     if any(v < 2 for v in ks):
         problems.append(f"every k of the k ablation must be >= 2, got {ks}")
+    verify_fraction = data.get("verify_fraction")
+    if verify_fraction is not None:
+        if isinstance(verify_fraction, bool) or not isinstance(verify_fraction, (int, float)):
+            problems.append(f"verify_fraction must be a number in [0, 1], got {verify_fraction!r}")
+        elif not 0.0 <= verify_fraction <= 1.0:
+            problems.append(f"verify_fraction must lie in [0, 1], got {verify_fraction!r}")
+        elif not any("+" in name.split(":")[0] for name in methods):
+            problems.append("verify_fraction is set but methods has no cascade SCORE+GV (e.g. SU+GV-SIFT)")
 
     entries: list[InputEntry] = []
     raw_inputs = _inputs(data.get("inputs") or [], problems)
@@ -373,7 +355,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
     qualitative = qualitative_methods(data.get("qualitative"), entries, problems)
     calibration = calibration_option(data.get("calibration"), methods, problems)
     calibrated = calibration is not None and runs_cal(methods)
-    report = report_figures(data.get("report"), entries, bool(alphas or ks), problems, calibrated=calibrated)
+    report = report_figures(data.get("report"), entries, bool(alphas or ks), problems, methods, calibrated=calibrated)
 
     bootstrap, seed, reference = bootstrap_settings(data, methods, problems)
     if bootstrap and calibration is not None:
@@ -395,4 +377,5 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
         seed=seed,
         reference=reference,
         calibration=calibration,
+        verify_fraction=None if verify_fraction is None else float(verify_fraction),
     )

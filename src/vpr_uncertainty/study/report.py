@@ -82,9 +82,9 @@ def write_reports(
     Returns
     -------
     dict of str to list of Path or Path
-        The files each figure wrote, by figure name; each file other than a PNG also under ``<name>_<suffix>``
-        when it is the figure's only file of that suffix (``table1_md``, ``table1_csv``, ``table1_tex``); and
-        ``report_html``.
+        The files each figure wrote, by figure name; each file other than a figure (PNG, PDF, SVG) also under
+        ``<name>_<suffix>`` when it is the figure's only file of that suffix (``table1_md``, ``table1_csv``,
+        ``table1_tex``); and ``report_html``.
 
     Raises
     ------
@@ -95,6 +95,7 @@ def write_reports(
     """
     from html import escape
 
+    from vpr_uncertainty.reports.captions import figure_caption, settings_table
     from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
     from vpr_uncertainty.reports.html import Section, write_report
 
@@ -111,18 +112,17 @@ def write_reports(
         paths[name] = written
         suffixes = [path.suffix for path in written]
         for path in written:
-            if path.suffix != ".png" and suffixes.count(path.suffix) == 1:
+            if path.suffix not in (".png", ".pdf", ".svg") and suffixes.count(path.suffix) == 1:
                 paths[f"{name}_{path.suffix.lstrip('.')}"] = path
         body = "" if note else entry.section_html(cells, config, written, **options)
         if entry.title and entry.description:
             body = f'<p class="note">{escape(entry.description)}</p>' + body
         if note:
             body += f'<p class="note">Not written: {escape(note)}.</p>'
-        pngs = [(path.stem, path) for path in written if path.suffix.lower() == ".png"]
+        pngs = [(figure_caption(name, path, cells), path) for path in written if path.suffix.lower() == ".png"]
         sections.append(Section(entry.heading, body, figures=pngs))
     if html:
-        settings = escape(json.dumps(config.settings()))
-        intro = f"{len(cells)} cells (VPR method × dataset). Settings: <code>{settings}</code>"
+        intro = settings_table(cells, config)
         paths["report_html"] = write_report(
             out / "report.html", "vpr-uncertainty: reproduction report", sections, intro=intro
         )
@@ -138,4 +138,8 @@ def _available_needs(cells: Sequence[Cell]) -> set[str]:
         available.add("ablations")
     if any("CAL" in (cell.held_out or {}).get("calibration_quality", {}) for cell in cells):
         available.add("calibration")
+    from vpr_uncertainty.reports.cascade import cascades
+
+    if cascades(cells):
+        available.add("cascade")
     return available

@@ -5,6 +5,7 @@ qualitative figure (``qualitative``). Each function appends its problems to ``pr
 from __future__ import annotations
 
 import difflib
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from vpr_uncertainty.method_specs import split_method_list
@@ -40,11 +41,18 @@ def qualitative_methods(raw: Any, entries: list[InputEntry], problems: list[str]
 
 
 def report_figures(
-    raw: Any, entries: list[InputEntry], ablations: bool, problems: list[str], *, calibrated: bool = False
+    raw: Any,
+    entries: list[InputEntry],
+    ablations: bool,
+    problems: list[str],
+    methods: Sequence[str] = (),
+    *,
+    calibrated: bool = False,
 ) -> list[str] | None:
     """The report figures to write (names or specs, see :mod:`vpr_uncertainty.reports.figures`); None: all.
 
-    ``calibrated``: CAL runs on held-out queries (the ``calibration`` option with CAL among the methods).
+    ``methods`` (the grid's uncertainty methods) tell whether the cascade figure can be drawn; ``calibrated``: CAL
+    runs on held-out queries (the ``calibration`` option with CAL among the methods).
     """
     if raw is None:
         return None
@@ -63,6 +71,9 @@ def report_figures(
         available.add("calibration")
     if any(entry.images is not None or entry.model is not None for entry in entries):
         available.add("images")
+    bases = {name.split(":")[0] for name in methods}
+    if any(set(name.split("+")) <= bases for name in bases if name.count("+") == 1):
+        available.add("cascade")
     names = []
     for spec in specs:
         try:

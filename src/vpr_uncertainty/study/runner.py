@@ -85,6 +85,7 @@ def _load_cell_input(
             bootstrap=config.bootstrap,
             seed=config.seed,
             reference=config.reference,
+            method_options=config.method_options(),
             **options,
         )
     )
@@ -253,6 +254,7 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
             bootstrap=config.bootstrap,
             seed=config.seed,
             reference=config.reference,
+            **config.method_options(),
             **options,
         )
     seconds["uncertainty_and_evaluation"] = time.perf_counter() - start

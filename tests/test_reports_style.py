@@ -1,0 +1,119 @@
+"""Publication figures (reports/style.py and the figures that use it): a vector PDF beside every 300-dpi PNG,
+legends outside the axes, coinciding curves said to coincide, distinct styles, captions and settings in
+report.html, no visible debug footer; the cascade figure (reports/cascade.py)."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vpr_uncertainty import Retrieval, evaluate
+from vpr_uncertainty.reports.cascade import FRACTIONS, cascade_curve
+from vpr_uncertainty.reports.html import Section, png_display_width, render_report
+from vpr_uncertainty.reports.plots import draw_rejection_curves, write_rejection_curves
+from vpr_uncertainty.reports.style import DPI, coinciding, legend_outside, method_styles, pyplot, save_figure
+
+
+def _dpi(path: Path) -> float:
+    """Pixels per inch from the PNG's pHYs chunk."""
+    data = path.read_bytes()
+    at = data.index(b"pHYs")
+    per_metre_x, per_metre_y, unit = struct.unpack(">IIB", data[at + 4 : at + 13])
+    assert unit == 1 and per_metre_x == per_metre_y
+    return per_metre_x * 0.0254
+
+
+def _retrieval(n_queries: int = 40, seed: int = 0) -> Retrieval:
+    rng = np.random.default_rng(seed)
+    scores = np.sort(rng.uniform(0.2, 1.0, (n_queries, 10)), axis=1)[:, ::-1]
+    indices = np.tile(np.arange(10), (n_queries, 1))
+    positives = np.zeros((n_queries, 10), dtype=bool)
+    positives[np.arange(n_queries), np.where(rng.random(n_queries) < 0.6, 0, 1)] = True
+    return Retrieval(scores=scores, indices=indices, positives=positives, distances=2 - 2 * scores)
+
+
+def test_save_figure_writes_a_300_dpi_png_and_a_pdf(tmp_path):
+    plt = pyplot()
+    figure, axis = plt.subplots(figsize=(3, 2))
+    axis.plot([0, 1], [0, 1])
+    try:
+        png, pdf = save_figure(figure, tmp_path / "f.png", tight=False)
+    finally:
+        plt.close(figure)
+    assert DPI == 300 and _dpi(png) == pytest.approx(300, rel=1e-3)
+    assert struct.unpack(">II", png.read_bytes()[16:24]) == (900, 600)
+    assert pdf == tmp_path / "f.pdf" and pdf.read_bytes().startswith(b"%PDF")
+    assert png_display_width(png) == 288  # 3 inches at 96 CSS px per inch
+    with pytest.raises(ValueError, match=r"writes a \.png"):
+        save_figure(figure, tmp_path / "f.jpg")
+
+
+def test_pr_curves_say_that_bm_and_l2_coincide_with_the_legend_outside_the_axes(tmp_path):
+    evaluation = evaluate(_retrieval(), ["SU", "BM", "L2", "PA"], k=5)
+    figure = draw_rejection_curves(evaluation, title="t")
+    try:
+        (axis,) = figure.axes
+        legend = axis.get_legend()
+        labels = [text.get_text() for text in legend.get_texts()]
+        assert any(label.startswith("BM = L2 (AUC-PR") for label in labels)
+        assert not any(label.startswith(("BM (", "L2 (")) for label in labels)  # no line hidden under another
+        figure.canvas.draw()
+        box, frame = legend.get_window_extent(), axis.get_window_extent()
+        assert box.x0 >= frame.x1  # outside the data, to the right
+        lines = [line for line in axis.get_lines() if line.get_label() != "_nolegend_"][:-1]  # the methods
+        styles = {(line.get_color(), line.get_linestyle(), line.get_marker()) for line in lines}
+        assert len(styles) == len(lines) == 3
+        assert "recall" in axis.get_xlabel() and "precision" in axis.get_ylabel()
+        notes = [text.get_text() for text in axis.texts]
+        assert any("≠ the AUC-PR in the legend" in note for note in notes)
+    finally:
+        pyplot().close(figure)
+    png, pdf = write_rejection_curves(evaluation, tmp_path / "pr.png")
+    assert _dpi(png) == pytest.approx(300, rel=1e-3) and pdf.suffix == ".pdf"
+
+
+def test_method_styles_are_distinct_and_coinciding_groups_curves():
+    styles = method_styles([f"m{i}" for i in range(140)])
+    assert len({tuple(style.values()) for style in styles.values()}) == 140
+    x = np.linspace(0, 1, 5)
+    assert coinciding({"a": (x, x), "b": (x, x + 1), "c": (x.copy(), x.copy())}) == [["a", "c"], ["b"]]
+
+
+def test_legend_outside_is_right_of_the_axes():
+    plt = pyplot()
+    figure, axis = plt.subplots()
+    try:
+        axis.plot([0, 1], [0, 1], label="a line")
+        legend = legend_outside(axis)
+        figure.canvas.draw()
+        assert legend.get_window_extent().x0 >= axis.get_window_extent().x1
+    finally:
+        plt.close(figure)
+
+
+def test_cascade_curve_ends_at_the_score_method_and_at_gv():
+    from vpr_uncertainty.evaluation import auc_pr
+
+    rng = np.random.default_rng(1)
+    correct = rng.random(50) < 0.6
+    score, gv = rng.random(50), -np.floor(rng.random(50) * 5)
+    curve = cascade_curve(correct, score, gv, FRACTIONS)
+    assert FRACTIONS[0] == 0.0 and FRACTIONS[-1] == 1.0 and len(FRACTIONS) == 21
+    assert curve[0] == auc_pr(correct, score)
+    assert curve[-1] == pytest.approx(auc_pr(correct, gv), rel=1e-12)
+    assert np.isnan(cascade_curve(np.ones(5, bool), score[:5], gv[:5], (0.5,))).all()
+
+
+def test_report_html_has_numbered_captions_and_a_hidden_render_check(tmp_path):
+    plt = pyplot()
+    figure, _ = plt.subplots(figsize=(2, 2))
+    try:
+        png, _ = save_figure(figure, tmp_path / "f.png")
+    finally:
+        plt.close(figure)
+    html = render_report("t", [Section("s", "", figures=[("NetVLAD on corridor: what it shows", png)])])
+    assert "<figcaption><b>Figure 1. </b>NetVLAD on corridor: what it shows</figcaption>" in html
+    assert "p.hidden=true" in html and 'className="note"' not in html  # the check is not shown to a reader
