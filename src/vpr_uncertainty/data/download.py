@@ -16,8 +16,6 @@ import urllib.request
 from importlib import resources
 from pathlib import Path
 
-from tqdm import tqdm
-
 __all__ = ["CORRIDOR_URL", "corridor_files", "default_data_root", "ensure_corridor", "verify_corridor"]
 
 #: The VPR-Bench repository at a pinned commit; the corridor lives under ``datasets/corridor``.
@@ -85,7 +83,9 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
         raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")
     digests = corridor_files()
     try:
-        for name in tqdm(missing, desc="downloading corridor", unit="file"):
+        from vpr_uncertainty.progress import progress_bar
+
+        for name in progress_bar(missing, desc="downloading corridor", unit="file"):
             target = folder / name
             target.parent.mkdir(parents=True, exist_ok=True)
             with urllib.request.urlopen(f"{CORRIDOR_URL}/{name}", timeout=timeout) as response:
