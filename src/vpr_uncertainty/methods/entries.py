@@ -356,3 +356,22 @@ def available_methods(**attributes: Any) -> list[str]:
     ['GV-SIFT', 'GV-DISK-LG']
     """
     return METHODS.names(**attributes)
+
+
+def default_method_names(*, metric_positions: bool = False) -> list[str]:
+    """The methods evaluated when none are named, by ``evaluate``, ``run`` and ``demo`` alike.
+
+    The registry's entries with ``default=True`` (in registration order), then its spatial methods (SUE) when
+    the database positions are metric, since those need nothing else.
+
+    Examples
+    --------
+    >>> default_method_names()
+    ['RS', 'SD', 'SU', 'PA', 'L2', 'BM']
+    >>> default_method_names(metric_positions=True)[-1]
+    'SUE'
+    """
+    names = available_methods(default=True)
+    if metric_positions:
+        names += [name for name in available_methods(kind="spatial") if name not in names]
+    return names
