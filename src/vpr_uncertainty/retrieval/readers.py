@@ -4,7 +4,8 @@ Accepted inputs of :func:`read_results`
     * a retrieval file ``.npz`` (``scores``, ``indices`` and optionally the ground truth inside);
     * a full similarity matrix ``.npy`` of shape (queries × database), higher = more similar, cut to its top-k by
       :func:`top_k_from_similarity`;
-    * VPR-Bench's ``precomputed_data_corrected.npy`` (legacy object array, read without running code from it).
+    * VPR-Bench's ``precomputed_data_corrected.npy`` (legacy object array, read without running code from it);
+    * the log folder of VPR-methods-evaluation (``--save_descriptors``), searched again with Faiss.
 
 Ground truth comes from the retrieval file or from a separate file (any format that
 :func:`vpr_uncertainty.data.load_ground_truth` reads).
@@ -198,7 +199,9 @@ def read_results(
     Parameters
     ----------
     path : str or Path
-        A retrieval ``.npz``, a similarity matrix ``.npy`` or a VPR-Bench precomputed-matches file.
+        A retrieval ``.npz``, a similarity matrix ``.npy``, a VPR-Bench precomputed-matches file, or the log
+        folder of VPR-methods-evaluation run with ``--save_descriptors`` (see
+        :mod:`vpr_uncertainty.retrieval.vpr_methods_evaluation`; its ground truth is derived when not given).
     ground_truth : str or Path, optional
         Ground-truth file; required unless the retrieval file holds its positives. When given, it replaces
         the positives stored in a retrieval file.
@@ -211,6 +214,10 @@ def read_results(
     if file_format not in INPUT_FORMATS:
         raise ValueError(f"file_format must be one of {INPUT_FORMATS}, got {file_format!r}")
     path = Path(path)
+    if file_format == "auto" and path.is_dir():  # a VPR-methods-evaluation log folder (--save_descriptors)
+        from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_vpr_methods_evaluation
+
+        return read_vpr_methods_evaluation(path, ground_truth=ground_truth, top_k=top_k).retrieval
     is_retrieval = file_format == "retrieval" or (file_format == "auto" and path.suffix.lower() == ".npz")
     if is_retrieval:
         _check_not_npy(path)
