@@ -163,6 +163,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "attribute (default fail)",
     )
     add_image_options(parser)
+    parser.add_argument(
+        "--hloc",
+        type=output_file,
+        metavar="FILE",
+        help="also write the descriptors in hloc's global-feature layout (one group per image name with a "
+        "'global_descriptor'), for hloc.pairs_from_retrieval",
+    )
     parser.add_argument("--overwrite", action="store_true", help="recompute everything, ignoring the file")
     add_progress_options(parser)
     parser.set_defaults(handler=_run_extract)
@@ -199,4 +206,13 @@ def _run_extract(args: argparse.Namespace) -> int:
         note = f", {skipped} skipped (cannot be used; listed in the file's 'failed' attribute)" if skipped else ""
         print(f"{split}: {len(kept)} descriptors of size {descriptors.shape[1]}{note}")
     print(f"wrote {args.out}")
+    if args.hloc is not None:
+        from vpr_uncertainty.descriptors.hloc import write_hloc_descriptors
+
+        partial = args.hloc.with_name(args.hloc.name + ".part")  # written whole, then renamed: never half a file
+        partial.unlink(missing_ok=True)
+        for split in ("database", "queries"):
+            write_hloc_descriptors(partial, *result.split(split))
+        partial.replace(args.hloc)
+        print(f"wrote {args.hloc} (hloc layout)")
     return 0

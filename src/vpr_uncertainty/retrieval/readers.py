@@ -248,10 +248,11 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     Parameters
     ----------
     path : str or Path
-        ``.npy`` file holding one descriptor per row, or a descriptor cache ``.h5`` / ``.hdf5`` written by the
-        feature extraction.
+        ``.npy`` file holding one descriptor per row, a descriptor cache ``.h5`` / ``.hdf5`` written by the
+        feature extraction, or hloc's global features (:mod:`vpr_uncertainty.descriptors.hloc`).
     split : {"database", "queries"}, optional
-        Which images to read from a descriptor cache; required for ``.h5``, ignored for ``.npy``.
+        Which images to read from a descriptor cache; required for ``.h5``, ignored for ``.npy``. An hloc file
+        whose names carry no split prefix (``query/``, ``db/``, ...) is read whole.
 
     Returns
     -------
@@ -281,8 +282,12 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
         if split not in DESCRIPTOR_SPLITS:
             raise ValueError(f"reading the descriptor cache {path} needs split in {DESCRIPTOR_SPLITS}, got {split!r}")
         from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
+        from vpr_uncertainty.descriptors.hloc import is_hloc_file, read_hloc_descriptors
 
-        names, array = read_descriptors(path, split)
+        if is_hloc_file(path):  # hloc's global features: one group per image with a global_descriptor
+            names, array = read_hloc_descriptors(path, split)
+        else:
+            names, array = read_descriptors(path, split)
         names = None if names is None else np.asarray(names, dtype=str)
     else:
         raise ValueError(
