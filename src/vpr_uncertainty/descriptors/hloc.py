@@ -119,9 +119,8 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
         if split is not None and any(splits.values()):
             chosen = [name for name in names if splits[name] == split]
             if not chosen:
-                raise ValueError(
-                    f"{path}: no {split} images among its names (its names have the splits {sorted(set(splits.values()) - {None})})"
-                )
+                present = sorted(set(splits.values()) - {None})
+                raise ValueError(f"{path}: no {split} images among its names (they hold {present} images)")
             names = chosen
         rows = [np.asarray(handle[name][HLOC_DATASET][()], dtype=np.float32).reshape(-1) for name in names]
     sizes = sorted({row.size for row in rows})
