@@ -197,7 +197,7 @@ def _run_extract(args: argparse.Namespace) -> int:
         max_side=args.max_side,
         num_workers=args.workers,
         overwrite=args.overwrite,
-        progress=args.progress,
+        progress=getattr(args, "progress", None),
     )
     result = extract(conf, splits, args.out)
     for split in ("database", "queries"):

@@ -133,7 +133,7 @@ def _run_retrieve(args: argparse.Namespace) -> int:
         search_params=args.search_params,
         device=args.device,
         batch_size=args.batch_size,
-        progress=args.progress,
+        progress=getattr(args, "progress", None),
     )
     start = time.perf_counter()
     found = search(

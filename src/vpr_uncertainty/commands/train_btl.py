@@ -144,7 +144,11 @@ def _run_train_btl(args: argparse.Namespace) -> int:
     print(f"training data: {anchors} as anchors, {len(database)} database images of dimension {database.shape[1]}")
     with command_wording(learning_rate="--lr", device="--device cpu"):
         head, history = train_btl_head(
-            database, inputs["positives"], query_descriptors=queries, config=config, progress=args.progress
+            database,
+            inputs["positives"],
+            query_descriptors=queries,
+            config=config,
+            progress=getattr(args, "progress", None),
         )
     head.metadata["source"] = inputs["source"]
     out = save_btl_head(head, args.out, metadata=head.metadata)

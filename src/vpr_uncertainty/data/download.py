@@ -90,11 +90,11 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
     if not missing:
         return folder
     where = (
-        f"Download the files into {folder}: each is {CORRIDOR_URL}/<file> (e.g. {CORRIDOR_URL}/ground_truth_new.npy, "
-        f"{CORRIDOR_URL}/query/0000000.jpg; the 223 files and their SHA-256 are listed in the package's "
-        f"vpr_uncertainty/data/corridor_sha256.json, and ensure_corridor(root) fetches and checks them when online), "
-        f"or unpack datasets/corridor of {corridor_archive_url()} there; or point VPR_UNCERTAINTY_DATA at a data "
-        "root that holds vprbench/corridor."
+        f"Put the VPR-Bench corridor dataset into {folder}: download each file from {CORRIDOR_URL}/<file> "
+        f"(e.g. {CORRIDOR_URL}/ground_truth_new.npy, {CORRIDOR_URL}/query/0000000.jpg; the {len(corridor_files())} "
+        "files and their SHA-256 are listed in the package's vpr_uncertainty/data/corridor_sha256.json, and "
+        f"ensure_corridor(root) fetches and checks them when online), or unpack datasets/corridor of "
+        f"{corridor_archive_url()} there; or point VPR_UNCERTAINTY_DATA at a data root that holds vprbench/corridor."
     )
     if not download:
         raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")
