@@ -43,8 +43,8 @@ def no_data_root(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_the_six_datasets_of_the_paper_are_named() -> None:
-    assert set(NAMED_DATASETS) == PAPER_DATASETS
-    for entry in NAMED_DATASETS.values():
+    assert PAPER_DATASETS <= set(NAMED_DATASETS)  # with more of the field's (test_data_named_datasets_more.py)
+    for entry in (NAMED_DATASETS[name] for name in PAPER_DATASETS):
         assert entry.split == "test" and entry.relative_path == f"{entry.folder}/images/test"
         assert entry.n_database > 0 and entry.n_queries > 0 and entry.source
     assert NAMED_DATASETS["nordland"].frame_tolerance == 10 and NAMED_DATASETS["nordland"].position_kind == "frames"

@@ -12,7 +12,7 @@ import pytest
 from conftest import assert_close
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import download
-from vpr_uncertainty.methods import SCORE_ONLY_METHODS
+from vpr_uncertainty.methods import default_method_names
 
 pytest.importorskip("torch")
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
@@ -32,9 +32,10 @@ def test_demo_evaluates_every_score_only_method_on_every_query(demo_run):
     assert results["n_queries"] == 111
     # 111 database images with about 4 positives each: chance recall@1 is below 0.05
     assert results["recall@1"] > 0.4
-    assert set(results["methods"]) == set(SCORE_ONLY_METHODS)  # no SUE: the corridor has no positions
+    # the default list of evaluate (the registry's default entries); no SUE: the corridor has no positions
+    assert set(results["methods"]) == set(default_method_names())
     uncertainties = np.load(demo_run / "uncertainties.npz")
-    for name in SCORE_ONLY_METHODS:
+    for name in default_method_names():
         assert uncertainties[name].shape == (111,) and np.isfinite(uncertainties[name]).all()
     assert_close(uncertainties["correct"].mean(), results["recall@1"])
     for stage in ("extraction", "retrieval", "uncertainty_and_evaluation"):

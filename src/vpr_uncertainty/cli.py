@@ -17,7 +17,18 @@ import zipfile
 from collections.abc import Sequence
 from typing import NoReturn
 
-__all__ = ["COMMANDS", "EXIT_INPUT", "EXIT_INTERRUPTED", "EXIT_RUNTIME", "build_parser", "exit_status", "main"]
+from vpr_uncertainty.commands._arguments import add_progress_options
+
+__all__ = [
+    "COMMANDS",
+    "EXIT_INPUT",
+    "EXIT_INTERRUPTED",
+    "EXIT_RUNTIME",
+    "build_parser",
+    "exit_status",
+    "main",
+    "package_version",
+]
 
 #: Command modules in :mod:`vpr_uncertainty.commands`, in the order ``--help`` lists them.
 COMMANDS: tuple[str, ...] = (
@@ -81,15 +92,32 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=EXIT_STATUS_HELP,
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     parser.add_argument(
         "--debug",
         action="store_true",
         help=f"show the full Python traceback of an error (also: environment variable {DEBUG_VARIABLE}=1)",
     )
+    add_progress_options(parser, top_level=True)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
         importlib.import_module(f"vpr_uncertainty.commands.{name.replace('-', '_')}").add_parser(subparsers)
+        command = subparsers.choices[name]
+        if "--progress" not in command._option_string_actions:  # every command takes the progress flags
+            add_progress_options(command)
     return parser
+
+
+def package_version() -> str:
+    """The installed version of the package (its source tree's ``__version__`` when it is not installed)."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("vpr-uncertainty")
+    except metadata.PackageNotFoundError:
+        from vpr_uncertainty import __version__
+
+        return __version__
 
 
 def _short_warning(message, category, filename, lineno, line=None) -> str:
@@ -133,7 +161,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         prefix = f"vpr-uncertainty {args.command}"
         warnings.formatwarning = _short_warning
-        return args.handler(args)
+        from vpr_uncertainty.progress import progress_default
+
+        with progress_default(getattr(args, "progress", None)):
+            return args.handler(args)
     except BrokenPipeError:  # the reader of stdout went away (`... | head`): stop quietly
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

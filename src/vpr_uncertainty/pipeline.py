@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation
-from vpr_uncertainty.methods import GEOMETRIC_METHODS, SCORE_ONLY_METHODS, describe_needs, get_method
+from vpr_uncertainty.methods import GEOMETRIC_METHODS, default_method_names, describe_needs, get_method
 from vpr_uncertainty.retrieval import Retrieval
 from vpr_uncertainty.stages import (
     DescriptorsConfig,
@@ -74,7 +74,8 @@ class RunConfig:
     model : str
         A descriptor model name (:func:`vpr_uncertainty.descriptors.available_models`) or a TorchScript file.
     methods : sequence of str, optional
-        Uncertainty methods; by default every score-only method, plus SUE when the dataset has metric positions.
+        Uncertainty methods; by default the registry's default entries (as ``evaluate``), plus SUE when the
+        dataset has metric positions.
     k, alpha : int, float
         Options of RS, SD and SU.
     retrieval_k : int
@@ -93,6 +94,9 @@ class RunConfig:
         and named in a warning and in ``results.json`` (``dataset.images_left_out``).
     root, split, radius
         Passed to :func:`vpr_uncertainty.data.load_dataset`.
+    image_size, max_side, num_workers : int, optional
+        Overrides of the model's preprocessing and the image decoding threads (see
+        :class:`~vpr_uncertainty.stages.DescriptorsConfig`).
     method_options : dict
         Further options for the uncertainty methods (e.g. ``btl_head`` or ``max_side``).
     rerank : str, optional
@@ -117,6 +121,9 @@ class RunConfig:
     root: str | Path | None = None
     split: str | None = None
     radius: float | None = None
+    image_size: int | None = None
+    max_side: int | None = None
+    num_workers: int | None = None
     method_options: dict[str, Any] = field(default_factory=dict)
     rerank: str | None = None
     bootstrap: int = 0
@@ -162,8 +169,8 @@ class RunResult:
 
 
 def default_methods(has_metric_positions: bool) -> list[str]:
-    """Every score-only method, plus SUE when the database positions are metric."""
-    return [*SCORE_ONLY_METHODS, *(["SUE"] if has_metric_positions else [])]
+    """The registry's default methods (those ``evaluate`` runs by default), plus SUE when the positions are metric."""
+    return default_method_names(metric_positions=has_metric_positions)
 
 
 def _positions_of(names: Sequence[str], kept: np.ndarray) -> np.ndarray:
@@ -274,6 +281,9 @@ def run(config: RunConfig) -> RunResult:
         batch_size=config.batch_size,
         half=config.half,
         on_error=config.on_error,
+        image_size=config.image_size,
+        max_side=config.max_side,
+        num_workers=config.num_workers,
     )
     images = {
         "database": (dataset.database_paths, dataset.database_names),

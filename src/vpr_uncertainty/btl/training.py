@@ -246,7 +246,7 @@ def train_btl_head(
     *,
     query_descriptors: object = None,
     config: BTLTrainingConfig | None = None,
-    progress: bool = True,
+    progress: bool | None = None,
     **settings: Any,
 ) -> tuple[BTLHead, TrainingHistory]:
     """Train a BTL head on frozen descriptors with early stopping on a validation split of the anchors.
@@ -262,8 +262,8 @@ def train_btl_head(
         Descriptors of the anchors (training queries). Default: the database images are the anchors.
     config : BTLTrainingConfig, optional
         Training settings; ``**settings`` override single fields (``epochs=20``, ``device="cuda"``, ...).
-    progress : bool, default True
-        Show a tqdm progress bar over the epochs with the current losses.
+    progress : bool, optional
+        Show a progress bar over the epochs with the current losses (default: when stderr is a terminal).
 
     Returns
     -------
@@ -322,9 +322,9 @@ def train_btl_head(
     best = record(0, loss.evaluate(head, train_triplets))
     best_state = copy.deepcopy(head.state_dict())
     waited = 0
-    from tqdm.auto import tqdm
+    from vpr_uncertainty.progress import progress_bar
 
-    with tqdm(range(1, config.epochs + 1), desc="train BTL head", unit="epoch", disable=not progress) as bar:
+    with progress_bar(range(1, config.epochs + 1), desc="train BTL head", unit="epoch", enabled=progress) as bar:
         for epoch in bar:
             head.train()
             total = nll = 0.0

@@ -15,7 +15,11 @@ from typing import Any
 
 __all__ = [
     "VERIFY_FRACTION_HELP",
+    "add_alias",
     "add_deprecated_alias",
+    "add_image_options",
+    "add_progress_options",
+    "apply_threads",
     "candidate_count",
     "command_wording",
     "device_name",
@@ -187,3 +191,82 @@ def add_deprecated_alias(
             setattr(namespace, self.dest, values)
 
     parser.add_argument(old, dest=dest, action=_Alias, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)
+
+
+def add_alias(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    alias: str,
+    *,
+    new: str,
+    dest: str | None = None,
+    **kwargs: Any,
+) -> None:
+    """Accept ``alias`` (another tool's name for the flag ``new``, e.g. VPR-methods-evaluation's
+    ``--positive_dist_threshold``) as a hidden synonym: no note, left out of ``--help``, ``new``'s default kept.
+
+    ``dest`` is that of ``new`` (default: derived from ``new``); ``kwargs`` are those of ``new`` that parse the
+    value (``type``, ``metavar``).
+    """
+    dest = dest or new.lstrip("-").replace("-", "_")
+    parser.add_argument(alias, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)
+
+
+def add_progress_options(parser: argparse.ArgumentParser, *, top_level: bool = False) -> None:
+    """``--progress`` / ``--no-progress``: show or hide the progress bars (on stderr; default: shown only when
+    stderr is a terminal). On a command, they override the same flags given before the command."""
+    group = parser.add_mutually_exclusive_group()
+    default = None if top_level else argparse.SUPPRESS
+    group.add_argument(
+        "--progress",
+        dest="progress",
+        action="store_const",
+        const=True,
+        default=default,
+        help="show progress bars on stderr even when it is not a terminal (a log file, a pipe)",
+    )
+    group.add_argument(
+        "--no-progress",
+        dest="progress",
+        action="store_const",
+        const=False,
+        default=default,
+        help="no progress bars (default: shown only when stderr is a terminal)",
+    )
+
+
+def add_image_options(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """Preprocessing and parallelism of the descriptor extraction, shared by ``extract`` and ``run``:
+    ``--image-size``, ``--max-side``, ``--workers``, ``--threads``."""
+    from vpr_uncertainty.descriptors.images import DEFAULT_MAX_SIDE
+
+    parser.add_argument(
+        "--image-size",
+        type=positive_int,
+        help="resize so that the shorter image side has this many pixels (default: the model's own setting)",
+    )
+    add_alias(parser, "--image_size", new="--image-size", type=positive_int)
+    parser.add_argument(
+        "--max-side",
+        type=integer_at_least(32),
+        help=f"cap on the longer side of the model input, in pixels (default {DEFAULT_MAX_SIDE}); larger images "
+        "are shrunk keeping their aspect ratio, so memory per batch is bounded: about 235 bytes per pixel for "
+        f"the default model on CPU, i.e. about 2 GB for 16 images of {DEFAULT_MAX_SIDE} x {DEFAULT_MAX_SIDE}",
+    )
+    parser.add_argument(
+        "--workers", type=integer_at_least(0), help="image decoding threads (default min(4, CPUs); 0 = none)"
+    )
+    add_alias(parser, "--num_workers", new="--workers", type=integer_at_least(0))
+    parser.add_argument(
+        "--threads",
+        type=positive_int,
+        help="CPU threads of the model (torch.set_num_threads; default torch's choice). On a CPU shared with "
+        "other jobs, 1 can be several times faster",
+    )
+
+
+def apply_threads(threads: int | None) -> None:
+    """``torch.set_num_threads(threads)`` when ``--threads`` was given."""
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)

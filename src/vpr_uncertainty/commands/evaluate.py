@@ -16,10 +16,11 @@ from vpr_uncertainty.commands._arguments import (
     write_output,
 )
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
+from vpr_uncertainty.commands._evaluate_inputs import add_input_options, read_inputs
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
 from vpr_uncertainty.methods import available_methods, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
-from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K, read_results
+from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K
 
 __all__ = ["METHOD_SPEC_HELP", "add_parser", "method_list"]
 
@@ -63,7 +64,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "SCORES is one of:\n"
             "  retrieval.npz                a retrieval file (scores, indices, optionally the ground truth)\n"
             "  matrix.npy                   a full similarity matrix, queries x database, higher = more similar\n"
-            "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy object array, read safely)\n\n"
+            "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy object array, read safely)\n"
+            "  LOGDIR/                      a VPR-methods-evaluation log folder saved with --save_descriptors\n"
+            "                               (ground truth derived from its image names when --gt is not given)\n\n"
             "Uncertainty methods:\n" + _method_help() + "\n\n" + METHOD_SPEC_HELP
         ),
         epilog=(
@@ -87,11 +90,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--methods",
         type=method_list,
-        default=list(DEFAULT_METHODS),
         help=f"comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided "
-        f"(default {','.join(DEFAULT_METHODS)})",
+        f"(default {','.join(DEFAULT_METHODS)}, plus SUE when SCORES holds metric positions; as run and demo)",
     )
     parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
+    add_input_options(parser)
     parser.add_argument("--json", type=output_file, metavar="FILE", help="write the results as JSON")
     parser.add_argument(
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
@@ -141,8 +144,12 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
     if args.verify_fraction is not None:
         options["verify_fraction"] = args.verify_fraction
-    with command_wording(ground_truth="--gt GT", database_positions="--database-positions"):
-        retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
+    wording = {"images": "--images", "query_images": "--query-images", "database_images": "--database-images"}
+    with command_wording(ground_truth="--gt GT", database_positions="--database-positions", **wording):
+        retrieval, args.methods, image_options, notes = read_inputs(args, top_k=top_k)
+        options.update(image_options)
+        for note in notes:
+            print(f"note: {note}")
         if args.calibration_fraction is not None:
             if args.bootstrap:
                 raise ValueError(

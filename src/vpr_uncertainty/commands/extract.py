@@ -6,9 +6,16 @@ import argparse
 import warnings
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import device_name, integer_at_least, output_file, positive_int
+from vpr_uncertainty.commands._arguments import (
+    add_alias,
+    add_image_options,
+    add_progress_options,
+    apply_threads,
+    device_name,
+    output_file,
+    positive_int,
+)
 from vpr_uncertainty.descriptors.extract import ON_ERROR
-from vpr_uncertainty.descriptors.images import DEFAULT_MAX_SIDE
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, available_models, get_model_spec
 
 __all__ = ["IMAGE_SUFFIXES", "SPLIT_FOLDERS", "add_parser", "dataset_images"]
@@ -144,6 +151,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", type=output_file, required=True, help="HDF5 file to write (resumed if it exists)")
     parser.add_argument("--device", type=device_name, default="cpu", help="cpu, cuda, cuda:N or mps (default cpu)")
     parser.add_argument("--batch-size", type=positive_int, default=16, help="images per forward pass (default 16)")
+    add_alias(parser, "--batch_size", new="--batch-size", type=positive_int)
     parser.add_argument("--half", action="store_true", help="store descriptors as float16 instead of float32")
     parser.add_argument(
         "--on-error",
@@ -154,27 +162,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "error naming the first, or leave them out, counted and named in a warning and in the file's 'failed' "
         "attribute (default fail)",
     )
+    add_image_options(parser)
     parser.add_argument(
-        "--image-size",
-        type=positive_int,
-        help="resize so that the shorter image side has this many pixels (default: the model's own setting)",
-    )
-    parser.add_argument(
-        "--max-side",
-        type=integer_at_least(32),
-        help=f"cap on the longer side of the model input, in pixels (default {DEFAULT_MAX_SIDE}); larger images "
-        "are shrunk keeping their aspect ratio, so memory per batch is bounded: about 235 bytes per pixel for "
-        f"the default model on CPU, i.e. about 2 GB for 16 images of {DEFAULT_MAX_SIDE} x {DEFAULT_MAX_SIDE}",
-    )
-    parser.add_argument("--workers", type=int, help="image decoding threads (default min(4, CPUs); 0 = none)")
-    parser.add_argument(
-        "--threads",
-        type=positive_int,
-        help="CPU threads of the model (torch.set_num_threads; default torch's choice). On a CPU shared with "
-        "other jobs, 1 can be several times faster",
+        "--hloc",
+        type=output_file,
+        metavar="FILE",
+        help="also write the descriptors in hloc's global-feature layout (one group per image name with a "
+        "'global_descriptor'), for hloc.pairs_from_retrieval",
     )
     parser.add_argument("--overwrite", action="store_true", help="recompute everything, ignoring the file")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_options(parser)
     parser.set_defaults(handler=_run_extract)
 
 
@@ -189,10 +186,7 @@ def _run_extract(args: argparse.Namespace) -> int:
             f"left out the images under {len(unlisted)} path(s) that cannot be listed: {describe_unlisted(unlisted)}",
             stacklevel=2,
         )
-    if args.threads is not None:
-        import torch
-
-        torch.set_num_threads(args.threads)
+    apply_threads(args.threads)
     conf = DescriptorsConfig(
         model=args.model,
         device=args.device,
@@ -203,7 +197,7 @@ def _run_extract(args: argparse.Namespace) -> int:
         max_side=args.max_side,
         num_workers=args.workers,
         overwrite=args.overwrite,
-        progress=not args.no_progress,
+        progress=getattr(args, "progress", None),
     )
     result = extract(conf, splits, args.out)
     for split in ("database", "queries"):
@@ -212,4 +206,13 @@ def _run_extract(args: argparse.Namespace) -> int:
         note = f", {skipped} skipped (cannot be used; listed in the file's 'failed' attribute)" if skipped else ""
         print(f"{split}: {len(kept)} descriptors of size {descriptors.shape[1]}{note}")
     print(f"wrote {args.out}")
+    if args.hloc is not None:
+        from vpr_uncertainty.descriptors.hloc import write_hloc_descriptors
+
+        partial = args.hloc.with_name(args.hloc.name + ".part")  # written whole, then renamed: never half a file
+        partial.unlink(missing_ok=True)
+        for split in ("database", "queries"):
+            write_hloc_descriptors(partial, *result.split(split))
+        partial.replace(args.hloc)
+        print(f"wrote {args.hloc} (hloc layout)")
     return 0

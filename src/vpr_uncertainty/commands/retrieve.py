@@ -6,7 +6,13 @@ import argparse
 import time
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import non_negative_float, output_file, positive_int
+from vpr_uncertainty.commands._arguments import (
+    add_alias,
+    add_progress_options,
+    non_negative_float,
+    output_file,
+    positive_int,
+)
 
 __all__ = ["add_parser"]
 
@@ -57,6 +63,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=25.0,
         help="positives: database images within this distance of the query, inclusive (default 25)",
     )
+    add_alias(parser, "--positive_dist_threshold", new="--radius", type=non_negative_float)
     parser.add_argument(
         "--position-kind",
         choices=("metres", "frames", "placeholder"),
@@ -67,7 +74,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         help="explicit ground truth instead of the radius (any format that `evaluate --gt` reads)",
     )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_options(parser)
     parser.set_defaults(handler=_run_retrieve)
 
 
@@ -126,7 +133,7 @@ def _run_retrieve(args: argparse.Namespace) -> int:
         search_params=args.search_params,
         device=args.device,
         batch_size=args.batch_size,
-        progress=False if args.no_progress else None,
+        progress=getattr(args, "progress", None),
     )
     start = time.perf_counter()
     found = search(

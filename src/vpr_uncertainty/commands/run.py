@@ -8,14 +8,19 @@ from typing import TYPE_CHECKING
 
 from vpr_uncertainty.commands._arguments import (
     VERIFY_FRACTION_HELP,
+    add_alias,
+    add_image_options,
+    apply_threads,
     candidate_count,
     device_name,
     fraction,
+    non_negative_float,
     output_directory,
     positive_int,
 )
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 from vpr_uncertainty.commands.evaluate import METHOD_SPEC_HELP, method_list
+from vpr_uncertainty.methods import default_method_names
 
 if TYPE_CHECKING:
     from vpr_uncertainty.pipeline import RunResult
@@ -36,7 +41,7 @@ def add_common_run_options(parser: argparse.ArgumentParser, *, default_out: Path
         "--methods",
         type=method_list,
         help="comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided "
-        "(default: every score-only method, plus SUE with metric positions)",
+        f"(default {','.join(default_method_names())}, as evaluate; plus SUE when the positions are metric)",
     )
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query for RS/SD/SU (default 10)")
     parser.add_argument("--alpha", type=float, default=0.5, help="weight of RS in SU, in [0, 1] (default 0.5)")
@@ -44,6 +49,7 @@ def add_common_run_options(parser: argparse.ArgumentParser, *, default_out: Path
         "--device", type=device_name, default="cpu", help="cpu, cuda, cuda:N or mps (extraction and Faiss search)"
     )
     parser.add_argument("--batch-size", type=positive_int, default=16, help="images per forward pass (default 16)")
+    add_alias(parser, "--batch_size", new="--batch-size", type=positive_int)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -77,9 +83,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--root", type=Path, help="data root for dataset names (default VPR_UNCERTAINTY_DATA)")
     parser.add_argument("--split", help="dataset split (default: the dataset's test split)")
-    parser.add_argument("--radius", type=float, help="positives within this many metres (default 25)")
+    parser.add_argument("--radius", type=non_negative_float, help="positives within this many metres (default 25)")
+    add_alias(parser, "--positive_dist_threshold", new="--radius", type=non_negative_float)
     parser.add_argument("--index", default="Flat", help="Faiss index-factory string (default Flat = exact search)")
     parser.add_argument("--half", action="store_true", help="store descriptors as float16")
+    add_image_options(parser.add_argument_group("preprocessing and threads (as in extract)"))
     parser.add_argument(
         "--on-error",
         choices=("fail", "skip"),
@@ -123,6 +131,7 @@ def _handle(args: argparse.Namespace) -> int:
 
     if not 0.0 <= args.alpha <= 1.0:
         raise ValueError(f"--alpha must lie in [0, 1], got {args.alpha}")
+    apply_threads(args.threads)
     config = RunConfig(
         dataset=args.dataset,
         out=args.out,
@@ -138,6 +147,9 @@ def _handle(args: argparse.Namespace) -> int:
         root=args.root,
         split=args.split,
         radius=args.radius,
+        image_size=args.image_size,
+        max_side=args.max_side,
+        num_workers=args.workers,
         method_options={
             key: value
             for key, value in (("btl_head", args.btl_head), ("verify_fraction", args.verify_fraction))

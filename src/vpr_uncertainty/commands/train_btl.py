@@ -7,6 +7,7 @@ from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import (
     add_deprecated_alias,
+    add_progress_options,
     command_wording,
     device_name,
     non_negative_float,
@@ -101,7 +102,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     training.add_argument(
         "--threads", type=positive_int, help="CPU threads of PyTorch (default: its own choice; 1 on a busy machine)"
     )
-    training.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_options(parser)
     parser.set_defaults(handler=_run_train_btl)
 
 
@@ -143,7 +144,11 @@ def _run_train_btl(args: argparse.Namespace) -> int:
     print(f"training data: {anchors} as anchors, {len(database)} database images of dimension {database.shape[1]}")
     with command_wording(learning_rate="--lr", device="--device cpu"):
         head, history = train_btl_head(
-            database, inputs["positives"], query_descriptors=queries, config=config, progress=not args.no_progress
+            database,
+            inputs["positives"],
+            query_descriptors=queries,
+            config=config,
+            progress=getattr(args, "progress", None),
         )
     head.metadata["source"] = inputs["source"]
     out = save_btl_head(head, args.out, metadata=head.metadata)

@@ -16,15 +16,27 @@ import urllib.request
 from importlib import resources
 from pathlib import Path
 
-from tqdm import tqdm
+__all__ = [
+    "CORRIDOR_COMMIT",
+    "CORRIDOR_URL",
+    "corridor_archive_url",
+    "corridor_files",
+    "default_data_root",
+    "ensure_corridor",
+    "verify_corridor",
+]
 
-__all__ = ["CORRIDOR_URL", "corridor_files", "default_data_root", "ensure_corridor", "verify_corridor"]
+#: The pinned commit of the VPR-Bench repository the corridor files are fetched from.
+CORRIDOR_COMMIT = "1f78cf83661886840ba4ef9ac3d66a01db2f1458"
+#: Base address of the corridor files at that commit: each file is ``CORRIDOR_URL/<relative path>`` (a folder
+#: address itself is not downloadable; the relative paths are the keys of ``corridor_sha256.json``).
+CORRIDOR_URL = f"https://raw.githubusercontent.com/MubarizZaffar/VPR-Bench/{CORRIDOR_COMMIT}/datasets/corridor"
 
-#: The VPR-Bench repository at a pinned commit; the corridor lives under ``datasets/corridor``.
-CORRIDOR_URL = (
-    "https://raw.githubusercontent.com/MubarizZaffar/VPR-Bench/"
-    "1f78cf83661886840ba4ef9ac3d66a01db2f1458/datasets/corridor"
-)
+
+def corridor_archive_url() -> str:
+    """The downloadable archive of the VPR-Bench repository at the pinned commit (the corridor is its
+    ``datasets/corridor`` folder)."""
+    return f"https://github.com/MubarizZaffar/VPR-Bench/archive/{CORRIDOR_COMMIT}.zip"
 
 
 def default_data_root() -> Path:
@@ -78,14 +90,19 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
     if not missing:
         return folder
     where = (
-        f"Put the VPR-Bench corridor dataset (query/, ref/, ground_truth_new.npy from {CORRIDOR_URL}) into "
-        f"{folder}, or point VPR_UNCERTAINTY_DATA at a data root that holds vprbench/corridor."
+        f"Put the VPR-Bench corridor dataset into {folder}: download each file from {CORRIDOR_URL}/<file> "
+        f"(e.g. {CORRIDOR_URL}/ground_truth_new.npy, {CORRIDOR_URL}/query/0000000.jpg; the {len(corridor_files())} "
+        "files and their SHA-256 are listed in the package's vpr_uncertainty/data/corridor_sha256.json, and "
+        f"ensure_corridor(root) fetches and checks them when online), or unpack datasets/corridor of "
+        f"{corridor_archive_url()} there; or point VPR_UNCERTAINTY_DATA at a data root that holds vprbench/corridor."
     )
     if not download:
         raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")
     digests = corridor_files()
     try:
-        for name in tqdm(missing, desc="downloading corridor", unit="file"):
+        from vpr_uncertainty.progress import progress_bar
+
+        for name in progress_bar(missing, desc="downloading corridor", unit="file"):
             target = folder / name
             target.parent.mkdir(parents=True, exist_ok=True)
             with urllib.request.urlopen(f"{CORRIDOR_URL}/{name}", timeout=timeout) as response:

@@ -85,6 +85,11 @@ class NamedDataset:
     frame_spacing : float or None
         Metres between consecutive frames in the downloader's dummy coordinates (Nordland), to recover frame
         indices from them.
+    layout : {"downloader", "vprbench"}
+        The folder layout: VPR-datasets-downloader's (``<split folder>/database/`` and ``queries/``, positions in
+        the names) or VPR-Bench's (``query/``, ``ref/`` and ``ground_truth_new.npy``).
+    path : str or None
+        The split folder relative to the data root, when it is not ``<folder>/images/<split>``.
     """
 
     name: str
@@ -101,11 +106,13 @@ class NamedDataset:
     aliases: tuple[str, ...] = ()
     frame_tolerance: int | None = None
     frame_spacing: float | None = None
+    layout: str = "downloader"
+    path: str | None = None
 
     @property
     def relative_path(self) -> str:
         """Split folder relative to the data root, e.g. ``st_lucia/images/test``."""
-        return f"{self.folder}/images/{self.split}"
+        return self.path if self.path is not None else f"{self.folder}/images/{self.split}"
 
     def to_dict(self) -> dict[str, object]:
         """JSON-serialisable fields."""
@@ -122,6 +129,8 @@ def read_named_datasets(text: str | None = None) -> list[NamedDataset]:
         text = resources.files("vpr_uncertainty.data").joinpath("named_datasets.json").read_text(encoding="utf-8")
     document = json.loads(text)
     downloader = str(document.get("downloader", ""))
+    from vpr_uncertainty.data.download import CORRIDOR_URL, corridor_archive_url
+
     fields = {item.name for item in dataclasses.fields(NamedDataset)}
     records = []
     for number, record in enumerate(document["datasets"]):
@@ -130,7 +139,8 @@ def read_named_datasets(text: str | None = None) -> list[NamedDataset]:
             raise ValueError(
                 f"named_datasets.json, record {number}: unknown fields {unknown} (valid: {sorted(fields)})"
             )
-        record = {**record, "source": record["source"].replace("{downloader}", downloader)}
+        source = record["source"].replace("{downloader}", downloader).replace("{corridor_url}", CORRIDOR_URL)
+        record = {**record, "source": source.replace("{corridor_archive}", corridor_archive_url())}
         records.append(NamedDataset(**{**record, "aliases": tuple(record.get("aliases", ()))}))
     return records
 
@@ -168,14 +178,22 @@ def find_named_dataset(name: str, root: str | Path | None = None, *, split: str 
     base = data_root(root)
     if base is None:
         return None
+    if entry.layout == "vprbench":
+        from vpr_uncertainty.data.formats import _is_vprbench
+
+        candidate = base / entry.relative_path
+        return candidate if _is_vprbench(candidate) else None
+    split = split or entry.split
+    candidates = [base / entry.path] if entry.path is not None and split == entry.split else []
     for folder in (base / entry.folder, base / "datasets" / entry.folder):
-        candidate = folder / "images" / (split or entry.split)
-        if has_split(candidate):
-            return candidate
-    return None
+        candidates += [folder / "images" / split, folder / split]  # some downloader versions omit images/
+    return next((candidate for candidate in candidates if has_split(candidate)), None)
 
 
 def _missing_message(entry: NamedDataset, root: Path | None, split: str) -> str:
+    if entry.layout == "vprbench":
+        where = f"looked for {root / entry.relative_path}" if root is not None else "no data root is set"
+        return f"dataset {entry.name!r} ({entry.title}) not found: {where}. Get it: {entry.source}."
     layout = f"{entry.folder}/images/{split}/database/ and {entry.folder}/images/{split}/queries/"
     if root is None:
         where = (
@@ -231,6 +249,10 @@ def _load_named(entry: NamedDataset, root: str | Path | None, split: str | None,
     folder = find_named_dataset(entry.name, base, split=split)
     if folder is None:
         raise FileNotFoundError(_missing_message(entry, base, split))
+    if entry.layout == "vprbench":
+        from vpr_uncertainty.data.vprbench import load_vprbench_dataset
+
+        return load_vprbench_dataset(folder, name=entry.name)
     dataset = load_folder_dataset(
         folder,
         split=split,

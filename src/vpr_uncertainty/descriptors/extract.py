@@ -155,7 +155,7 @@ def extract_descriptors(
     on_error: str = "fail",
     num_workers: int | None = None,
     overwrite: bool = False,
-    progress: bool = True,
+    progress: bool | None = None,
     on_batch: Callable[[list[str]], None] | None = None,
     failed: list[dict[str, str]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -188,8 +188,8 @@ def extract_descriptors(
         Threads that decode images ahead of the model (default: min(4, CPU count); 0 decodes in this thread).
     overwrite : bool
         Recompute everything even if the cache holds descriptors of the same model and preprocessing.
-    progress : bool
-        Show a tqdm progress bar.
+    progress : bool, optional
+        Show a progress bar on stderr (default: when stderr is a terminal, see :mod:`vpr_uncertainty.progress`).
     on_batch : callable, optional
         Called with the names of each batch after it has been written to the cache.
     failed : list, optional
@@ -241,15 +241,14 @@ def extract_descriptors(
         todo = [(index, name, path) for index, (name, path) in enumerate(zip(names, paths, strict=True))]
         todo = [item for item in todo if item[1] not in done]
         batches = [todo[start : start + batch_size] for start in range(0, len(todo), batch_size)]
-        from tqdm.auto import tqdm
+        from vpr_uncertainty.progress import progress_bar
 
-        with tqdm(
+        with progress_bar(
             total=len(names),
             initial=len(names) - len(todo),
             desc=f"{model.name} {split}",
             unit="img",
-            disable=not progress,
-            leave=False,
+            enabled=progress,
         ) as bar:
             for decoded in _decoded_batches(batches, model, workers):
                 good_names: list[str] = []

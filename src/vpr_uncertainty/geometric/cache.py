@@ -214,7 +214,11 @@ def extract_features(
                         features[name] = read_features(handle, name)
         todo = [name for name in unique if name not in features]
         stats.cached = len(features)
-        for position, result in extractor.extract([unique[name] for name in todo], workers=workers):
+        from vpr_uncertainty.progress import progress_bar
+
+        extracted = extractor.extract([unique[name] for name in todo], workers=workers)
+        bar = progress_bar(extracted, total=len(todo), desc=f"{extractor.name} local features", unit="img")
+        for position, result in bar:
             name = todo[position]
             features[name] = result
             if handle is not None:

@@ -41,6 +41,7 @@ from vpr_uncertainty.geometric.local_features import (
 from vpr_uncertainty.geometric.matching import Matcher
 from vpr_uncertainty.geometric.presets import GV_PRESETS, PRESETS, build_components
 from vpr_uncertainty.geometric.ransac import MIN_MATCHES, count_inliers
+from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
@@ -202,10 +203,10 @@ class GeometricVerifier:
         uses_torch = getattr(self.matcher, "uses_torch", False)
         if self.matcher.thread_parallel and self.workers > 1 and len(pairs) > 1:
             with single_torch_thread(uses_torch), ThreadPoolExecutor(self.workers) as pool:
-                all_matches = list(pool.map(match, pairs))
+                all_matches = list(progress_bar(pool.map(match, pairs), total=len(pairs), desc="matching", unit="pair"))
         else:
             with single_torch_thread(uses_torch and self.matcher.thread_parallel):
-                all_matches = [match(pair) for pair in pairs]
+                all_matches = [match(pair) for pair in progress_bar(pairs, desc="matching", unit="pair")]
         ransac_start = time.perf_counter()
 
         def ransac(item: tuple[tuple[str, str], np.ndarray]) -> int:
@@ -225,9 +226,9 @@ class GeometricVerifier:
         items = list(zip(pairs, all_matches, strict=True))
         if self.workers > 1 and len(items) > 1:
             with ThreadPoolExecutor(self.workers) as pool:
-                inliers = list(pool.map(ransac, items))
+                inliers = list(progress_bar(pool.map(ransac, items), total=len(items), desc="RANSAC", unit="pair"))
         else:
-            inliers = [ransac(item) for item in items]
+            inliers = [ransac(item) for item in progress_bar(items, desc="RANSAC", unit="pair")]
         end = time.perf_counter()
         return VerificationResult(
             inliers=np.asarray(inliers, np.int64).reshape(-1),

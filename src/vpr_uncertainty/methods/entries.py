@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.method_specs import split_method_list, typed_option
+from vpr_uncertainty.methods.returns import DetailedUncertainty, OwnRetrievalUncertainty
 from vpr_uncertainty.plugins import Registry, load_target
 from vpr_uncertainty.retrieval import Retrieval
 
@@ -49,41 +50,6 @@ NEEDS: dict[str, tuple[tuple[str, ...], str]] = {
     "local_features": (("features_path",), "precomputed local features (option features_path=FILE.h5)"),
     "gate": (("gate",), "a fitted gate (option gate=GATE.json, written by `vpr-uncertainty calibrate`)"),
 }
-
-
-@dataclass
-class OwnRetrievalUncertainty:
-    """What a method returns when it answers the queries with its own retrieval (e.g. BTL's mean embeddings).
-
-    The evaluation then judges correctness by the top-1 of ``retrieval``, not by the shared retrieval, and says
-    so in its notes.
-
-    Attributes
-    ----------
-    uncertainty : ndarray of shape (Q,)
-        Higher = less trustworthy.
-    retrieval : Retrieval
-        The method's own top-k for the same queries, with the same ground truth.
-    """
-
-    uncertainty: np.ndarray
-    retrieval: Retrieval
-
-
-@dataclass
-class DetailedUncertainty:
-    """What a method returns when it also reports numbers about its run (e.g. a cascade's ``verified_fraction``).
-
-    Attributes
-    ----------
-    uncertainty : ndarray of shape (Q,)
-        Higher = less trustworthy.
-    details : dict of str to JSON values
-        Reported beside the method's metrics (``results.json``, ``evaluate --json``).
-    """
-
-    uncertainty: np.ndarray
-    details: dict[str, Any] = field(default_factory=dict)
 
 
 #: Inputs a stage offers every selected method: used by the methods that take them, ignored by the others.
@@ -385,3 +351,22 @@ def available_methods(**attributes: Any) -> list[str]:
     ['GV-SIFT', 'GV-DISK-LG']
     """
     return METHODS.names(**attributes)
+
+
+def default_method_names(*, metric_positions: bool = False) -> list[str]:
+    """The methods evaluated when none are named, by ``evaluate``, ``run`` and ``demo`` alike.
+
+    The registry's entries with ``default=True`` (in registration order), then its spatial methods (SUE) when
+    the database positions are metric, since those need nothing else.
+
+    Examples
+    --------
+    >>> default_method_names()
+    ['RS', 'SD', 'SU', 'PA', 'L2', 'BM']
+    >>> default_method_names(metric_positions=True)[-1]
+    'SUE'
+    """
+    names = available_methods(default=True)
+    if metric_positions:
+        names += [name for name in available_methods(kind="spatial") if name not in names]
+    return names

@@ -40,7 +40,16 @@ def import_faiss() -> Any:
 class Searcher:
     """``search(queries, k) -> (scores, indices)`` over one database, exact or through a Faiss index."""
 
-    def __init__(self, database: np.ndarray, index: str, device: str, search_params: str | None, faiss: Any) -> None:
+    def __init__(
+        self,
+        database: np.ndarray,
+        index: str,
+        device: str,
+        search_params: str | None,
+        faiss: Any,
+        *,
+        progress: bool | None = None,
+    ) -> None:
         self.database = database
         self.faiss = faiss
         self.max_k = GPU_MAX_K if device == "cuda" else None
@@ -72,9 +81,12 @@ class Searcher:
                 built = faiss.index_cpu_to_gpu(self._resources, 0, built)
             except RuntimeError as error:
                 raise ValueError(f"Faiss index {index!r} cannot run on the GPU: {faiss_message(error)}") from None
+        from vpr_uncertainty.progress import progress_status
+
         try:
-            if not built.is_trained:
-                built.train(database)
+            if not built.is_trained:  # IVF/PQ training can take minutes: say so while it runs
+                with progress_status(f"train Faiss {index} on {len(database):,} vectors", enabled=progress):
+                    built.train(database)
             built.add(database)
         except RuntimeError as error:
             raise ValueError(f"cannot build the Faiss index {index!r}: {faiss_message(error)}") from None

@@ -4,7 +4,8 @@ Accepted inputs of :func:`read_results`
     * a retrieval file ``.npz`` (``scores``, ``indices`` and optionally the ground truth inside);
     * a full similarity matrix ``.npy`` of shape (queries × database), higher = more similar, cut to its top-k by
       :func:`top_k_from_similarity`;
-    * VPR-Bench's ``precomputed_data_corrected.npy`` (legacy object array, read without running code from it).
+    * VPR-Bench's ``precomputed_data_corrected.npy`` (legacy object array, read without running code from it);
+    * the log folder of VPR-methods-evaluation (``--save_descriptors``), searched again with Faiss.
 
 Ground truth comes from the retrieval file or from a separate file (any format that
 :func:`vpr_uncertainty.data.load_ground_truth` reads).
@@ -198,7 +199,9 @@ def read_results(
     Parameters
     ----------
     path : str or Path
-        A retrieval ``.npz``, a similarity matrix ``.npy`` or a VPR-Bench precomputed-matches file.
+        A retrieval ``.npz``, a similarity matrix ``.npy``, a VPR-Bench precomputed-matches file, or the log
+        folder of VPR-methods-evaluation run with ``--save_descriptors`` (see
+        :mod:`vpr_uncertainty.retrieval.vpr_methods_evaluation`; its ground truth is derived when not given).
     ground_truth : str or Path, optional
         Ground-truth file; required unless the retrieval file holds its positives. When given, it replaces
         the positives stored in a retrieval file.
@@ -211,6 +214,10 @@ def read_results(
     if file_format not in INPUT_FORMATS:
         raise ValueError(f"file_format must be one of {INPUT_FORMATS}, got {file_format!r}")
     path = Path(path)
+    if file_format == "auto" and path.is_dir():  # a VPR-methods-evaluation log folder (--save_descriptors)
+        from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_vpr_methods_evaluation
+
+        return read_vpr_methods_evaluation(path, ground_truth=ground_truth, top_k=top_k).retrieval
     is_retrieval = file_format == "retrieval" or (file_format == "auto" and path.suffix.lower() == ".npz")
     if is_retrieval:
         _check_not_npy(path)
@@ -241,10 +248,11 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     Parameters
     ----------
     path : str or Path
-        ``.npy`` file holding one descriptor per row, or a descriptor cache ``.h5`` / ``.hdf5`` written by the
-        feature extraction.
+        ``.npy`` file holding one descriptor per row, a descriptor cache ``.h5`` / ``.hdf5`` written by the
+        feature extraction, or hloc's global features (:mod:`vpr_uncertainty.descriptors.hloc`).
     split : {"database", "queries"}, optional
-        Which images to read from a descriptor cache; required for ``.h5``, ignored for ``.npy``.
+        Which images to read from a descriptor cache; required for ``.h5``, ignored for ``.npy``. An hloc file
+        whose names carry no split prefix (``query/``, ``db/``, ...) is read whole.
 
     Returns
     -------
@@ -274,8 +282,12 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
         if split not in DESCRIPTOR_SPLITS:
             raise ValueError(f"reading the descriptor cache {path} needs split in {DESCRIPTOR_SPLITS}, got {split!r}")
         from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
+        from vpr_uncertainty.descriptors.hloc import is_hloc_file, read_hloc_descriptors
 
-        names, array = read_descriptors(path, split)
+        if is_hloc_file(path):  # hloc's global features: one group per image with a global_descriptor
+            names, array = read_hloc_descriptors(path, split)
+        else:
+            names, array = read_descriptors(path, split)
         names = None if names is None else np.asarray(names, dtype=str)
     else:
         raise ValueError(

@@ -213,21 +213,18 @@ def search_descriptors(
         )
     database = _normalised(database, "database", owned=database_owned, copy=copy)
     queries = _normalised(queries, "queries", owned=queries_owned, copy=copy)
-    searcher = Searcher(database, index, device, search_params, faiss)
+    searcher = Searcher(database, index, device, search_params, faiss, progress=progress)
 
     n_queries, n_database = len(queries), len(database)
     depth = min(k + 1, n_database)  # one more than k reveals a tie across the k-th place
     kept = min(k, n_database)
     scores = np.full((n_queries, k), -np.inf, dtype=np.float32)
     indices = np.full((n_queries, k), -1, dtype=np.int64)
-    if progress is None:
-        progress = float(n_queries) * n_database * database.shape[1] >= _PROGRESS_WORK
-        disable = None if progress else True  # None: tqdm shows the bar on a terminal only
-    else:
-        disable = not progress
-    from tqdm import tqdm
+    from vpr_uncertainty.progress import progress_bar, progress_requested
 
-    with tqdm(total=n_queries, desc="retrieval", unit="query", disable=disable, leave=False) as bar:
+    if progress is None and float(n_queries) * n_database * database.shape[1] < _PROGRESS_WORK:
+        progress = bool(progress_requested())  # a short search gets no bar unless bars were asked for
+    with progress_bar(total=n_queries, desc="retrieval", unit="query", enabled=progress) as bar:
         for start in range(0, n_queries, batch_size):
             batch = queries[start : start + batch_size]
             stop = start + len(batch)

@@ -43,8 +43,8 @@ class DescriptorsConfig:
         Image decoding threads.
     overwrite : bool
         Recompute every image, ignoring the file.
-    progress : bool
-        Show progress bars.
+    progress : bool, optional
+        Show progress bars (default: when stderr is a terminal; see :mod:`vpr_uncertainty.progress`).
     """
 
     model: str | Path = DEFAULT_MODEL
@@ -56,7 +56,7 @@ class DescriptorsConfig:
     max_side: int | None = None
     num_workers: int | None = None
     overwrite: bool = False
-    progress: bool = True
+    progress: bool | None = None
 
 
 @dataclass

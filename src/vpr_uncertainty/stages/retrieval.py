@@ -40,7 +40,7 @@ class RetrievalConfig:
     batch_size : int
         Queries searched at once.
     progress : bool, optional
-        Show a progress bar (default: Faiss's choice).
+        Show progress bars (default: on a terminal, for long searches; see :mod:`vpr_uncertainty.progress`).
     """
 
     k: int = 20

@@ -303,11 +303,10 @@ def run_grid(config: GridConfig, *, force: bool = False, progress: bool | None =
     list of Cell
         In the order of ``config.inputs``.
     """
-    from tqdm import tqdm
+    from vpr_uncertainty.progress import progress_bar
 
     cells = []
-    disable = None if progress is None else not progress
-    with tqdm(total=len(config.inputs), desc="grid", unit="cell", disable=disable) as bar:
+    with progress_bar(total=len(config.inputs), desc="grid", unit="cell", enabled=progress, leave=True) as bar:
         for entry in config.inputs:
             bar.set_postfix_str(f"{entry.vpr_method} / {entry.dataset}", refresh=False)
             cells.append(run_cell(entry, config, force=force))
