@@ -11,21 +11,26 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty.evaluation.frame import evaluation_frame, evaluation_summary, method_summary
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
+
+if TYPE_CHECKING:  # pragma: no cover
+    import pandas
 
 __all__ = ["Evaluation", "MethodEvaluation"]
 
 
-@dataclass
+@dataclass(repr=False)
 class MethodEvaluation:
     """Everything measured for one uncertainty method.
 
     ``correct`` is set only for a method that retrieves with its own embeddings: its own top-1 correctness, the
-    labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`).
+    labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`). Its ``repr`` shows
+    the numbers, not the arrays.
     """
 
     name: str
@@ -43,6 +48,9 @@ class MethodEvaluation:
     average_precision_ci: tuple[float, float] | None = None
     aurc_ci: tuple[float, float] | None = None
     vs_reference: dict[str, Any] | None = None
+
+    def __repr__(self) -> str:
+        return method_summary(self)
 
     @property
     def n_distinct(self) -> int:
@@ -146,9 +154,13 @@ def _interval(value: Any) -> tuple[float, float] | None:
     return None if value is None else (float(value[0]), float(value[1]))
 
 
-@dataclass
+@dataclass(repr=False)
 class Evaluation:
-    """Result of :func:`vpr_uncertainty.evaluate`: retrieval quality and one :class:`MethodEvaluation` per method."""
+    """Result of :func:`vpr_uncertainty.evaluate`: retrieval quality and one :class:`MethodEvaluation` per method.
+
+    ``repr`` is a compact summary (one line per method); :meth:`to_frame` gives a pandas DataFrame and
+    :meth:`to_dict` the JSON document of ``evaluate --json``.
+    """
 
     n_queries: int
     n_answerable: int
@@ -159,6 +171,26 @@ class Evaluation:
     k: int | None = None
     k_requested: int | None = None
     bootstrap: dict[str, Any] | None = None
+
+    def __repr__(self) -> str:
+        return evaluation_summary(self)
+
+    def to_frame(self) -> pandas.DataFrame:
+        """One row per method: AUC-PR, AP, AURC, recall at 100 % precision, time per query, and the bootstrap
+        intervals when computed (columns: :mod:`vpr_uncertainty.evaluation.frame`). Needs pandas (the ``pandas``
+        extra).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from vpr_uncertainty import Retrieval, evaluate
+        >>> retrieval = Retrieval(scores=np.array([[0.9, 0.2], [0.6, 0.5], [0.8, 0.1]]),
+        ...                       indices=np.array([[0, 1], [0, 1], [1, 0]]), positives=[[0], [1], [1]])
+        >>> frame = evaluate(retrieval, ["SU", "BM"], k=2).to_frame()
+        >>> list(frame.index), frame.loc["SU", ["auc_pr", "aurc"]].round(3).tolist()
+        (['SU', 'BM'], [1.0, 0.111])
+        """
+        return evaluation_frame(self)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON schema of ``evaluate --json``."""
