@@ -83,3 +83,11 @@ def test_invalid_input_names_the_argument(arguments, error, message):
 def test_docstring_points_to_the_guaranteed_threshold():
     assert "vpr_uncertainty.calibrate" in threshold_at_precision.__doc__
     assert "no guarantee" in threshold_at_precision.__doc__
+
+
+def test_str_says_what_to_accept():
+    choice = threshold_at_precision([0.1, 0.2, 0.3], [True, True, False], 0.9)
+    assert str(choice) == "accept uncertainty <= 0.2: precision 1.000, recall 0.667, coverage 0.667 (2 queries)"
+    with pytest.warns(RuntimeWarning):
+        nothing = threshold_at_precision([0.1, 0.2], [False, True], 0.9)
+    assert str(nothing) == "no threshold reaches precision 0.9: accept nothing"

@@ -49,6 +49,14 @@ class ThresholdChoice:
     coverage: float
     n_accepted: int
 
+    def __str__(self) -> str:
+        if not self.reached:
+            return f"no threshold reaches precision {self.target_precision:g}: accept nothing"
+        return (
+            f"accept uncertainty <= {self.threshold:.4g}: precision {self.precision:.3f}, recall {self.recall:.3f}, "
+            f"coverage {self.coverage:.3f} ({self.n_accepted} queries)"
+        )
+
     @property
     def reached(self) -> bool:
         """Whether some threshold reached the target precision on these queries."""
@@ -106,8 +114,8 @@ def threshold_at_precision(
     >>> choice = threshold_at_precision([0.1, 0.2, 0.3, 0.4, 0.5], [True, True, False, True, False], 0.75)
     >>> choice.threshold, choice.precision, choice.recall, choice.n_accepted
     (0.4, 0.75, 0.6, 4)
-    >>> threshold_at_precision([0.1, 0.2, 0.3, 0.4, 0.5], [True, True, False, True, False], 1.0).threshold
-    0.2
+    >>> print(threshold_at_precision([0.1, 0.2, 0.3, 0.4, 0.5], [True, True, False, True, False], 1.0))
+    accept uncertainty <= 0.2: precision 1.000, recall 0.400, coverage 0.400 (2 queries)
     """
     target = _check_precision(precision)
     if np.asarray(uncertainty).dtype == bool:
