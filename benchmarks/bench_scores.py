@@ -63,10 +63,12 @@ def main() -> None:
     vectorised = per_call_us(lambda: statistical_uncertainty(one_row), number, args.repeats)
     scorer_array = per_call_us(lambda: scorer(one_row[0]), number, args.repeats)
     scorer_list = per_call_us(lambda: scorer(one_list), number, args.repeats)
+    scorer_row = per_call_us(lambda: scorer(one_row), number, args.repeats)  # Faiss's (1, k) for one query
     plain_one = per_call_us(lambda: plain_formula(one_row), number, args.repeats)
     print(f"single-query latency (median of {args.repeats} x {number:,} calls):")
     print(f"  StatisticalUncertainty()(list)       {scorer_list:6.2f} us   (target <= 3 us)")
     print(f"  StatisticalUncertainty()(ndarray)    {scorer_array:6.2f} us")
+    print(f"  StatisticalUncertainty()((1, 10))    {scorer_row:6.2f} us")
     print(f"  statistical_uncertainty((1, 10))     {vectorised:6.2f} us")
     print(f"  plain numpy formula (1, 10)          {plain_one:6.2f} us")
 

@@ -1,5 +1,5 @@
-"""The README's Python examples run: the first prints what it says; each example of "Extending" runs and checks
-itself."""
+"""The README's Python examples run: those of "In Python" print what they say; each example of "Extending" runs and
+checks itself."""
 
 from __future__ import annotations
 
@@ -13,8 +13,36 @@ import pytest
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
+def _section(title: str) -> str:
+    """The README's section ``## title``, up to the next ``## `` heading."""
+    return re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## )", README.read_text(), re.S | re.M).group(1)
+
+
+def test_readme_notebook_workflow_runs_in_under_15_lines(capsys):
+    """ "In Python": similarity matrix + lists of positives -> SU -> DataFrame -> threshold -> figure on an axis; it
+    prints what the README shows below it and draws on the axis it made."""
+    pytest.importorskip("pandas")
+    import matplotlib.pyplot as plt
+
+    section = _section("In Python")
+    block = re.findall(r"```python\n(.*?)```", section, re.S)[0]
+    assert len([line for line in block.splitlines() if line.strip()]) < 15
+    for step in ("similarity", "positives=[[", "evaluate(", "to_frame()", "threshold_at_precision(", "ax=ax"):
+        assert step in block, step
+    namespace: dict = {}
+    try:
+        exec(compile(block, f"{README} (In Python)", "exec"), namespace)
+        shown = re.search(r"```text\n(.*?)```", section, re.S).group(1)
+        printed = capsys.readouterr().out
+        assert [line.rstrip() for line in printed.splitlines()] == shown.splitlines()
+        ax = namespace["ax"]
+        assert [line.get_label().split(" ")[0] for line in ax.lines[:2]] == ["SU", "BM"]
+    finally:
+        plt.close("all")
+
+
 def test_readme_python_example_runs(capsys):
-    block = re.search(r"```python\n(.*?)```", README.read_text(), re.S).group(1)
+    block = re.findall(r"```python\n(.*?)```", _section("In Python"), re.S)[1]
     exec(compile(block, str(README), "exec"), {})
     printed = capsys.readouterr().out.split("\n")
     assert printed[0] == "[0.55311355 0.98177083]"

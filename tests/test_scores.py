@@ -301,7 +301,7 @@ def test_single_query_scorer_matches_vectorised():
         ([0.5, 0.9], "sorted"),
         ([0.9, float("nan")], "sorted"),
         ([math.inf, 0.5], "finite"),
-        ([[0.9, 0.5]], "1-D"),
+        ([[0.9, 0.5], [0.8, 0.7]], r"\(k,\) or \(1, k\)"),
     ],
 )
 def test_single_query_scorer_rejects_bad_input(row, message):

@@ -3,8 +3,10 @@
 Uncertainties are arrays of shape (Q,) where higher = less trustworthy; scores are top-k similarities of shape
 (Q, K), higher = more similar, sorted descending.
 
-The top level is the toolkit's core: the uncertainty functions, the retrieval result and its files, evaluation,
-and the registry of uncertainty methods (:func:`register_method`). The other extension points register beside
+The top level is the toolkit's core: the uncertainty functions, the retrieval result and its files (with
+:func:`positives_from_lists` for ground truth given as lists), evaluation (and the empirical
+:func:`threshold_at_precision`), and the registry of uncertainty methods (:func:`register_method`). Figures in
+scikit-learn's Display style are in :mod:`vpr_uncertainty.reports.display`. The other extension points register beside
 their own registries: :func:`vpr_uncertainty.descriptors.register_model`,
 :func:`vpr_uncertainty.data.register_format` and :func:`vpr_uncertainty.reports.register_report_figure`.
 
@@ -15,6 +17,7 @@ array([0.528, 0.979])
 """
 
 from vpr_uncertainty.calibration import Gate, calibrate
+from vpr_uncertainty.data.ground_truth import positives_from_lists
 from vpr_uncertainty.evaluation import (
     Evaluation,
     auc_pr,
@@ -24,6 +27,7 @@ from vpr_uncertainty.evaluation import (
     evaluate,
     recall_at_n,
     rejection_curve,
+    threshold_at_precision,
 )
 from vpr_uncertainty.methods import available_methods, get_method, register_method
 from vpr_uncertainty.retrieval import (
@@ -69,6 +73,7 @@ __all__ = [
     "load_retrieval",
     "margin",
     "perceptual_aliasing",
+    "positives_from_lists",
     "ratio_spread",
     "read_results",
     "recall_at_n",
@@ -80,5 +85,6 @@ __all__ = [
     "similarity_distribution",
     "spatial_uncertainty",
     "statistical_uncertainty",
+    "threshold_at_precision",
     "top_k_from_similarity",
 ]

@@ -274,6 +274,28 @@ def statistical_uncertainty(
     return _ratio_metric(scores, k, alpha, 1.0 - alpha, sort, on_nonpositive)
 
 
+def _one_row(scores: object) -> list[float]:
+    """One query's scores as a list: from a (K,) or (1, K) ndarray, a torch tensor (duck-typed) or a sequence."""
+    if not isinstance(scores, np.ndarray) and hasattr(scores, "detach") and hasattr(scores, "tolist"):
+        scores = scores.detach()  # a torch tensor: .cpu().tolist() below, also for bfloat16 and CUDA tensors
+        if hasattr(scores, "cpu"):
+            scores = scores.cpu()
+    shape = getattr(scores, "shape", None)
+    if shape is not None:
+        shape = tuple(shape)
+        if len(shape) == 2 and shape[0] == 1:
+            return scores.tolist()[0]
+        if len(shape) != 1:
+            raise ValueError(
+                f"scores must be one query's top-k, of shape (k,) or (1, k), got shape {shape}; use "
+                "batch() or statistical_uncertainty() for many queries"
+            )
+        return scores.tolist()
+    if isinstance(scores, (str, bytes)):
+        raise TypeError(f"scores must be a sequence of similarities, got {type(scores).__name__}")
+    return list(scores)
+
+
 class StatisticalUncertainty:
     """SU for one query at a time, with the options checked once: the low-latency path for a running robot.
 
@@ -289,7 +311,11 @@ class StatisticalUncertainty:
     Examples
     --------
     >>> su = StatisticalUncertainty(k=3)
+    >>> su
+    StatisticalUncertainty(k=3, alpha=0.5)
     >>> su([0.8, 0.4, 0.2])
+    0.4375
+    >>> su(np.array([[0.8, 0.4, 0.2]], dtype=np.float32))  # Faiss's (1, k) for one query; a Python float
     0.4375
     """
 
@@ -301,23 +327,42 @@ class StatisticalUncertainty:
         _check_policy(on_nonpositive)
         self._raise_nonpositive = on_nonpositive == "raise"
 
+    def __repr__(self) -> str:
+        policy = ", on_nonpositive='raise'" if self._raise_nonpositive else ""
+        return f"{type(self).__name__}(k={self._k}, alpha={self._alpha:g}{policy})"
+
+    @property
+    def k(self) -> int:
+        return self._k
+
+    @property
+    def alpha(self) -> float:
+        return self._alpha
+
     def __call__(self, scores: Sequence[float] | np.ndarray) -> float:
-        """Return SU of one query.
+        """Return SU of one query, as a Python float.
 
         Parameters
         ----------
-        scores : sequence of float or ndarray of shape (K,)
-            That query's top-K similarities, sorted descending; ``-inf`` marks missing candidates at the end.
+        scores : sequence of float, ndarray of shape (K,) or (1, K), or a torch tensor of those shapes
+            That query's top-K similarities, sorted descending; ``-inf`` marks missing candidates at the end. A
+            (1, K) array is what Faiss's ``index.search`` returns for one query. A tensor (any device, with or
+            without grad) is read through ``.detach().cpu().tolist()``; torch itself is never imported.
         """
-        if getattr(scores, "ndim", 1) != 1:
-            raise ValueError(f"scores must be 1-D (one query's top-k), got shape {np.shape(scores)}")
-        values = scores.tolist() if isinstance(scores, np.ndarray) else list(scores)
-        if len(values) > self._k:
-            values = values[: self._k]
+        if type(scores) is not list:  # a list, or a 1-D array, is the fast path of a running robot
+            scores = scores.tolist() if type(scores) is np.ndarray and scores.ndim == 1 else _one_row(scores)
+        values = scores[: self._k]  # a copy: the caller's list is never changed
         while values and values[-1] == -math.inf:
             values.pop()
         n = len(values)
-        if n < 2:
+        if n < 2 or isinstance(values[0], (list, tuple)):
+            if n and isinstance(values[0], (list, tuple)):
+                if n == 1:
+                    return self(list(values[0]))  # [[s_1, ..., s_k]]: one query written as a (1, K) nested list
+                raise ValueError(
+                    f"scores must be one query's top-k, of shape (k,) or (1, k), got {len(scores)} rows; use "
+                    "batch() or statistical_uncertainty() for many queries"
+                )
             raise ValueError(f"scores needs at least 2 finite candidates, got {n}")
         previous = values[0]
         for value in values:
@@ -330,10 +375,10 @@ class StatisticalUncertainty:
         if best <= 0:
             if self._raise_nonpositive:
                 raise ValueError(f"the best similarity must be > 0, got {best}")
-            return 1.0 - best
+            return float(1.0 - best)
         median = 0.5 * (values[(n - 1) // 2] + values[n // 2])
         runners_up = (sum(values) - best) / (n - 1)
-        return (self._alpha * runners_up + (1.0 - self._alpha) * median) / best
+        return float((self._alpha * runners_up + (1.0 - self._alpha) * median) / best)
 
     def batch(self, scores: object) -> np.ndarray:
         """SU of many queries at once (see :func:`statistical_uncertainty`)."""

@@ -89,7 +89,7 @@ def _check_n_database(n_database: object) -> int:
     return int(n_database)
 
 
-def positives_from_lists(lists: Sequence[Iterable[int]], n_database: int) -> sparse.csr_array:
+def positives_from_lists(lists: Sequence[Iterable[int]], n_database: int | None = None) -> sparse.csr_array:
     """Build the positives matrix from one list of database indices per query.
 
     Parameters
@@ -97,21 +97,30 @@ def positives_from_lists(lists: Sequence[Iterable[int]], n_database: int) -> spa
     lists : sequence of iterables of int, length Q
         Positive database indices of each query (may be empty; duplicates are merged). Floats and booleans are
         rejected, not converted.
-    n_database : int
-        Number of database images D.
+    n_database : int, optional
+        Number of database images D; every index must be below it. By default the largest index + 1 (pass it
+        whenever you know it: the last database images may be nobody's positive).
 
     Returns
     -------
     scipy.sparse.csr_array of shape (Q, D), dtype bool
+
+    Raises
+    ------
+    ValueError
+        When an entry is not an integer database index in range; the message names the query and the value.
 
     Examples
     --------
     >>> positives_from_lists([[0, 2], []], n_database=3).toarray()
     array([[ True, False,  True],
            [False, False, False]])
+    >>> positives_from_lists([[1], [0, 1]]).shape
+    (2, 2)
     """
-    n_database = _check_n_database(n_database)
-    return _csr_from_rows([_index_row(item, q, n_database, "") for q, item in enumerate(lists)], n_database)
+    if n_database is not None:
+        n_database = _check_n_database(n_database)
+    return _lists_to_positives(lists, n_database, "")
 
 
 def _lists_to_positives(lists: Sequence[object], n_database: int | None, source: str) -> sparse.csr_array:

@@ -21,9 +21,11 @@ Conventions
   :class:`FewerCandidatesWarning` and a note. Queries with s_1 <= 0 (ranked most uncertain by RS, SD, SU) are
   counted in the notes.
 
-The metrics live in :mod:`~vpr_uncertainty.evaluation.metrics`, the result types (with ``to_dict`` and
-``from_dict``) in :mod:`~vpr_uncertainty.evaluation.results`, and :func:`evaluate` in a private module; everything
-is re-exported here.
+The metrics live in :mod:`~vpr_uncertainty.evaluation.metrics`, the result types (with ``to_dict``,
+``from_dict`` and ``to_frame``) in :mod:`~vpr_uncertainty.evaluation.results` (their pandas table in
+:mod:`~vpr_uncertainty.evaluation.frame`), the empirical :func:`threshold_at_precision` in
+:mod:`~vpr_uncertainty.evaluation.threshold`, and :func:`evaluate` in a private module; everything is re-exported
+here.
 """
 
 from vpr_uncertainty.evaluation._evaluate import DEFAULT_METHODS, RECALL_LEVELS, evaluate, time_per_query
@@ -41,6 +43,7 @@ from vpr_uncertainty.evaluation.metrics import (
     rejection_curve,
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
+from vpr_uncertainty.evaluation.threshold import ThresholdChoice, threshold_at_precision
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -50,6 +53,7 @@ __all__ = [
     "FewerCandidatesWarning",
     "MethodEvaluation",
     "RejectionCurve",
+    "ThresholdChoice",
     "auc_pr",
     "aurc",
     "average_precision",
@@ -59,5 +63,6 @@ __all__ = [
     "recall_at_full_precision",
     "recall_at_n",
     "rejection_curve",
+    "threshold_at_precision",
     "time_per_query",
 ]

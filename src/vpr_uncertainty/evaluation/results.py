@@ -11,11 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty.evaluation.frame import evaluation_frame, evaluation_summary, method_summary
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
+
+if TYPE_CHECKING:  # pragma: no cover
+    import pandas
 
 __all__ = ["DETAIL_KEYS", "TIMING_KEYS", "Evaluation", "MethodEvaluation"]
 
@@ -26,13 +30,14 @@ TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms
 DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries")
 
 
-@dataclass
+@dataclass(repr=False)
 class MethodEvaluation:
     """Everything measured for one uncertainty method.
 
     ``correct`` is set only for a method that retrieves with its own embeddings: its own top-1 correctness, the
     labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`). ``details`` holds
-    what the method reported about its run (a cascade's ``verified_fraction`` and ``verified_queries``).
+    what the method reported about its run (a cascade's ``verified_fraction`` and ``verified_queries``). Its
+    ``repr`` shows the numbers, not the arrays.
     """
 
     name: str
@@ -54,6 +59,9 @@ class MethodEvaluation:
     timings: dict[str, float] = field(default_factory=dict)
     #: Numbers the method reported about its own run (:data:`DETAIL_KEYS`), written as keys of :meth:`to_dict`.
     details: dict[str, Any] = field(default_factory=dict)
+
+    def __repr__(self) -> str:
+        return method_summary(self)
 
     @property
     def n_distinct(self) -> int:
@@ -161,9 +169,13 @@ def _interval(value: Any) -> tuple[float, float] | None:
     return None if value is None else (float(value[0]), float(value[1]))
 
 
-@dataclass
+@dataclass(repr=False)
 class Evaluation:
-    """Result of :func:`vpr_uncertainty.evaluate`: retrieval quality and one :class:`MethodEvaluation` per method."""
+    """Result of :func:`vpr_uncertainty.evaluate`: retrieval quality and one :class:`MethodEvaluation` per method.
+
+    ``repr`` is a compact summary (one line per method); :meth:`to_frame` gives a pandas DataFrame and
+    :meth:`to_dict` the JSON document of ``evaluate --json``.
+    """
 
     n_queries: int
     n_answerable: int
@@ -174,6 +186,26 @@ class Evaluation:
     k: int | None = None
     k_requested: int | None = None
     bootstrap: dict[str, Any] | None = None
+
+    def __repr__(self) -> str:
+        return evaluation_summary(self)
+
+    def to_frame(self) -> pandas.DataFrame:
+        """One row per method: AUC-PR, AP, AURC, recall at 100 % precision, time per query, and the bootstrap
+        intervals when computed (columns: :mod:`vpr_uncertainty.evaluation.frame`). Needs pandas (the ``pandas``
+        extra).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from vpr_uncertainty import Retrieval, evaluate
+        >>> retrieval = Retrieval(scores=np.array([[0.9, 0.2], [0.6, 0.5], [0.8, 0.1]]),
+        ...                       indices=np.array([[0, 1], [0, 1], [1, 0]]), positives=[[0], [1], [1]])
+        >>> frame = evaluate(retrieval, ["SU", "BM"], k=2).to_frame()
+        >>> list(frame.index), frame.loc["SU", ["auc_pr", "aurc"]].round(3).tolist()
+        (['SU', 'BM'], [1.0, 0.111])
+        """
+        return evaluation_frame(self)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON schema of ``evaluate --json``."""

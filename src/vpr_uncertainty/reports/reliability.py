@@ -6,12 +6,15 @@ from pathlib import Path
 
 from vpr_uncertainty.cache import atomic_path
 from vpr_uncertainty.calibration.quality import Reliability
+from vpr_uncertainty.reports.display import ReliabilityDisplay
 
 __all__ = ["plot_reliability"]
 
 
 def plot_reliability(reliability: Reliability, path: str | Path, *, title: str | None = None) -> Path:
     """Draw observed accuracy against mean P per bin (with the count of each bin) and save it.
+
+    The drawing is :class:`~vpr_uncertainty.reports.display.ReliabilityDisplay` (to draw on your own axis).
 
     Parameters
     ----------
@@ -30,24 +33,7 @@ def plot_reliability(reliability: Reliability, path: str | Path, *, title: str |
     path = Path(path)
     figure, axes = plt.subplots(figsize=(5.2, 4.8), dpi=120)
     try:
-        axes.plot([0, 1], [0, 1], ":", color="grey", label="perfect calibration")
-        bins = [
-            (mean, accuracy, count)
-            for mean, accuracy, count in zip(
-                reliability.mean_probability, reliability.accuracy, reliability.counts, strict=True
-            )
-            if count
-        ]
-        axes.plot([b[0] for b in bins], [b[1] for b in bins], "o-", label="observed")
-        for mean, accuracy, count in bins:
-            axes.annotate(f"n={count}", (mean, accuracy), textcoords="offset points", xytext=(4, -10), fontsize=7)
-        axes.set_xlim(0, 1)
-        axes.set_ylim(0, 1.02)
-        axes.set_xlabel("predicted P(correct top-1), mean of the bin")
-        axes.set_ylabel("share of correct top-1 answers")
-        axes.legend(loc="upper left")
-        if title:
-            axes.set_title(title)
+        ReliabilityDisplay.from_reliability(reliability, ax=axes, title=title)
         figure.tight_layout()
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(path) as temporary:

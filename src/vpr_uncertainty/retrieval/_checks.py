@@ -13,7 +13,8 @@ What is checked
       is ``-inf`` (a missing candidate), otherwise >= 0 and below the database size when one is known.
     * ``distances`` (Q, K), optional: real numbers, ``+inf`` exactly where a candidate is missing, otherwise
       finite and >= 0, ascending along each row.
-    * ``positives``: one row per query, one column per database image.
+    * ``positives``: one row per query, one column per database image; given as lists of indices per query, a
+      boolean mask or a sparse matrix (:mod:`~vpr_uncertainty.retrieval._positives`).
     * names: 1-D strings, one per query / database image; positions: 2-D finite numbers with one row per image
       and, when both are given, the same number of columns.
 """
@@ -23,7 +24,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import sparse
+
+from vpr_uncertainty.retrieval._positives import coerce_positives
 
 __all__ = ["check_indices", "check_integers", "check_retrieval_fields", "check_scores"]
 
@@ -155,6 +157,14 @@ def _check_positions(name: str, value: object, expected: int | None, what: str) 
     return array
 
 
+def _known_database_size(retrieval: Any) -> int | None:
+    """The database size the names or positions tell (the first 1-D / 2-D one); None when neither is given."""
+    for value, ndim in ((retrieval.database_names, 1), (retrieval.database_positions, 2)):
+        if value is not None and np.ndim(value) == ndim:
+            return len(value)
+    return None
+
+
 def check_retrieval_fields(retrieval: Any) -> None:
     """Check every field of a Retrieval (see the module docstring); converts arrays in place (indices to int64).
 
@@ -169,7 +179,9 @@ def check_retrieval_fields(retrieval: Any) -> None:
     if retrieval.distances is not None:
         retrieval.distances = _check_distances(retrieval.distances, retrieval.indices)
     if retrieval.positives is not None:
-        retrieval.positives = sparse.csr_array(retrieval.positives, dtype=bool)
+        retrieval.positives = coerce_positives(
+            retrieval.positives, n_database=_known_database_size(retrieval), indices=retrieval.indices
+        )
         if retrieval.positives.shape[0] != n_queries:
             raise ValueError(
                 f"positives has {retrieval.positives.shape[0]} rows but there are {n_queries} queries (scores rows)"

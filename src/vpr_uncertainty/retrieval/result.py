@@ -37,7 +37,11 @@ class Retrieval:
     indices : ndarray of shape (Q, K), int64
         Database index of each candidate; ``-1`` marks a missing candidate.
     positives : scipy.sparse.csr_array of shape (Q, D), bool, optional
-        Ground truth: the database images that are correct answers for each query.
+        Ground truth: the database images that are correct answers for each query. Given as a list of positive
+        database indices per query (``[[0, 4], [], [7]]``), a boolean (Q, D) mask or a sparse matrix; stored as a
+        boolean ``csr_array``. From lists, D is the size that ``database_names`` or ``database_positions`` give,
+        else the smallest that holds every positive and retrieved index (see
+        :func:`vpr_uncertainty.positives_from_lists` to fix D yourself).
     distances : ndarray of shape (Q, K), optional
         Squared L2 distances of the candidates, ascending.
     query_names, database_names : ndarray of str, optional
