@@ -1,5 +1,10 @@
 """BTL on the real VPR-Bench corridor: descriptors of the offline model, training, evaluation, command line.
 
+A plumbing test, not a measurement: the head is trained with the corridor queries as anchors (89 training + 22
+validation) and then evaluated on those same queries, so its AUC-PR says nothing about BTL's quality. The
+README's BTL figures come from benchmarks/btl_protocol.py, whose protocols (btl/protocol.py, tested in
+test_btl_protocol.py) never test on a training query.
+
 The descriptors are extracted with the offline model ``efficientnet-lite0-gem`` (default preprocessing: native
 resolution) once, into an HDF5 cache kept in pytest's cache folder, so that later sessions read them back; the
 cache is recomputed whenever the model's weights or preprocessing change.

@@ -15,7 +15,8 @@ Typical use::
 
 Modules: :mod:`~vpr_uncertainty.btl.loss` (the loss and its derivation), :mod:`~.model` (the head and its
 file), :mod:`~.mining` (triplets), :mod:`~.training` (training loop, early stopping, curve),
-:mod:`~.method` (the registered ``BTL`` method).
+:mod:`~.method` (the registered ``BTL`` method), :mod:`~.protocol` (evaluation protocols with no training query
+among the test queries).
 """
 
 from vpr_uncertainty.btl.loss import (
