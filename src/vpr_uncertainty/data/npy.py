@@ -36,7 +36,7 @@ def _describe(head: bytes) -> str:
     return "text"
 
 
-def read_npy(path: str | Path, *, what: str, allow_objects: bool = False) -> np.ndarray:
+def read_npy(path: str | Path, *, what: str, allow_objects: bool = False, mmap: bool = False) -> np.ndarray:
     """Read one array from a ``.npy`` file.
 
     Parameters
@@ -47,6 +47,9 @@ def read_npy(path: str | Path, *, what: str, allow_objects: bool = False) -> np.
         What the caller expects the file to hold, for error messages (e.g. "a similarity matrix").
     allow_objects : bool
         Accept object arrays (read with the restricted unpickler); by default they are an error.
+    mmap : bool
+        Return a read-only :class:`numpy.memmap` of a numeric array instead of reading its data, after the same
+        checks (object arrays and empty arrays are read whole).
 
     Returns
     -------
@@ -81,6 +84,8 @@ def read_npy(path: str | Path, *, what: str, allow_objects: bool = False) -> np.
             elif version == (2, 0):
                 shape, _, dtype = npy_format.read_array_header_2_0(handle)
             else:  # format 3.0 (utf-8 field names): never used for object arrays; let NumPy read it all
+                if mmap:
+                    return npy_format.open_memmap(path, mode="r")
                 handle.seek(0)
                 return npy_format.read_array(handle, allow_pickle=False)
         except ValueError as error:
@@ -101,6 +106,8 @@ def read_npy(path: str | Path, *, what: str, allow_objects: bool = False) -> np.
                 f"{path} is truncated: its header announces a {dtype} array of shape {shape} ({expected} bytes of "
                 f"data) but only {available} bytes follow; expected {what}"
             )
+        if mmap and expected > 0:  # mmap cannot map zero bytes
+            return npy_format.open_memmap(path, mode="r")
         handle.seek(0)
         return npy_format.read_array(handle, allow_pickle=False)
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from vpr_uncertainty.data.ground_truth import load_ground_truth
+from vpr_uncertainty.retrieval._top_k import MappedRows, top_k_blocks
 from vpr_uncertainty.retrieval.file_format import load_retrieval
 from vpr_uncertainty.retrieval.result import Retrieval
 
@@ -32,6 +33,7 @@ __all__ = [
     "load_descriptors",
     "load_similarity_matrix",
     "read_results",
+    "read_similarity_top_k",
     "top_k_from_similarity",
 ]
 
@@ -42,10 +44,14 @@ DESCRIPTOR_SPLITS: tuple[str, ...] = ("database", "queries")
 DESCRIPTOR_SUFFIXES: tuple[str, ...] = (".npy", ".h5", ".hdf5")
 
 
-def top_k_from_similarity(similarity: object, k: int, *, chunk_size: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+def top_k_from_similarity(
+    similarity: object, k: int, *, chunk_size: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The k most similar database images of each query from a full similarity matrix.
 
-    Ties are broken by the lower database index, so the result does not depend on the sort algorithm.
+    Ties are broken by the lower database index, so the result does not depend on the sort algorithm. The matrix
+    is processed in blocks of query rows (a :class:`numpy.memmap` is read block by block), so the work memory is
+    one block plus the (Q × k) result.
 
     Parameters
     ----------
@@ -54,8 +60,8 @@ def top_k_from_similarity(similarity: object, k: int, *, chunk_size: int = 4096)
         query, and comes back with index -1.
     k : int
         Candidates per query; ``min(k, D)`` are returned.
-    chunk_size : int
-        Queries processed at once, to bound memory.
+    chunk_size : int, optional
+        Queries processed at once, to bound memory; by default as many as hold about 4 M values.
 
     Returns
     -------
@@ -68,72 +74,81 @@ def top_k_from_similarity(similarity: object, k: int, *, chunk_size: int = 4096)
     >>> scores, indices
     (array([[0.9, 0.9, 0.5]]), array([[1, 2, 3]]))
     """
-    matrix = np.asarray(similarity)
+    matrix = similarity if isinstance(similarity, np.ndarray) else np.asarray(similarity)
     if matrix.ndim != 2:
         raise ValueError(f"similarity must be 2-D (n_queries, n_database), got shape {matrix.shape}")
     if not (np.issubdtype(matrix.dtype, np.floating) or np.issubdtype(matrix.dtype, np.integer)):
         raise TypeError(f"similarity must be numeric, got dtype {matrix.dtype}")
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
         raise ValueError(f"k must be a positive integer, got {k!r}")
-    matrix = matrix.astype(np.result_type(matrix.dtype, np.float32), copy=False)
-    n_queries, n_database = matrix.shape
-    if n_database == 0:
+    if chunk_size is not None and (isinstance(chunk_size, bool) or chunk_size < 1):
+        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
+    if matrix.shape[1] == 0:
         raise ValueError("similarity has no database columns")
-    if np.isnan(matrix).any():
-        row, col = np.argwhere(np.isnan(matrix))[0]
-        raise ValueError(f"similarity contains NaN (first at query {row}, database image {col})")
-    k = min(int(k), n_database)
-    scores = np.empty((n_queries, k), dtype=matrix.dtype)
-    indices = np.empty((n_queries, k), dtype=np.int64)
-    for start in range(0, n_queries, chunk_size):
-        block = matrix[start : start + chunk_size]
-        if k < n_database:
-            candidates = np.argpartition(-block, k - 1, axis=1)[:, :k]
-        else:
-            candidates = np.broadcast_to(np.arange(n_database), block.shape).copy()
-        values = np.take_along_axis(block, candidates, axis=1)
-        # Order by value descending, then index ascending (lexsort: last key is primary).
-        order = np.lexsort((candidates, -values), axis=1)
-        candidates = np.take_along_axis(candidates, order, axis=1)
-        values = np.take_along_axis(values, order, axis=1)
-        # argpartition picks an arbitrary subset of the values tied at the k-th place: redo those rows.
-        kth = values[:, -1:]
-        tied_rows = np.flatnonzero((block == kth).sum(axis=1) > (values == kth).sum(axis=1))
-        for row in tied_rows:
-            full_order = np.lexsort((np.arange(n_database), -block[row]))[:k]
-            candidates[row] = full_order
-            values[row] = block[row, full_order]
-        scores[start : start + len(block)] = values
-        indices[start : start + len(block)] = candidates
-    indices[scores == -np.inf] = -1  # -inf = no candidate: the retrieval convention pairs it with index -1
-    return scores, indices
+
+    def check_block(block: np.ndarray, first_row: int) -> None:
+        if np.isnan(block.max()):  # one pass, no temporary the size of the block unless there is a NaN
+            row, col = np.argwhere(np.isnan(block))[0]
+            raise ValueError(f"similarity contains NaN (first at query {first_row + row}, database image {col})")
+
+    return top_k_blocks(matrix, k, block_rows=chunk_size, check_block=check_block)
 
 
 _MATRIX = "a numeric (queries × database) similarity matrix"
 
 
-def _check_similarity(matrix: np.ndarray, path: Path) -> np.ndarray:
-    """Shape, dtype and values of a similarity matrix read from ``path``; -inf (no candidate) is allowed."""
+def _check_similarity_shape(matrix: np.ndarray, path: Path) -> np.ndarray:
+    """Dtype and shape of a similarity matrix read (or memory-mapped) from ``path``."""
     if matrix.dtype.kind not in "iuf":
         raise ValueError(f"{path}: a similarity matrix must hold integers or floats, got dtype {matrix.dtype}")
     if matrix.ndim != 2:
         raise ValueError(f"{path}: a similarity matrix must be 2-D (queries × database), got shape {matrix.shape}")
     if matrix.shape[0] == 0 or matrix.shape[1] == 0:
         raise ValueError(f"{path}: the similarity matrix is empty (shape {matrix.shape}); expected queries × database")
-    largest = matrix.max()  # NaN when any value is NaN; one pass, no temporary the size of the matrix
-    if np.isnan(largest) or largest == np.inf:
-        bad = np.isnan(matrix) | np.isposinf(matrix)
-        row, column = (int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(
-            f"{path}: the similarity matrix holds {matrix[row, column]} at query {row}, database image {column} "
-            f"({int(bad.sum())} such values); expected finite similarities (-inf marks a database image that is "
-            "no candidate)"
-        )
     return matrix
+
+
+def _check_similarity_values(block: np.ndarray, path: Path, first_row: int = 0) -> None:
+    """No NaN or +inf in rows ``first_row`` … of a similarity matrix; -inf (no candidate) is allowed."""
+    largest = block.max()  # NaN when any value is NaN; one pass, no temporary the size of the block
+    if np.isnan(largest) or largest == np.inf:
+        bad = np.isnan(block) | np.isposinf(block)
+        row, column = (int(i) for i in np.argwhere(bad)[0])
+        last = first_row + len(block) - 1
+        raise ValueError(
+            f"{path}: the similarity matrix holds {block[row, column]} at query {first_row + row}, database image "
+            f"{column} ({int(bad.sum())} such values in queries {first_row}–{last}); expected finite "
+            "similarities (-inf marks a database image that is no candidate)"
+        )
+
+
+def _open_similarity(path: str | Path, file_format: str, *, mmap: bool) -> np.ndarray:
+    """The matrix of ``path`` with dtype and shape checked (values not yet); memory-mapped when ``mmap``."""
+    from vpr_uncertainty.data.npy import read_npy
+    from vpr_uncertainty.data.vprbench import load_vprbench_similarity
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"similarity file not found: {path}")
+    if file_format == "vprbench":
+        return _check_similarity_shape(load_vprbench_similarity(path), path)
+    if file_format == "matrix":
+        what = f"{_MATRIX} (VPR-Bench's precomputed matches are read with format 'vprbench' or 'auto')"
+        return _check_similarity_shape(read_npy(path, what=what, mmap=mmap), path)
+    what = f"{_MATRIX} or VPR-Bench precomputed matches (an object array of 6 items)"
+    matrix = read_npy(path, what=what, allow_objects=True, mmap=mmap)
+    if matrix.dtype == object:
+        if matrix.shape != (6,):
+            raise ValueError(f"{path} holds Python objects (an object array of shape {matrix.shape}); expected {what}")
+        return _check_similarity_shape(load_vprbench_similarity(path), path)
+    return _check_similarity_shape(matrix, path)
 
 
 def load_similarity_matrix(path: str | Path, *, file_format: str = "auto") -> np.ndarray:
     """Read a full (queries × database) similarity matrix from ``.npy`` (plain or VPR-Bench legacy).
+
+    The whole matrix is read into memory; :func:`read_results` instead memory-maps a plain ``.npy`` matrix and
+    keeps only the top-k of each block of queries.
 
     Parameters
     ----------
@@ -156,24 +171,52 @@ def load_similarity_matrix(path: str | Path, *, file_format: str = "auto") -> np
         When the file is empty, truncated, not a ``.npy`` file, not of the requested format, or holds a
         non-numeric, non-2-D or empty array, NaN or +inf; the message names the file (and the query).
     """
-    from vpr_uncertainty.data.npy import read_npy
-    from vpr_uncertainty.data.vprbench import load_vprbench_similarity
-
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"similarity file not found: {path}")
-    if file_format == "vprbench":
-        return _check_similarity(load_vprbench_similarity(path), path)
-    if file_format == "matrix":
-        what = f"{_MATRIX} (VPR-Bench's precomputed matches are read with format 'vprbench' or 'auto')"
-        return _check_similarity(read_npy(path, what=what), path)
-    what = f"{_MATRIX} or VPR-Bench precomputed matches (an object array of 6 items)"
-    matrix = read_npy(path, what=what, allow_objects=True)
-    if matrix.dtype == object:
-        if matrix.shape != (6,):
-            raise ValueError(f"{path} holds Python objects (an object array of shape {matrix.shape}); expected {what}")
-        return _check_similarity(load_vprbench_similarity(path), path)
-    return _check_similarity(matrix, path)
+    matrix = _open_similarity(path, file_format, mmap=False)
+    _check_similarity_values(matrix, path)
+    return matrix
+
+
+def read_similarity_top_k(
+    path: str | Path, top_k: int, *, file_format: str = "auto", block_rows: int | None = None
+) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """The top-k of every query of a similarity matrix file, read memory-mapped one block of queries at a time.
+
+    Peak memory is the (Q × k) result plus one block (about 4 M values by default), not a multiple of the
+    matrix; the values are checked block by block with the same errors as :func:`load_similarity_matrix`.
+    VPR-Bench's legacy files are read whole.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.npy`` file.
+    top_k : int
+        Candidates kept per query (all of them when the database is smaller).
+    file_format : {"auto", "matrix", "vprbench"}
+        As in :func:`load_similarity_matrix`.
+    block_rows : int, optional
+        Queries read at once.
+
+    Returns
+    -------
+    scores, indices : ndarray of shape (Q, min(top_k, D))
+        As :func:`top_k_from_similarity` returns them (ties to the lower index, -inf with index -1).
+    shape : tuple of int
+        (Q, D) of the matrix.
+    """
+    path = Path(path)
+    matrix = _open_similarity(path, file_format, mmap=True)
+    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 1:
+        raise ValueError(f"top_k must be a positive integer, got {top_k!r}")
+
+    def check_block(block: np.ndarray, first_row: int) -> None:
+        _check_similarity_values(block, path, first_row)
+
+    shape = (int(matrix.shape[0]), int(matrix.shape[1]))
+    if isinstance(matrix, np.memmap) and matrix.flags.c_contiguous:
+        matrix = MappedRows(matrix)  # one mapping per block: read pages do not pile up in resident memory
+    scores, indices = top_k_blocks(matrix, top_k, block_rows=block_rows, check_block=check_block)
+    return scores, indices, shape
 
 
 def _check_not_npy(path: Path) -> None:
@@ -227,14 +270,14 @@ def read_results(
             retrieval.positives = load_ground_truth(ground_truth, n_queries=retrieval.n_queries, n_database=n_database)
             retrieval.__post_init__()
         return retrieval
-    similarity = load_similarity_matrix(path, file_format=file_format)
+    # Memory-mapped and cut to its top-k one block of queries at a time: never the whole matrix in memory.
+    scores, indices, (n_queries, n_database) = read_similarity_top_k(path, top_k, file_format=file_format)
     if ground_truth is None:
         raise ValueError(
             f"{path} is a similarity matrix without ground truth; give the ground truth (argument ground_truth)"
         )
     # Sized by the matrix: a positive beyond its columns, or a mask of another width, is an error naming the file.
-    positives = load_ground_truth(ground_truth, n_queries=similarity.shape[0], n_database=similarity.shape[1])
-    scores, indices = top_k_from_similarity(similarity, top_k)
+    positives = load_ground_truth(ground_truth, n_queries=n_queries, n_database=n_database)
     config = {"source": str(path), "ground_truth": str(ground_truth), "top_k": int(scores.shape[1])}
     return Retrieval(scores=scores, indices=indices, positives=positives, config=config)
 
