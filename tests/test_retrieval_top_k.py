@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.data.npy import read_npy
-from vpr_uncertainty.retrieval import _top_k, read_results, top_k_from_similarity
+from vpr_uncertainty.retrieval import _top_k, read_results, read_similarity_top_k, top_k_from_similarity
 from vpr_uncertainty.retrieval._top_k import top_k_blocks
-from vpr_uncertainty.retrieval.readers import read_similarity_top_k
 
 
 def reference_top_k(matrix: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

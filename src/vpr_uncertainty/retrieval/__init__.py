@@ -8,7 +8,8 @@ Modules
                                                      :func:`retrieve` (the Faiss binding in ``_faiss``);
     :mod:`~vpr_uncertainty.retrieval.readers`       what a user brings: :func:`read_results` (retrieval files,
                                                      similarity matrices, VPR-Bench), :func:`top_k_from_similarity`,
-                                                     :func:`load_descriptors`.
+                                                     :func:`read_similarity_top_k` (a matrix file, memory-mapped,
+                                                     block by block), :func:`load_descriptors`.
 
 Ground truth, names and positions are attached to a search result by
 :func:`vpr_uncertainty.data.attach.attach_ground_truth`.
@@ -23,6 +24,7 @@ from vpr_uncertainty.retrieval.readers import (
     load_descriptors,
     load_similarity_matrix,
     read_results,
+    read_similarity_top_k,
     top_k_from_similarity,
 )
 from vpr_uncertainty.retrieval.result import Retrieval
@@ -39,6 +41,7 @@ __all__ = [
     "load_retrieval",
     "load_similarity_matrix",
     "read_results",
+    "read_similarity_top_k",
     "retrieve",
     "save_retrieval",
     "search_descriptors",
