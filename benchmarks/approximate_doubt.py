@@ -5,13 +5,10 @@ A city-scale deployment retrieves with an approximate Faiss index, so RS, SD and
 (``Flat``) and through approximate indexes (Faiss factory strings, as ``retrieve --index`` accepts), and reports
 each method's AUC-PR (uncertainty predicting a wrong top-1), recall@1 and the top-1 agreement with exact search.
 
-Data:
-
-* **synthetic** (default): 100,000 × 256 clustered unit descriptors (1,000 clusters of 100 "places"; each place
-  close to its cluster centre, so that neighbours are confusable) and 2,000 queries, each a noisy copy of one
-  place (its only positive); the noise varies per query, so some top-1 answers are wrong;
-* **corridor** (``--corridor DIR``): ``DIR/descriptors.h5`` and ``DIR/ground_truth``… written by
-  ``vpr-uncertainty demo --out DIR`` (111 × 111 images: too small for IVF to matter; a sanity check only).
+Data: 100,000 × 256 clustered unit descriptors (1,000 clusters of 100 "places"; each place close to its cluster
+centre, so that neighbours are confusable) and 2,000 queries, each a noisy copy of one place (its only positive);
+the noise varies per query, so some top-1 answers are wrong. (The corridor's 111 × 111 descriptors are too few for
+an IVF or HNSW index to differ from exact search.)
 
     python benchmarks/approximate_doubt.py                          # synthetic, Flat vs IVF1024,PQ32 vs HNSW32
     python benchmarks/approximate_doubt.py --database 20000 --indexes IVF256,PQ32   # quick check
