@@ -128,3 +128,18 @@ def test_bad_block_rows_and_top_k(tmp_path):
         read_similarity_top_k(path, 1, block_rows=0)
     with pytest.raises(ValueError, match="chunk_size must be a positive integer"):
         top_k_from_similarity(np.ones((2, 3)), 1, chunk_size=0)
+
+
+def test_fortran_ordered_and_format_3_files_read_the_same(tmp_path):
+    matrix = matrices()["tied"]
+    fortran = tmp_path / "fortran.npy"
+    np.save(fortran, np.asfortranarray(matrix))
+    scores, indices, _ = read_similarity_top_k(fortran, 6, block_rows=5)
+    expected_scores, expected_indices = reference_top_k(matrix, 6)
+    np.testing.assert_array_equal(indices, expected_indices)
+    np.testing.assert_array_equal(scores, expected_scores)
+    version_3 = tmp_path / "v3.npy"
+    with version_3.open("wb") as handle:
+        np.lib.format.write_array(handle, matrix, version=(3, 0))
+    scores, indices, _ = read_similarity_top_k(version_3, 6, block_rows=5)
+    np.testing.assert_array_equal(indices, expected_indices)
