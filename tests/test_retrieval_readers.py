@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-import types
-
 import numpy as np
 import pytest
 
@@ -91,9 +88,9 @@ def test_load_descriptors_from_the_cache_contract(tmp_path, monkeypatch):
         calls.append((path, split))
         return [f"{split}/{i}.jpg" for i in range(3)], np.ones((3, 4), np.float32) * (split == "database")
 
-    module = types.ModuleType("vpr_uncertainty.descriptors.cache")
-    module.read_descriptors = read_descriptors
-    monkeypatch.setitem(sys.modules, "vpr_uncertainty.descriptors.cache", module)
+    import vpr_uncertainty.descriptors.cache as cache  # the real module (its package needs it), with a stand-in
+
+    monkeypatch.setattr(cache, "read_descriptors", read_descriptors)
     path = tmp_path / "descriptors.h5"
     path.write_bytes(b"")
     names, descriptors = load_descriptors(path, "database")
