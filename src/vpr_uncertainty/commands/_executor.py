@@ -1,5 +1,5 @@
 """The executor options shared by ``run``, ``extract`` and ``reproduce``: ``--executor``, ``--address``,
-``--workers`` and ``--gpus-per-worker`` (see :mod:`vpr_uncertainty.executors`)."""
+``--ray-workers`` and ``--gpus-per-worker`` (see :mod:`vpr_uncertainty.executors`)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,10 @@ def add_executor_options(parser: argparse.ArgumentParser) -> None:
         help="Ray cluster to connect to (host:port or 'auto'); default: start a local one (--executor ray only)",
     )
     group.add_argument(
-        "--workers", type=positive_int, metavar="N", help="Ray tasks in flight at once (default: the cluster's CPUs)"
+        "--ray-workers",
+        type=positive_int,
+        metavar="N",
+        help="Ray tasks or actors at once (default: the cluster's CPUs; --workers is image decoding threads)",
     )
     group.add_argument(
         "--gpus-per-worker",
@@ -42,9 +45,10 @@ def executor_from_args(args: argparse.Namespace) -> Any:
     from vpr_uncertainty.executors import get_executor
 
     if args.executor == "local":
-        given = [flag for flag, value in (("--address", args.address), ("--workers", args.workers)) if value]
+        given = [flag for flag, value in (("--address", args.address), ("--ray-workers", args.ray_workers)) if value]
         if args.gpus_per_worker:
             given.append("--gpus-per-worker")
         if given:
             raise ValueError(f"{', '.join(given)}: only with --executor ray")
-    return get_executor(args.executor, address=args.address, workers=args.workers, gpus_per_worker=args.gpus_per_worker)
+    workers, gpus = args.ray_workers, args.gpus_per_worker
+    return get_executor(args.executor, address=args.address, workers=workers, gpus_per_worker=gpus)
