@@ -103,3 +103,18 @@ def test_grid_on_ray_equals_the_local_grid_and_shares_the_cell_cache(ray_cluster
     _, again = _results(grid, "ray")  # the local executor reads the cells the Ray tasks wrote
     assert all(cell.cached for cell in again)
     np.testing.assert_array_equal(again[0].indices, cells[0].indices)
+
+
+def test_reproduce_command_on_ray_reads_the_cells_of_a_local_run(ray_cluster, grid, capsys):
+    from vpr_uncertainty.cli import main
+
+    assert main(["reproduce", str(grid), "--no-report"]) == 0
+    assert main(["reproduce", str(grid), "--no-report", "--executor", "ray", "--ray-workers", "2"]) == 0
+    assert "2 of 2 cells read from the cache" in capsys.readouterr().out
+
+
+def test_ray_only_options_are_refused_with_the_local_executor(grid, capsys):
+    from vpr_uncertainty.cli import main
+
+    assert main(["reproduce", str(grid), "--ray-workers", "2"]) != 0
+    assert "--ray-workers: only with --executor ray" in capsys.readouterr().err
