@@ -6,7 +6,7 @@ images are missing or changed (content keys), sends only those, batch by batch, 
 and appends each batch that comes back, so the file, its fingerprint and its resumption are those of a local run.
 The actors decode the images themselves: the image paths must be readable on every node (a shared filesystem).
 
-This uses plain Ray actors (``ray.util.ActorPool``) rather than Ray Data ``map_batches``: the batches are small
+This uses plain Ray actors (a pool kept here) rather than Ray Data ``map_batches``: the batches are small
 lists of paths whose results must reach one writer in this process, which an actor pool does without a dataset
 pipeline, and it keeps the extra at plain ``ray``. A batch whose actor dies is sent again to another actor once;
 the batches already written stay in the cache, so a run that stops is resumed by running it again.
