@@ -26,7 +26,7 @@ N_IMAGES = 12
 
 @pytest.fixture(scope="module")
 def executor():
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     with get_executor("ray", workers=2) as pool:
         yield pool
     ray.shutdown()

@@ -127,10 +127,10 @@ class RayExecutor:
         self.ray = import_ray()
         self._owns_cluster = False
         if not self.ray.is_initialized():
-            options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
-            if address is not None:
-                options["address"] = address
-            elif self.workers is not None:
+            # "local": a new cluster, never one that a `ray start` on this machine left behind
+            options: dict[str, Any] = {"address": address or "local", "include_dashboard": False}
+            options["log_to_driver"] = False
+            if address is None and self.workers is not None:
                 options["num_cpus"] = self.workers
             self.ray.init(**options)
             self._owns_cluster = True
