@@ -202,7 +202,8 @@ def _run_extract(args: argparse.Namespace) -> int:
         progress=getattr(args, "progress", None),
     )
     with executor_from_args(args) as executor:
-        result = extract(conf, splits, args.out, executor=executor)
+        options = {} if executor.name == "local" else {"executor": executor}
+        result = extract(conf, splits, args.out, **options)
     for split in ("database", "queries"):
         kept, descriptors = result.split(split)
         skipped = len(splits[split][1]) - len(kept)

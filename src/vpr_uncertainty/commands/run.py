@@ -163,5 +163,5 @@ def _handle(args: argparse.Namespace) -> int:
         reference=args.reference,
     )
     with executor_from_args(args) as executor:
-        print_summary(run(config, executor=executor))
+        print_summary(run(config) if executor.name == "local" else run(config, executor=executor))
     return 0
