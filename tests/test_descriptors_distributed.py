@@ -6,6 +6,7 @@ the offline default model; the reference is the local executor on the same image
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import h5py
@@ -26,6 +27,8 @@ N_IMAGES = 12
 
 @pytest.fixture(scope="module")
 def executor():
+    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
+    os.environ["RAY_AUTH_MODE"] = "disabled"
     ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     with get_executor("ray", workers=2) as pool:
         yield pool

@@ -6,6 +6,7 @@ One local Ray cluster (2 CPUs) for the module. Real inputs: the corridor's NetVL
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import sys
 from pathlib import Path
@@ -22,6 +23,8 @@ pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench fil
 @pytest.fixture(scope="module")
 def ray_cluster():
     ray = pytest.importorskip("ray")
+    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
+    os.environ["RAY_AUTH_MODE"] = "disabled"
     ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield ray
     ray.shutdown()

@@ -6,6 +6,7 @@ images each; the reference is the same verifier in this process.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,8 @@ from vpr_uncertainty.geometric import GeometricVerifier  # noqa: E402
 
 @pytest.fixture(scope="module")
 def executor():
+    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
+    os.environ["RAY_AUTH_MODE"] = "disabled"
     ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     with get_executor("ray", workers=2) as pool:
         yield pool
