@@ -259,8 +259,14 @@ def _ground_truth(dataset: Any, descriptors: Any) -> tuple[dict[str, Any], np.nd
     return ground_truth, kept_database, kept_queries
 
 
-def run(config: RunConfig) -> RunResult:
+def run(config: RunConfig, *, executor: Any = None) -> RunResult:
     """Run the whole evaluation of ``config`` and write every stage into ``config.out``.
+
+    Parameters
+    ----------
+    config : RunConfig
+    executor : LocalExecutor or RayExecutor, optional
+        Where descriptor extraction runs (:func:`vpr_uncertainty.executors.get_executor`; default: this process).
 
     Returns
     -------
@@ -289,7 +295,7 @@ def run(config: RunConfig) -> RunResult:
         "database": (dataset.database_paths, dataset.database_names),
         "queries": (dataset.query_paths, dataset.query_names),
     }
-    descriptors = extract(conf, images, out / "descriptors.h5")
+    descriptors = extract(conf, images, out / "descriptors.h5", executor=executor)
     seconds["extraction"] = time.perf_counter() - start
 
     start = time.perf_counter()

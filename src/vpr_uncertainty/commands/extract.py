@@ -15,6 +15,7 @@ from vpr_uncertainty.commands._arguments import (
     output_file,
     positive_int,
 )
+from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args
 from vpr_uncertainty.descriptors.extract import ON_ERROR
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, available_models, get_model_spec
 
@@ -172,6 +173,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--overwrite", action="store_true", help="recompute everything, ignoring the file")
     add_progress_options(parser)
+    add_executor_options(parser)
     parser.set_defaults(handler=_run_extract)
 
 
@@ -199,7 +201,9 @@ def _run_extract(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         progress=getattr(args, "progress", None),
     )
-    result = extract(conf, splits, args.out)
+    with executor_from_args(args) as executor:
+        options = {} if executor.name == "local" else {"executor": executor}
+        result = extract(conf, splits, args.out, **options)
     for split in ("database", "queries"):
         kept, descriptors = result.split(split)
         skipped = len(splits[split][1]) - len(kept)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import VERIFY_FRACTION_HELP, fraction, output_directory
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
+from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args
 
 __all__ = ["add_parser"]
 
@@ -59,6 +60,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="F",
         help=VERIFY_FRACTION_HELP.replace("(default 0.3;", "(default: verify_fraction of CONFIG, else 0.3;"),
     )
+    add_executor_options(parser)
     parser.set_defaults(handler=_run_reproduce)
 
 
@@ -74,7 +76,8 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     print(f"{args.config}: {len(cells)} cells x {len(config.methods)} uncertainty methods -> {config.out}")
     if args.check:
         return 0
-    results = run_grid(config, force=args.force)
+    with executor_from_args(args) as executor:
+        results = run_grid(config, force=args.force, executor=executor)
     cached = sum(cell.cached for cell in results)
     if cached:
         print(f"{cached} of {len(results)} cells read from the cache")

@@ -19,6 +19,7 @@ from vpr_uncertainty.commands._arguments import (
     positive_int,
 )
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
+from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args
 from vpr_uncertainty.commands.evaluate import METHOD_SPEC_HELP, method_list
 from vpr_uncertainty.methods import default_method_names
 
@@ -107,6 +108,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_common_run_options(parser)
     add_bootstrap_options(parser)
+    add_executor_options(parser)
     parser.set_defaults(handler=_handle)
 
 
@@ -160,5 +162,6 @@ def _handle(args: argparse.Namespace) -> int:
         seed=args.seed,
         reference=args.reference,
     )
-    print_summary(run(config))
+    with executor_from_args(args) as executor:
+        print_summary(run(config) if executor.name == "local" else run(config, executor=executor))
     return 0

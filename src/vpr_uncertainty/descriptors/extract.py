@@ -114,6 +114,15 @@ def _decoded_batches(
             yield [future.result() for future in pending]
 
 
+def _described_batches(
+    batches: Sequence[Sequence[_Item]], model: DescriptorModel, workers: int
+) -> Iterator[tuple[list[tuple[_Item, np.ndarray | ImageDecodeError]], np.ndarray | None]]:
+    """Each decoded batch with the descriptors of its usable images (None when none is usable), in this process."""
+    for decoded in _decoded_batches(batches, model, workers):
+        images = [result for _, result in decoded if not isinstance(result, ImageDecodeError)]
+        yield decoded, (_forward(model, images) if images else None)
+
+
 def _content_key(path: Path) -> str:
     """The image's content key, or "" when it cannot be read (the decoder then reports why)."""
     from vpr_uncertainty.cache import content_key
@@ -158,6 +167,8 @@ def extract_descriptors(
     progress: bool | None = None,
     on_batch: Callable[[list[str]], None] | None = None,
     failed: list[dict[str, str]] | None = None,
+    executor: Any = None,
+    model_factory: Callable[[], Any] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Global descriptors of images, cached in an HDF5 file by image name and content key.
 
@@ -194,6 +205,12 @@ def extract_descriptors(
         Called with the names of each batch after it has been written to the cache.
     failed : list, optional
         Receives ``{"name", "path", "error"}`` of each image left out (``on_error="skip"``).
+    executor : LocalExecutor or RayExecutor, optional
+        Where the model runs (:func:`vpr_uncertainty.executors.get_executor`): by default in this process; with
+        Ray, the missing batches go to a pool of actors (:mod:`vpr_uncertainty.descriptors.distributed`) and this
+        process writes what comes back into the same cache.
+    model_factory : callable, optional
+        With Ray: loads the model in each actor (default: the loaded ``model`` is sent to them).
 
     Returns
     -------
@@ -250,9 +267,14 @@ def extract_descriptors(
             unit="img",
             enabled=progress,
         ) as bar:
-            for decoded in _decoded_batches(batches, model, workers):
+            if executor is not None and executor.name != "local":
+                from vpr_uncertainty.descriptors.distributed import ray_described_batches
+
+                described = ray_described_batches(batches, model, executor, model_factory=model_factory)
+            else:
+                described = _described_batches(batches, model, workers)
+            for decoded, descriptors in described:
                 good_names: list[str] = []
-                images: list[np.ndarray] = []
                 for (_, name, path), result in decoded:
                     if isinstance(result, ImageDecodeError):
                         if on_error == "fail":
@@ -260,9 +282,7 @@ def extract_descriptors(
                         failed.append({"name": name, "path": str(path), "error": result.reason})
                         continue
                     good_names.append(name)
-                    images.append(result)
-                if images:
-                    descriptors = _forward(model, images)
+                if descriptors is not None:
                     if cache is not None:
                         cache.append(split, good_names, descriptors, [keys[name] for name in good_names])
                     else:

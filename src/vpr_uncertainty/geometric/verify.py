@@ -96,6 +96,10 @@ class GeometricVerifier:
         Threads for image reading, OpenCV extraction, NN matching and RANSAC; torch threads on CPU.
     seed : int
         Seed of RANSAC's sampler.
+    executor : LocalExecutor or RayExecutor, optional
+        Where the pairs are matched and verified: in this process (default), or in chunks as Ray tasks
+        (:mod:`vpr_uncertainty.geometric.distributed`); the local features are extracted (and cached) once per
+        image in this process either way.
 
     Examples
     --------
@@ -117,6 +121,7 @@ class GeometricVerifier:
         features_path: str | Path | None = None,
         workers: int | None = None,
         seed: int = 0,
+        executor: Any = None,
     ) -> None:
         if (extractor is None) == (features_path is None):
             raise ValueError("give either an extractor or features_path (precomputed features), not both or neither")
@@ -135,6 +140,7 @@ class GeometricVerifier:
             raise FileNotFoundError(f"features file {self.features_path} does not exist")
         self.workers = default_workers() if workers is None else max(1, int(workers))
         self.seed = int(seed)
+        self.executor = executor
 
     @classmethod
     def from_preset(
@@ -195,6 +201,24 @@ class GeometricVerifier:
             features, stats = self._features([paths[name] for name in needed], needed)
         else:
             features, stats = self._features([], needed)
+        if self.executor is not None and self.executor.name != "local" and len(pairs) > 1:
+            from vpr_uncertainty.geometric.distributed import verify_on_executor
+
+            all_matches, inliers, matching, ransac = verify_on_executor(self, features, list(pairs))
+        else:
+            all_matches, inliers, matching, ransac = self._match_and_count(features, list(pairs))
+        return VerificationResult(
+            inliers=np.asarray(inliers, np.int64).reshape(-1),
+            matches=np.asarray(all_matches, np.int64).reshape(-1),
+            extraction=stats,
+            matching_seconds=matching,
+            ransac_seconds=ransac,
+        )
+
+    def _match_and_count(
+        self, features: dict[str, LocalFeatures], pairs: list[tuple[str, str]]
+    ) -> tuple[list[int], list[int], float, float]:
+        """Matches and RANSAC inliers of each pair, with the matching and RANSAC seconds, in this process."""
         matching_start = time.perf_counter()
 
         def match(pair: tuple[str, str]) -> np.ndarray:
@@ -230,13 +254,7 @@ class GeometricVerifier:
         else:
             inliers = [ransac(item) for item in progress_bar(items, desc="RANSAC", unit="pair")]
         end = time.perf_counter()
-        return VerificationResult(
-            inliers=np.asarray(inliers, np.int64).reshape(-1),
-            matches=np.asarray([len(m) for m in all_matches], np.int64).reshape(-1),
-            extraction=stats,
-            matching_seconds=ransac_start - matching_start,
-            ransac_seconds=end - ransac_start,
-        )
+        return [len(m) for m in all_matches], inliers, ransac_start - matching_start, end - ransac_start
 
     def verify(
         self,

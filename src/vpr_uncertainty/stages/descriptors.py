@@ -105,6 +105,7 @@ def extract(
     path: str | Path,
     *,
     model: Any = None,
+    executor: Any = None,
 ) -> DescriptorsResult:
     """Descriptors of the images of each split, written to (and resumed from) ``path``.
 
@@ -117,6 +118,9 @@ def extract(
         The HDF5 file.
     model : DescriptorModel, optional
         An already loaded model (default: :func:`model_of` of ``conf``).
+    executor : LocalExecutor or RayExecutor, optional
+        Where the model runs (default: in this process); with Ray, each actor loads the model of ``conf`` once
+        (or receives ``model`` when one is given) and this process writes the same file as a local run.
 
     Returns
     -------
@@ -127,6 +131,11 @@ def extract(
     unknown = set(images) - set(_SPLITS)
     if unknown:
         raise ValueError(f"images must be keyed by {_SPLITS}, got {sorted(unknown)}")
+    factory = None
+    if model is None and executor is not None and executor.name != "local":
+        from functools import partial
+
+        factory = partial(model_of, conf)
     model = model_of(conf) if model is None else model
     path = Path(path)
     result = DescriptorsResult(path=path, model_name=model.name, names={}, descriptors={})
@@ -149,6 +158,8 @@ def extract(
             overwrite=conf.overwrite and split == next(s for s in _SPLITS if s in images),
             progress=conf.progress,
             failed=failed,
+            executor=executor,
+            model_factory=factory,
         )
         result.failed[split] = failed
     return result

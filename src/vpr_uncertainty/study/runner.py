@@ -20,6 +20,7 @@ import json
 import time
 import warnings
 import zipfile
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -286,7 +287,14 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
     return cell
 
 
-def run_grid(config: GridConfig, *, force: bool = False, progress: bool | None = None) -> list[Cell]:
+def _run_cell_task(entry: InputEntry, config: GridConfig, force: bool) -> Cell:
+    """:func:`run_cell` with positional settings (the task an executor runs for each cell)."""
+    return run_cell(entry, config, force=force)
+
+
+def run_grid(
+    config: GridConfig, *, force: bool = False, progress: bool | None = None, executor: Any = None
+) -> list[Cell]:
     """Run (or read from the cache) every cell of the grid, with a progress bar.
 
     Parameters
@@ -297,6 +305,11 @@ def run_grid(config: GridConfig, *, force: bool = False, progress: bool | None =
         Recompute every cell, ignoring the cache.
     progress : bool, optional
         Show the progress bar; by default only on a terminal.
+    executor : LocalExecutor or RayExecutor, optional
+        Where the cells run (:func:`vpr_uncertainty.executors.get_executor`); default: one after the other in this
+        process. With Ray each cell is a task that reads and writes the cell cache under ``config.out/cells``
+        itself, so that folder must be on a filesystem every worker sees; a rerun on any executor reads the cells
+        already finished.
 
     Returns
     -------
@@ -305,8 +318,11 @@ def run_grid(config: GridConfig, *, force: bool = False, progress: bool | None =
     """
     from vpr_uncertainty.progress import progress_bar
 
-    cells = []
     with progress_bar(total=len(config.inputs), desc="grid", unit="cell", enabled=progress, leave=True) as bar:
+        if executor is not None and executor.name != "local":
+            task = partial(_run_cell_task, config=config, force=force)
+            return executor.map(task, config.inputs, on_result=lambda cell: bar.update(1))
+        cells = []
         for entry in config.inputs:
             bar.set_postfix_str(f"{entry.vpr_method} / {entry.dataset}", refresh=False)
             cells.append(run_cell(entry, config, force=force))

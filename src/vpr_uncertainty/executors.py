@@ -1,0 +1,229 @@
+"""Where independent work items run: in this process (``local``) or as tasks on a Ray cluster (``ray``).
+
+An executor has one operation, :meth:`map`: apply a function to every item and return the results in the order of
+the items. The functions are plain module-level functions of this package (Ray pickles them by reference), and they
+write their own cached artefacts (a grid cell, a descriptor file) to paths that every worker sees: with a cluster
+of several machines the output folder must be on a shared filesystem.
+
+Ray is an extra (``pip install 'vpr-uncertainty[ray]'``) imported only when the ``ray`` executor is chosen. A task
+whose worker dies is retried by Ray (``max_retries``); a run that is stopped is resumed from the caches.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any
+
+__all__ = ["EXECUTORS", "LocalExecutor", "RayExecutor", "get_executor", "import_ray"]
+
+#: The executor names accepted by :func:`get_executor` (and by ``--executor``).
+EXECUTORS = ("local", "ray")
+#: How many times Ray reruns a task whose worker died.
+MAX_RETRIES = 3
+
+
+def import_ray() -> Any:
+    """The ``ray`` module, or an ImportError naming the extra that provides it."""
+    try:
+        import ray
+    except ImportError as error:
+        raise ImportError(
+            "the ray executor needs Ray: pip install 'vpr-uncertainty[ray]' (or pip install 'ray[data]')"
+        ) from error
+    return ray
+
+
+def _apply(function: Callable[[Any], Any], item: Any) -> Any:
+    """``function(item)``: the one remote function of :class:`RayExecutor` (``function`` may be a partial)."""
+    return function(item)
+
+
+def _check_workers(workers: int | None) -> int | None:
+    if workers is None:
+        return None
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    return workers
+
+
+def _check_gpus(gpus_per_worker: float) -> float:
+    if isinstance(gpus_per_worker, bool) or not isinstance(gpus_per_worker, (int, float)) or gpus_per_worker < 0:
+        raise ValueError(f"gpus_per_worker must be a number >= 0, got {gpus_per_worker!r}")
+    return float(gpus_per_worker)
+
+
+class LocalExecutor:
+    """Run every item in this process, one after the other (the default; what the toolkit did before executors).
+
+    Parameters
+    ----------
+    workers : int, optional
+        Ignored (accepted so that both executors take the same options).
+    """
+
+    name = "local"
+
+    def __init__(self, workers: int | None = None) -> None:
+        self.workers = _check_workers(workers)
+
+    def map(
+        self, function: Callable[[Any], Any], items: Iterable[Any], *, on_result: Callable[[Any], None] | None = None
+    ) -> list[Any]:
+        """``[function(item) for item in items]``, calling ``on_result`` with each result as it comes.
+
+        Parameters
+        ----------
+        function : callable
+        items : iterable
+        on_result : callable, optional
+            Called with each result (e.g. to advance a progress bar).
+
+        Returns
+        -------
+        list
+            In the order of ``items``.
+        """
+        results = []
+        for item in items:
+            results.append(function(item))
+            if on_result is not None:
+                on_result(results[-1])
+        return results
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    def __enter__(self) -> LocalExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class RayExecutor:
+    """Run every item as a Ray task, at most ``workers`` at once, each with ``gpus_per_worker`` GPUs.
+
+    Connects to the cluster at ``address`` (``"auto"``: the one started by ``ray start`` on this machine), or,
+    without one, starts a local cluster with ``workers`` CPUs. When Ray is already initialised in this process
+    (e.g. by the caller), that cluster is used and left running by :meth:`close`.
+
+    Parameters
+    ----------
+    address : str, optional
+        The cluster's address (``host:port``, ``ray://host:10001`` or ``"auto"``).
+    workers : int, optional
+        The most tasks in flight at once; default: the cluster's CPUs.
+    gpus_per_worker : float, default=0
+        GPUs Ray assigns to each task (fractions share one GPU).
+    """
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, workers: int | None = None, gpus_per_worker: float = 0.0) -> None:
+        self.workers = _check_workers(workers)
+        self.gpus_per_worker = _check_gpus(gpus_per_worker)
+        if address is not None and (not isinstance(address, str) or not address.strip()):
+            raise ValueError(f"address must be a non-empty string such as 'auto' or 'host:6379', got {address!r}")
+        self.ray = import_ray()
+        self._owns_cluster = False
+        if not self.ray.is_initialized():
+            # "local": a new cluster, never one that a `ray start` on this machine left behind
+            options: dict[str, Any] = {"address": address or "local", "include_dashboard": False}
+            options["log_to_driver"] = False
+            if address is None and self.workers is not None:
+                options["num_cpus"] = self.workers
+            self.ray.init(**options)
+            self._owns_cluster = True
+        if self.workers is None:
+            self.workers = max(1, int(self.ray.cluster_resources().get("CPU", 1)))
+
+    def map(
+        self, function: Callable[[Any], Any], items: Iterable[Any], *, on_result: Callable[[Any], None] | None = None
+    ) -> list[Any]:
+        """``[function(item) for item in items]`` as Ray tasks, at most ``workers`` in flight.
+
+        A task whose worker process dies is rerun (up to :data:`MAX_RETRIES` times); an exception raised by
+        ``function`` is raised here, as the original exception type.
+
+        Parameters
+        ----------
+        function : callable
+            A module-level function or a partial of one (the workers import this package).
+        items : iterable
+        on_result : callable, optional
+            Called with each result as it completes (in completion order).
+
+        Returns
+        -------
+        list
+            In the order of ``items``.
+        """
+        ray = self.ray
+        remote = ray.remote(_apply).options(
+            num_cpus=1, num_gpus=self.gpus_per_worker, max_retries=MAX_RETRIES, retry_exceptions=False
+        )
+        items = list(items)
+        results: list[Any] = [None] * len(items)
+        pending: dict[Any, int] = {}
+        queue = iter(enumerate(items))
+        for position, item in queue:
+            pending[remote.remote(function, item)] = position
+            if len(pending) >= self.workers:
+                break
+        while pending:
+            (done,), _ = ray.wait(list(pending), num_returns=1)
+            position = pending.pop(done)
+            try:
+                results[position] = ray.get(done)
+            except ray.exceptions.RayTaskError as error:
+                raise error.as_instanceof_cause() from None
+            if on_result is not None:
+                on_result(results[position])
+            for next_position, item in queue:
+                pending[remote.remote(function, item)] = next_position
+                break
+        return results
+
+    def close(self) -> None:
+        """Shut down the local cluster this executor started (a cluster it connected to keeps running)."""
+        if self._owns_cluster and self.ray.is_initialized():
+            self.ray.shutdown()
+        self._owns_cluster = False
+
+    def __enter__(self) -> RayExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+Executor = LocalExecutor | RayExecutor
+
+
+def get_executor(
+    name: str = "local", *, address: str | None = None, workers: int | None = None, gpus_per_worker: float = 0.0
+) -> Executor:
+    """The executor called ``name``.
+
+    Parameters
+    ----------
+    name : {"local", "ray"}
+    address : str, optional
+        The Ray cluster's address (``ray`` only).
+    workers : int, optional
+        The most items in flight at once (``ray``; the local executor runs one at a time).
+    gpus_per_worker : float, default=0
+        GPUs per Ray task or actor (``ray`` only).
+
+    Returns
+    -------
+    LocalExecutor or RayExecutor
+        Use as a context manager (or call ``close``) to release a cluster it started.
+    """
+    if name not in EXECUTORS:
+        raise ValueError(f"executor must be one of {', '.join(EXECUTORS)}, got {name!r}")
+    if name == "local":
+        if address is not None or _check_gpus(gpus_per_worker):
+            raise ValueError("address and gpus_per_worker apply to the ray executor only, not to 'local'")
+        return LocalExecutor(workers)
+    return RayExecutor(address=address, workers=workers, gpus_per_worker=gpus_per_worker)

@@ -1,0 +1,123 @@
+"""The executors (executors.py) and the reproduce grid run as Ray tasks (study/runner.py run_grid).
+
+One local Ray cluster (2 CPUs) for the module. Real inputs: the corridor's NetVLAD and HOG similarity matrices.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vpr_uncertainty.executors import LocalExecutor, get_executor, import_ray
+from vpr_uncertainty.study import load_config, run_grid, write_results
+
+pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    ray = pytest.importorskip("ray")
+    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
+    os.environ["RAY_AUTH_MODE"] = "disabled"
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_local_executor_maps_in_order():
+    seen = []
+    assert LocalExecutor().map(abs, [-3, 1, -2], on_result=seen.append) == [3, 1, 2]
+    assert seen == [3, 1, 2]
+
+
+@pytest.mark.parametrize(
+    ("name", "options", "message"),
+    [
+        ("dask", {}, "executor must be one of local, ray"),
+        ("local", {"address": "auto"}, "ray executor only"),
+        ("local", {"workers": 0}, "workers must be a positive integer"),
+        ("ray", {"gpus_per_worker": -1}, "gpus_per_worker must be a number >= 0"),
+    ],
+)
+def test_bad_executor_options_are_refused(name, options, message):
+    with pytest.raises(ValueError, match=message):
+        get_executor(name, **options)
+
+
+def test_missing_ray_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(ImportError, match=r"vpr-uncertainty\[ray\]"):
+        import_ray()
+
+
+def test_ray_map_keeps_the_order_and_raises_the_task_error(ray_cluster):
+    executor = get_executor("ray", workers=2)
+    # builtins: the workers cannot import this test module (functions are pickled by reference)
+    assert executor.map(abs, range(0, -7, -1)) == list(range(7))
+    with pytest.raises(ValueError, match="invalid literal"):
+        executor.map(int, ["1", "x"])
+    executor.close()
+    assert ray_cluster.is_initialized()  # a cluster it did not start is left running
+
+
+@pytest.fixture
+def grid(tmp_path: Path, corridor_dir: Path, corridor_matches_dir: Path) -> Path:
+    inputs = ""
+    for method in ("NetVLAD", "HOG"):
+        shutil.copy(corridor_matches_dir / method / "precomputed_data_corrected.npy", tmp_path / f"{method}.npy")
+        inputs += (
+            f'[[inputs]]\nvpr_method = "{method}"\ndataset = "corridor"\nscores = "{method}.npy"\n'
+            f'ground_truth = "{corridor_dir / "ground_truth_new.npy"}"\n'
+        )
+    path = tmp_path / "grid.toml"
+    path.write_text('out = "out"\nmethods = ["RS", "SD", "SU", "BM"]\n' + inputs)
+    return path
+
+
+def _results(config_path: Path, out: str, executor=None) -> tuple[dict, list]:
+    config = load_config(config_path, out=config_path.parent / out)
+    cells = run_grid(config, progress=False, executor=executor)
+    paths = write_results(cells, config)
+    return json.loads(paths["results_json"].read_text()), cells
+
+
+def _numbers(document: dict) -> dict:
+    """results.json without the timings (seconds differ run to run)."""
+    if isinstance(document, dict):
+        return {k: _numbers(v) for k, v in document.items() if "seconds" not in k and not k.startswith("time_")}
+    if isinstance(document, list):
+        return [_numbers(v) for v in document]
+    return document
+
+
+def test_grid_on_ray_equals_the_local_grid_and_shares_the_cell_cache(ray_cluster, grid):
+    local, _ = _results(grid, "local")
+    with get_executor("ray", workers=2) as executor:
+        remote, cells = _results(grid, "ray", executor)
+    assert _numbers(remote) == _numbers(local)
+    assert [cell.vpr_method for cell in cells] == ["NetVLAD", "HOG"]
+    assert not any(cell.cached for cell in cells)
+    _, again = _results(grid, "ray")  # the local executor reads the cells the Ray tasks wrote
+    assert all(cell.cached for cell in again)
+    np.testing.assert_array_equal(again[0].indices, cells[0].indices)
+
+
+def test_reproduce_command_on_ray_reads_the_cells_of_a_local_run(ray_cluster, grid, capsys):
+    from vpr_uncertainty.cli import main
+
+    assert main(["reproduce", str(grid), "--no-report"]) == 0
+    assert main(["reproduce", str(grid), "--no-report", "--executor", "ray", "--ray-workers", "2"]) == 0
+    assert "2 of 2 cells read from the cache" in capsys.readouterr().out
+
+
+def test_ray_only_options_are_refused_with_the_local_executor(grid, capsys):
+    from vpr_uncertainty.cli import main
+
+    assert main(["reproduce", str(grid), "--ray-workers", "2"]) != 0
+    assert "--ray-workers: only with --executor ray" in capsys.readouterr().err

@@ -1,0 +1,45 @@
+"""Geometric verification pairs as Ray tasks in chunks (geometric/distributed.py via ``GeometricVerifier``).
+
+One local Ray cluster (2 CPUs) for the module. Real images: GV-SIFT on 8 corridor queries against 3 database
+images each; the reference is the same verifier in this process.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cv2")
+ray = pytest.importorskip("ray")
+
+from vpr_uncertainty.executors import get_executor  # noqa: E402
+from vpr_uncertainty.geometric import GeometricVerifier  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def executor():
+    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
+    os.environ["RAY_AUTH_MODE"] = "disabled"
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    with get_executor("ray", workers=2) as pool:
+        yield pool
+    ray.shutdown()
+
+
+def test_pairs_on_ray_equal_the_local_verification_and_features_are_cached_once(executor, corridor_dir, tmp_path):
+    queries = sorted((corridor_dir / "query").glob("*.jpg"))[:8]
+    database = sorted((corridor_dir / "ref").glob("*.jpg"))[:10]
+    pairs = [(q, (q + shift) % len(database)) for q in range(len(queries)) for shift in (0, 1, 5)]
+    local = GeometricVerifier.from_preset("GV-SIFT", cache_dir=tmp_path, workers=1)
+    expected = local.verify(queries, database, pairs)
+    distributed = GeometricVerifier.from_preset("GV-SIFT", cache_dir=tmp_path, workers=1)
+    distributed.executor = executor
+    result = distributed.verify(queries, database, pairs)
+    np.testing.assert_array_equal(result.inliers, expected.inliers)  # integers: exactly the same
+    np.testing.assert_array_equal(result.matches, expected.matches)
+    assert result.extraction.cached == len(queries) + len(database)  # read from the local run's cache: no re-extraction
+    assert expected.inliers.max() > 0
+    assert len(list(Path(tmp_path).glob("*.h5"))) == 1
