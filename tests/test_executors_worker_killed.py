@@ -1,10 +1,10 @@
 """A ``reproduce`` cell whose Ray worker process is killed mid-run: Ray reruns the task and the grid completes with
 the numbers of the local run; a stopped grid resumes from the cells already written.
 
-The worker is killed from outside, as an out-of-memory killer or a lost node would: the test watches ``/proc`` for
-the process whose title Ray sets to ``ray::_apply`` while it runs a task of :class:`~vpr_uncertainty.executors.RayExecutor`
-and sends it SIGKILL. Real inputs: the corridor's NetVLAD and HOG similarity matrices, with a bootstrap so that a
-cell runs long enough (about a second) to be caught.
+The worker is killed from outside, as an out-of-memory killer or a lost node would: the test watches ``/proc``
+for the process whose title Ray sets to ``ray::_apply`` while it runs a task of
+:class:`~vpr_uncertainty.executors.RayExecutor` and sends it SIGKILL. Real inputs: the corridor's NetVLAD and HOG
+similarity matrices, with a bootstrap so that a cell runs long enough (about a second) to be caught.
 """
 
 from __future__ import annotations
