@@ -112,7 +112,7 @@ def test_evaluate_command_on_ray_equals_the_local_command(executor, corridor, tm
     assert main([*argv, "--json", str(tmp_path / "local.json")]) == 0
     assert main([*argv, "--executor", "ray", "--workers", "2", "--json", str(tmp_path / "ray.json")]) == 0
     capsys.readouterr()
-    assert [name for name, _ in ray_calls] == ["ray"]  # the second command only (one call: no cache_dir, no rerun)
+    assert ray_calls and {name for name, _ in ray_calls} == {"ray"}  # the second command (timed calls: 1 or more)
     local, remote = (json.loads((tmp_path / name).read_text()) for name in ("local.json", "ray.json"))
     for name in ("SU", "SU+GV-SIFT"):
         for metric in ("auc_pr", "average_precision", "aurc"):
