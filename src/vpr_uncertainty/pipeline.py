@@ -266,7 +266,9 @@ def run(config: RunConfig, *, executor: Any = None) -> RunResult:
     ----------
     config : RunConfig
     executor : LocalExecutor or RayExecutor, optional
-        Where descriptor extraction runs (:func:`vpr_uncertainty.executors.get_executor`; default: this process).
+        Where descriptor extraction and the pairs of geometric verification (the GV-* methods, their cascades
+        and ``rerank``) run (:func:`vpr_uncertainty.executors.get_executor`; default: this process). The results
+        are those of a local run.
 
     Returns
     -------
@@ -321,6 +323,8 @@ def run(config: RunConfig, *, executor: Any = None) -> RunResult:
         "cache_dir": out,
         "device": config.device,
     }
+    if executor is not None:
+        inputs["executor"] = executor  # a stage input: the GV-* methods verify their pairs there
     uncertainty = evaluate(
         UncertaintyConfig(
             methods=methods or default_methods(dataset.has_metric_positions),
@@ -351,6 +355,7 @@ def run(config: RunConfig, *, executor: Any = None) -> RunResult:
             database_paths=inputs["database_paths"],
             cache_dir=out,
             device=config.device,
+            executor=executor,
         )
         reranking = {"method": config.rerank, "top_k": config.k, **result.recall}
         seconds["reranking"] = time.perf_counter() - start

@@ -235,8 +235,9 @@ def add_progress_options(parser: argparse.ArgumentParser, *, top_level: bool = F
 
 
 def add_image_options(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
-    """Preprocessing and parallelism of the descriptor extraction, shared by ``extract`` and ``run``:
-    ``--image-size``, ``--max-side``, ``--workers``, ``--threads``."""
+    """Preprocessing and threads of the descriptor extraction, shared by ``extract`` and ``run``:
+    ``--image-size``, ``--max-side``, ``--threads`` (``--workers``, the image decoding threads with the local
+    executor, is an executor option: :func:`vpr_uncertainty.commands._executor.add_executor_options`)."""
     from vpr_uncertainty.descriptors.images import DEFAULT_MAX_SIDE
 
     parser.add_argument(
@@ -252,10 +253,6 @@ def add_image_options(parser: argparse.ArgumentParser | argparse._ArgumentGroup)
         "are shrunk keeping their aspect ratio, so memory per batch is bounded: about 235 bytes per pixel for "
         f"the default model on CPU, i.e. about 2 GB for 16 images of {DEFAULT_MAX_SIDE} x {DEFAULT_MAX_SIDE}",
     )
-    parser.add_argument(
-        "--workers", type=integer_at_least(0), help="image decoding threads (default min(4, CPUs); 0 = none)"
-    )
-    add_alias(parser, "--num_workers", new="--workers", type=integer_at_least(0))
     parser.add_argument(
         "--threads",
         type=positive_int,

@@ -46,7 +46,14 @@ def add_input_options(parser: argparse.ArgumentParser) -> None:
 def _needs_images(methods: list[str]) -> list[str]:
     from vpr_uncertainty.methods import get_method
 
-    return [name for name in methods if "query_paths" in get_method(name).accepted_options()]
+    def verifies(name: str) -> bool:
+        entry = get_method(name)
+        accepted = entry.accepted_options()
+        if accepted is None:  # takes any option (a cascade SCORE+GV, a plugin): what it requires says
+            return "images" in entry.requires
+        return "query_paths" in accepted
+
+    return [name for name in methods if verifies(name)]
 
 
 def read_inputs(args: argparse.Namespace, *, top_k: int) -> tuple[Any, list[str], dict[str, Any], list[str]]:

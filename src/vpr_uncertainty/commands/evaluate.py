@@ -17,6 +17,7 @@ from vpr_uncertainty.commands._arguments import (
 )
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 from vpr_uncertainty.commands._evaluate_inputs import add_input_options, read_inputs
+from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args, executor_options
 from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
 from vpr_uncertainty.methods import available_methods, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
@@ -129,6 +130,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="DESC.h5",
         help="BTL: descriptor cache (from extract or run) holding the queries and the database",
     )
+    add_executor_options(
+        parser,
+        ray_workers="the geometric-verification tasks in flight, for the GV-* methods (default: the cluster's CPUs)",
+    )
     parser.set_defaults(handler=_run_evaluate)
 
 
@@ -144,30 +149,36 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
     if args.verify_fraction is not None:
         options["verify_fraction"] = args.verify_fraction
+    executor_options(args)  # bad executor options fail before any work
     wording = {"images": "--images", "query_images": "--query-images", "database_images": "--database-images"}
     with command_wording(ground_truth="--gt GT", database_positions="--database-positions", **wording):
         retrieval, args.methods, image_options, notes = read_inputs(args, top_k=top_k)
         options.update(image_options)
         for note in notes:
             print(f"note: {note}")
-        if args.calibration_fraction is not None:
-            if args.bootstrap:
-                raise ValueError(
-                    "--bootstrap and --calibration-fraction cannot be combined: the held-out evaluation reports its "
-                    "spread over the random splits instead"
-                )
-            return _run_held_out(args, retrieval, options)
-        evaluation = evaluate(
-            retrieval,
-            args.methods,
-            k=args.k,
-            alpha=args.alpha,
-            bootstrap=args.bootstrap,
-            seed=args.seed,
-            reference=args.reference,
-            latency=args.latency,
-            **options,
-        )
+        if args.calibration_fraction is not None and args.bootstrap:
+            raise ValueError(
+                "--bootstrap and --calibration-fraction cannot be combined: the held-out evaluation reports its "
+                "spread over the random splits instead"
+            )
+        if args.executor != "local":
+            _check_verifies(args.methods)
+        with executor_from_args(args) as executor:
+            if executor.name != "local":
+                options["executor"] = executor  # the GV-* methods verify their pairs there
+            if args.calibration_fraction is not None:
+                return _run_held_out(args, retrieval, options)
+            evaluation = evaluate(
+                retrieval,
+                args.methods,
+                k=args.k,
+                alpha=args.alpha,
+                bootstrap=args.bootstrap,
+                seed=args.seed,
+                reference=args.reference,
+                latency=args.latency,
+                **options,
+            )
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
     if args.latency:
         print(_latency_line(evaluation))
@@ -178,6 +189,15 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)
         print(f"wrote {args.plot}")
     return 0
+
+
+def _check_verifies(methods: list[str]) -> None:
+    """Refuse ``--executor ray`` when no selected method verifies images (nothing of evaluate would run there)."""
+    if not any(get_method(name).kind in ("geometric", "cascade") for name in methods):
+        raise ValueError(
+            f"--executor ray: evaluate runs only geometric verification (GV-*, SCORE+GV) on Ray, and none of the "
+            f"selected methods ({', '.join(methods)}) verifies images; drop --executor or add e.g. GV-SIFT"
+        )
 
 
 def _latency_line(evaluation) -> str:

@@ -15,7 +15,13 @@ from vpr_uncertainty.commands._arguments import (
     output_file,
     positive_int,
 )
-from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args
+from vpr_uncertainty.commands._executor import (
+    DECODING_THREADS,
+    add_executor_options,
+    executor_from_args,
+    executor_options,
+    local_workers,
+)
 from vpr_uncertainty.descriptors.extract import ON_ERROR
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, available_models, get_model_spec
 
@@ -173,7 +179,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--overwrite", action="store_true", help="recompute everything, ignoring the file")
     add_progress_options(parser)
-    add_executor_options(parser)
+    add_executor_options(
+        parser,
+        local_workers=DECODING_THREADS,
+        ray_workers="the Ray actors, each loading the model once and decoding its own images "
+        "(default: the cluster's CPUs)",
+    )
     parser.set_defaults(handler=_run_extract)
 
 
@@ -181,6 +192,7 @@ def _run_extract(args: argparse.Namespace) -> int:
     from vpr_uncertainty.data.folder import describe_unlisted
     from vpr_uncertainty.stages.descriptors import DescriptorsConfig, extract
 
+    executor_options(args)  # bad executor options fail before any work
     unlisted: list[dict[str, str]] | None = [] if args.on_error == "skip" else None
     splits = dataset_images(args.dataset, unlisted=unlisted)
     if unlisted:
@@ -197,7 +209,7 @@ def _run_extract(args: argparse.Namespace) -> int:
         on_error=args.on_error,
         image_size=args.image_size,
         max_side=args.max_side,
-        num_workers=args.workers,
+        num_workers=local_workers(args),
         overwrite=args.overwrite,
         progress=getattr(args, "progress", None),
     )

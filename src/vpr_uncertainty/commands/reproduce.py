@@ -7,7 +7,7 @@ from pathlib import Path
 
 from vpr_uncertainty.commands._arguments import VERIFY_FRACTION_HELP, fraction, output_directory
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
-from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args
+from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args, executor_options
 
 __all__ = ["add_parser"]
 
@@ -60,13 +60,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="F",
         help=VERIFY_FRACTION_HELP.replace("(default 0.3;", "(default: verify_fraction of CONFIG, else 0.3;"),
     )
-    add_executor_options(parser)
+    add_executor_options(parser, ray_workers="the grid cells run as Ray tasks at once (default: the cluster's CPUs)")
     parser.set_defaults(handler=_run_reproduce)
 
 
 def _run_reproduce(args: argparse.Namespace) -> int:
     from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 
+    executor_options(args)  # bad executor options fail before any work
     config = load_config(args.config, out=args.out, bootstrap=args.bootstrap, seed=args.seed, reference=args.reference)
     if args.verify_fraction is not None:
         if not any("+" in name.split(":")[0] for name in config.methods):

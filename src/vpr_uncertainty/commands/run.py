@@ -19,7 +19,13 @@ from vpr_uncertainty.commands._arguments import (
     positive_int,
 )
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
-from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args
+from vpr_uncertainty.commands._executor import (
+    DECODING_THREADS,
+    add_executor_options,
+    executor_from_args,
+    executor_options,
+    local_workers,
+)
 from vpr_uncertainty.commands.evaluate import METHOD_SPEC_HELP, method_list
 from vpr_uncertainty.methods import default_method_names
 
@@ -108,7 +114,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_common_run_options(parser)
     add_bootstrap_options(parser)
-    add_executor_options(parser)
+    add_executor_options(
+        parser,
+        local_workers=DECODING_THREADS,
+        ray_workers="the descriptor actors (each loads the model once and decodes its own images) and "
+        "geometric-verification tasks in flight (default: the cluster's CPUs)",
+    )
     parser.set_defaults(handler=_handle)
 
 
@@ -133,6 +144,7 @@ def _handle(args: argparse.Namespace) -> int:
 
     if not 0.0 <= args.alpha <= 1.0:
         raise ValueError(f"--alpha must lie in [0, 1], got {args.alpha}")
+    executor_options(args)  # bad executor options fail before any work
     apply_threads(args.threads)
     config = RunConfig(
         dataset=args.dataset,
@@ -151,7 +163,7 @@ def _handle(args: argparse.Namespace) -> int:
         radius=args.radius,
         image_size=args.image_size,
         max_side=args.max_side,
-        num_workers=args.workers,
+        num_workers=local_workers(args),
         method_options={
             key: value
             for key, value in (("btl_head", args.btl_head), ("verify_fraction", args.verify_fraction))

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -60,6 +60,7 @@ def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
         seed: int = 0,
         superpoint_weights: str | Path | None = None,
         matcher_weights: str | Path | None = None,
+        executor: Any = None,
     ) -> np.ndarray:
         _check_paths(retrieval, query_paths, database_paths, name)
         verifier = GeometricVerifier.from_preset(
@@ -71,6 +72,7 @@ def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
             seed=seed,
             superpoint_weights=superpoint_weights,
             matcher_weights=matcher_weights,
+            executor=executor,
         )
         result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
         return -result.inliers[:, 0].astype(np.float64)
@@ -81,7 +83,10 @@ def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
     Options: ``query_paths``, ``database_paths`` (image files indexed like the retrieval; required),
     ``cache_dir`` (HDF5 feature caches; none by default), ``max_side`` (working resolution, default
     {DEFAULT_MAX_SIDE}), ``workers`` (threads; default the CPU cores up to 8), ``device`` ("cpu" or "cuda"),
-    ``seed`` (RANSAC), ``superpoint_weights`` / ``matcher_weights`` (local weight files, GV-SP-* only).
+    ``seed`` (RANSAC), ``superpoint_weights`` / ``matcher_weights`` (local weight files, GV-SP-* only),
+    ``executor`` (where the pairs are matched and verified: a
+    :func:`~vpr_uncertainty.executors.get_executor` executor; default this process; the local features are
+    extracted and cached once per image in this process either way; the inliers are the same).
     """
     return method
 
@@ -106,6 +111,7 @@ def gv_h5(
     max_side: int = DEFAULT_MAX_SIDE,
     workers: int | None = None,
     seed: int = 0,
+    executor: Any = None,
 ) -> np.ndarray:
     """GV-H5: −inliers of the top-1 from precomputed local features in an hloc-layout HDF5 file.
 
@@ -115,7 +121,8 @@ def gv_h5(
     Images are looked up by name: their path relative to the deepest folder holding all ``query_paths`` and
     ``database_paths`` (hloc's naming, e.g. ``query/0001.jpg``), else their file name; without paths, by the
     retrieval's ``query_names`` and ``database_names``. Keypoints are in original-image pixels (hloc) and
-    ``ransac_threshold`` is in pixels at ``max_side``, as for the other GV methods.
+    ``ransac_threshold`` is in pixels at ``max_side``, as for the other GV methods. ``executor``: where the
+    pairs are matched and verified (as for the other GV methods).
     """
     if features_path is None:
         raise ValueError("GV-H5 needs features_path: an HDF5 file of local features in hloc's layout")
@@ -131,6 +138,7 @@ def gv_h5(
         features_path=features_path,
         workers=workers,
         seed=seed,
+        executor=executor,
     )
     result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
     return -result.inliers[:, 0].astype(np.float64)

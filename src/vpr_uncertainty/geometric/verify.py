@@ -140,6 +140,11 @@ class GeometricVerifier:
             raise FileNotFoundError(f"features file {self.features_path} does not exist")
         self.workers = default_workers() if workers is None else max(1, int(workers))
         self.seed = int(seed)
+        if executor is not None and not (callable(getattr(executor, "map", None)) and hasattr(executor, "name")):
+            raise ValueError(
+                "executor must be an executor of vpr_uncertainty.executors.get_executor (local or ray), "
+                f"got {executor!r}"
+            )
         self.executor = executor
 
     @classmethod

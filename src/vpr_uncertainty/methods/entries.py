@@ -52,9 +52,10 @@ NEEDS: dict[str, tuple[tuple[str, ...], str]] = {
 }
 
 
-#: Inputs a stage offers every selected method: used by the methods that take them, ignored by the others.
+#: Inputs a stage offers every selected method: used by the methods that take them, ignored by the others
+#: (``executor``: where the geometric verification methods verify their pairs, from the command's ``--executor``).
 STAGE_INPUTS: frozenset[str] = frozenset(
-    {"query_paths", "database_paths", "query_descriptors", "database_descriptors", "cache_dir", "device"}
+    {"query_paths", "database_paths", "query_descriptors", "database_descriptors", "cache_dir", "device", "executor"}
 )
 
 

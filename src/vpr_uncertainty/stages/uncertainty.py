@@ -75,7 +75,8 @@ def evaluate(
         ``uncertainties.npz``.
     inputs : mapping, optional
         What image-based methods need (``query_paths``, ``database_paths``, descriptors, ``cache_dir``,
-        ``device``); not part of the fingerprint (the retrieval's fingerprint covers their content).
+        ``device``) and where geometric verification runs (``executor``); not part of the fingerprint (the
+        retrieval's fingerprint covers their content, and every executor gives the same results).
     retrieval_fingerprint : str, optional
         The fingerprint of the retrieval file.
 
