@@ -20,6 +20,7 @@ features in an hloc HDF5 file with mutual NN ratio matching. RANSAC: homography 
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -36,6 +37,7 @@ from vpr_uncertainty.geometric.local_features import (
     LocalFeatures,
     check_max_side,
     default_workers,
+    single_blas_thread,
     single_torch_thread,
 )
 from vpr_uncertainty.geometric.matching import Matcher
@@ -230,11 +232,12 @@ class GeometricVerifier:
             return self.matcher.match(features[pair[0]], features[pair[1]], max_side=self.max_side)
 
         uses_torch = getattr(self.matcher, "uses_torch", False)
+        blas = contextlib.nullcontext() if uses_torch else single_blas_thread()
         if self.matcher.thread_parallel and self.workers > 1 and len(pairs) > 1:
-            with single_torch_thread(uses_torch), ThreadPoolExecutor(self.workers) as pool:
+            with blas, single_torch_thread(uses_torch), ThreadPoolExecutor(self.workers) as pool:
                 all_matches = list(progress_bar(pool.map(match, pairs), total=len(pairs), desc="matching", unit="pair"))
         else:
-            with single_torch_thread(uses_torch and self.matcher.thread_parallel):
+            with blas, single_torch_thread(uses_torch and self.matcher.thread_parallel):
                 all_matches = [match(pair) for pair in progress_bar(pairs, desc="matching", unit="pair")]
         ransac_start = time.perf_counter()
 
