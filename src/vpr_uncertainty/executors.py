@@ -1,7 +1,8 @@
 """Where independent work items run: in this process (``local``) or as tasks on a Ray cluster (``ray``).
 
-An executor has one operation, :meth:`map`: apply a function to every item and return the results in the order of
-the items. The functions are plain module-level functions of this package (Ray pickles them by reference), and they
+An executor has two operations: :meth:`map` applies a function to every item and returns the results in the order
+of the items; :meth:`imap` yields ``(position, result)`` pairs as they complete, for callers that write each result
+as it comes. The functions are plain module-level functions of this package (Ray pickles them by reference), and they
 write their own cached artefacts (a grid cell, a descriptor file) to paths that every worker sees: with a cluster
 of several machines the output folder must be on a shared filesystem.
 
@@ -11,7 +12,7 @@ whose worker dies is retried by Ray (``max_retries``); a run that is stopped is 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 __all__ = ["EXECUTORS", "LocalExecutor", "RayExecutor", "get_executor", "import_ray"]
@@ -84,11 +85,16 @@ class LocalExecutor:
             In the order of ``items``.
         """
         results = []
-        for item in items:
-            results.append(function(item))
+        for _, result in self.imap(function, items):
+            results.append(result)
             if on_result is not None:
-                on_result(results[-1])
+                on_result(result)
         return results
+
+    def imap(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[tuple[int, Any]]:
+        """Yield ``(position, function(item))`` for every item, one after the other (in order here)."""
+        for position, item in enumerate(items):
+            yield position, function(item)
 
     def close(self) -> None:
         """Nothing to release."""
@@ -158,31 +164,46 @@ class RayExecutor:
         list
             In the order of ``items``.
         """
+        items = list(items)
+        results: list[Any] = [None] * len(items)
+        for position, result in self.imap(function, items):
+            results[position] = result
+            if on_result is not None:
+                on_result(result)
+        return results
+
+    def imap(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[tuple[int, Any]]:
+        """Yield ``(position, function(item))`` for every item as its task completes (completion order).
+
+        At most ``workers`` tasks are in flight, so a consumer that writes each result as it comes (a cache)
+        keeps what finished when the run stops. Retries and errors as in :meth:`map`.
+        """
         ray = self.ray
         remote = ray.remote(_apply).options(
             num_cpus=1, num_gpus=self.gpus_per_worker, max_retries=MAX_RETRIES, retry_exceptions=False
         )
-        items = list(items)
-        results: list[Any] = [None] * len(items)
+        function = ray.put(function)  # serialised once (a partial may hold a model), not once per task
         pending: dict[Any, int] = {}
         queue = iter(enumerate(items))
-        for position, item in queue:
-            pending[remote.remote(function, item)] = position
-            if len(pending) >= self.workers:
-                break
-        while pending:
-            (done,), _ = ray.wait(list(pending), num_returns=1)
-            position = pending.pop(done)
-            try:
-                results[position] = ray.get(done)
-            except ray.exceptions.RayTaskError as error:
-                raise error.as_instanceof_cause() from None
-            if on_result is not None:
-                on_result(results[position])
-            for next_position, item in queue:
-                pending[remote.remote(function, item)] = next_position
-                break
-        return results
+        try:
+            for position, item in queue:
+                pending[remote.remote(function, item)] = position
+                if len(pending) >= self.workers:
+                    break
+            while pending:
+                (done,), _ = ray.wait(list(pending), num_returns=1)
+                position = pending.pop(done)
+                try:
+                    result = ray.get(done)
+                except ray.exceptions.RayTaskError as error:
+                    raise error.as_instanceof_cause() from None
+                for next_position, item in queue:
+                    pending[remote.remote(function, item)] = next_position
+                    break
+                yield position, result
+        finally:
+            for reference in pending:  # the consumer stopped early (an error, Ctrl-C): no orphan tasks
+                ray.cancel(reference, force=True)
 
     def close(self) -> None:
         """Shut down the local cluster this executor started (a cluster it connected to keeps running)."""

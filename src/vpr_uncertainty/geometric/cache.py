@@ -172,6 +172,7 @@ def extract_features(
     names: Sequence[str] | None = None,
     cache_dir: str | Path | None = None,
     workers: int | None = None,
+    executor: Any = None,
 ) -> tuple[dict[str, LocalFeatures], ExtractionStats]:
     """Features of every image, extracted once: read from the cache when there, else extracted and written.
 
@@ -186,6 +187,10 @@ def extract_features(
         Folder of the HDF5 caches; without it nothing is written and everything is extracted.
     workers : int, optional
         Threads that read images (and run OpenCV extractors).
+    executor : LocalExecutor or RayExecutor, optional
+        With Ray, the images to extract are sent in chunks to Ray tasks
+        (:func:`~vpr_uncertainty.geometric.distributed.extract_on_executor`); this process still reads and writes the
+        cache, each chunk as it comes back.
 
     Returns
     -------
@@ -216,7 +221,12 @@ def extract_features(
         stats.cached = len(features)
         from vpr_uncertainty.progress import progress_bar
 
-        extracted = extractor.extract([unique[name] for name in todo], workers=workers)
+        if executor is not None and executor.name != "local" and len(todo) > 1:
+            from vpr_uncertainty.geometric.distributed import extract_on_executor
+
+            extracted = extract_on_executor(extractor, [Path(unique[name]) for name in todo], executor)
+        else:
+            extracted = extractor.extract([unique[name] for name in todo], workers=workers)
         bar = progress_bar(extracted, total=len(todo), desc=f"{extractor.name} local features", unit="img")
         for position, result in bar:
             name = todo[position]

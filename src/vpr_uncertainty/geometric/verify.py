@@ -99,9 +99,9 @@ class GeometricVerifier:
     seed : int
         Seed of RANSAC's sampler.
     executor : LocalExecutor or RayExecutor, optional
-        Where the pairs are matched and verified: in this process (default), or in chunks as Ray tasks
-        (:mod:`vpr_uncertainty.geometric.distributed`); the local features are extracted (and cached) once per
-        image in this process either way.
+        Where the local features are extracted and the pairs matched and verified: in this process (default), or
+        in chunks as Ray tasks (:mod:`vpr_uncertainty.geometric.distributed`); the features are cached once per
+        image by this process either way.
 
     Examples
     --------
@@ -187,7 +187,8 @@ class GeometricVerifier:
 
     def _features(self, paths: list[Path], names: list[str]) -> tuple[dict[str, LocalFeatures], ExtractionStats]:
         if self.extractor is not None:
-            return extract_features(paths, self.extractor, names=names, cache_dir=self.cache_dir, workers=self.workers)
+            options = {"cache_dir": self.cache_dir, "workers": self.workers, "executor": self.executor}
+            return extract_features(paths, self.extractor, names=names, **options)
         start = time.perf_counter()
         import h5py
 
