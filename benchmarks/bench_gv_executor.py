@@ -1,16 +1,15 @@
 """Geometric verification throughput with the local executor and with Ray at 1 and 2 workers, and Ray's start-up.
 
-GV-SIFT (the ``GV-SIFT`` preset, MAGSAC++ homography, 640 px) on the first ``--pairs`` corridor queries and their
-top-1 database image in NetVLAD's precomputed similarity matrix. The local features are extracted once before the
-timings, in this process, as every executor does (their cost per image is printed), so each row times a call that
-reads them from the cache (in this process) and then matches and counts RANSAC inliers of the pairs: the step that
-``--executor ray`` distributes (geometric/distributed.py: chunks of pairs as Ray tasks, one thread each).
+GV-SIFT (the ``GV-SIFT`` preset, MAGSAC++ homography) on the first ``--pairs`` corridor queries and their top-1
+database image in NetVLAD's precomputed similarity matrix, on copies enlarged to ``--resize`` pixels wide (640 by
+default, the size of most VPR benchmarks' images). Each row times two calls: cold, with an empty feature cache (the
+local features of every image are extracted, then the pairs matched and RANSAC run), and warm, with every feature
+read from the cache. With ``--executor ray`` both steps run as Ray tasks in chunks, one thread each
+(geometric/distributed.py); this process reads and writes the cache.
 
-Rows: ``local`` with the verifier's threads (``--local-threads``, default 1 and the toolkit's default), and once
-with numpy's BLAS limited to 1 thread (threadpoolctl), which is what a Ray task gets (Ray sets OMP_NUM_THREADS to
-its CPUs); ``ray N`` on a local cluster of N CPUs, with ``ray.init`` and the first call (worker processes starting
-and importing the package) reported apart from the median of the warm repeats. On a machine with C cores expect
-near-linear scaling only up to C workers, and only where the pairs step dominates.
+Rows: ``local`` with the verifier's threads (``--local-threads``, default 1 and the toolkit's default); ``ray N`` on a
+local cluster of N CPUs, with ``ray.init`` and the first call (worker processes starting and importing the package)
+reported apart from the medians. On a machine with C cores expect near-linear scaling only up to C workers.
 
     python benchmarks/bench_gv_executor.py              # VPR_UNCERTAINTY_DATA must point at the shared data
     python benchmarks/bench_gv_executor.py --pairs 111 --workers 1 2 4 --repeats 5
@@ -19,7 +18,6 @@ near-linear scaling only up to C workers, and only where the pairs step dominate
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import statistics
 import tempfile
@@ -30,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from bench_geometric import resized_copies
 from vpr_uncertainty.executors import get_executor
 from vpr_uncertainty.geometric import GeometricVerifier
 from vpr_uncertainty.geometric.cache import image_names
@@ -42,7 +41,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--pairs", type=int, default=60, help="queries verified against their top-1 (default 60)")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="Ray worker counts (default 1 2)")
     parser.add_argument("--local-threads", type=int, nargs="+", help="threads of the local rows (default 1 and auto)")
-    parser.add_argument("--repeats", type=int, default=5, help="timed repeats per row; the median is reported")
+    parser.add_argument("--repeats", type=int, default=3, help="timed repeats per row; the median is reported")
+    parser.add_argument("--resize", type=int, default=640, help="verify copies this wide (0: the 160x120 originals)")
     return parser.parse_args(argv)
 
 
@@ -63,26 +63,20 @@ def corridor_pairs(data: Path, count: int) -> tuple[dict[str, Path], list[tuple[
     return paths, [(query_names[q], database_names[int(d)]) for q, d in enumerate(top1)]
 
 
-def timed(verifier: GeometricVerifier, pairs: list, paths: dict, repeats: int) -> tuple[dict[str, float], np.ndarray]:
-    """Median seconds of verifying ``pairs`` (``total``; ``read``: the features from the cache, in this process;
-    ``pairs``: matching and RANSAC, the step an executor distributes) and the inliers of the last repeat."""
-    runs, inliers = [], None
-    for _ in range(repeats):
+def timed(make_verifier: Any, pairs: list, paths: dict, repeats: int, folder: Path) -> tuple[dict, np.ndarray]:
+    """Median seconds of verifying ``pairs`` cold (an empty feature cache: features extracted, then pairs matched)
+    and warm (every feature read from the cache), and the inliers of the last run."""
+    cold, warm, inliers = [], [], None
+    for repeat in range(repeats):
+        verifier = make_verifier(folder / f"cache{repeat}")
         start = time.perf_counter()
         result = verifier.verify_names(pairs, paths)
-        total = time.perf_counter() - start
-        runs.append((total, result.extraction.seconds, result.matching_seconds + result.ransac_seconds))
-        inliers = result.inliers
-    return {key: statistics.median(run[i] for run in runs) for i, key in enumerate(("total", "read", "pairs"))}, inliers
-
-
-def blas_threads(limit: int | None) -> Any:
-    """A context limiting numpy's BLAS to ``limit`` threads (threadpoolctl), or nothing for None."""
-    if limit is None:
-        return contextlib.nullcontext()
-    from threadpoolctl import threadpool_limits
-
-    return threadpool_limits(limits=limit, user_api="blas")
+        cold.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        inliers = verifier.verify_names(pairs, paths).inliers
+        warm.append(time.perf_counter() - start)
+        assert result.extraction.extracted and np.array_equal(result.inliers, inliers)
+    return {"cold": statistics.median(cold), "warm": statistics.median(warm)}, inliers
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -93,49 +87,50 @@ def main(argv: list[str] | None = None) -> None:
     import ray
 
     paths, pairs = corridor_pairs(args.data, args.pairs)
-    threads = args.local_threads or sorted({1, default_workers()})
-    local_rows = [(count, None) for count in threads] + [(1, 1)]
     rows, reference = [], None
-    with tempfile.TemporaryDirectory() as cache_dir:
-        start = time.perf_counter()
-        extraction = GeometricVerifier.from_preset("GV-SIFT", cache_dir=cache_dir).verify_names(pairs, paths).extraction
-        first_seconds = time.perf_counter() - start
-        for count, blas in local_rows:
-            verifier = GeometricVerifier.from_preset("GV-SIFT", cache_dir=cache_dir, workers=count)
-            with blas_threads(blas):
-                figures, inliers = timed(verifier, pairs, paths, args.repeats)
-            reference = inliers if reference is None else reference
-            assert np.array_equal(inliers, reference), "local runs disagree"
-            name = f"local, {count} thread{'s' if count > 1 else ''}" + (", BLAS 1 thread" if blas else "")
-            rows.append((name, figures, None, None))
+    with tempfile.TemporaryDirectory() as folder:
+        folder = Path(folder)
+        if args.resize:
+            copies = resized_copies(list(paths.values()), args.resize, folder / "images")
+            paths = dict(zip(paths, copies, strict=True))
+        images = len({name for pair in pairs for name in pair})
+        for count in args.local_threads or sorted({1, default_workers()}):
+
+            def local(cache: Path, count: int = count) -> GeometricVerifier:
+                return GeometricVerifier.from_preset("GV-SIFT", cache_dir=cache, workers=count)
+
+            figures, reference = timed(local, pairs, paths, args.repeats, folder / f"local{count}")
+            rows.append((f"local, {count} thread{'s' if count > 1 else ''}", figures, None, None))
         for workers in args.workers:
             start = time.perf_counter()
             ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
             init = time.perf_counter() - start
             with get_executor("ray", workers=workers) as executor:
-                verifier = GeometricVerifier.from_preset("GV-SIFT", cache_dir=cache_dir, workers=1, executor=executor)
-                first, _ = timed(verifier, pairs, paths, 1)  # worker processes start and import the package
-                figures, inliers = timed(verifier, pairs, paths, args.repeats)
+
+                def on_ray(cache: Path, executor: Any = executor) -> GeometricVerifier:
+                    return GeometricVerifier.from_preset("GV-SIFT", cache_dir=cache, workers=1, executor=executor)
+
+                first, _ = timed(on_ray, pairs, paths, 1, folder / f"first{workers}")  # workers start, import
+                figures, inliers = timed(on_ray, pairs, paths, args.repeats, folder / f"ray{workers}")
             ray.shutdown()
             assert np.array_equal(inliers, reference), f"ray {workers} gave other inliers than the local run"
-            rows.append((f"ray, {workers} worker{'s' if workers > 1 else ''}", figures, init, first["total"]))
-    base = rows[0][1]["total"]
+            rows.append((f"ray, {workers} worker{'s' if workers > 1 else ''}", figures, init, first["cold"]))
+    base = rows[0][1]
+    side = f"{args.resize} px wide" if args.resize else "160x120"
     print(
-        f"GV-SIFT on {len(pairs)} corridor pairs (query, NetVLAD top-1), {os.cpu_count()} CPUs (load average "
-        f"{os.getloadavg()[0]:.1f} at the end), median of "
-        f"{args.repeats} repeats. Local features of {extraction.extracted + extraction.cached} images extracted once "
-        f"beforehand in this process, as every executor does ({extraction.seconds:.2f} s, "
-        f"{extraction.seconds / max(extraction.extracted, 1) * 1e3:.0f} ms/image; first call with extraction "
-        f"{first_seconds:.2f} s). Inliers identical on every row.\n"
+        f"GV-SIFT on {len(pairs)} corridor pairs (query, NetVLAD top-1; {images} images, {side}), "
+        f"{os.cpu_count()} CPUs (load average {os.getloadavg()[0]:.1f} at the end), median of {args.repeats} "
+        "repeats; cold: empty feature cache (features extracted, then pairs); warm: features cached. Inliers "
+        "identical on every row.\n"
     )
-    columns = ["executor", "s per run", "of which: read features", "pairs step", "pairs/s", "vs first row"]
-    print("| " + " | ".join([*columns, "ray.init s", "first call s"]) + " |")
+    print("| executor | cold s | cold pairs/s | vs first row | warm s | warm pairs/s | ray.init s | first call s |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for name, figures, init, first in rows:
         extra = "– | – |" if init is None else f"{init:.2f} | {first:.2f} |"
         print(
-            f"| {name} | {figures['total']:.3f} | {figures['read']:.3f} | {figures['pairs']:.3f} | "
-            f"{len(pairs) / figures['total']:.0f} | {base / figures['total']:.2f}x | {extra}"
+            f"| {name} | {figures['cold']:.2f} | {len(pairs) / figures['cold']:.0f} | "
+            f"{base['cold'] / figures['cold']:.2f}x | {figures['warm']:.3f} | {len(pairs) / figures['warm']:.0f} | "
+            f"{extra}"
         )
 
 
