@@ -15,6 +15,7 @@ the default model at 16 x 640 x 640 on CPU), plus the images being decoded ahead
 
 from __future__ import annotations
 
+import contextlib
 import os
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -123,6 +124,23 @@ def _described_batches(
         yield decoded, (_forward(model, images) if images else None)
 
 
+def _described(
+    todo: Sequence[_Item],
+    model: DescriptorModel,
+    batch_size: int,
+    workers: int,
+    executor: Any,
+    model_factory: Callable[[], Any] | None,
+) -> Iterator[tuple[list[tuple[_Item, np.ndarray | ImageDecodeError | None]], np.ndarray | None]]:
+    """The batches of ``todo`` with their descriptors, in order: in this process, or on Ray Data actors."""
+    if executor is not None and executor.name != "local":
+        from vpr_uncertainty.descriptors.distributed import ray_described_batches
+
+        return ray_described_batches(todo, model, executor, batch_size=batch_size, model_factory=model_factory)
+    batches = [todo[start : start + batch_size] for start in range(0, len(todo), batch_size)]
+    return _described_batches(batches, model, workers)
+
+
 def _content_key(path: Path) -> str:
     """The image's content key, or "" when it cannot be read (the decoder then reports why)."""
     from vpr_uncertainty.cache import content_key
@@ -207,8 +225,9 @@ def extract_descriptors(
         Receives ``{"name", "path", "error"}`` of each image left out (``on_error="skip"``).
     executor : LocalExecutor or RayExecutor, optional
         Where the model runs (:func:`vpr_uncertainty.executors.get_executor`): by default in this process; with
-        Ray, the missing batches go to a pool of actors (:mod:`vpr_uncertainty.descriptors.distributed`) and this
-        process writes what comes back into the same cache.
+        Ray, the missing images go through Ray Data ``map_batches`` on a pool of model actors
+        (:mod:`vpr_uncertainty.descriptors.distributed`) and this process writes what comes back, batch by batch
+        in the requested order, into the same cache.
     model_factory : callable, optional
         With Ray: loads the model in each actor (default: the loaded ``model`` is sent to them).
 
@@ -257,22 +276,18 @@ def extract_descriptors(
             done = set()
         todo = [(index, name, path) for index, (name, path) in enumerate(zip(names, paths, strict=True))]
         todo = [item for item in todo if item[1] not in done]
-        batches = [todo[start : start + batch_size] for start in range(0, len(todo), batch_size)]
         from vpr_uncertainty.progress import progress_bar
 
-        with progress_bar(
-            total=len(names),
-            initial=len(names) - len(todo),
-            desc=f"{model.name} {split}",
-            unit="img",
-            enabled=progress,
-        ) as bar:
-            if executor is not None and executor.name != "local":
-                from vpr_uncertainty.descriptors.distributed import ray_described_batches
-
-                described = ray_described_batches(batches, model, executor, model_factory=model_factory)
-            else:
-                described = _described_batches(batches, model, workers)
+        with (
+            progress_bar(
+                total=len(names),
+                initial=len(names) - len(todo),
+                desc=f"{model.name} {split}",
+                unit="img",
+                enabled=progress,
+            ) as bar,
+            contextlib.closing(_described(todo, model, batch_size, workers, executor, model_factory)) as described,
+        ):
             for decoded, descriptors in described:
                 good_names: list[str] = []
                 for (_, name, path), result in decoded:
