@@ -170,17 +170,28 @@ def test_a_memory_mapped_npy_database_is_streamed_block_by_block(tmp_path, spy_b
     assert len(searches) == 3
 
 
-def test_blocks_of_a_memmap_are_mapped_one_at_a_time(tmp_path):
-    array = np.arange(60, dtype=np.float32).reshape(20, 3)
+@pytest.mark.parametrize("dtype", ["<f4", ">f4", "<f8", "<f2", "|i1"])
+def test_blocks_of_a_npy_file_are_read_into_new_float32_arrays(tmp_path, dtype):
+    array = (np.arange(60).reshape(20, 3) % 7).astype(dtype)
     np.save(tmp_path / "d.npy", array)
-    np.save(tmp_path / "f.npy", np.asfortranarray(array))  # Fortran order: sliced through one mapping
+    np.save(tmp_path / "f.npy", np.asfortranarray(array))  # Fortran order: sliced through the mapping
     _, rows = open_descriptors(tmp_path / "d.npy")
     block = rows.read(5, 9)
-    assert type(block) is np.ndarray and block.flags.c_contiguous and block.flags.writeable
-    np.testing.assert_array_equal(block, array[5:9])
+    assert type(block) is np.ndarray and block.dtype == np.float32 and block.flags.c_contiguous
+    assert block.flags.writeable and block.flags.owndata
+    np.testing.assert_array_equal(block, array[5:9])  # small integers: exact in every dtype
     np.testing.assert_array_equal(np.concatenate(list(rows.row_blocks(7))), array)
     np.testing.assert_array_equal(open_descriptors(tmp_path / "f.npy")[1].to_array(), array)
     assert rows.read(18, 40).shape == (2, 3) and rows.read(25, 30).shape == (0, 3)
+
+
+def test_a_npy_file_cut_after_it_was_opened_is_one_clear_error(tmp_path):
+    np.save(tmp_path / "d.npy", np.ones((20, 3), np.float32))
+    _, rows = open_descriptors(tmp_path / "d.npy")
+    content = (tmp_path / "d.npy").read_bytes()
+    (tmp_path / "d.npy").write_bytes(content[: len(content) - 30])
+    with pytest.raises(ValueError, match=r"d\.npy changed while it was read: rows 16–19"):
+        rows.read(16, 20)
 
 
 def write_cache(path, rng, counts=(("database", 700), ("queries", 30)), dtype=np.float32, complete=True):
@@ -321,3 +332,19 @@ def test_open_descriptors_errors_match_load_descriptors(tmp_path):
             open_descriptors(tmp_path / name, split)
         with pytest.raises(error, match=message):
             load_descriptors(tmp_path / name, split)
+
+
+def test_a_vpr_methods_evaluation_log_folder_streams_its_database(tmp_path, spy_blocks, monkeypatch):
+    from test_retrieval_vpr_methods_evaluation import _log_folder
+    from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_vpr_methods_evaluation
+
+    reads, searches = spy_blocks
+    folder = _log_folder(tmp_path)
+    in_memory = read_vpr_methods_evaluation(folder).retrieval
+    assert searches == [] and reads[-1] == (0, 12)  # 12 rows: less than one default block, read whole
+    reads.clear()
+    monkeypatch.setattr(descriptor_rows, "DEFAULT_BLOCK_BYTES", 16 * 4 * 5)  # 5 rows a block
+    streamed = read_vpr_methods_evaluation(folder).retrieval
+    assert searches == [5] and max(stop - start for start, stop in reads) == 5
+    np.testing.assert_array_equal(streamed.indices, in_memory.indices)
+    assert_close(streamed.scores, in_memory.scores, atol=1e-6)

@@ -129,6 +129,7 @@ def array_digest(*arrays: Any) -> str:
             hasher.update(f"{np.dtype(array.dtype).str}{tuple(array.shape)};".encode())
             for block in array.row_blocks():
                 _hash_bytes(hasher, np.ascontiguousarray(block, dtype=array.dtype))
+                del block  # before the next block is read
             continue
         array = np.ascontiguousarray(array)
         if array.dtype.hasobject:

@@ -58,6 +58,7 @@ def database_norms(rows: DescriptorRows, block: int, faiss: Any) -> np.ndarray:
         part = squared[start : start + len(data)]
         faiss.fvec_norms_L2sqr(faiss.swig_ptr(part), faiss.swig_ptr(data), data.shape[1], len(data))
         _check_norms(part, data, "database", first_row=start)
+        del data  # before the next block is read: one block in memory at a time
     _check_nonzero(squared, "database")
     return squared
 

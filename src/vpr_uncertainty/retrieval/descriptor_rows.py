@@ -4,10 +4,11 @@
 the same files, the same checks and errors, but the descriptors stay on disk in a :class:`DescriptorRows`, which
 reads any range of rows as a new float32 array:
 
-* a ``.npy`` array is memory-mapped by :func:`vpr_uncertainty.data.npy.read_npy` (which never runs code from the
-  file), and each block is mapped on its own and unmapped after use (:class:`~vpr_uncertainty.retrieval._top_k.
-  MappedRows`), so the pages read do not pile up in the resident memory of the process; a Fortran-ordered file is
-  sliced through one long-lived mapping instead;
+* a ``.npy`` array is opened memory-mapped by :func:`vpr_uncertainty.data.npy.read_npy` (which checks its header
+  and length and never runs code from the file); each block of a C-ordered file is then read from the file into
+  a new array at its offset, not through the mapping, because the pages of a mapping count in
+  the resident memory of the process while it is mapped: a block read costs one block of memory. A
+  Fortran-ordered file is sliced through the mapping instead (its rows are not contiguous);
 * the HDF5 descriptor cache (:mod:`vpr_uncertainty.descriptors.cache`) is read by slices of its ``descriptors``
   dataset (float32 or float16 storage), the file opened for each block; the image names are read whole;
 * hloc's global-feature files (:mod:`vpr_uncertainty.descriptors.hloc`, one HDF5 group per image) are read whole.
@@ -75,16 +76,11 @@ class DescriptorRows:
 
     @classmethod
     def from_array(cls, array: np.ndarray, *, source: str = "array") -> DescriptorRows:
-        """Rows of an array; a C-ordered :class:`numpy.memmap` of a file is mapped one block at a time."""
-        from vpr_uncertainty.retrieval._top_k import MappedRows
-
+        """Rows of an array (a :class:`numpy.memmap` is sliced: the pages read stay mapped while it lives)."""
         array = np.asarray(array) if not isinstance(array, np.ndarray) else array
         if array.ndim != 2:
             raise ValueError(f"{source}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
-        rows: Any = array
-        if isinstance(array, np.memmap) and array.flags.c_contiguous and array.filename is not None and array.size:
-            rows = MappedRows(array)
-        return cls(lambda start, stop: rows[start:stop], array.shape, source=source)
+        return cls(lambda start, stop: array[start:stop], array.shape, source=source)
 
     def __len__(self) -> int:
         return self.shape[0]
@@ -98,7 +94,9 @@ class DescriptorRows:
         if stop <= start:
             return np.empty((0, self.shape[1]), dtype=np.float32)
         block = self._read(start, stop)
-        return np.array(block, dtype=np.float32, order="C", copy=True)
+        if isinstance(block, np.memmap) or not block.flags.owndata:
+            return np.array(block, dtype=np.float32, order="C")  # a view of the caller's array or of a mapping
+        return np.require(block, np.float32, ["C_CONTIGUOUS", "WRITEABLE"])  # a new block: no second copy
 
     def row_blocks(self, rows: int | None = None) -> Iterator[np.ndarray]:
         """Consecutive blocks of ``rows`` rows (by default :func:`default_block_rows`), each a new float32 array."""
@@ -125,7 +123,23 @@ def _open_npy(path: Path) -> DescriptorRows:
         raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
     if array.ndim != 2:
         raise ValueError(f"{path}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
-    return DescriptorRows.from_array(array, source=str(path))
+    if not isinstance(array, np.memmap) or not array.flags.c_contiguous:
+        return DescriptorRows.from_array(array, source=str(path))  # empty, or Fortran-ordered: sliced
+    shape, dtype, offset = array.shape, array.dtype, int(array.offset)  # a fresh mapping of the whole file
+    dimension = shape[1]
+    row_bytes = dimension * dtype.itemsize
+    del array
+
+    def read(start: int, stop: int) -> np.ndarray:
+        block = np.empty((stop - start, dimension), dtype=dtype)
+        with path.open("rb") as handle:
+            handle.seek(offset + start * row_bytes)
+            count = handle.readinto(memoryview(block).cast("B"))
+        if count != block.nbytes:
+            raise ValueError(f"{path} changed while it was read: rows {start}–{stop - 1} are no longer all there")
+        return block
+
+    return DescriptorRows(read, shape, source=str(path))
 
 
 def _open_cache(path: Path, split: str) -> tuple[np.ndarray, DescriptorRows]:

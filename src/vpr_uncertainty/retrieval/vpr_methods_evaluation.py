@@ -203,10 +203,12 @@ def read_vpr_methods_evaluation(
             "(that tool writes them with --save_descriptors)"
         )
     _, queries = load_descriptors(folder / LOG_FILES[0])
-    _, database = open_descriptors(folder / LOG_FILES[1])  # memory-mapped: a large database is searched by blocks
+    _, database = open_descriptors(folder / LOG_FILES[1])  # read lazily: a large database is searched by blocks
     arguments = read_arguments(folder / "info.log")
-    blocks = database.row_blocks()
-    worst = max((float(np.abs(np.linalg.norm(block, axis=1) - 1.0).max()) for block in blocks if len(block)), default=0)
+    worst = 0.0
+    for block in database.row_blocks():
+        worst = max(worst, float(np.abs(np.linalg.norm(block, axis=1) - 1.0).max(initial=0.0)))
+        del block  # before the next block is read
     notes = []
     if worst > 1e-3:
         notes.append("the descriptors are not L2-normalised: ranked by cosine similarity, not by L2 distance")
