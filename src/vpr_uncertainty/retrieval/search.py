@@ -362,17 +362,7 @@ def retrieve(
     >>> result.config["n_database"], result.config["dimension"]
     (3, 3)
     """
-    settings: dict[str, Any] = {
-        "source": "faiss",
-        "metric": "cosine",
-        "k": _positive_int(k, "k"),
-        "index": _check_index_string(index),
-        "device": device,
-        "n_database": int(np.shape(database)[0]),  # np.shape reads no data of a memmap or DescriptorRows
-        "n_queries": int(np.shape(queries)[0]),
-    }
-    if search_params:
-        settings["search_params"] = search_params
+    k, index = _positive_int(k, "k"), _check_index_string(index)
     scores, indices, distances = search_descriptors(
         database,
         queries,
@@ -385,6 +375,18 @@ def retrieve(
         progress=progress,
         database_block=database_block,
     )
-    settings["dimension"] = int(np.shape(database)[1])
+    n_database, dimension = (int(size) for size in np.shape(database))  # checked; no data of a file is read
+    settings: dict[str, Any] = {
+        "source": "faiss",
+        "metric": "cosine",
+        "k": k,
+        "index": index,
+        "device": device,
+        "n_database": n_database,
+        "n_queries": int(np.shape(queries)[0]),
+    }
+    if search_params:
+        settings["search_params"] = search_params
+    settings["dimension"] = dimension
     settings.update(config or {})
     return Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
