@@ -111,6 +111,10 @@ def content_key(path: str | Path) -> str:
 def array_digest(*arrays: Any) -> str:
     """A hash of the dtype, shape and bytes of each array (None counts as an absent array).
 
+    Arrays are hashed in pieces of at most 16 MiB (no copy of a whole array). An object with a ``row_blocks()``
+    method, ``shape`` and ``dtype`` (a :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows` on
+    disk) is hashed one block of rows at a time, with the digest of the same rows in memory.
+
     Examples
     --------
     >>> array_digest(np.zeros(3)) == array_digest(np.zeros(3)), array_digest(np.zeros(3)) == array_digest(np.ones(3))
@@ -121,12 +125,26 @@ def array_digest(*arrays: Any) -> str:
         if array is None:
             hasher.update(b"none;")
             continue
+        if hasattr(array, "row_blocks") and not isinstance(array, np.ndarray):
+            hasher.update(f"{np.dtype(array.dtype).str}{tuple(array.shape)};".encode())
+            for block in array.row_blocks():
+                _hash_bytes(hasher, np.ascontiguousarray(block, dtype=array.dtype))
+                del block  # before the next block is read
+            continue
         array = np.ascontiguousarray(array)
         if array.dtype.hasobject:
             raise TypeError("array_digest cannot hash object arrays")
         hasher.update(f"{array.dtype.str}{array.shape};".encode())
-        hasher.update(array.tobytes())
+        _hash_bytes(hasher, array)
     return hasher.hexdigest()
+
+
+def _hash_bytes(hasher: Any, array: np.ndarray, piece_bytes: int = 1 << 24) -> None:
+    """Feed the bytes of a C-ordered array to ``hasher`` in pieces (the same digest as all bytes at once)."""
+    flat = array.reshape(-1)
+    step = max(1, piece_bytes // max(array.itemsize, 1))
+    for start in range(0, flat.size, step):
+        hasher.update(flat[start : start + step].tobytes())
 
 
 def _canonical(value: Any) -> Any:

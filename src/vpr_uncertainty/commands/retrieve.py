@@ -55,6 +55,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="cuda needs GPU Faiss (default cpu)")
     parser.add_argument("--batch-size", type=positive_int, default=4096, help="queries searched at once (default 4096)")
+    parser.add_argument(
+        "--database-block",
+        type=positive_int,
+        metavar="ROWS",
+        help="exact search: read the database in blocks of ROWS rows, never whole (default: a database file larger "
+        "than 64 MiB is read in blocks of 64 MiB; approximate indexes and cuda read it whole)",
+    )
     parser.add_argument("--database-positions", type=Path, metavar="P.npy", help="database positions (D x 2, metres)")
     parser.add_argument("--query-positions", type=Path, metavar="P.npy", help="query positions (Q x 2, metres)")
     parser.add_argument(
@@ -99,12 +106,13 @@ def _load_positions(path: Path | None, expected: int, what: str):
 def _run_retrieve(args: argparse.Namespace) -> int:
     from vpr_uncertainty.data.attach import ground_truth_fields
     from vpr_uncertainty.evaluation import recall_at_n
-    from vpr_uncertainty.retrieval import load_descriptors
+    from vpr_uncertainty.retrieval import load_descriptors, open_descriptors
     from vpr_uncertainty.stages.retrieval import RetrievalConfig, search
 
     if args.out.suffix.lower() != ".npz":
         raise ValueError(f"--out must name a .npz file, got {args.out}")
-    database_names, database = load_descriptors(args.database, "database")
+    # The database stays on disk: exact search reads it block by block (approximate indexes read it whole).
+    database_names, database = open_descriptors(args.database, "database")
     query_names, queries = load_descriptors(args.queries, "queries")
     database_positions = _load_positions(args.database_positions, len(database), "database")
     query_positions = _load_positions(args.query_positions, len(queries), "query")
@@ -133,6 +141,7 @@ def _run_retrieve(args: argparse.Namespace) -> int:
         search_params=args.search_params,
         device=args.device,
         batch_size=args.batch_size,
+        database_block=args.database_block,
         progress=getattr(args, "progress", None),
     )
     start = time.perf_counter()

@@ -5,7 +5,9 @@ scores are cosine similarities in [-1, 1] and the squared L2 distances beside th
 by :func:`vpr_uncertainty.scores.squared_distances_from_similarities`, the one place this conversion is made).
 Exact search (``index="Flat"``) by default; any Faiss index-factory string (``"IVF4096,PQ64"``, ``"HNSW32"``, ...)
 builds an approximate index, trained on the database. Queries are searched in batches, so the memory used beyond
-the descriptors themselves stays bounded. Defined behaviour on hard input:
+the descriptors themselves stays bounded; exact search can also stream the database from disk one block of rows
+at a time (``database_block``; :mod:`~vpr_uncertainty.retrieval._streaming`), with the same result, for databases
+larger than memory. Defined behaviour on hard input:
 
 * **Ties and duplicate descriptors**: candidates with equal scores are ordered by lower database index, and when
   a tie straddles the k-th place, the lower indices are kept, exactly as
@@ -32,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.retrieval._faiss import GPU_MAX_K, Searcher, faiss_gpu_available, import_faiss
+from vpr_uncertainty.retrieval.descriptor_rows import DescriptorRows, default_block_rows
 from vpr_uncertainty.retrieval.result import Retrieval
 from vpr_uncertainty.scores import squared_distances_from_similarities
 
@@ -53,19 +56,48 @@ DEFAULT_BATCH_SIZE = 4096
 _PROGRESS_WORK = 5e10
 
 
-def _as_descriptors(values: object, name: str) -> tuple[np.ndarray, bool]:
-    """(float32 C-contiguous array of shape (N, D), whether it is a new array that the caller does not hold)."""
-    array = np.asarray(values)
+def _checked_array(values: object, name: str) -> np.ndarray:
+    """``values`` as an array (a memmap stays one), checked to be numeric, 2-D and of dimension ≥ 1."""
+    array = values if isinstance(values, np.ndarray) else np.asarray(values)
     if array.dtype == object or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
         raise TypeError(f"{name} must be a numeric array of shape (n_images, dimension), got dtype {array.dtype}")
     if array.ndim != 2:
         raise ValueError(f"{name} must be 2-D with shape (n_images, dimension), got shape {array.shape}")
     if array.shape[1] == 0:
         raise ValueError(f"{name} has dimension 0; descriptors need at least one component")
+    return array
+
+
+def _as_descriptors(values: object, name: str) -> tuple[np.ndarray, bool]:
+    """(float32 C-contiguous array of shape (N, D), whether it is a new array that the caller does not hold)."""
+    if isinstance(values, DescriptorRows):
+        return values.to_array(), True
+    array = _checked_array(values, name)
     if array.dtype == np.float32 and array.flags.c_contiguous:
         return array, False
     converted = np.ascontiguousarray(array, dtype=np.float32)
     return converted, not np.shares_memory(converted, array)
+
+
+def _check_norms(squared: np.ndarray, descriptors: np.ndarray, name: str, first_row: int = 0) -> None:
+    """NaN or infinite values in rows ``first_row`` … (``squared``: their squared norms) raise, naming the row."""
+    bad = ~np.isfinite(squared)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        what = "NaN" if np.isnan(descriptors[row]).any() else "an infinite or overflowing value"
+        raise ValueError(f"{name} row {first_row + row} contains {what}; descriptors must be finite")
+
+
+def _check_nonzero(squared: np.ndarray, name: str) -> None:
+    """All-zero rows (squared norm 0) raise, naming them."""
+    zero = squared == 0
+    if zero.any():
+        rows = np.flatnonzero(zero)
+        shown = ", ".join(str(r) for r in rows[:5]) + (", ..." if rows.size > 5 else "")
+        raise ValueError(
+            f"{name} has {rows.size} all-zero row(s) (rows {shown}); a zero vector has no direction and cannot be "
+            "L2-normalised"
+        )
 
 
 def _normalised(descriptors: np.ndarray, name: str, *, owned: bool, copy: bool) -> np.ndarray:
@@ -76,19 +108,8 @@ def _normalised(descriptors: np.ndarray, name: str, *, owned: bool, copy: bool) 
         return descriptors
     squared = np.empty(n_rows, dtype=np.float32)
     faiss.fvec_norms_L2sqr(faiss.swig_ptr(squared), faiss.swig_ptr(descriptors), dimension, n_rows)
-    bad = ~np.isfinite(squared)
-    if bad.any():
-        row = int(np.flatnonzero(bad)[0])
-        what = "NaN" if np.isnan(descriptors[row]).any() else "an infinite or overflowing value"
-        raise ValueError(f"{name} row {row} contains {what}; descriptors must be finite")
-    zero = squared == 0
-    if zero.any():
-        rows = np.flatnonzero(zero)
-        shown = ", ".join(str(r) for r in rows[:5]) + (", ..." if rows.size > 5 else "")
-        raise ValueError(
-            f"{name} has {rows.size} all-zero row(s) (rows {shown}); a zero vector has no direction and cannot be "
-            "L2-normalised"
-        )
+    _check_norms(squared, descriptors, name)
+    _check_nonzero(squared, name)
     if np.abs(squared - 1).max() <= UNIT_NORM_TOLERANCE:
         return descriptors
     if copy and not owned:
@@ -132,6 +153,27 @@ def _settle_ties(searcher: Searcher, queries: np.ndarray, k: int, n_database: in
         depth = min(4 * depth, n_database)
 
 
+def _database_block(database: object, database_block: object, index: str, device: str) -> int | None:
+    """Rows per block when the database is streamed (see :func:`search_descriptors`), None to search it whole."""
+    exact = index.replace(" ", "").lower() == "flat"
+    if database_block is not None:
+        database_block = _positive_int(database_block, "database_block")
+        if not exact or device != "cpu":
+            raise ValueError(
+                f"database_block streams the database through exact search on the CPU (index='Flat', "
+                f"device='cpu'); index={index!r} on device={device!r} holds the whole database in its index: "
+                "leave database_block unset"
+            )
+        return database_block
+    if not exact or device != "cpu" or not isinstance(database, (DescriptorRows, np.memmap)):
+        return None
+    shape = database.shape
+    if len(shape) != 2 or shape[1] == 0:
+        return None  # not descriptors: rejected with the in-memory path's message
+    rows = default_block_rows(shape[1])
+    return rows if shape[0] > rows else None
+
+
 def search_descriptors(
     database: object,
     queries: object,
@@ -143,12 +185,21 @@ def search_descriptors(
     search_params: str | None = None,
     copy: bool = True,
     progress: bool | None = None,
+    database_block: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Top-k cosine similarities of each query among the database descriptors, with Faiss.
 
+    Exact search can stream the database: read, normalise and search it one block of ``database_block`` rows at a
+    time (:mod:`vpr_uncertainty.retrieval._streaming`), so that it never needs to fit in memory, with the same
+    result (indices equal, scores equal up to float32 rounding). It streams when ``database_block`` is given, and
+    by default when the database is on disk (a :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows`
+    from :func:`~vpr_uncertainty.retrieval.descriptor_rows.open_descriptors`, or a :class:`numpy.memmap`) and
+    larger than one default block (64 MiB of float32 rows). Approximate indexes and ``device="cuda"`` hold the
+    whole database in their index: a database on disk is read into memory for them, as before.
+
     Parameters
     ----------
-    database : array-like of shape (D, dim)
+    database : array-like of shape (D, dim), numpy.memmap or DescriptorRows
         Database descriptors, float32 preferred (other types are converted on a copy).
     queries : array-like of shape (Q, dim)
         Query descriptors.
@@ -169,6 +220,10 @@ def search_descriptors(
         caller's arrays change), which saves one copy of each. Unit-norm input is never copied.
     progress : bool, optional
         Show a progress bar; by default shown on a terminal for long searches.
+    database_block : int, optional
+        Stream the database in blocks of this many rows (exact search on the CPU only: with an approximate index
+        or ``device="cuda"`` it is an error). Peak memory is then the queries, the (Q × k) result and one block;
+        the database is read twice (its norms, then the search). By default: see above.
 
     Returns
     -------
@@ -198,7 +253,14 @@ def search_descriptors(
     if search_params is not None and not isinstance(search_params, str):
         raise TypeError(f"search_params must be a string such as 'nprobe=32', got {search_params!r}")
     faiss = import_faiss()
-    database, database_owned = _as_descriptors(database, "database")
+    block = _database_block(database, database_block, index, device)
+    if block is not None:
+        from vpr_uncertainty.retrieval._streaming import as_rows
+
+        database = as_rows(database)
+        database_owned = False
+    else:
+        database, database_owned = _as_descriptors(database, "database")
     queries, queries_owned = _as_descriptors(queries, "queries")
     if database.shape[1] != queries.shape[1]:
         raise ValueError(
@@ -211,12 +273,8 @@ def search_descriptors(
         raise ValueError(
             f"GPU Faiss returns at most {GPU_MAX_K} candidates; k must be < {GPU_MAX_K} with device='cuda'"
         )
-    database = _normalised(database, "database", owned=database_owned, copy=copy)
     queries = _normalised(queries, "queries", owned=queries_owned, copy=copy)
-    searcher = Searcher(database, index, device, search_params, faiss, progress=progress)
-
     n_queries, n_database = len(queries), len(database)
-    depth = min(k + 1, n_database)  # one more than k reveals a tie across the k-th place
     kept = min(k, n_database)
     scores = np.full((n_queries, k), -np.inf, dtype=np.float32)
     indices = np.full((n_queries, k), -1, dtype=np.int64)
@@ -224,6 +282,16 @@ def search_descriptors(
 
     if progress is None and float(n_queries) * n_database * database.shape[1] < _PROGRESS_WORK:
         progress = bool(progress_requested())  # a short search gets no bar unless bars were asked for
+    if block is not None:
+        from vpr_uncertainty.retrieval._streaming import search_blocks
+
+        scores[:, :kept], indices[:, :kept] = search_blocks(
+            database, queries, k, block=block, batch_size=batch_size, faiss=faiss, progress=progress
+        )
+        return scores, indices, squared_distances_from_similarities(scores, check=False)
+    database = _normalised(database, "database", owned=database_owned, copy=copy)
+    searcher = Searcher(database, index, device, search_params, faiss, progress=progress)
+    depth = min(k + 1, n_database)  # one more than k reveals a tie across the k-th place
     with progress_bar(total=n_queries, desc="retrieval", unit="query", enabled=progress) as bar:
         for start in range(0, n_queries, batch_size):
             batch = queries[start : start + batch_size]
@@ -257,6 +325,7 @@ def retrieve(
     config: dict[str, Any] | None = None,
     copy: bool = True,
     progress: bool | None = None,
+    database_block: int | None = None,
 ) -> Retrieval:
     """Search the database descriptors for every query and return the result as a :class:`Retrieval`.
 
@@ -266,10 +335,11 @@ def retrieve(
     Parameters
     ----------
     database, queries : array-like of shape (D, dim) and (Q, dim)
-        Descriptors (see :func:`search_descriptors`).
+        Descriptors (see :func:`search_descriptors`); the database may be a
+        :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows` or a memmap, searched block by block.
     k : int, default=10
         Candidates kept per query.
-    index, device, batch_size, search_params, copy, progress
+    index, device, batch_size, search_params, copy, progress, database_block
         Options of :func:`search_descriptors`.
     config : dict, optional
         Extra JSON-serialisable entries for ``Retrieval.config`` (e.g. the dataset and descriptor names); they
@@ -292,17 +362,7 @@ def retrieve(
     >>> result.config["n_database"], result.config["dimension"]
     (3, 3)
     """
-    settings: dict[str, Any] = {
-        "source": "faiss",
-        "metric": "cosine",
-        "k": _positive_int(k, "k"),
-        "index": _check_index_string(index),
-        "device": device,
-        "n_database": len(np.asarray(database)),
-        "n_queries": len(np.asarray(queries)),
-    }
-    if search_params:
-        settings["search_params"] = search_params
+    k, index = _positive_int(k, "k"), _check_index_string(index)
     scores, indices, distances = search_descriptors(
         database,
         queries,
@@ -313,7 +373,20 @@ def retrieve(
         search_params=search_params,
         copy=copy,
         progress=progress,
+        database_block=database_block,
     )
-    settings["dimension"] = int(np.shape(database)[1])
+    n_database, dimension = (int(size) for size in np.shape(database))  # checked; no data of a file is read
+    settings: dict[str, Any] = {
+        "source": "faiss",
+        "metric": "cosine",
+        "k": k,
+        "index": index,
+        "device": device,
+        "n_database": n_database,
+        "n_queries": int(np.shape(queries)[0]),
+    }
+    if search_params:
+        settings["search_params"] = search_params
+    settings["dimension"] = dimension
     settings.update(config or {})
     return Retrieval(scores=scores, indices=indices, distances=distances, config=settings)

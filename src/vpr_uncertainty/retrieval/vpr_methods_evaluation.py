@@ -191,6 +191,7 @@ def read_vpr_methods_evaluation(
         When the ground truth can neither be read nor derived (the message says why).
     """
     from vpr_uncertainty.data.attach import attach_ground_truth, ground_truth_fields
+    from vpr_uncertainty.retrieval.descriptor_rows import open_descriptors
     from vpr_uncertainty.retrieval.readers import load_descriptors
     from vpr_uncertainty.retrieval.search import retrieve
 
@@ -202,11 +203,14 @@ def read_vpr_methods_evaluation(
             "(that tool writes them with --save_descriptors)"
         )
     _, queries = load_descriptors(folder / LOG_FILES[0])
-    _, database = load_descriptors(folder / LOG_FILES[1])
+    _, database = open_descriptors(folder / LOG_FILES[1])  # read lazily: a large database is searched by blocks
     arguments = read_arguments(folder / "info.log")
-    norms = np.linalg.norm(database, axis=1)
+    worst = 0.0
+    for block in database.row_blocks():
+        worst = max(worst, float(np.abs(np.linalg.norm(block, axis=1) - 1.0).max(initial=0.0)))
+        del block  # before the next block is read
     notes = []
-    if norms.size and np.abs(norms - 1.0).max() > 1e-3:
+    if worst > 1e-3:
         notes.append("the descriptors are not L2-normalised: ranked by cosine similarity, not by L2 distance")
     retrieval = retrieve(
         database, queries, min(int(top_k), len(database)), config={"source": str(folder), "format": "vpr-methods-eval"}

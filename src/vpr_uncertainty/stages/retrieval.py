@@ -39,6 +39,12 @@ class RetrievalConfig:
         ``"cpu"`` or ``"cuda"`` (which needs GPU Faiss: see :func:`search_device`).
     batch_size : int
         Queries searched at once.
+    database_block : int, optional
+        Exact search reads the database in blocks of this many rows (see
+        :func:`~vpr_uncertainty.retrieval.search.search_descriptors`); by default a database on disk (a
+        :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows`) larger than 64 MiB is streamed, one in
+        memory is searched whole. It changes the memory used, not the result, and is not part of the fingerprint
+        (which hashes a database on disk in blocks of 64 MiB).
     progress : bool, optional
         Show progress bars (default: on a terminal, for long searches; see :mod:`vpr_uncertainty.progress`).
     """
@@ -48,6 +54,7 @@ class RetrievalConfig:
     search_params: str | None = None
     device: str = "cpu"
     batch_size: int = 4096
+    database_block: int | None = None
     progress: bool | None = None
 
 
@@ -98,7 +105,10 @@ def search(
     ----------
     conf : RetrievalConfig
     database, queries : tuple of (names or None, ndarray of shape (N, D))
-        Descriptors and their image names.
+        Descriptors and their image names. The database may be a
+        :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows` (from
+        :func:`~vpr_uncertainty.retrieval.descriptor_rows.open_descriptors`): it is then hashed and searched one
+        block of rows at a time, never read whole (exact search).
     ground_truth : mapping, optional
         Fields made by :func:`vpr_uncertainty.data.attach.ground_truth_fields` (None: no ground truth).
     path : str or Path
@@ -139,6 +149,7 @@ def search(
         config={**describe, "fingerprint": fingerprint},
         copy=copy,
         progress=conf.progress,
+        database_block=conf.database_block,
     )
     if ground_truth is not None:
         retrieval = attach_ground_truth(retrieval, ground_truth)
