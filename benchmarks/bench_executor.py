@@ -1,12 +1,13 @@
 """Extraction throughput with the local executor and with Ray at 1 and 2 workers, and Ray's start-up overhead.
 
-On the 222 corridor images (111 database + 111 query) with the offline default model, batch size 16, each run into
-a fresh HDF5 file. ``local`` is the in-process extraction as ``extract`` runs it (torch's default threads, image
-decoding threads); ``ray N`` starts a local Ray cluster of N CPUs and runs the extraction as Ray Data batch
-inference (``map_batches`` on a pool of N model actors, one model load each, one torch thread each), counted in its
-time. Start-up is measured separately: ``ray.init`` of a local cluster, and the first written batch of a 1-actor
-extraction (dataset start, actor process, model load and the first batch). Prints a Markdown table; on a machine
-with C cores expect scaling only up to C.
+On the 222 corridor images (111 database + 111 query), enlarged to ``--resize`` pixels wide (640 by default, the
+size of most VPR benchmarks' images; 0 keeps the 160 x 120 originals), with the offline default model, batch size 16,
+each run into a fresh HDF5 file. ``local`` is the in-process extraction as ``extract`` runs it (torch's default
+threads, image decoding threads); ``ray N`` starts a local Ray cluster of N CPUs and runs the extraction as Ray
+Data batch inference (``map_batches`` on a pool of N model actors, one model load each, one torch thread each),
+counted in its time. Start-up is measured separately: ``ray.init`` of a local cluster, and the first written batch
+of a 1-actor extraction (dataset start, actor process, model load and the first batch). Prints a Markdown table; on
+a machine with C cores expect scaling only up to C.
 
     python benchmarks/bench_executor.py                  # VPR_UNCERTAINTY_DATA must point at the shared data
     python benchmarks/bench_executor.py --workers 1 2 4
@@ -21,6 +22,7 @@ import time
 from functools import partial
 from pathlib import Path
 
+from bench_geometric import resized_copies
 from vpr_uncertainty.executors import get_executor
 from vpr_uncertainty.stages.descriptors import DescriptorsConfig, extract
 
@@ -30,6 +32,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--data", type=Path, default=os.environ.get("VPR_UNCERTAINTY_DATA"), help="shared data folder")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="Ray worker counts (default 1 2)")
     parser.add_argument("--batch-size", type=int, default=16)
+    parser.add_argument("--resize", type=int, default=640, help="extract from copies this wide (0: the originals)")
     return parser.parse_args(argv)
 
 
@@ -87,14 +90,24 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit("set VPR_UNCERTAINTY_DATA or pass --data")
     images = corridor_images(args.data)
     count = sum(len(names) for _, names in images.values())
-    init, first = startup_seconds(images, args.batch_size)
-    rows = [("local", timed_extraction(images, args.batch_size))]
-    for workers in args.workers:
-        start = time.perf_counter()
-        with get_executor("ray", workers=workers) as executor:
-            timed_extraction(images, args.batch_size, executor)
-        rows.append((f"ray {workers}", time.perf_counter() - start))
-    print(f"{count} corridor images, batch size {args.batch_size}, {os.cpu_count()} CPUs\n")
+    with tempfile.TemporaryDirectory() as folder:
+        if args.resize:
+            images = {
+                split: (resized_copies(paths, args.resize, Path(folder) / split), names)
+                for split, (paths, names) in images.items()
+            }
+        init, first = startup_seconds(images, args.batch_size)
+        rows = [("local", timed_extraction(images, args.batch_size))]
+        for workers in args.workers:
+            start = time.perf_counter()
+            with get_executor("ray", workers=workers) as executor:
+                timed_extraction(images, args.batch_size, executor)
+            rows.append((f"ray {workers}", time.perf_counter() - start))
+    side = f"{args.resize} px wide" if args.resize else "160x120"
+    print(
+        f"{count} corridor images ({side}), batch size {args.batch_size}, {os.cpu_count()} CPUs, load average "
+        f"{os.getloadavg()[0]:.1f} at the end\n"
+    )
     print("| executor | seconds (incl. Ray start) | images/s | vs local |")
     print("|---|---:|---:|---:|")
     for name, seconds in rows:
