@@ -325,6 +325,9 @@ def interrupt_in_third_batch(*args: str) -> subprocess.CompletedProcess:
         stderr=subprocess.PIPE,
         text=True,
         env=_environment(),
+        # as from a terminal: a test run started in the background (`make test &` in a script) hands its children
+        # SIGINT ignored, and Python then installs no KeyboardInterrupt handler
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         for line in process.stdout:
