@@ -78,3 +78,32 @@ def assert_close(actual, expected, *, rtol: float | None = None, atol: float = 0
     if rtol is None:
         rtol = RTOL[np.dtype(dtype)] if dtype is not None else rtol_for(actual, expected)
     np.testing.assert_allclose(actual, expected, rtol=rtol, atol=atol, err_msg=err_msg)
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """A local Ray cluster of 2 CPUs for one test module, started and stopped by it (skips without Ray)."""
+    ray = pytest.importorskip("ray")
+    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
+    os.environ["RAY_AUTH_MODE"] = "disabled"
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def ray_executor(ray_cluster):
+    """The ``ray`` executor with 2 workers on :func:`ray_cluster`."""
+    from vpr_uncertainty.executors import get_executor
+
+    with get_executor("ray", workers=2) as executor:
+        yield executor
+
+
+def results_numbers(document):
+    """A results.json document without its timings (seconds differ run to run)."""
+    if isinstance(document, dict):
+        return {k: results_numbers(v) for k, v in document.items() if "seconds" not in k and not k.startswith("time_")}
+    if isinstance(document, list):
+        return [results_numbers(v) for v in document]
+    return document

@@ -21,20 +21,9 @@ ray = pytest.importorskip("ray")
 from vpr_uncertainty.descriptors import extract_descriptors  # noqa: E402
 from vpr_uncertainty.descriptors.cache import cache_info, read_descriptors  # noqa: E402
 from vpr_uncertainty.descriptors.images import ImageDecodeError  # noqa: E402
-from vpr_uncertainty.executors import get_executor  # noqa: E402
 from vpr_uncertainty.stages.descriptors import DescriptorsConfig, extract, model_of  # noqa: E402
 
 N_IMAGES = 12
-
-
-@pytest.fixture(scope="module")
-def executor():
-    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
-    os.environ["RAY_AUTH_MODE"] = "disabled"
-    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
-    with get_executor("ray", workers=2) as pool:
-        yield pool
-    ray.shutdown()
 
 
 @pytest.fixture(scope="module")
@@ -57,10 +46,10 @@ def _fingerprint(path: Path) -> str:
         return str(handle.attrs["fingerprint"])
 
 
-def test_ray_extraction_writes_the_local_artefact(executor, images, local, tmp_path):
+def test_ray_extraction_writes_the_local_artefact(ray_executor, images, local, tmp_path):
     local_path, expected = local
     path = tmp_path / "descriptors.h5"
-    result = extract(DescriptorsConfig(batch_size=4, progress=False), images, path, executor=executor)
+    result = extract(DescriptorsConfig(batch_size=4, progress=False), images, path, executor=ray_executor)
     assert _fingerprint(path) == _fingerprint(local_path)
     for split in ("database", "queries"):
         names, descriptors = result.split(split)
@@ -72,7 +61,7 @@ def test_ray_extraction_writes_the_local_artefact(executor, images, local, tmp_p
     np.testing.assert_array_equal(ranking[:, 0], reference[:, 0])
 
 
-def test_ray_extraction_resumes_and_sends_only_missing_images(executor, images, local, tmp_path):
+def test_ray_extraction_resumes_and_sends_only_missing_images(ray_executor, images, local, tmp_path):
     _, expected = local
     paths, names = images["database"]
     path = tmp_path / "descriptors.h5"
@@ -80,7 +69,7 @@ def test_ray_extraction_resumes_and_sends_only_missing_images(executor, images, 
     extract_descriptors(model, paths[:5], names[:5], path, "database", batch_size=4, progress=False)
     sent: list[str] = []
     kept, descriptors = extract_descriptors(
-        model, paths, names, path, "database", batch_size=4, progress=False, executor=executor, on_batch=sent.extend
+        model, paths, names, path, "database", batch_size=4, progress=False, executor=ray_executor, on_batch=sent.extend
     )
     assert sorted(sent) == sorted(names[5:])
     np.testing.assert_array_equal(kept, names)
@@ -105,7 +94,7 @@ def _dying(model, marker: Path | None):
     return model
 
 
-def test_a_killed_worker_loses_no_image(executor, images, local, tmp_path):
+def test_a_killed_worker_loses_no_image(ray_executor, images, local, tmp_path):
     """The worker of the first batch dies in the model's forward; Ray restarts it, reruns the batch, nothing is lost."""
     _, expected = local
     paths, names = images["database"]
@@ -119,7 +108,7 @@ def test_a_killed_worker_loses_no_image(executor, images, local, tmp_path):
         "database",
         batch_size=4,
         progress=False,
-        executor=executor,
+        executor=ray_executor,
         on_batch=written.extend,
     )
     assert int(marker.read_text()) != os.getpid()  # a worker process died, not this one
@@ -145,11 +134,11 @@ def unusable(images, tmp_path):
     return [garbage, *paths[:5], latin, *paths[5:9], truncated, *paths[9:]]
 
 
-def test_unusable_images_are_skipped_and_recorded_as_locally(executor, unusable, tmp_path):
+def test_unusable_images_are_skipped_and_recorded_as_locally(ray_executor, unusable, tmp_path):
     """on_error="skip": the same kept images, descriptors and ``failed`` attribute as the local run."""
     model = model_of(DescriptorsConfig())
     results = {}
-    for name, run_on in (("local", None), ("ray", executor)):
+    for name, run_on in (("local", None), ("ray", ray_executor)):
         path = tmp_path / f"{name}.h5"
         with pytest.warns(UserWarning, match=r"left out 3 of 15 'database' images"):
             kept, descriptors = extract_descriptors(
@@ -170,12 +159,12 @@ def test_unusable_images_are_skipped_and_recorded_as_locally(executor, unusable,
     assert [entry["name"] for entry in results["ray"][2]] == ["garbage.jpg", NOT_UTF8, "truncated.jpg"]
 
 
-def test_an_unusable_image_fails_as_locally(executor, unusable, tmp_path):
+def test_an_unusable_image_fails_as_locally(ray_executor, unusable, tmp_path):
     """on_error="fail": the same error (the first unusable image) and the same batches kept as the local run."""
     model = model_of(DescriptorsConfig())
     paths = unusable[1:]  # the first unusable image is now the one with the non-UTF-8 name, in the second batch
     errors, counts = [], []
-    for name, run_on in (("local", None), ("ray", executor)):
+    for name, run_on in (("local", None), ("ray", ray_executor)):
         path = tmp_path / f"{name}.h5"
         with pytest.raises(ImageDecodeError, match="not valid UTF-8") as raised:
             extract_descriptors(model, paths, None, path, "database", batch_size=4, progress=False, executor=run_on)
@@ -185,7 +174,7 @@ def test_an_unusable_image_fails_as_locally(executor, unusable, tmp_path):
     assert counts == [4, 4]  # the batch before the bad image was kept
 
 
-def test_a_batch_that_always_kills_its_worker_stops_the_run(executor, images, tmp_path, monkeypatch):
+def test_a_batch_that_always_kills_its_worker_stops_the_run(ray_executor, images, tmp_path, monkeypatch):
     """A batch that kills every worker it reaches is retried TASK_RETRIES times, then the run stops with an error."""
     from vpr_uncertainty.descriptors import distributed
 
@@ -200,7 +189,7 @@ def test_a_batch_that_always_kills_its_worker_stops_the_run(executor, images, tm
             "database",
             batch_size=4,
             progress=False,
-            executor=executor,
+            executor=ray_executor,
         )
 
 

@@ -6,7 +6,6 @@ One local Ray cluster (2 CPUs) for the module. Real inputs: the corridor's NetVL
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sys
 from pathlib import Path
@@ -14,20 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import results_numbers
 from vpr_uncertainty.executors import LocalExecutor, get_executor, import_ray
 from vpr_uncertainty.study import load_config, run_grid, write_results
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
-
-
-@pytest.fixture(scope="module")
-def ray_cluster():
-    ray = pytest.importorskip("ray")
-    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
-    os.environ["RAY_AUTH_MODE"] = "disabled"
-    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield ray
-    ray.shutdown()
 
 
 def test_local_executor_maps_in_order():
@@ -87,20 +77,11 @@ def _results(config_path: Path, out: str, executor=None) -> tuple[dict, list]:
     return json.loads(paths["results_json"].read_text()), cells
 
 
-def _numbers(document: dict) -> dict:
-    """results.json without the timings (seconds differ run to run)."""
-    if isinstance(document, dict):
-        return {k: _numbers(v) for k, v in document.items() if "seconds" not in k and not k.startswith("time_")}
-    if isinstance(document, list):
-        return [_numbers(v) for v in document]
-    return document
-
-
 def test_grid_on_ray_equals_the_local_grid_and_shares_the_cell_cache(ray_cluster, grid):
     local, _ = _results(grid, "local")
     with get_executor("ray", workers=2) as executor:
         remote, cells = _results(grid, "ray", executor)
-    assert _numbers(remote) == _numbers(local)
+    assert results_numbers(remote) == results_numbers(local)
     assert [cell.vpr_method for cell in cells] == ["NetVLAD", "HOG"]
     assert not any(cell.cached for cell in cells)
     _, again = _results(grid, "ray")  # the local executor reads the cells the Ray tasks wrote

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from test_executors import _numbers, _results, grid  # noqa: F401  (the grid fixture)
+from conftest import results_numbers
+from test_executors import _results, grid  # noqa: F401  (the grid fixture)
 from vpr_uncertainty.executors import get_executor
 
 ray = pytest.importorskip("ray")
@@ -76,5 +77,5 @@ def test_grid_across_two_nodes_equals_the_local_grid(cluster, grid):  # noqa: F8
         nodes = {node["NodeID"] for node in executor.ray.nodes() if node["Alive"]}
         remote, cells = _results(grid, "ray", executor)
     assert len(nodes) == 2
-    assert _numbers(remote) == _numbers(local)
+    assert results_numbers(remote) == results_numbers(local)
     assert not any(cell.cached for cell in cells)

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import results_numbers
 from vpr_uncertainty.executors import get_executor
 from vpr_uncertainty.study import load_config, run_grid, write_results
 
@@ -30,15 +31,6 @@ pytestmark = [
 ]
 
 TASK_TITLE = "ray::_apply"
-
-
-@pytest.fixture(scope="module")
-def ray_cluster():
-    ray = pytest.importorskip("ray")
-    os.environ["RAY_AUTH_MODE"] = "disabled"  # as in every Ray test module of the session
-    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
-    yield ray
-    ray.shutdown()
 
 
 @pytest.fixture
@@ -55,8 +47,26 @@ def grid(tmp_path: Path, corridor_dir: Path, corridor_matches_dir: Path) -> Path
     return path
 
 
+def _parent(pid: int) -> int:
+    """The parent's pid (0 when the process is gone); /proc/PID/stat's 4th field, after the parenthesised name."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return 0
+    return int(stat.rsplit(")", 1)[1].split()[1])
+
+
+def _descends_from_this_process(pid: int) -> bool:
+    """Whether ``pid`` runs under this test process (its own local cluster, not another test session's)."""
+    while pid > 1:
+        pid = _parent(pid)
+        if pid == os.getpid():
+            return True
+    return False
+
+
 def _task_processes() -> list[int]:
-    """The pids of the Ray workers running a task of RayExecutor.map right now."""
+    """The pids of this test's Ray workers running a task of RayExecutor.map right now."""
     pids = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
@@ -64,7 +74,7 @@ def _task_processes() -> list[int]:
                 title = (entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace").strip()
             except OSError:  # the process ended while we looked
                 continue
-            if title == TASK_TITLE:
+            if title == TASK_TITLE and _descends_from_this_process(int(entry.name)):
                 pids.append(int(entry.name))
     return pids
 
@@ -78,15 +88,6 @@ def _kill_first_task_worker(stop: threading.Event, killed: list[int], timeout: f
             killed.append(pids[0])
             return
         time.sleep(0.01)
-
-
-def _numbers(document):
-    """results.json without the timings (seconds differ run to run)."""
-    if isinstance(document, dict):
-        return {k: _numbers(v) for k, v in document.items() if "seconds" not in k and not k.startswith("time_")}
-    if isinstance(document, list):
-        return [_numbers(v) for v in document]
-    return document
 
 
 def _results(config_path: Path, out: str, executor=None):
@@ -109,7 +110,7 @@ def test_a_cell_whose_worker_is_killed_is_rerun_and_the_grid_equals_the_local_on
     assert killed, "no Ray task process was seen running: the cells finished before the killer looked"
     with pytest.raises(ProcessLookupError):
         os.kill(killed[0], 0)  # the worker really is gone
-    assert _numbers(remote) == _numbers(local)
+    assert results_numbers(remote) == results_numbers(local)
     assert [cell.vpr_method for cell in cells] == ["NetVLAD", "HOG"]
     assert len(list((grid.parent / "ray" / "cells").glob("*.json"))) == 2  # both cells written once
 
@@ -124,4 +125,6 @@ def test_a_stopped_grid_resumes_from_the_cells_already_written(ray_cluster, grid
     assert not first.cached
     assert [cell.cached for cell in cells] == [True, False]
     local, _ = _results(grid, "local")
-    assert _numbers(json.loads(write_results(cells, config)["results_json"].read_text())) == _numbers(local)
+    assert results_numbers(json.loads(write_results(cells, config)["results_json"].read_text())) == results_numbers(
+        local
+    )

@@ -8,7 +8,6 @@ cascade SU+GV-SIFT, and the ``evaluate`` command with ``--executor ray --workers
 from __future__ import annotations
 
 import json
-import os
 import warnings
 from pathlib import Path
 from types import SimpleNamespace
@@ -26,16 +25,6 @@ from vpr_uncertainty.executors import get_executor  # noqa: E402
 from vpr_uncertainty.geometric import distributed  # noqa: E402
 
 pytestmark = [pytest.mark.realdata, pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")]
-
-
-@pytest.fixture(scope="module")
-def executor():
-    # one authentication mode for every Ray test of the session (mixing them in a process breaks ray.init)
-    os.environ["RAY_AUTH_MODE"] = "disabled"
-    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
-    with get_executor("ray", workers=2) as pool:
-        yield pool
-    ray.shutdown()
 
 
 @pytest.fixture(scope="module")
@@ -83,10 +72,10 @@ def _evaluate(corridor: SimpleNamespace, cache_dir: Path, **options):
     )
 
 
-def test_gv_sift_on_ray_equals_the_local_run(executor, corridor, tmp_path, ray_calls):
+def test_gv_sift_on_ray_equals_the_local_run(ray_executor, corridor, tmp_path, ray_calls):
     local = _evaluate(corridor, tmp_path / "local")
     assert not ray_calls
-    remote = _evaluate(corridor, tmp_path / "ray", executor=executor)
+    remote = _evaluate(corridor, tmp_path / "ray", executor=ray_executor)
     assert ray_calls and {name for name, _ in ray_calls} == {"ray"}
     assert (8, 4) == (max(pairs for _, pairs in ray_calls), min(pairs for _, pairs in ray_calls))  # GV, cascade
     for name in local.methods:  # −inliers are integers, and SU the very same code path: exactly equal
@@ -104,7 +93,7 @@ def test_the_local_executor_verifies_in_this_process(corridor, tmp_path, ray_cal
         np.testing.assert_array_equal(result.methods[name].uncertainty, expected.methods[name].uncertainty)
 
 
-def test_evaluate_command_on_ray_equals_the_local_command(executor, corridor, tmp_path, capsys, ray_calls):
+def test_evaluate_command_on_ray_equals_the_local_command(ray_executor, corridor, tmp_path, capsys, ray_calls):
     from vpr_uncertainty.cli import main
 
     argv = ["evaluate", str(corridor.matrix), "--gt", str(corridor.ground_truth), "--images", str(corridor.folder)]

@@ -72,6 +72,29 @@ def _valid_length(group: Any) -> int:
     return min(lengths)
 
 
+def split_layout(path: Path, split: str, *, stacklevel: int = 2) -> tuple[np.ndarray, int, int]:
+    """``(names, rows, dimension)`` of one split of a descriptor cache, checked: the file's format, the split
+    present, and a warning (at ``stacklevel`` above the caller) when its extraction did not complete."""
+    try:
+        handle = _import_h5py().File(path, "r")
+    except OSError as error:
+        raise ValueError(f"{path} is not a readable HDF5 descriptor file: {error}") from error
+    with handle:
+        if handle.attrs.get("format") != FORMAT:
+            raise ValueError(f"{path} is not a vpr-uncertainty descriptor file (no format attribute {FORMAT!r})")
+        if split not in handle:
+            raise KeyError(f"{path} holds no {split!r} descriptors (it has: {', '.join(handle) or 'none'})")
+        group = handle[split]
+        count = _valid_length(group)
+        if not group.attrs.get("complete", False):
+            warnings.warn(
+                f"{path}: the {split!r} descriptors are incomplete (interrupted extraction?); reading {count} rows",
+                stacklevel=stacklevel + 1,
+            )
+        dimension = int(group["descriptors"].shape[1]) if count else 0
+        return np.array(group["names"].asstr()[:count], dtype=str), count, dimension
+
+
 def read_descriptors(
     path: str | Path, split: str, *, names: Sequence[str] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -95,27 +118,11 @@ def read_descriptors(
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"descriptor file not found: {path}")
-    h5py = _import_h5py()
-    try:
-        handle = h5py.File(path, "r")
-    except OSError as error:
-        raise ValueError(f"{path} is not a readable HDF5 descriptor file: {error}") from error
-    with handle:
-        if handle.attrs.get("format") != FORMAT:
-            raise ValueError(f"{path} is not a vpr-uncertainty descriptor file (no format attribute {FORMAT!r})")
-        if split not in handle:
-            raise KeyError(f"{path} holds no {split!r} descriptors (it has: {', '.join(handle) or 'none'})")
-        group = handle[split]
-        count = _valid_length(group)
-        if not group.attrs.get("complete", False):
-            warnings.warn(
-                f"{path}: the {split!r} descriptors are incomplete (interrupted extraction?); reading {count} rows",
-                stacklevel=2,
-            )
-        if count == 0:
-            return np.empty(0, dtype=str), np.empty((0, 0), dtype=np.float32)
-        stored_names = np.array(group["names"].asstr()[:count], dtype=str)
-        descriptors = np.asarray(group["descriptors"][:count], dtype=np.float32)
+    stored_names, count, _ = split_layout(path, split, stacklevel=3)
+    if count == 0:
+        return stored_names, np.empty((0, 0), dtype=np.float32)
+    with _import_h5py().File(path, "r") as handle:
+        descriptors = np.asarray(handle[split]["descriptors"][:count], dtype=np.float32)
     if names is None:
         return stored_names, descriptors
     index = {name: row for row, name in enumerate(stored_names)}

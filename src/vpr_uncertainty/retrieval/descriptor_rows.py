@@ -20,7 +20,6 @@ same data in memory.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -144,29 +143,12 @@ def _open_npy(path: Path) -> DescriptorRows:
 
 def _open_cache(path: Path, split: str) -> tuple[np.ndarray, DescriptorRows]:
     """Names and lazily read rows of one split of the descriptor cache, checked as ``read_descriptors`` does."""
-    from vpr_uncertainty.descriptors.cache import FORMAT, _import_h5py, _valid_length
+    from vpr_uncertainty.descriptors.cache import _import_h5py, split_layout
 
     h5py = _import_h5py()
-    try:
-        handle = h5py.File(path, "r")
-    except OSError as error:
-        raise ValueError(f"{path} is not a readable HDF5 descriptor file: {error}") from error
-    with handle:
-        if handle.attrs.get("format") != FORMAT:
-            raise ValueError(f"{path} is not a vpr-uncertainty descriptor file (no format attribute {FORMAT!r})")
-        if split not in handle:
-            raise KeyError(f"{path} holds no {split!r} descriptors (it has: {', '.join(handle) or 'none'})")
-        group = handle[split]
-        count = _valid_length(group)
-        if not group.attrs.get("complete", False):
-            warnings.warn(
-                f"{path}: the {split!r} descriptors are incomplete (interrupted extraction?); reading {count} rows",
-                stacklevel=3,
-            )
-        if count == 0:
-            return np.empty(0, dtype=str), DescriptorRows.from_array(np.empty((0, 0), np.float32), source=str(path))
-        names = np.array(group["names"].asstr()[:count], dtype=str)
-        dimension = int(group["descriptors"].shape[1])
+    names, count, dimension = split_layout(path, split, stacklevel=3)
+    if count == 0:
+        return names, DescriptorRows.from_array(np.empty((0, 0), np.float32), source=str(path))
 
     def read(start: int, stop: int) -> np.ndarray:
         with h5py.File(path, "r") as block_handle:
