@@ -24,6 +24,7 @@ def _reference(row: list[float], k: int) -> dict[str, float]:
         "SD": median / s1,
         "SU": 0.5 * float(np.mean(rest)) / s1 + 0.5 * median / s1,
         "zscore": (s1 - float(np.mean(rest))) / (s1 - top[-1]),
+        "PA": float(np.sqrt(2 - 2 * s1) / np.sqrt(2 - 2 * top[1])),  # d_1 / d_2 of L2-normalised descriptors
     }
 
 
@@ -40,6 +41,15 @@ def test_feature_matrix_matches_reference_and_row_path(method, corridor_dir, cor
     assert_close(matrix, reference, rtol=1e-5)  # float32 scores
     rows = np.array([row_features(row.tolist(), k=10, features=FEATURES) for row in retrieval.scores])
     assert_close(rows, matrix, rtol=1e-5)
+
+
+def test_pa_feature_needs_cosine_similarities_in_both_paths():
+    assert_close(feature_matrix(np.array([[0.5, -0.5]]), k=2, features=("PA",)), [[np.sqrt(1 / 3)]], rtol=1e-12)
+    assert row_features([1.0, 1.0], k=2, features=("PA",)) == [1.0]  # both distances 0
+    with pytest.raises(ValueError, match="PA"):
+        feature_matrix(np.array([[1.5, 0.5]]), k=2, features=("PA",))
+    with pytest.raises(ValueError, match="PA needs cosine"):
+        row_features([1.5, 0.5], k=2, features=("PA",))
 
 
 def test_missing_candidates_and_nonpositive_best():

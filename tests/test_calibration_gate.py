@@ -48,7 +48,9 @@ def test_gate_file_records_what_made_it(corridor_dir, corridor_matches_dir, tmp_
     gate = calibrate(retrieval, target_precision=0.9, delta=0.1, seed=0)
     data = json.loads(gate.save(tmp_path / "gate.json").read_text())
     assert data["format"] == "vpr-uncertainty gate" and data["k"] == 10
-    assert data["calibrator"]["features"] == ["s1", "SU"] and len(data["calibrator"]["coef"]) == 2
+    # 111 labelled queries: the gate tests SU alone, and its P is Platt scaling of SU
+    assert data["rankings"] == ["SU"] and data["certificate"]["ranking"] == "SU"
+    assert data["calibrator"]["features"] == ["SU"] and data["calibrator"]["ranking"] == "SU"
     assert data["calibration"]["n_queries"] == 111 and len(data["calibration"]["fingerprint"]) == 16
     assert data["toolkit_version"] and data["target_precision"] == 0.9 and data["delta"] == 0.1
     assert gate.precision_lower_bound >= 0.9 and 0 < gate.expected_recall <= 1

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
 from scipy import stats
 
 from vpr_uncertainty.calibration.guarantee import (
-    candidate_cuts,
     certify_threshold,
     clopper_pearson_lower,
+    coverage_grid,
+    cuts_at_coverage,
+    fixed_sequence,
     min_accepted,
 )
 from vpr_uncertainty.calibration.simulation import simulate_guarantee
@@ -70,10 +71,30 @@ def test_nothing_certifiable_says_why():
     assert not certificate.certified and "fewer than the 22" in certificate.message
 
 
-def test_candidate_cuts_start_and_midpoints():
-    cuts = candidate_cuts(np.arange(100.0), n_test=100, target_precision=0.9, delta=0.1)
-    assert (np.diff(cuts) < 0).all()
-    assert cuts[0] == pytest.approx(100 - 33 - 0.5)  # 1.5 × 22 = 33 accepted of 100 at the first cut
+def test_coverage_grid_makes_room_for_one_more_wrong_answer_per_step():
+    counts = np.round(coverage_grid(200, 0.9, 0.1) * 200).astype(int)
+    assert counts[:4].tolist() == [22, 38, 52, 65] and counts[0] == min_accepted(0.9, 0.1)
+    for wrong, count in enumerate(counts):  # the fewest accepted that certify with `wrong` wrong answers
+        assert stats.binom.sf(count - wrong - 1, count, 0.9) <= 0.1 < stats.binom.sf(count - wrong - 2, count - 1, 0.9)
+    assert coverage_grid(21, 0.9, 0.1).size == 0
+    # at δ/2 the grid starts later: 29 accepted, all correct, are needed
+    assert round(coverage_grid(200, 0.9, 0.05)[0] * 200) == 29
+
+
+def test_cuts_at_coverage_accept_the_share_and_lie_between_values():
+    confidence = np.array([0.9, 0.1, 0.5, 0.7, 0.3])
+    cuts = cuts_at_coverage(confidence, np.array([0.2, 0.4, 0.6, 1.0]))
+    assert cuts.tolist() == pytest.approx([0.8, 0.6, 0.4, 0.1 - 0.5])
+    assert [(confidence >= cut).sum() for cut in cuts] == [1, 2, 3, 5]
+
+
+def test_fixed_sequence_uses_exact_binomial_p_values():
+    # 44 of 45 correct at p* = 0.9: the exact p-value is 0.052 (a Bentkus bound gives about twice that)
+    rejected, p_values = fixed_sequence(np.array([45]), np.array([44]), target_precision=0.9, delta=0.1)
+    assert rejected == 1 and p_values[0] == pytest.approx(stats.binom.sf(43, 45, 0.9)) and 0.05 < p_values[0] < 0.053
+    # one wrong answer in the first 22 accepted stops the sequence, even where later cuts would pass
+    rejected, _ = fixed_sequence(np.array([22, 60]), np.array([21, 59]), target_precision=0.9, delta=0.1)
+    assert rejected == 0
 
 
 def test_cuts_must_be_decreasing():
@@ -84,7 +105,6 @@ def test_cuts_must_be_decreasing():
 @pytest.mark.filterwarnings("ignore:reading the legacy")
 def test_guarantee_holds_over_200_draws_on_the_real_corridor(corridor_dir, corridor_matches_dir):
     """200 i.i.d. calibration draws of 333 queries from each matrix's 111: precision < p* in at most δ of them."""
-    start = time.perf_counter()
     target, delta, draws = 0.9, 0.1, 200
     slack = 3 * math.sqrt(delta * (1 - delta) / draws)  # binomial noise of the observed violation rate
     recalls = {}
@@ -103,4 +123,3 @@ def test_guarantee_holds_over_200_draws_on_the_real_corridor(corridor_dir, corri
     for method in ("AMOSNet", "HybridNet"):
         mean_recall, hindsight, certified = recalls[method]
         assert hindsight > 0.5 and certified > 0.8 and mean_recall > 0.4 * hindsight, (method, recalls[method])
-    assert time.perf_counter() - start < 60

@@ -1,9 +1,11 @@
 """P(correct top-1) from the training-free features: a small, regularised scikit-learn model, as plain numbers.
 
-Two models, chosen by evidence on the ten VPR-Bench corridor matrices (README "Calibration"):
+Two models:
 
-* ``"logistic"`` (the default): L2-regularised logistic regression on standardised features
-  (:data:`~vpr_uncertainty.calibration.features.DEFAULT_FEATURES`); P = σ(b + Σ w_i (f_i − μ_i) / σ_i).
+* ``"logistic"``: L2-regularised logistic regression on standardised features
+  (:data:`~vpr_uncertainty.calibration.features.DEFAULT_FEATURES`); P = σ(b + Σ w_i (f_i − μ_i) / σ_i). A fixed
+  score (SU, the margin, …) chosen by :func:`~vpr_uncertainty.calibration.fit.select_calibrator` is the same model on
+  that one feature (Platt scaling).
 * ``"isotonic"``: isotonic regression on SU alone (P non-increasing in SU), a step function.
 
 A fitted model is a :class:`Calibrator`: numbers only (no scikit-learn object), so it is saved as JSON and
@@ -17,6 +19,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from vpr_uncertainty.calibration.features import FEATURES
 
 __all__ = ["MODELS", "Calibrator", "fit_calibrator"]
 
@@ -43,6 +47,9 @@ class Calibrator:
         Isotonic: P = interp(−SU, x, y), x increasing (−SU), y non-decreasing, clipped at the ends.
     regularisation : float
         The inverse regularisation strength C of the logistic model.
+    ranking : str or None
+        What the confidence ranks by: a fixed score (``"SU"``, ``"margin"``, …; one feature, Platt-scaled) or
+        ``"CAL"`` (the fitted model); None when not recorded.
     """
 
     model: str
@@ -54,6 +61,7 @@ class Calibrator:
     x: list[float] = field(default_factory=list)
     y: list[float] = field(default_factory=list)
     regularisation: float = 1.0
+    ranking: str | None = None
 
     def raw_weights(self) -> tuple[float, list[float]]:
         """(b', w') with z = b' + Σ w'_i f_i on the raw features (standardisation folded in); logistic only."""
@@ -83,6 +91,8 @@ class Calibrator:
 
     def to_dict(self) -> dict[str, Any]:
         data: dict[str, Any] = {"model": self.model, "features": list(self.features)}
+        if self.ranking is not None:
+            data["ranking"] = self.ranking
         if self.model == "logistic":
             data.update(
                 mean=self.mean,
@@ -104,6 +114,15 @@ class Calibrator:
         features = data.get("features")
         if not isinstance(features, list) or not features or not all(isinstance(f, str) for f in features):
             raise ValueError(f"{where}: features must be a non-empty list of names, got {features!r}")
+        unknown = [name for name in features if name not in FEATURES]
+        if unknown or len(set(features)) != len(features):
+            raise ValueError(
+                f"{where}: features must be distinct names from {list(FEATURES)}, got {features!r}"
+                + (f" (unknown: {unknown})" if unknown else " (a name repeated)")
+            )
+        ranking = data.get("ranking")
+        if ranking is not None and not isinstance(ranking, str):
+            raise ValueError(f"{where}: ranking must be a name or absent, got {ranking!r}")
         keys = ("mean", "scale", "coef") if model == "logistic" else ("x", "y")
         arrays = {}
         for key in keys:
@@ -129,13 +148,14 @@ class Calibrator:
                 features=tuple(features),
                 intercept=float(intercept),
                 regularisation=float(data.get("regularisation", 1.0)),
+                ranking=ranking,
                 **arrays,
             )
         if len(arrays["x"]) != len(arrays["y"]) or np.any(np.diff(arrays["x"]) < 0):
             raise ValueError(f"{where}: x must be non-decreasing and as long as y")
         if features != ["SU"]:
             raise ValueError(f"{where}: the isotonic model reads the feature SU only, got {features}")
-        return cls(model=model, features=("SU",), **arrays)
+        return cls(model=model, features=("SU",), ranking=ranking, **arrays)
 
 
 def _check_training(features: np.ndarray, correct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,17 +1,25 @@
 """:func:`calibrate`: labelled calibration queries in, a :class:`~vpr_uncertainty.calibration.gate.Gate` out.
 
-Without a target precision, the calibrator is fitted on every calibration query and the gate accepts P ≥ 0.5.
+Every label is spent; nothing is held back for a second look.
 
-With a target precision p* and a risk δ the calibration queries are split (stratified by correctness, seeded)
-into a *fit* part and a *test* part, so that the threshold test never reuses the data the probabilities were
-fitted on:
+**P(correct)** (the doubt ``CAL``) is :func:`~vpr_uncertainty.calibration.rankings.select_calibrator`: the best of the
+fixed scores and a cross-fitted logistic model.
 
-1. the ranking model is fitted on the fit part (the logistic calibrator; the isotonic one ranks by −SU and needs
-   no fit), and the candidate cuts are read from the fit part;
-2. Learn-then-Test (:mod:`~vpr_uncertainty.calibration.guarantee`) picks the cut on the test part;
-3. the probabilities are then recalibrated on all calibration queries by a map that is strictly increasing in the
-   confidence (Platt scaling of the linear score; isotonic regression on −SU), which leaves every acceptance set,
-   and so the guarantee, unchanged while using every label for P.
+**A certified threshold** (with ``target_precision``; :mod:`~vpr_uncertainty.calibration.guarantee`). Each
+candidate ranking is tested at δ / R on **all** labelled queries:
+
+1. the candidate coverages come from :func:`~vpr_uncertainty.calibration.guarantee.coverage_grid` (the number of
+   labelled queries, p* and δ only) and the cuts are the quantiles of the ranking's confidence over every query
+   the caller passes (``unlabelled`` and labelled), so no label chooses a cut;
+2. a training-free ranking is tested directly; the fitted model (``"CAL"``) is cross-fitted: each labelled query
+   is accepted or not by the fold model that did not see it, at that model's own quantile cut;
+3. fixed-sequence testing with exact binomial p-values picks the loosest certified cut of each ranking, and the
+   certified rule that accepts the most correct labelled queries is kept (every certified rule holds at once with
+   probability ≥ 1 − δ, so the choice among them is free).
+
+For a training-free ranking the gate applies exactly the certified rule. For ``"CAL"`` it applies the model refitted
+on all labels at the certified coverage: the cross-fitted folds certify the procedure, not that one model, so the
+guarantee is approximate there (the simulation in ``tests/test_calibration_guarantee.py`` measures it).
 """
 
 from __future__ import annotations
@@ -19,19 +27,29 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty.calibration.calibrator import Calibrator, fit_calibrator, fit_logistic
+from vpr_uncertainty.calibration.calibrator import Calibrator, fit_calibrator
+from vpr_uncertainty.calibration.certify import certify_rankings, check_rankings, default_rankings, needed_message
 from vpr_uncertainty.calibration.features import DEFAULT_FEATURES, feature_matrix
 from vpr_uncertainty.calibration.gate import Gate
-from vpr_uncertainty.calibration.guarantee import candidate_cuts, certify_threshold, min_accepted
+from vpr_uncertainty.calibration.guarantee import (
+    cuts_at_coverage,
+)
+from vpr_uncertainty.calibration.rankings import (
+    FOLDS,
+    columns,
+    feature_columns,
+    fit_model,
+    select_calibrator,
+)
 
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["calibrate", "calibrate_arrays", "fingerprint", "stratified_split"]
+__all__ = ["calibrate", "calibrate_arrays", "fingerprint"]
 
 
 def fingerprint(scores: np.ndarray, correct: np.ndarray) -> str:
@@ -40,37 +58,6 @@ def fingerprint(scores: np.ndarray, correct: np.ndarray) -> str:
     digest.update(np.ascontiguousarray(scores, dtype=np.float64).tobytes())
     digest.update(np.ascontiguousarray(correct, dtype=bool).tobytes())
     return digest.hexdigest()[:16]
-
-
-def stratified_split(correct: np.ndarray, fraction: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (first, second): ``fraction`` of each class (rounded, at least one of each when possible) first."""
-    if not 0.0 < fraction < 1.0:
-        raise ValueError(f"fraction must lie in (0, 1), got {fraction}")
-    first, second = [], []
-    for label in (True, False):
-        members = rng.permutation(np.flatnonzero(correct == label))
-        count = round(fraction * members.size)
-        if members.size >= 2:
-            count = min(max(count, 1), members.size - 1)
-        first.append(members[:count])
-        second.append(members[count:])
-    return np.sort(np.concatenate(first)), np.sort(np.concatenate(second))
-
-
-def _needed_message(confidence: np.ndarray, correct: np.ndarray, p_star: float, delta: float, test: float) -> str:
-    """How many labelled queries would be needed, estimated from the in-sample precision of the confidence."""
-    order = np.argsort(-confidence, kind="stable")
-    precision = np.cumsum(correct[order]) / np.arange(1, correct.size + 1)
-    reaching = np.flatnonzero(precision >= p_star)
-    n_min = min_accepted(p_star, delta)
-    if reaching.size == 0:
-        return "no confidence cut reaches that precision even on the calibration queries themselves"
-    share = (reaching[-1] + 1) / correct.size
-    needed = math.ceil(n_min / (share * test))
-    return (
-        f"at most {share:.0%} of the queries are accepted at precision {p_star:g} (in-sample), so about {needed} "
-        f"labelled queries would be needed ({n_min} accepted ones in the test part of {test:.0%})"
-    )
 
 
 def calibrate_arrays(
@@ -84,68 +71,101 @@ def calibrate_arrays(
     seed: int = 0,
     model: str = "logistic",
     features: Sequence[str] | None = None,
-    test_fraction: float = 0.5,
-    features_matrix: np.ndarray | None = None,
+    rankings: Sequence[str] | None = None,
+    unlabelled: np.ndarray | None = None,
+    folds: int = FOLDS,
 ) -> Gate:
-    """:func:`calibrate` on arrays: top-k ``scores`` (Q, K) and top-1 ``correct`` (Q,).
-
-    ``features_matrix`` (Q, F), when given, must be ``feature_matrix(scores, k=k, features=features)``: callers
-    that calibrate many subsets of one retrieval compute it once.
-    """
-    names = tuple(features or (("SU",) if model == "isotonic" else DEFAULT_FEATURES))
+    """:func:`calibrate` on arrays: top-k ``scores`` (Q, K), top-1 ``correct`` (Q,), ``unlabelled`` (U, K)."""
     correct = np.asarray(correct, dtype=bool)
     scores = np.asarray(scores)
-    matrix = feature_matrix(scores, k=k, features=names) if features_matrix is None else features_matrix
-    if matrix.shape != (correct.size, len(names)):
-        raise ValueError(f"features_matrix must have shape ({correct.size}, {len(names)}), got {matrix.shape}")
+    if scores.ndim != 2 or correct.shape != (scores.shape[0],):
+        raise ValueError(f"scores (Q, K) and correct (Q,) must match, got {scores.shape} and {correct.shape}")
+    if correct.all() or not correct.any():
+        raise ValueError(
+            f"the calibration queries hold only {'correct' if correct.any() else 'wrong'} answers "
+            f"({correct.size} queries): P(correct) cannot be fitted; label more queries (both outcomes are needed)"
+        )
+    if not isinstance(folds, int) or folds < 2:
+        raise ValueError(f"folds must be an integer >= 2, got {folds!r}")
+    if model not in ("logistic", "isotonic"):
+        raise ValueError(f"model must be one of ('logistic', 'isotonic'), got {model!r}")
     answerable = np.ones(correct.size, bool) if answerable is None else np.asarray(answerable, dtype=bool)
-    info = {
+    if unlabelled is not None:
+        unlabelled = np.asarray(unlabelled)
+        if unlabelled.ndim != 2 or unlabelled.shape[1] < min(k, scores.shape[1]):
+            raise ValueError(
+                f"unlabelled must be top-k scores of shape (U, >= {min(k, scores.shape[1])}), got {unlabelled.shape}"
+            )
+    pool_scores = scores
+    if unlabelled is not None and unlabelled.size:
+        width = min(scores.shape[1], unlabelled.shape[1])
+        pool_scores = np.concatenate([scores[:, :width], unlabelled[:, :width]]).astype(np.float64)
+    model_features = DEFAULT_FEATURES if features is None else tuple(features)
+    feature_matrix(scores[:1], k=k, features=model_features if features is not None else ("SU",))  # checks names
+    pool_features = feature_columns(pool_scores, k, model_features if features is not None else ())
+    labelled_features = {name: column[: correct.size] for name, column in pool_features.items()}
+    model_features = tuple(name for name in model_features if name in pool_features)
+    if model == "isotonic":
+        rankings = ("SU",)
+    names = check_rankings(default_rankings(correct.size) if rankings is None else rankings, labelled_features)
+    info: dict[str, Any] = {
         "toolkit_version": _version(),
         "target_precision": target_precision,
         "delta": delta if target_precision is not None else None,
         "calibration": {
             "n_queries": int(correct.size),
             "n_correct": int(correct.sum()),
+            "n_unlabelled": 0 if unlabelled is None else int(unlabelled.shape[0]),
             "fingerprint": fingerprint(scores[:, :k], correct),
             "seed": seed,
+            "folds": folds,
         },
     }
-    if target_precision is None:
-        calibrator = fit_calibrator(matrix, correct, feature_names=names, model=model)
+
+    def fallback() -> Calibrator:
+        """P without a certified ranking: the choice of :func:`select_calibrator` (or what the caller fixed)."""
         if model == "isotonic":
-            above = np.flatnonzero(np.asarray(calibrator.y) >= 0.5)
-            first = int(above[0]) if above.size else -1
-            # halfway to the next lower breakpoint, so that no calibration query sits exactly on the cut
-            cut = (
-                math.inf
-                if first < 0
-                else (
-                    calibrator.x[first] - 1.0 if first == 0 else 0.5 * (calibrator.x[first - 1] + calibrator.x[first])
-                )
-            )
-        else:
-            cut = 0.0
+            return fit_calibrator(labelled_features["SU"][:, None], correct, feature_names=("SU",), model="isotonic")
+        if features is not None:
+            calibrator = fit_model(columns(labelled_features, model_features), correct, model_features)
+            calibrator.ranking = "CAL"
+            return calibrator
+        calibrator, selection = select_calibrator(
+            labelled_features, correct, model_features=model_features, folds=folds, seed=seed
+        )
+        info["selection"] = {"chosen": calibrator.ranking, "average_precision": selection}
+        return calibrator
+
+    info["selection"] = None
+    if target_precision is None:
+        calibrator = fallback()
         info.update(precision_lower_bound=None, expected_recall=None, expected_coverage=None, certificate=None)
-        return Gate(calibrator, k, cut, info)
-    if not 0.0 < test_fraction < 1.0:
-        raise ValueError(f"test_fraction must lie in (0, 1), got {test_fraction}")
-    test, fit = stratified_split(correct, test_fraction, np.random.default_rng(seed))
-    ranking = fit_calibrator(matrix[fit], correct[fit], feature_names=names, model=model)
-    confidence = ranking.confidence(matrix)
-    cuts = candidate_cuts(confidence[fit], test.size, target_precision, delta)
-    certificate = certify_threshold(
-        confidence[test],
-        correct[test],
-        cuts,
+        return Gate(calibrator, k, _half_way_cut(calibrator), info)
+    if not 0.0 < delta < 1.0:
+        raise ValueError(f"delta must lie in (0, 1), got {delta}")
+    certificate, calibrator, cut = certify_rankings(
+        labelled_features,
+        pool_features,
+        correct,
+        answerable,
+        rankings=names,
+        model_features=model_features,
         target_precision=target_precision,
         delta=delta,
-        answerable=answerable[test],
+        folds=folds,
+        seed=seed,
     )
-    calibrator, cut = _recalibrate(ranking, matrix, correct, confidence, certificate.cut)
     message = certificate.message
-    if not certificate.certified:
-        message += "; " + _needed_message(confidence, correct, target_precision, delta, test_fraction)
-    info["calibration"].update(n_fit=int(fit.size), n_test=int(test.size), test_fraction=test_fraction)
+    if calibrator is None:  # nothing certified: the gate accepts nothing, P from the best doubt
+        calibrator = fallback()
+        message += "; " + needed_message(
+            calibrator.confidence(columns(labelled_features, calibrator.features)), correct, target_precision, delta
+        )
+    elif model == "isotonic":  # the isotonic P, in the order of −SU: the cut on −SU
+        calibrator = fallback()
+        cut = float(cuts_at_coverage(-pool_features["SU"], np.array([certificate.coverage]))[0])
+        certificate.cut = cut
+    info["rankings"] = list(names)
     info.update(
         precision_lower_bound=certificate.precision_lower_bound,
         expected_recall=certificate.expected_recall,
@@ -155,28 +175,16 @@ def calibrate_arrays(
     return Gate(calibrator, k, cut, info)
 
 
-def _recalibrate(
-    ranking: Calibrator, matrix: np.ndarray, correct: np.ndarray, confidence: np.ndarray, cut: float | None
-) -> tuple[Calibrator, float]:
-    """P refitted on all queries by a strictly increasing map of the confidence; the cut mapped along."""
-    cut = math.inf if cut is None else cut
-    if ranking.model == "isotonic":
-        return fit_calibrator(matrix, correct, feature_names=ranking.features, model="isotonic"), cut
-    spread = float(confidence.std()) or 1.0
-    intercept, (slope,) = fit_logistic((confidence / spread)[:, None], correct, regularisation=1.0)
-    slope /= spread
-    if not slope > 0:  # the fit-part ranking carries no signal on all queries: keep its own probabilities
-        return ranking, cut
-    calibrator = Calibrator(
-        model="logistic",
-        features=ranking.features,
-        mean=ranking.mean,
-        scale=ranking.scale,
-        coef=[slope * c for c in ranking.coef],
-        intercept=slope * ranking.intercept + intercept,
-        regularisation=ranking.regularisation,
-    )
-    return calibrator, (cut if math.isinf(cut) else slope * cut + intercept)
+def _half_way_cut(calibrator: Calibrator) -> float:
+    """The confidence at which P = 0.5 (logistic: 0; isotonic: halfway below the first step at ≥ 0.5)."""
+    if calibrator.model != "isotonic":
+        return 0.0
+    above = np.flatnonzero(np.asarray(calibrator.y) >= 0.5)
+    if not above.size:
+        return math.inf
+    first = int(above[0])
+    # halfway to the next lower breakpoint, so that no calibration query sits exactly on the cut
+    return calibrator.x[first] - 1.0 if first == 0 else 0.5 * (calibrator.x[first - 1] + calibrator.x[first])
 
 
 def _version() -> str:
@@ -194,7 +202,9 @@ def calibrate(
     seed: int = 0,
     model: str = "logistic",
     features: Sequence[str] | None = None,
-    test_fraction: float = 0.5,
+    rankings: Sequence[str] | None = None,
+    unlabelled: Retrieval | np.ndarray | None = None,
+    folds: int = FOLDS,
 ) -> Gate:
     """Fit P(correct top-1) on labelled queries and, given a target precision, a threshold that guarantees it.
 
@@ -207,24 +217,42 @@ def calibrate(
         answers on new queries from the same distribution is ≥ p*. Without it the gate accepts P ≥ 0.5 and
         certifies nothing.
     delta : float in (0, 1), default=0.1
-        The risk δ.
+        The risk δ, split evenly over the candidate rankings.
     k : int, default=10
         Candidates per query the features read.
     seed : int, default=0
-        Seed of the fit/test split.
+        Seed of the cross-fitting folds.
     model : {"logistic", "isotonic"}, default="logistic"
-        Logistic regression on standardised features, or isotonic regression on SU.
+        ``"logistic"``: P from the best of the fixed scores and a logistic model (:func:`select_calibrator`);
+        ``"isotonic"``: isotonic regression on SU, certified on the SU ranking.
     features : sequence of str, optional
-        Features of the logistic model (default :data:`~vpr_uncertainty.calibration.features.DEFAULT_FEATURES`).
-    test_fraction : float in (0, 1), default=0.5
-        Share of the calibration queries (of each outcome) kept for the threshold test.
+        Features of the logistic model; given, the model is used as it is (no choice among fixed scores).
+        Default :data:`~vpr_uncertainty.calibration.features.DEFAULT_FEATURES`.
+    rankings : sequence of str, optional
+        Candidate rankings of the certified threshold, from :data:`RANKINGS` and ``"CAL"`` (the cross-fitted
+        model); default :func:`default_rankings` (SU, plus CAL from :data:`CAL_MIN_LABELLED` labelled queries).
+    unlabelled : Retrieval or ndarray of shape (U, K), optional
+        Further queries without labels (e.g. the rest of the traversal): the candidate cuts are quantiles over
+        these and the labelled ones. Their labels are never read.
+    folds : int, default=5
+        Cross-fitting folds of the model.
 
     Returns
     -------
     Gate
-        With ``threshold``, ``precision_lower_bound`` and ``expected_recall``; when nothing can be certified the
-        gate accepts nothing and ``gate.info["certificate"]["message"]`` says why and how many labelled queries
-        would be needed.
+        With ``threshold``, ``precision_lower_bound`` and ``expected_recall``; ``gate.info["certificate"]``
+        names the winning ranking, and each ranking's outcome. When nothing can be certified the gate accepts
+        nothing and the message says why and how many labelled queries would be needed.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> scores = -np.sort(-rng.uniform(0.2, 0.9, size=(300, 10)), axis=1)
+    >>> from vpr_uncertainty.retrieval import Retrieval
+    >>> labelled = Retrieval(scores, np.tile(np.arange(10), (300, 1)), np.eye(300, 10, dtype=bool)[:, ::-1])
+    >>> gate = calibrate(labelled, target_precision=0.9)   # random labels: nothing can be certified
+    >>> gate.precision_lower_bound is None
+    True
     """
     if retrieval.positives is None:
         raise ValueError("calibration needs the ground truth of the queries (argument ground_truth)")
@@ -232,6 +260,8 @@ def calibrate(
 
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     answerable = np.asarray(retrieval.positives.sum(axis=1)).ravel() > 0
+    if unlabelled is not None and not isinstance(unlabelled, np.ndarray):
+        unlabelled = unlabelled.scores
     return calibrate_arrays(
         retrieval.scores,
         correct,
@@ -242,5 +272,7 @@ def calibrate(
         seed=seed,
         model=model,
         features=features,
-        test_fraction=test_fraction,
+        rankings=rankings,
+        unlabelled=unlabelled,
+        folds=folds,
     )

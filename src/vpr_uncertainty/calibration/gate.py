@@ -24,7 +24,13 @@ import numpy as np
 from vpr_uncertainty._validation import check_k
 from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.calibration.calibrator import Calibrator
-from vpr_uncertainty.calibration.features import feature_matrix, row_statistics
+from vpr_uncertainty.calibration.features import (
+    FEATURES,
+    aliasing_ratio,
+    feature_matrix,
+    row_features,
+    row_statistics,
+)
 
 __all__ = ["FORMAT", "Gate"]
 
@@ -63,6 +69,7 @@ class Gate:
         "_bias",
         "_cut",
         "_k",
+        "_w_aliasing",
         "_w_best",
         "_w_median",
         "_w_nonpositive",
@@ -95,12 +102,14 @@ class Gate:
         self._k, self._cut = self.k, self.cut
         if self.calibrator.model == "isotonic":  # confidence = −SU = −(½ runners-up + ½ median) / s_1
             self._bias, self._w_best, self._w_second, self._w_spread, self._w_ratio = 0.0, 0.0, 0.0, 0.0, 0.0
-            self._w_runners, self._w_median, self._w_nonpositive = -0.5, -0.5, -1.0
+            self._w_runners, self._w_median, self._w_nonpositive, self._w_aliasing = -0.5, -0.5, -1.0, 0.0
             return
         bias, raw = self.calibrator.raw_weights()
-        w = dict.fromkeys(("s1", "gap", "ratio", "RS", "SD", "SU", "zscore"), 0.0)
-        w.update(zip(self.calibrator.features, raw, strict=True))
-        self._bias = bias
+        w = dict.fromkeys(FEATURES, 0.0)
+        # plain floats: numpy scalars make every operation of the one-query path slower
+        w.update(zip(self.calibrator.features, (float(value) for value in raw), strict=True))
+        self._bias = float(bias)
+        self._w_aliasing = w["PA"]
         self._w_best = w["s1"] + w["gap"]
         self._w_second = -w["gap"]
         self._w_spread = w["zscore"]
@@ -111,16 +120,12 @@ class Gate:
         self._w_ratio = w["ratio"]
 
     def __call__(self, scores: Sequence[float] | np.ndarray) -> bool:
-        """Accept one query? ``scores``: its top-K similarities, sorted descending (a list, a (K,) or (1, K) array)."""
-        if isinstance(scores, np.ndarray):
-            if scores.ndim != 1:
-                if scores.ndim != 2 or scores.shape[0] != 1:
-                    raise ValueError(f"scores must be one query's top-k, shape (K,) or (1, K), got {scores.shape}")
-                scores = scores[0]
-            values = scores.tolist()
-        else:
-            values = list(scores)
-        return self._confidence_of(values) >= self._cut
+        """Accept one query? ``scores``: its top-K similarities, sorted descending (a list, a (K,) or (1, K) array).
+
+        A malformed row (not numbers, NaN or ±inf at the top, unsorted, overflowing, another shape) raises, as
+        :meth:`accept` does: a robot that catches the error rejects the query.
+        """
+        return self._confidence_of(_one_row(scores)) >= self._cut
 
     def _confidence_of(self, values: list[float]) -> float:
         best, second, runners, median, last, _ = row_statistics(values, self._k)
@@ -132,18 +137,41 @@ class Gate:
         if self._w_spread:
             spread = best - last
             z += self._w_spread * ((best - runners) / spread if spread > 0 else 0.0)
+        if self._w_aliasing:
+            z += self._w_aliasing * aliasing_ratio(best, second)
+        if not -math.inf < z < math.inf:  # huge scores: each feature on its own (ratios before sums), as in batch
+            z = self._confidence_by_features(values)
+        return z
+
+    def _confidence_by_features(self, values: list[float]) -> float:
+        """The confidence from :func:`row_features` and the raw weights: slower, but overflows only where the
+        features themselves do (the same numbers as :meth:`confidence`)."""
+        features = row_features(values, k=self._k, features=self.calibrator.features)
+        if self.calibrator.model == "isotonic":
+            z = -features[0]
+        else:
+            bias, weights = self.calibrator.raw_weights()
+            z = bias + sum(weight * value for weight, value in zip(weights, features, strict=True))
+        if not -math.inf < z < math.inf:
+            raise ValueError(f"scores are too large: the gate's confidence overflows float64 ({values})")
         return z
 
     def probability_one(self, scores: Sequence[float] | np.ndarray) -> float:
         """P(correct) of one query (same input as ``gate(scores)``)."""
-        values = np.asarray(scores, dtype=np.float64).reshape(-1).tolist()
-        return float(self.calibrator.probability_from_confidence(np.array([self._confidence_of(values)]))[0])
+        confidence = self._confidence_of(_one_row(scores))
+        return float(self.calibrator.probability_from_confidence(np.array([confidence]))[0])
 
     # --- many queries -------------------------------------------------------------------------------------------
 
     def confidence(self, scores: object) -> np.ndarray:
         """The calibrator's confidence of shape (Q,) (higher = more likely correct)."""
-        return self.calibrator.confidence(feature_matrix(scores, k=self.k, features=self.calibrator.features))
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked below
+            features = feature_matrix(scores, k=self.k, features=self.calibrator.features)
+            confidence = self.calibrator.confidence(features)
+        if not np.isfinite(confidence).all():
+            row = int(np.flatnonzero(~np.isfinite(confidence))[0])
+            raise ValueError(f"scores row {row} is too large: the gate's confidence overflows float64")
+        return confidence
 
     def probability_correct(self, scores: object) -> np.ndarray:
         """P(correct top-1) of shape (Q,), in [0, 1], from top-K similarities of shape (Q, K) sorted descending."""
@@ -228,3 +256,18 @@ class Gate:
         except (json.JSONDecodeError, UnicodeDecodeError) as error:
             raise ValueError(f"{path}: not a JSON gate file: {error}") from None
         return cls.from_dict(data, where=str(path))
+
+
+def _one_row(scores: Sequence[float] | np.ndarray) -> list[float]:
+    """One query's scores as a list: a sequence of numbers, or an array of shape (K,) or (1, K) of numbers."""
+    if isinstance(scores, np.ndarray):
+        if scores.ndim != 1:
+            if scores.ndim != 2 or scores.shape[0] != 1:
+                raise ValueError(f"scores must be one query's top-k, shape (K,) or (1, K), got {scores.shape}")
+            scores = scores[0]
+        if scores.dtype.kind not in "fiu":
+            raise TypeError(f"scores must be numbers, got an array of dtype {scores.dtype}")
+        return scores.tolist()
+    if isinstance(scores, (str, bytes)):
+        raise TypeError(f"scores must be numbers, got {type(scores).__name__} {scores!r}")
+    return list(scores)

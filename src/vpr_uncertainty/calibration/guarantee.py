@@ -1,36 +1,47 @@
-"""A threshold with a precision guarantee: Learn-then-Test with Clopper–Pearson p-values and fixed-sequence testing.
+"""A threshold with a precision guarantee: Learn-then-Test with exact binomial p-values and fixed-sequence testing.
 
 The question: accept the answers whose confidence is at least a cut t. Which t makes the precision of the accepted
 answers on new queries at least p*, with probability at least 1 − δ over the draw of the calibration queries?
 
 Method (Angelopoulos et al., "Learn then Test", 2021)
-    1. The candidate cuts t_1 > t_2 > … (strictest first) are fixed **before** the test queries are looked at: the
-       caller takes them from data the test does not reuse (the part of the calibration set the probabilities were
-       fitted on).
-    2. For each cut, H_j: "precision(t_j) < p*". Given n_j accepted test queries of which c_j are correct, the
+    1. The candidate cuts t_1 > t_2 > … (strictest first) are fixed **before** any label is read: they are the
+       quantiles of the ranking's confidence over the queries the caller passes, labelled or not, at the coverages
+       of :func:`coverage_grid`, which depend on nothing but the number of labelled queries, p* and δ.
+    2. For each cut, H_j: "precision(t_j) < p*". Given n_j accepted labelled queries of which c_j are correct, the
        number correct is Binomial(n_j, precision(t_j)), so p_j = P[Binomial(n_j, p*) ≥ c_j] is a valid p-value
-       (the exact binomial, i.e. Clopper–Pearson, test).
+       (the exact binomial test; its inversion is the Clopper–Pearson bound).
     3. Fixed-sequence testing: reject H_1, H_2, … while p_j ≤ δ; stop at the first p_j > δ. The last rejected cut
        is chosen. This controls the family-wise error at δ, so with probability ≥ 1 − δ the chosen cut has
-       precision ≥ p* (the data-independent order is what makes testing every cut free of a multiplicity cost).
+       precision ≥ p* (the label-free order is what makes testing every cut free of a multiplicity cost).
 
-Nothing can be certified with fewer than ⌈log δ / log p*⌉ accepted test queries (even all correct, the p-value
-p*^n stays above δ): :func:`min_accepted` gives that number.
+Several rankings (SU, the margin, a cross-fitted model, …) are tested each at δ / R (Bonferroni), so that every
+certified rule holds at once with probability ≥ 1 − δ and the loosest of them may be kept.
+
+Nothing can be certified with fewer than ⌈log δ / log p*⌉ accepted queries (even all correct, the p-value p*^n
+stays above δ): :func:`min_accepted` gives that number, and the grid starts there.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
-#: Where the sequence of cuts starts, in multiples of min_accepted (see :func:`candidate_cuts`).
-START_FACTOR = 1.5
+#: With many labelled queries, the coverage grid starts at the first step that accepts at least this share.
+START_COVERAGE = 0.05
 
-__all__ = ["Certificate", "candidate_cuts", "certify_threshold", "clopper_pearson_lower", "min_accepted"]
+__all__ = [
+    "Certificate",
+    "certify_threshold",
+    "clopper_pearson_lower",
+    "coverage_grid",
+    "cuts_at_coverage",
+    "fixed_sequence",
+    "min_accepted",
+]
 
 
 def _check_target(target_precision: float, delta: float) -> None:
@@ -92,6 +103,15 @@ class Certificate:
         Hypotheses tested before the sequence stopped.
     message : str
         One sentence on what was (or could not be) certified.
+    ranking : str or None
+        The ranking whose rule was certified (``"SU"``, ``"margin"``, ``"CAL"``, …), None when none was.
+    coverage : float or None
+        The certified share of the queries accepted (the coverage of the grid at the chosen cut).
+    delta_per_ranking : float or None
+        δ / R, the risk each of the R candidate rankings was tested at.
+    rankings : dict
+        Per candidate ranking: ``certified``, ``accepted``, ``correct_accepted`` (labelled queries at its last
+        certified cut) and ``cuts_tested``.
     """
 
     certified: bool
@@ -105,30 +125,88 @@ class Certificate:
     min_accepted: int
     cuts_tested: int
     message: str = ""
+    ranking: str | None = None
+    coverage: float | None = None
+    delta_per_ranking: float | None = None
+    rankings: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
-def candidate_cuts(confidence_fit: np.ndarray, n_test: int, target_precision: float, delta: float) -> np.ndarray:
-    """The candidate cuts, strictest first, from the confidences of the fit queries (never the test queries).
+def coverage_grid(n_labelled: int, target_precision: float, delta: float) -> np.ndarray:
+    """The candidate coverages, strictest first: fixed by the number of labelled queries, p* and δ alone.
 
-    Every distinct fit confidence gives a cut (halfway to the next lower one). The sequence starts at the
-    strictest cut that accepts, on the fit queries, a share which on ``n_test`` queries would reach
-    :data:`START_FACTOR` × :func:`min_accepted`: stricter cuts could hardly be certified and would stop the
-    sequence at once. The factor 1.5 (rather than 1) leaves room for one or two wrong answers and for the
-    difference between the fit and test parts; it gave the highest certified recall in the simulations on the
-    corridor matrices (README "Calibration").
+    The w-th coverage accepts m_w of the ``n_labelled`` queries: the fewest accepted queries among which w wrong
+    answers can still be certified (P[Binomial(m_w, p*) ≥ m_w − w] ≤ δ). It starts at m_0 = :func:`min_accepted`
+    (all correct needed; stricter cuts cannot be certified and would stop the sequence at once) and each step
+    makes room for one more wrong answer, so that a single wrong answer between two cuts cannot stop the sequence
+    by itself. For p* = 0.9, δ = 0.1: 22, 38, 52, 65, … accepted. With many labels the grid starts at the first
+    step that accepts at least :data:`START_COVERAGE` of them, where a few wrong answers are allowed (among the
+    22 most confident of 1,000 queries a single wrong answer would otherwise stop everything). Empty when n < m_0.
+
+    Examples
+    --------
+    >>> (coverage_grid(100, 0.9, 0.1) * 100).round().astype(int).tolist()
+    [22, 38, 52, 65, 78, 91]
     """
-    sorted_desc = np.sort(np.asarray(confidence_fit, dtype=np.float64))[::-1]
-    values = np.unique(sorted_desc)[::-1]
-    if values.size == 0 or n_test == 0:
-        return values
-    share = np.searchsorted(-sorted_desc, -values, side="right") / sorted_desc.size  # fit share accepted per cut
-    start = int(np.searchsorted(share * n_test, START_FACTOR * min_accepted(target_precision, delta), side="left"))
-    # Each cut lies halfway to the next fit value, so no query sits exactly on a cut (rounding cannot flip it).
-    below = np.append(values[1:], values[-1] - max(1.0, abs(values[-1])))
-    return (0.5 * (values + below))[min(start, values.size - 1) :]
+    _check_target(target_precision, delta)
+    if not isinstance(n_labelled, (int, np.integer)) or isinstance(n_labelled, bool) or n_labelled < 0:
+        raise ValueError(f"n_labelled must be an integer >= 0, got {n_labelled!r}")
+    accepted = np.arange(1, n_labelled + 1)
+    # the fewest correct answers that certify among m accepted: P[Binomial(m, p*) >= c] <= δ
+    needed = stats.binom.isf(delta, accepted, target_precision) + 1
+    room = accepted - needed  # wrong answers that can still be certified (negative: none can)
+    first = np.flatnonzero((room >= 0) & (room > np.maximum.accumulate(np.concatenate([[-1], room[:-1]]))))
+    counts = accepted[first]
+    start = np.searchsorted(counts, START_COVERAGE * n_labelled)  # the first step of at least that coverage
+    return counts[min(start, max(counts.size - 1, 0)) :] / max(n_labelled, 1)
+
+
+def cuts_at_coverage(confidence: np.ndarray, coverage: np.ndarray) -> np.ndarray:
+    """Cuts on ``confidence`` (Q,) that accept the share ``coverage`` (m,) of it, strictest first.
+
+    The cut for coverage q accepts the ⌈qQ⌉ highest confidences (more where values tie at the cut): it lies halfway
+    between the lowest accepted value and the next lower one, so that rounding cannot flip a query.
+    Non-increasing, of shape (m,).
+    """
+    ranked = np.sort(np.asarray(confidence, dtype=np.float64))[::-1]
+    if ranked.size == 0:
+        raise ValueError("cuts need at least one confidence value")
+    count = np.clip(np.ceil(np.asarray(coverage) * ranked.size - 1e-9).astype(int), 1, ranked.size)
+    below = np.append(ranked[1:], ranked[-1] - max(1.0, abs(ranked[-1])))
+    return 0.5 * (ranked[count - 1] + below[count - 1])
+
+
+def fixed_sequence(
+    accepted: np.ndarray, correct: np.ndarray, *, target_precision: float, delta: float
+) -> tuple[int, np.ndarray]:
+    """Fixed-sequence test of "precision < p*" over a sequence of cuts, strictest first.
+
+    Parameters
+    ----------
+    accepted, correct : ndarray of shape (m,), int
+        Labelled queries accepted at each cut, and the correct ones among them.
+    target_precision, delta : float in (0, 1)
+
+    Returns
+    -------
+    rejected : int
+        How many hypotheses were rejected before the first p-value above δ (0: nothing certified); the chosen cut
+        is ``rejected - 1``.
+    p_values : ndarray of shape (m,)
+        P[Binomial(n_j, p*) ≥ c_j] (1 where nothing is accepted).
+
+    Examples
+    --------
+    >>> fixed_sequence(np.array([22, 30, 40]), np.array([22, 29, 33]), target_precision=0.9, delta=0.1)[0]
+    1
+    """
+    _check_target(target_precision, delta)
+    accepted, correct = np.asarray(accepted), np.asarray(correct)
+    p_values = np.where(accepted > 0, stats.binom.sf(correct - 1, np.maximum(accepted, 1), target_precision), 1.0)
+    failed = np.flatnonzero(p_values > delta)
+    return (int(failed[0]) if failed.size else int(accepted.size)), p_values
 
 
 def certify_threshold(
@@ -175,9 +253,7 @@ def certify_threshold(
     ranked, hits = confidence[order], np.concatenate([[0], np.cumsum(correct[order])])
     accepted = np.searchsorted(-ranked, -cuts, side="right")  # count of confidence >= cut
     good = hits[accepted]
-    p_values = np.where(accepted > 0, stats.binom.sf(good - 1, accepted, target_precision), 1.0)
-    failed = np.flatnonzero(p_values > delta)
-    n_rejected = int(failed[0]) if failed.size else cuts.size
+    n_rejected, _ = fixed_sequence(accepted, good, target_precision=target_precision, delta=delta)
     tested = min(n_rejected + 1, cuts.size)
     if n_rejected == 0:
         if correct.size * 1.0 < n_needed:

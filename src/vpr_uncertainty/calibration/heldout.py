@@ -17,8 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.calibration.fit import calibrate_arrays, stratified_split
+from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.quality import brier_score, expected_calibration_error, reliability_diagram
+from vpr_uncertainty.calibration.rankings import stratified_split
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["HeldOutEvaluation", "evaluate_held_out", "subset_queries"]

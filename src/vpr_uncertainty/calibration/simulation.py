@@ -11,6 +11,7 @@ any SU cut whose precision is ≥ p*.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,19 +66,17 @@ def simulate_guarantee(
     seed: int = 0,
     k: int = 10,
     model: str = "logistic",
+    rankings: Sequence[str] | None = None,
+    unlabelled: bool = False,
     answerable: np.ndarray | None = None,
 ) -> GuaranteeSimulation:
     """Calibrate on ``n_draws`` i.i.d. draws of ``n_calibration`` queries and measure each gate on the population.
 
-    Draws that hold only one outcome cannot be calibrated; they are redrawn (a gate needs both).
+    With ``unlabelled=True`` every draw also passes the whole population's scores as unlabelled queries (the
+    robot's own traversal). Draws that hold only one outcome cannot be calibrated; they are redrawn.
     """
     correct = np.asarray(correct, dtype=bool)
     answerable = np.ones(correct.size, bool) if answerable is None else np.asarray(answerable, dtype=bool)
-    names = ("SU",) if model == "isotonic" else None
-    from vpr_uncertainty.calibration.features import DEFAULT_FEATURES
-
-    names = names or DEFAULT_FEATURES
-    matrix = feature_matrix(scores, k=k, features=names)
     rng = np.random.default_rng(seed)
     precision, recall, coverage, certified = (np.zeros(n_draws) for _ in range(4))
     n_answerable = int(answerable.sum())
@@ -94,17 +93,17 @@ def simulate_guarantee(
             k=k,
             seed=draw,
             model=model,
-            features=names,
-            features_matrix=matrix[rows],
+            rankings=rankings,
+            unlabelled=scores if unlabelled else None,
         )
-        accepted = gate.calibrator.confidence(matrix) >= gate.cut
+        accepted = gate.accept(scores)
         n_accepted = int(accepted.sum())
         good = int((accepted & correct).sum())
         precision[draw] = good / n_accepted if n_accepted else np.nan
         recall[draw] = good / max(n_answerable, 1)
         coverage[draw] = n_accepted / correct.size
         certified[draw] = gate.precision_lower_bound is not None
-    su = matrix[:, list(names).index("SU")] if "SU" in names else feature_matrix(scores, k=k, features=("SU",))[:, 0]
+    su = feature_matrix(scores, k=k, features=("SU",))[:, 0]
     return GuaranteeSimulation(
         precision=precision,
         recall=recall,

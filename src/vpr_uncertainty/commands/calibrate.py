@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from vpr_uncertainty.commands._arguments import candidate_count, command_wording, output_file
-from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K, read_results
+from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K, Retrieval, read_results
 
 __all__ = ["add_parser"]
 
@@ -21,6 +23,13 @@ def _probability(text: str) -> float:
     return value
 
 
+def _names(text: str) -> tuple[str, ...]:
+    names = tuple(name.strip() for name in text.split(",") if name.strip())
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated names, got {text!r}")
+    return names
+
+
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``calibrate`` command."""
     parser = subparsers.add_parser(
@@ -33,23 +42,51 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "least 1 - delta over the draw of the calibration queries, the precision of accepted answers on new\n"
             "queries from the same distribution is at least p*. The gate is written as JSON (no pickle); use it\n"
             "with Gate.load in Python, or as the uncertainty method CAL:gate=GATE.json in evaluate.\n\n"
+            "Every label is used: each candidate ranking (--rankings; default SU, plus the cross-fitted model CAL\n"
+            "from 150 labelled queries on) is tested at delta/R on all labelled queries, at cuts fixed from the\n"
+            "scores alone (quantiles over the labelled and --unlabelled queries). Without --target-precision the\n"
+            "gate accepts P >= 0.5 and certifies nothing.\n\n"
+            "--plan answers, before more labelling, how many labelled queries would certify the target at a useful\n"
+            "recall: SCORES holds the few labelled queries so far, --unlabelled the queries the gate will decide.\n\n"
             "SCORES is read as by `evaluate` (retrieval.npz, a similarity matrix .npy, VPR-Bench matches)."
         ),
         epilog=(
             "example:\n  vpr-uncertainty calibrate \\\n"
             "      precomputed_matches/corridor/AMOSNet/precomputed_data_corrected.npy \\\n"
-            "      --gt corridor/ground_truth_new.npy --out gate.json --target-precision 0.9 --plot reliability.png"
+            "      --gt corridor/ground_truth_new.npy --out gate.json --target-precision 0.9 --plot reliability.png\n"
+            "  vpr-uncertainty calibrate few_labelled.npz --unlabelled all_queries.npz --target-precision 0.9 --plan"
         ),
     )
     parser.add_argument("scores", type=Path, metavar="SCORES", help="labelled calibration results")
     parser.add_argument("--gt", type=Path, help="ground truth (as in evaluate); required unless SCORES holds it")
     parser.add_argument("--format", choices=INPUT_FORMATS, default="auto", help="how to read SCORES")
-    parser.add_argument("--out", type=output_file, required=True, metavar="GATE.json", help="gate file to write")
+    parser.add_argument(
+        "--out", type=output_file, metavar="GATE.json", help="gate file to write (required unless --plan)"
+    )
     parser.add_argument("--target-precision", type=_probability, metavar="P", help="precision to certify, in (0, 1)")
     parser.add_argument("--delta", type=_probability, default=0.1, help="risk of the guarantee (default 0.1)")
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query (default 10)")
     parser.add_argument("--model", choices=("logistic", "isotonic"), default="logistic", help="calibrator")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the fit/test split (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the cross-fitting folds (default 0)")
+    parser.add_argument(
+        "--unlabelled",
+        type=Path,
+        metavar="RESULTS",
+        help="queries without labels (read like SCORES, ground truth not needed): the cuts are quantiles over them "
+        "and the labelled ones; with --plan, the queries the gate will decide",
+    )
+    parser.add_argument(
+        "--rankings",
+        type=_names,
+        metavar="NAMES",
+        help="candidate rankings of the certified threshold, comma-separated, from SU, RS, SD, BM, margin, PA, CAL "
+        "(each tested at delta/R; default SU, plus CAL from 150 labelled queries)",
+    )
+    parser.add_argument(
+        "--plan",
+        action="store_true",
+        help="estimate how many labelled queries certify --target-precision at a useful recall; writes no gate",
+    )
     parser.add_argument("--plot", type=output_file, metavar="FILE", help="write the reliability diagram")
     parser.set_defaults(handler=_run_calibrate)
 
@@ -59,10 +96,19 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     from vpr_uncertainty.calibration.quality import brier_score, expected_calibration_error, reliability_diagram
     from vpr_uncertainty.evaluation import correct_at_n
 
+    if args.plan and args.target_precision is None:
+        raise ValueError("--plan needs --target-precision P: the plan says how many labels certify that precision")
+    if not args.plan and args.out is None:
+        raise ValueError("--out GATE.json is required (unless --plan)")
     with command_wording(ground_truth="--gt GT"):
         retrieval = read_results(
             args.scores, ground_truth=args.gt, file_format=args.format, top_k=max(MATRIX_TOP_K, args.k)
         )
+        unlabelled = None
+        if args.unlabelled is not None:
+            unlabelled = _read_unlabelled(args.unlabelled, args.format, max(MATRIX_TOP_K, args.k))
+        if args.plan:
+            return _run_plan(args, retrieval, unlabelled)
         gate = calibrate(
             retrieval,
             target_precision=args.target_precision,
@@ -70,6 +116,8 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             k=args.k,
             seed=args.seed,
             model=args.model,
+            rankings=args.rankings,
+            unlabelled=unlabelled,
         )
     gate.save(args.out)
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
@@ -91,7 +139,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             print(
                 f"threshold P >= {gate.threshold:.4f}; certified precision lower bound "
                 f"{gate.precision_lower_bound:.3f}; expected recall {gate.expected_recall:.3f}, "
-                f"coverage {gate.expected_coverage:.3f} (on the test part)"
+                f"coverage {gate.expected_coverage:.3f} (on the labelled queries)"
             )
         else:
             print("the gate accepts nothing")
@@ -101,4 +149,43 @@ def _run_calibrate(args: argparse.Namespace) -> int:
 
         plot_reliability(reliability_diagram(probability, correct), args.plot, title="in-sample reliability")
         print(f"wrote {args.plot}")
+    return 0
+
+
+def _read_unlabelled(path: Path, file_format: str, top_k: int) -> np.ndarray:
+    """The top-k scores of unlabelled queries: a retrieval file, or a similarity matrix (no ground truth needed)."""
+    is_retrieval = file_format == "retrieval" or (file_format == "auto" and path.suffix.lower() == ".npz")
+    if is_retrieval or file_format not in ("auto", "matrix", "vprbench"):
+        return read_results(path, file_format=file_format, top_k=top_k).scores
+    from vpr_uncertainty.retrieval.readers import read_similarity_top_k
+
+    scores, _, _ = read_similarity_top_k(path, top_k, file_format=file_format)
+    return scores
+
+
+def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.ndarray | None) -> int:
+    from vpr_uncertainty.calibration.plan import plan_labels
+    from vpr_uncertainty.evaluation import correct_at_n
+
+    if retrieval.positives is None:
+        raise ValueError("--plan needs the labels of the few labelled queries in SCORES (--gt GT)")
+    correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
+    pool = retrieval.scores if unlabelled is None else unlabelled
+    plan = plan_labels(
+        pool,
+        retrieval.scores,
+        correct,
+        target_precision=args.target_precision,
+        delta=args.delta,
+        k=args.k,
+        seed=args.seed,
+    )
+    print(
+        f"{args.scores}: {plan.n_labelled} labelled queries ({int(correct.sum())} correct); "
+        f"{plan.n_queries} queries to decide; p* = {args.target_precision:g}, delta = {args.delta:g}"
+    )
+    print(plan.table())
+    print(plan.message)
+    for note in plan.notes:
+        print(f"note: {note}")
     return 0
