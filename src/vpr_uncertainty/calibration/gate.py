@@ -259,7 +259,9 @@ class Gate:
 
 
 def _one_row(scores: Sequence[float] | np.ndarray) -> list[float]:
-    """One query's scores as a list: a sequence of numbers, or an array of shape (K,) or (1, K) of numbers."""
+    """One query's scores as a new list: a sequence of numbers, or an array of shape (K,) or (1, K) of numbers."""
+    if type(scores) is list:  # the common case, first
+        return scores[:]
     if isinstance(scores, np.ndarray):
         if scores.ndim != 1:
             if scores.ndim != 2 or scores.shape[0] != 1:
