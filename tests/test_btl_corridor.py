@@ -32,6 +32,7 @@ from vpr_uncertainty.data.attach import attach_ground_truth  # noqa: E402
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth  # noqa: E402
 from vpr_uncertainty.descriptors import extract_descriptors, load_model  # noqa: E402
 from vpr_uncertainty.evaluation import evaluate  # noqa: E402
+from vpr_uncertainty.reports.tables import format_table  # noqa: E402
 from vpr_uncertainty.retrieval import retrieve, save_retrieval  # noqa: E402
 
 pytestmark = pytest.mark.realdata
@@ -98,11 +99,20 @@ def test_btl_evaluated_end_to_end_with_its_own_retrieval(corridor, corridor_head
     )
     h5 = str(corridor["h5"])  # descriptors read back from the cache, names checked against the retrieval
     options = {"btl_head": head_path, "query_descriptors": h5, "database_descriptors": h5}
+    # the head was trained on these very queries: refused unless asked for, and then marked in every output
+    with pytest.raises(ValueError, match="was trained on 111 of these 111 queries"):
+        evaluate(retrieval, ["BTL", "BM", "SU"], **options)
+    options["allow_train_queries"] = True
     evaluation = evaluate(retrieval, ["BTL", "BM", "SU"], **options)
     results = json.loads(json.dumps(evaluation.to_dict()))  # what `evaluate --json` writes
     btl = results["methods"]["BTL"]
-    assert btl["correctness_from"] == "own retrieval"
-    own, variance = btl_retrieval(retrieval, **resolve_btl_inputs(retrieval, options))  # files read by the hook
+    assert btl["correctness_from"] == "own retrieval" and btl["trained_on_queries"] == 111
+    assert any("BTL was trained on 111 of these 111 queries" in note for note in results["notes"])
+    table = format_table(evaluation)
+    assert "BTL‡" in table and "BTL*" not in table and "BTL‡*" not in table
+    resolved = resolve_btl_inputs(retrieval, options)  # files read by the hook
+    resolved.pop("allow_train_queries")
+    own, variance = btl_retrieval(retrieval, **resolved)
     own_correct = corridor["positives"].toarray()[np.arange(111), own.indices[:, 0]]
     assert_close(btl["own_recall@1"], own_correct.mean())
     assert 0.0 < btl["auc_pr"] <= 1.0 and 0.0 <= btl["aurc"] <= 1.0
@@ -153,3 +163,23 @@ def test_cli_on_corridor_from_positive_lists_and_from_a_run_directory(corridor, 
     assert _run_cli(["train-btl", "--run", str(run), "--out", str(run / "head.pt"), *quick]) == 0
     assert (run / "head.curve.json").is_file() and (run / "head.curve.png").is_file()
     assert load_btl_head(run / "head.pt").metadata["source"]["anchors"] == "queries"
+
+
+def test_evaluate_command_refuses_training_queries_unless_allowed(corridor, corridor_head, tmp_path, capsys):
+    from vpr_uncertainty.cli import main
+
+    head_path, _ = corridor_head
+    retrieval = attach_ground_truth(
+        retrieve(corridor["database"], corridor["queries"], k=10),
+        positives=corridor["positives"],
+        database_names=corridor["database_names"],
+        query_names=corridor["queries_names"],
+    )
+    path = save_retrieval(retrieval, tmp_path / "retrieval.npz")
+    argv = ["evaluate", str(path), "--methods", "BTL,SU", "--btl-head", str(head_path)]
+    argv += ["--descriptors", str(corridor["h5"])]
+    assert main(argv) == 2
+    assert "was trained on 111 of these 111 queries" in capsys.readouterr().err
+    assert main([*argv, "--allow-train-queries"]) == 0
+    out = capsys.readouterr().out
+    assert "BTL‡" in out and "BTL was trained on 111 of these 111 queries" in out

@@ -12,6 +12,10 @@ head's means and searched by cosine similarity, so its correctness labels come f
     database order.
 ``device``
     Where the head runs (``"cpu"``, ``"cuda"``).
+``allow_train_queries``
+    A head file records the descriptors of its training anchors (:func:`~vpr_uncertainty.btl.training.
+    row_digests`). Evaluating it on queries it was trained on inflates its figures, so that is an error unless
+    this is true; then ``details["trained_on_queries"]`` says how many, and every table marks the method.
 
 The functions here read no file: through :func:`vpr_uncertainty.evaluate` or ``get_method("BTL")``, the
 method's ``resolve`` hook (:func:`vpr_uncertainty.btl.inputs.resolve_btl_inputs`) first reads a head file
@@ -26,11 +30,11 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.btl.model import BTLHead, embed
-from vpr_uncertainty.btl.training import resolve_device
+from vpr_uncertainty.btl.training import resolve_device, row_digests
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["btl_retrieval", "btl_uncertainty"]
+__all__ = ["btl_retrieval", "btl_uncertainty", "trained_on"]
 
 
 def _head(value: object, device: str) -> BTLHead:
@@ -136,6 +140,16 @@ def btl_retrieval(
     return own, query_variances
 
 
+def trained_on(head: BTLHead, query_descriptors: np.ndarray) -> int | None:
+    """How many of ``query_descriptors`` (Q, dim) were the head's training anchors (None: the file does not say)."""
+    anchors = (head.metadata or {}).get("anchors") or {}
+    digests = anchors.get("digests")
+    if not isinstance(digests, list):
+        return None
+    seen = set(digests)
+    return sum(digest in seen for digest in row_digests(query_descriptors))
+
+
 def btl_uncertainty(
     retrieval: Retrieval,
     *,
@@ -143,10 +157,18 @@ def btl_uncertainty(
     query_descriptors: object = None,
     database_descriptors: object = None,
     device: str = "cpu",
+    allow_train_queries: bool = False,
 ) -> OwnRetrievalUncertainty:
     """BTL uncertainty: the variance σ² of each query's embedding (higher = less trustworthy), with BTL's own
     retrieval. Registered as ``"BTL"``; see the module docstring for the options.
+
+    Raises
+    ------
+    ValueError
+        When the head was trained on some of these queries and ``allow_train_queries`` is false.
     """
+    if not isinstance(allow_train_queries, bool):
+        raise TypeError(f"allow_train_queries must be true or false, got {allow_train_queries!r}")
     own, variance = btl_retrieval(
         retrieval,
         btl_head=btl_head,
@@ -154,4 +176,15 @@ def btl_uncertainty(
         database_descriptors=database_descriptors,
         device=device,
     )
-    return OwnRetrievalUncertainty(uncertainty=variance.astype(np.float64), retrieval=own)
+    details: dict[str, Any] = {}
+    seen = trained_on(btl_head, np.asarray(query_descriptors, dtype=np.float32))  # both checked by btl_retrieval
+    if seen and not allow_train_queries:
+        source = getattr(btl_head, "source_path", None) or "the BTL head"
+        raise ValueError(
+            f"{source} was trained on {seen} of these {retrieval.n_queries} queries: its AUC-PR on them says "
+            "nothing about new queries. Evaluate it on other queries, or pass allow_train_queries=True "
+            "(evaluate --allow-train-queries) to report it, marked"
+        )
+    if seen:
+        details["trained_on_queries"] = seen
+    return OwnRetrievalUncertainty(uncertainty=variance.astype(np.float64), retrieval=own, details=details)

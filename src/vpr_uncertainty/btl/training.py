@@ -20,6 +20,7 @@ Procedure (deterministic for a given ``seed`` on CPU):
 from __future__ import annotations
 
 import copy
+import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -40,7 +41,14 @@ from vpr_uncertainty.btl.mining import Triplets, mine_triplets
 from vpr_uncertainty.btl.model import BTLHead
 from vpr_uncertainty.cache import atomic_path, write_text
 
-__all__ = ["BTLTrainingConfig", "TrainingHistory", "resolve_device", "save_training_curve", "train_btl_head"]
+__all__ = [
+    "BTLTrainingConfig",
+    "TrainingHistory",
+    "resolve_device",
+    "row_digests",
+    "save_training_curve",
+    "train_btl_head",
+]
 
 
 @dataclass
@@ -353,8 +361,27 @@ def train_btl_head(
                     break
     head.load_state_dict(best_state)
     head.eval()
-    head.metadata = {"training": config.to_dict(), "history": history.summary()}
+    head.metadata = {
+        "training": config.to_dict(),
+        "history": history.summary(),
+        "anchors": {
+            "source": "database" if same_set else "queries",
+            "count": len(queries),
+            "digests": row_digests(queries),
+        },
+    }
     return head, history
+
+
+def row_digests(descriptors: np.ndarray) -> list[str]:
+    """A 16-hex-digit BLAKE2b digest of each descriptor row (float32 bytes): which images a head was trained on.
+
+    Stored in the head file (``metadata["anchors"]["digests"]``) so that evaluating the head on its own training
+    queries is caught (:func:`vpr_uncertainty.btl.method.btl_uncertainty`); the same descriptors give the same
+    digests on any machine.
+    """
+    rows = np.ascontiguousarray(np.asarray(descriptors, dtype=np.float32))
+    return [hashlib.blake2b(row.tobytes(), digest_size=8).hexdigest() for row in rows]
 
 
 def save_training_curve(history: TrainingHistory, json_path: str | Path, png_path: str | Path | None = None) -> None:

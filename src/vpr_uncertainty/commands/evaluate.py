@@ -130,6 +130,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="DESC.h5",
         help="BTL: descriptor cache (from extract or run) holding the queries and the database",
     )
+    learned.add_argument(
+        "--allow-train-queries",
+        action="store_true",
+        help="BTL: evaluate the head even on queries it was trained on (refused otherwise; the table marks it ‡)",
+    )
     add_executor_options(
         parser,
         ray_workers="the geometric-verification tasks in flight, for the GV-* methods (default: the cluster's CPUs)",
@@ -147,6 +152,8 @@ def _run_evaluate(args: argparse.Namespace) -> int:
         options["btl_head"] = args.btl_head
     if args.descriptors is not None:
         options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
+    if args.allow_train_queries:
+        options["allow_train_queries"] = True
     if args.verify_fraction is not None:
         options["verify_fraction"] = args.verify_fraction
     executor_options(args)  # bad executor options fail before any work

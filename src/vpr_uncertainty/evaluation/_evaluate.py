@@ -189,6 +189,12 @@ def evaluate(
         if isinstance(result, OwnRetrievalUncertainty):
             uncertainty = result.uncertainty
             own = result.retrieval
+            details = dict(result.details)
+            if details.get("trained_on_queries"):
+                evaluation.notes.append(
+                    f"{entry.name} was trained on {details['trained_on_queries']} of these {retrieval.n_queries} "
+                    "queries (allow_train_queries): its figures are optimistic, and it is marked ‡ and never best"
+                )
             method_correct = correct_at_n(own.indices, own.positives if own.positives is not None else positives, 1)
             method_both = bool(method_correct.any() and not method_correct.all())
             own_recall = float(method_correct[answerable].mean())

@@ -27,7 +27,7 @@ __all__ = ["DETAIL_KEYS", "TIMING_KEYS", "Evaluation", "MethodEvaluation"]
 TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms_warm")
 #: Numbers a method reports about its own run (:class:`~vpr_uncertainty.methods.DetailedUncertainty`), written
 #: beside its metrics and read back by :meth:`MethodEvaluation.from_dict`.
-DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries")
+DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries", "trained_on_queries")
 
 
 @dataclass(repr=False)
@@ -80,6 +80,11 @@ class MethodEvaluation:
     def informative(self) -> bool:
         """False when every query has the same uncertainty: the ranking is arbitrary, AUC-PR and AP at chance."""
         return self.n_distinct > 1
+
+    @property
+    def trained_on_queries(self) -> int:
+        """How many of the evaluated queries the method was trained on (0: none, or a training-free method)."""
+        return int(self.details.get("trained_on_queries") or 0)
 
     def to_dict(self) -> dict[str, Any]:
         """The numbers of this method as JSON types (the uncertainties and the curve are left out)."""

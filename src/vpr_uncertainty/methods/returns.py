@@ -26,10 +26,14 @@ class OwnRetrievalUncertainty:
         Higher = less trustworthy.
     retrieval : Retrieval
         The method's own top-k for the same queries, with the same ground truth.
+    details : dict of str to JSON values
+        Reported beside the method's metrics, as for :class:`DetailedUncertainty` (e.g. BTL's
+        ``trained_on_queries``).
     """
 
     uncertainty: np.ndarray
     retrieval: Retrieval
+    details: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass

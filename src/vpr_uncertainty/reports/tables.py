@@ -45,10 +45,15 @@ def _vs_reference(method, reference: str) -> str:
 
 def _marked(evaluation: Evaluation) -> set[str]:
     """The methods starred: the bootstrap's AUC-PR leaders, or (no bootstrap) those with the best AUC-PR."""
+    trained = {m.name for m in evaluation.methods.values() if m.trained_on_queries}
     if evaluation.bootstrap is not None:
-        return set(evaluation.bootstrap["best"]["auc_pr"]["methods"])
+        return set(evaluation.bootstrap["best"]["auc_pr"]["methods"]) - trained
     best = best_auc_pr(evaluation)
-    return {m.name for m in evaluation.methods.values() if best is not None and m.informative and m.auc_pr == best}
+    return {
+        m.name
+        for m in evaluation.methods.values()
+        if best is not None and m.informative and m.auc_pr == best and m.name not in trained
+    }
 
 
 def _legend(evaluation: Evaluation, compared: int) -> str:
@@ -72,7 +77,11 @@ def best_auc_pr(evaluation: Evaluation) -> float | None:
     A method whose uncertainty is the same for every query ranks nothing: its AUC-PR is chance level and it is
     never best. With a single informative method there is nothing to compare it with, so nothing is marked.
     """
-    scored = [m.auc_pr for m in evaluation.methods.values() if m.informative and m.auc_pr is not None]
+    scored = [
+        m.auc_pr
+        for m in evaluation.methods.values()
+        if m.informative and m.auc_pr is not None and not m.trained_on_queries
+    ]
     return max(scored) if len(scored) >= 2 else None
 
 
@@ -80,7 +89,8 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
     """One row per uncertainty method, the best AUC-PR marked with ``*``; a header line with recall@N.
 
     Methods whose uncertainty is constant are marked ``†`` (uninformative) and never starred; see
-    :func:`best_auc_pr`. The evaluation's notes follow the table, one line each.
+    :func:`best_auc_pr`. A method evaluated on queries it was trained on is marked ``‡`` and never starred. The
+    evaluation's notes follow the table, one line each.
 
     Parameters
     ----------
@@ -98,6 +108,7 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
     for method in evaluation.methods.values():
         marker = "*" if method.name in marked and method.informative else ""
         marker += "" if method.informative else "†"
+        marker += "‡" if method.trained_on_queries else ""  # trained on these queries (see the notes)
         values = (
             method.name + marker,
             method.auc_pr,
