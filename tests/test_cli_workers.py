@@ -51,7 +51,13 @@ def seen(monkeypatch):
 @pytest.mark.parametrize("command", _COMMANDS)
 def test_workers_is_the_number_of_ray_workers_under_ray(command):
     args = _parse(command, "--executor", "ray", "--workers", "3")
-    assert executor_options(args) == {"name": "ray", "address": None, "workers": 3, "gpus_per_worker": 0.0}
+    assert executor_options(args) == {
+        "name": "ray",
+        "address": None,
+        "workers": 3,
+        "gpus_per_worker": 0.0,
+        "connect_timeout": 30.0,
+    }
     assert local_workers(args) is None  # the Ray actors decode their own images
 
 
@@ -77,7 +83,7 @@ def test_run_gives_the_workers_to_ray_and_no_decoding_threads(tmp_path, monkeypa
 
     monkeypatch.setattr("vpr_uncertainty.pipeline.run", fake_run)
     assert main(["run", "--dataset", "d", "--out", str(tmp_path), "--executor", "ray", "--workers", "2"]) == 130
-    assert seen == {"name": "ray", "address": None, "workers": 2, "gpus_per_worker": 0.0}
+    assert seen == {"name": "ray", "address": None, "workers": 2, "gpus_per_worker": 0.0, "connect_timeout": 30.0}
     assert configs == [(None, "ray")]
 
 

@@ -102,3 +102,42 @@ def test_ray_only_options_are_refused_with_the_local_executor(grid, capsys):
 
     assert main(["reproduce", str(grid), "--ray-workers", "2"]) != 0
     assert "--ray-workers: only with --executor ray" in capsys.readouterr().err
+
+
+def _closed_port() -> int:
+    """A loopback port with nothing listening (bound, then released)."""
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_an_address_where_nothing_listens_fails_within_the_timeout():
+    import time
+
+    from vpr_uncertainty.executors import RayExecutor, wait_for_address
+
+    port = _closed_port()
+    started = time.monotonic()
+    with pytest.raises(ConnectionError, match=f"no Ray cluster answers at 127.0.0.1:{port} within 1 s"):
+        RayExecutor(address=f"127.0.0.1:{port}", connect_timeout=1.0)
+    assert time.monotonic() - started < 10  # Ray alone waited for more than 5 minutes
+    with pytest.raises(ConnectionError, match="ray://127.0.0.1"):
+        wait_for_address(f"ray://127.0.0.1:{port}", 0.5)
+    wait_for_address("auto", 0.5)  # no port to probe: Ray answers "auto" itself
+    with pytest.raises(ValueError, match="connect_timeout must be a positive number"):
+        RayExecutor(address="auto", connect_timeout=0)
+
+
+def test_reproduce_with_an_unreachable_address_is_one_line(grid, capsys):
+    from vpr_uncertainty.cli import main
+
+    port = _closed_port()
+    argv = ["reproduce", str(grid), "--executor", "ray", "--address", f"127.0.0.1:{port}", "--connect-timeout", "1"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"no Ray cluster answers at 127.0.0.1:{port} within 1 s" in err[0]
+    with pytest.raises(SystemExit) as refused:  # argparse: usage error
+        main(["reproduce", str(grid), "--executor", "ray", "--connect-timeout", "0"])
+    assert refused.value.code == 2 and "must be a number of seconds > 0" in capsys.readouterr().err

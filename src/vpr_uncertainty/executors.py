@@ -12,15 +12,28 @@ whose worker dies is retried by Ray (``max_retries``); a run that is stopped is 
 
 from __future__ import annotations
 
+import math
+import socket
+import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
-__all__ = ["EXECUTORS", "LocalExecutor", "RayExecutor", "get_executor", "import_ray"]
+__all__ = [
+    "CONNECT_TIMEOUT",
+    "EXECUTORS",
+    "LocalExecutor",
+    "RayExecutor",
+    "get_executor",
+    "import_ray",
+    "wait_for_address",
+]
 
 #: The executor names accepted by :func:`get_executor` (and by ``--executor``).
 EXECUTORS = ("local", "ray")
 #: How many times Ray reruns a task whose worker died.
 MAX_RETRIES = 3
+#: Seconds to wait for a Ray cluster at an explicit address to accept a connection (``--connect-timeout``).
+CONNECT_TIMEOUT = 30.0
 
 
 def import_ray() -> Any:
@@ -121,15 +134,28 @@ class RayExecutor:
         The most tasks in flight at once; default: the cluster's CPUs.
     gpus_per_worker : float, default=0
         GPUs Ray assigns to each task (fractions share one GPU).
+    connect_timeout : float, default=30
+        Seconds to wait for the cluster at ``host:port`` (or ``ray://host:port``) to accept a connection before a
+        ConnectionError (Ray itself would wait for minutes on an address where nothing listens).
     """
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, workers: int | None = None, gpus_per_worker: float = 0.0) -> None:
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int | None = None,
+        gpus_per_worker: float = 0.0,
+        connect_timeout: float = CONNECT_TIMEOUT,
+    ) -> None:
         self.workers = _check_workers(workers)
         self.gpus_per_worker = _check_gpus(gpus_per_worker)
         if address is not None and (not isinstance(address, str) or not address.strip()):
             raise ValueError(f"address must be a non-empty string such as 'auto' or 'host:6379', got {address!r}")
+        if not (isinstance(connect_timeout, (int, float)) and 0 < connect_timeout < math.inf):
+            raise ValueError(f"connect_timeout must be a positive number of seconds, got {connect_timeout!r}")
+        if address is not None:
+            wait_for_address(address, connect_timeout)
         self.ray = import_ray()
         self._owns_cluster = False
         if not self.ray.is_initialized():
@@ -221,8 +247,37 @@ class RayExecutor:
 Executor = LocalExecutor | RayExecutor
 
 
+def wait_for_address(address: str, timeout: float) -> None:
+    """Wait until something accepts a TCP connection at a Ray ``address`` (``host:port`` or ``ray://host:port``).
+
+    ``"auto"`` and ``"local"`` name no port and pass unchecked (Ray answers those at once). Raises
+    ConnectionError after ``timeout`` seconds, naming the address.
+    """
+    target = address.split("://", 1)[1] if "://" in address else address
+    host, _, port = target.rpartition(":")
+    if not host or not port.isdigit():
+        return
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            with socket.create_connection((host.strip("[]"), int(port)), timeout=min(2.0, timeout)):
+                return
+        except OSError as error:
+            if time.monotonic() >= deadline:
+                raise ConnectionError(
+                    f"no Ray cluster answers at {address} within {timeout:g} s ({error.strerror or error}); start "
+                    "one there (`ray start --head`), or raise --connect-timeout"
+                ) from None
+            time.sleep(min(0.5, max(deadline - time.monotonic(), 0.0)))
+
+
 def get_executor(
-    name: str = "local", *, address: str | None = None, workers: int | None = None, gpus_per_worker: float = 0.0
+    name: str = "local",
+    *,
+    address: str | None = None,
+    workers: int | None = None,
+    gpus_per_worker: float = 0.0,
+    connect_timeout: float = CONNECT_TIMEOUT,
 ) -> Executor:
     """The executor called ``name``.
 
@@ -235,6 +290,8 @@ def get_executor(
         The most items in flight at once (``ray``; the local executor runs one at a time).
     gpus_per_worker : float, default=0
         GPUs per Ray task or actor (``ray`` only).
+    connect_timeout : float, default=30
+        Seconds to wait for a Ray cluster at ``address`` (``ray`` only).
 
     Returns
     -------
@@ -247,4 +304,6 @@ def get_executor(
         if address is not None or _check_gpus(gpus_per_worker):
             raise ValueError("address and gpus_per_worker apply to the ray executor only, not to 'local'")
         return LocalExecutor(workers)
-    return RayExecutor(address=address, workers=workers, gpus_per_worker=gpus_per_worker)
+    return RayExecutor(
+        address=address, workers=workers, gpus_per_worker=gpus_per_worker, connect_timeout=connect_timeout
+    )

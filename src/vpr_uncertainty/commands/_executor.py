@@ -19,6 +19,7 @@ from vpr_uncertainty.commands._arguments import (
     non_negative_float,
     positive_int,
 )
+from vpr_uncertainty.executors import CONNECT_TIMEOUT
 
 __all__ = [
     "DECODING_THREADS",
@@ -31,6 +32,13 @@ __all__ = [
 #: What ``--workers`` means with ``--executor local`` in ``run`` and ``extract``.
 DECODING_THREADS = "image decoding threads (default min(4, CPUs); 0 = none)"
 _RAY_WORKERS = "the Ray tasks or actors in flight (default: the cluster's CPUs)"
+
+
+def _seconds(text: str) -> float:
+    value = non_negative_float(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text}")
+    return value
 
 
 def add_executor_options(
@@ -71,6 +79,13 @@ def add_executor_options(
         add_alias(group, "--num_workers", new="--workers", type=integer_at_least(0))
     add_deprecated_alias(group, "--ray-workers", new="--workers", dest="ray_workers", type=positive_int, metavar="N")
     group.add_argument(
+        "--connect-timeout",
+        type=_seconds,
+        default=CONNECT_TIMEOUT,
+        metavar="SECONDS",
+        help=f"how long to wait for the Ray cluster at --address to answer (default {CONNECT_TIMEOUT:g} s)",
+    )
+    group.add_argument(
         "--gpus-per-worker",
         type=non_negative_float,
         default=0.0,
@@ -105,7 +120,13 @@ def executor_options(args: argparse.Namespace) -> dict[str, Any]:
     workers = former if workers is None else workers
     if workers == 0:
         raise ValueError("--workers 0: --executor ray needs at least 1 worker (omit it for the cluster's CPUs)")
-    return {"name": "ray", "address": args.address, "workers": workers, "gpus_per_worker": args.gpus_per_worker}
+    return {
+        "name": "ray",
+        "address": args.address,
+        "workers": workers,
+        "gpus_per_worker": args.gpus_per_worker,
+        "connect_timeout": args.connect_timeout,
+    }
 
 
 def local_workers(args: argparse.Namespace) -> int | None:
