@@ -226,3 +226,14 @@ def test_readme_loop_closure_example(corridor):
     assert found["AMOSNet", 0.9] == found["HybridNet", 0.9] == found["AlexNet_VPR", 0.9] == (0, 0)
     assert found["AMOSNet", 0.8] == (39, 38) and found["HybridNet", 0.8] == (51, 48)
     assert found["AlexNet_VPR", 0.8] == (0, 0)
+
+
+def test_a_failing_plot_leaves_the_gate_file_as_it_was(corridor_dir, corridor_matches_dir, tmp_path, capsys):
+    matches = corridor_matches_dir / "AMOSNet" / "precomputed_data_corrected.npy"
+    gate = tmp_path / "gate.json"
+    gate.write_text("the previous gate")
+    blocked = tmp_path / "plot.unknown-format"  # matplotlib cannot write it: the plot fails
+    argv = ["calibrate", str(matches), "--gt", str(corridor_dir / "ground_truth_new.npy"), "--out", str(gate)]
+    assert main([*argv, "--plot", str(blocked)]) != 0
+    assert gate.read_text() == "the previous gate"
+    assert main(argv) == 0 and Gate.load(gate).k == 10

@@ -56,3 +56,24 @@ def test_query_paths_are_those_of_the_held_out_queries(image_method, corridor_di
         )
     assert set(image_method.seen) == {result.n_held_out}
     np.testing.assert_array_equal(result.values["TEST-IMAGES"]["auc_pr"], result.values["BM"]["auc_pr"])
+
+
+@pytest.mark.filterwarnings("ignore:reading the legacy")
+def test_a_split_too_small_to_measure_is_refused(corridor_dir, corridor_matches_dir, tmp_path, capsys):
+    """fraction 0.999 left 2 held-out queries and reported SU 1.000 in bold (issue 20)."""
+    matches = corridor_matches_dir / "AMOSNet" / "precomputed_data_corrected.npy"
+    retrieval = read_results(matches, ground_truth=corridor_dir / "ground_truth_new.npy")
+    with pytest.raises(ValueError, match=r"leaves 2 held-out queries \(1 correct, 1 wrong\) of 111"):
+        evaluate_held_out(retrieval, ["SU", "CAL"], calibration_fraction=0.999, repeats=2)
+    assert evaluate_held_out(retrieval, ["SU"], calibration_fraction=0.9, repeats=1).n_held_out == 11
+    from vpr_uncertainty.cli import main
+
+    config = tmp_path / "grid.toml"
+    config.write_text(
+        'out = "out"\nmethods = ["SU", "CAL"]\ncalibration = {fraction = 0.999, repeats = 2, seed = 0}\n'
+        f'[[inputs]]\nvpr_method = "AMOSNet"\ndataset = "corridor"\nscores = "{matches}"\n'
+        f'ground_truth = "{corridor_dir / "ground_truth_new.npy"}"\n'
+    )
+    assert main(["reproduce", str(config), "--no-report"]) == 2
+    assert "a held-out figure needs at least 10 queries" in capsys.readouterr().err
+    assert not (tmp_path / "out" / "results.json").exists()

@@ -27,6 +27,21 @@ __all__ = ["HeldOutEvaluation", "evaluate_held_out", "subset_queries"]
 _METRICS = ("auc_pr", "average_precision", "aurc")
 
 
+#: The fewest held-out queries of a split, and of each outcome among them, that a held-out figure is reported on.
+MIN_HELD_OUT, MIN_HELD_OUT_PER_OUTCOME = 10, 2
+
+
+def _check_split_sizes(correct: np.ndarray, calibration: np.ndarray, held_out: np.ndarray, fraction: float) -> None:
+    """Refuse splits whose held-out part is too small to measure anything (AUC-PR 1.000 from 2 queries)."""
+    good, wrong = int(correct[held_out].sum()), int((~correct[held_out]).sum())
+    if held_out.size < MIN_HELD_OUT or min(good, wrong) < MIN_HELD_OUT_PER_OUTCOME:
+        raise ValueError(
+            f"calibration fraction {fraction:g} leaves {held_out.size} held-out queries ({good} correct, {wrong} "
+            f"wrong) of {correct.size}: a held-out figure needs at least {MIN_HELD_OUT} queries and "
+            f"{MIN_HELD_OUT_PER_OUTCOME} of each outcome; lower the fraction"
+        )
+
+
 def subset_queries(retrieval: Retrieval, rows: np.ndarray) -> Retrieval:
     """The retrieval of the queries ``rows`` only (same database)."""
     rows = np.asarray(rows)
@@ -166,6 +181,8 @@ def evaluate_held_out(
     for repeat in range(repeats):
         calibration, held_out = stratified_split(correct, calibration_fraction, np.random.default_rng([seed, repeat]))
         result.n_calibration, result.n_held_out = int(calibration.size), int(held_out.size)
+        if repeat == 0:  # every split has the same counts per outcome
+            _check_split_sizes(correct, calibration, held_out, calibration_fraction)
         extra = dict(options)
         if options.get("query_paths") is not None:  # the images of the held-out queries only
             extra["query_paths"] = [options["query_paths"][int(row)] for row in held_out]

@@ -119,9 +119,13 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             rankings=args.rankings,
             unlabelled=unlabelled,
         )
-    gate.save(args.out)
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     probability = gate.probability_correct(retrieval.scores)
+    if args.plot:  # first: a plot that fails leaves an existing gate file as it was
+        from vpr_uncertainty.reports.reliability import plot_reliability
+
+        plot_reliability(reliability_diagram(probability, correct), args.plot, title="in-sample reliability")
+    gate.save(args.out)
     calibration = gate.info["calibration"]
     print(
         f"{args.scores}: {calibration['n_queries']} calibration queries, {calibration['n_correct']} correct; "
@@ -145,9 +149,6 @@ def _run_calibrate(args: argparse.Namespace) -> int:
             print("the gate accepts nothing")
     print(f"wrote {args.out}")
     if args.plot:
-        from vpr_uncertainty.reports.reliability import plot_reliability
-
-        plot_reliability(reliability_diagram(probability, correct), args.plot, title="in-sample reliability")
         print(f"wrote {args.plot}")
     return 0
 
