@@ -145,3 +145,20 @@ def test_yaml_config_needs_pyyaml_or_works(tmp_path):
             load_config(path)
     else:
         assert load_config(path).inputs[0].scores == Path(tmp_path / "r.npz")
+
+
+def test_special_characters_in_names_are_escaped_in_markdown_and_latex():
+    """A `|` in a method name broke table1.md; `$ ^ ~` reached table1.tex unescaped (issue 20)."""
+    import re
+
+    from vpr_uncertainty.reports.table1 import Table1
+
+    table = Table1(
+        rows=["SU|GV", "x$^2$~{y}"], columns=["A|B", "Mean"], values=[[0.5, 0.5], [0.6, 0.6]], time_ms=[1.0, 1.0]
+    )
+    markdown = table1_markdown(table).splitlines()
+    unescaped_bars = [len(re.findall(r"(?<!\\)\|", line)) for line in markdown[:4]]
+    assert unescaped_bars == [5, 5, 5, 5]  # every row keeps its 4 cells
+    assert "| SU\\|GV |" in markdown[2]
+    latex = table1_latex(table)
+    assert r"x\$\textasciicircum{}2\$\textasciitilde{}\{y\}" in latex and "SU|GV" in latex

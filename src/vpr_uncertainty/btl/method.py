@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.btl.model import BTLHead, embed
-from vpr_uncertainty.btl.training import resolve_device, row_digests
+from vpr_uncertainty.btl.model import BTLHead, embed, row_digests
+from vpr_uncertainty.btl.training import resolve_device
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
 from vpr_uncertainty.retrieval import Retrieval
 

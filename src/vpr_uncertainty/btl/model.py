@@ -26,6 +26,7 @@ Head file (``torch.save`` of a dict of tensors and plain values, read back with 
 
 from __future__ import annotations
 
+import hashlib
 import math
 from pathlib import Path
 from typing import Any
@@ -44,6 +45,7 @@ __all__ = [
     "BTLHead",
     "embed",
     "load_btl_head",
+    "row_digests",
     "save_btl_head",
 ]
 
@@ -178,6 +180,17 @@ def embed(head: BTLHead, descriptors: object, *, batch_size: int = 8192) -> tupl
     if not means:
         return np.empty((0, head.embedding_dim), np.float32), np.empty(0, np.float32)
     return np.concatenate(means), np.concatenate(variances)
+
+
+def row_digests(descriptors: np.ndarray) -> list[str]:
+    """A 16-hex-digit BLAKE2b digest of each descriptor row (float32 bytes): which images a head was trained on.
+
+    Stored in the head file (``metadata["anchors"]["digests"]``) so that evaluating the head on its own training
+    queries is caught (:func:`vpr_uncertainty.btl.method.btl_uncertainty`); the same descriptors give the same
+    digests on any machine.
+    """
+    rows = np.ascontiguousarray(np.asarray(descriptors, dtype=np.float32))
+    return [hashlib.blake2b(row.tobytes(), digest_size=8).hexdigest() for row in rows]
 
 
 def save_btl_head(head: BTLHead, path: str | Path, *, metadata: dict[str, Any] | None = None) -> Path:

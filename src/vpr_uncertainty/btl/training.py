@@ -20,7 +20,6 @@ Procedure (deterministic for a given ``seed`` on CPU):
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -38,14 +37,13 @@ from vpr_uncertainty.btl.loss import (
     bayesian_triplet_loss,
 )
 from vpr_uncertainty.btl.mining import Triplets, mine_triplets
-from vpr_uncertainty.btl.model import BTLHead
+from vpr_uncertainty.btl.model import BTLHead, row_digests
 from vpr_uncertainty.cache import atomic_path, write_text
 
 __all__ = [
     "BTLTrainingConfig",
     "TrainingHistory",
     "resolve_device",
-    "row_digests",
     "save_training_curve",
     "train_btl_head",
 ]
@@ -371,17 +369,6 @@ def train_btl_head(
         },
     }
     return head, history
-
-
-def row_digests(descriptors: np.ndarray) -> list[str]:
-    """A 16-hex-digit BLAKE2b digest of each descriptor row (float32 bytes): which images a head was trained on.
-
-    Stored in the head file (``metadata["anchors"]["digests"]``) so that evaluating the head on its own training
-    queries is caught (:func:`vpr_uncertainty.btl.method.btl_uncertainty`); the same descriptors give the same
-    digests on any machine.
-    """
-    rows = np.ascontiguousarray(np.asarray(descriptors, dtype=np.float32))
-    return [hashlib.blake2b(row.tobytes(), digest_size=8).hexdigest() for row in rows]
 
 
 def save_training_curve(history: TrainingHistory, json_path: str | Path, png_path: str | Path | None = None) -> None:

@@ -18,11 +18,14 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from vpr_uncertainty.reports.tables import markdown_cell
 
 __all__ = [
     "METRIC_NAMES",
@@ -208,7 +211,7 @@ def table1_markdown(table: Table1) -> str:
     """GitHub Markdown; the marked values of each column in bold, then what the marks mean."""
     marks = table.marks()
     lines = [
-        "| method | " + " | ".join(table.columns) + " | ms/query |",
+        "| method | " + " | ".join(markdown_cell(c) for c in table.columns) + " | ms/query |",
         "|---|" + "---:|" * (len(table.columns) + 1),
     ]
     for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
@@ -216,7 +219,8 @@ def table1_markdown(table: Table1) -> str:
             _cell_text(v, marks[i][j], ("**", "**"), _dagger(table, i, j, "†"), _interval(table, i, j))
             for j, v in enumerate(row)
         ]
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {'–' if time_ms is None else f'{time_ms:.4f}'} |")
+        time_text = "–" if time_ms is None else f"{time_ms:.4f}"
+        lines.append(f"| {markdown_cell(name)} | " + " | ".join(cells) + f" | {time_text} |")
     lines += ["", marks_note(table)]
     if _any_uninformative(table):
         lines += ["", _FOOTNOTE]
@@ -251,10 +255,29 @@ def table1_csv(table: Table1) -> str:
     return buffer.getvalue()
 
 
+_LATEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+}
+
+
 def _latex_escape(text: str) -> str:
-    for char, replacement in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#")):
-        text = text.replace(char, replacement)
-    return text
+    """``text`` with LaTeX's ten special characters escaped, in one pass (so no escape is escaped again).
+
+    Examples
+    --------
+    >>> print(_latex_escape("SU$^2$ ~ {50%} & A_b"))
+    SU\\$\\textasciicircum{}2\\$ \\textasciitilde{} \\{50\\%\\} \\& A\\_b
+    """
+    return re.sub(r"[\\&%$#_{}~^]", lambda match: _LATEX_SPECIAL[match.group()], text)
 
 
 def table1_latex(table: Table1, *, caption: str | None = None) -> str:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from vpr_uncertainty.evaluation import Evaluation
 
-__all__ = ["best_auc_pr", "format_table"]
+__all__ = ["best_auc_pr", "format_table", "markdown_cell"]
 
 _COLUMNS = (
     ("method", "{}"),
@@ -85,6 +85,17 @@ def best_auc_pr(evaluation: Evaluation) -> float | None:
     return max(scored) if len(scored) >= 2 else None
 
 
+def markdown_cell(text: str) -> str:
+    """``text`` safe inside a Markdown table cell: ``|`` escaped, line breaks as spaces.
+
+    Examples
+    --------
+    >>> markdown_cell("SU|GV")
+    'SU\\\\|GV'
+    """
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
 def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str | None = None) -> str:
     """One row per uncertainty method, the best AUC-PR marked with ``*``; a header line with recall@N.
 
@@ -135,7 +146,7 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
     lines = [title] if title else []
     if markdown:
         lines += [summary, "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        lines += ["| " + " | ".join(row) + " |" for row in rows]
+        lines += ["| " + " | ".join(markdown_cell(cell) for cell in row) + " |" for row in rows]
     else:
         widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
         lines.append(summary)
