@@ -53,7 +53,8 @@ class CountingModel:
 
 def counting(fail_after: int | None = None, **preprocessing: object) -> tuple[CountingModel, object]:
     network = CountingModel(fail_after)
-    model = from_callable(network, name="counting", preprocessing=Preprocessing(**preprocessing))
+    # its call counters change with every batch: a fixed key, or the cache would see a new model each time
+    model = from_callable(network, name="counting", preprocessing=Preprocessing(**preprocessing), weights_id="v1")
     return network, model
 
 
@@ -158,7 +159,7 @@ def test_killed_process_loses_at_most_the_batch_in_flight(images, tmp_path):
             def __call__(self, images):
                 return torch.cat([images.mean(dim=(2, 3)), images.std(dim=(2, 3))], dim=1)
         CountingModel.__module__, CountingModel.__qualname__ = {CountingModel.__module__!r}, "CountingModel"
-        model = from_callable(CountingModel(), name="counting", preprocessing=Preprocessing())
+        model = from_callable(CountingModel(), name="counting", preprocessing=Preprocessing(), weights_id="v1")
         batches = []
         def kill_after_third(names):
             batches.append(names)
@@ -505,3 +506,61 @@ def test_cache_in_use_by_another_process_is_not_clobbered(images, tmp_path, monk
         extract_descriptors(counting()[1], paths, names, path, "database", progress=False)
     monkeypatch.undo()
     assert cache_info(path)["database"]["count"] == 2
+
+
+class GeM(torch.nn.Module):
+    """Generalised-mean pooling with a plain-float exponent, after a 1x1 convolution (D = 4)."""
+
+    def __init__(self, p: float = 3.0) -> None:
+        super().__init__()
+        self.conv = torch.nn.Conv2d(3, 4, 1)
+        self.p = p
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        features = self.conv(images).clamp(min=1e-6)
+        return features.pow(self.p).mean(dim=(2, 3)).pow(1.0 / self.p)
+
+
+def test_the_cache_key_covers_code_parameters_buffers_and_plain_attributes(images, tmp_path):
+    """Changing GeM's plain p, a weight, or a function's code reused the old descriptors (issue 20, row 6)."""
+    from vpr_uncertainty.descriptors.identity import UnfingerprintableModel, callable_identity
+
+    paths, names = images
+    path = tmp_path / "d.h5"
+    torch.manual_seed(0)
+    network = GeM()
+    _, first = extract_descriptors(network, paths, names, path, "database", progress=False)
+    _, again = extract_descriptors(network, paths, names, path, "database", progress=False)
+    np.testing.assert_array_equal(first, again)  # unchanged: reused
+    network.p = 1.0  # a plain attribute, set after the model was first used
+    with pytest.warns(UserWarning, match="changed: weights"):
+        _, changed = extract_descriptors(network, paths, names, path, "database", progress=False)
+    _, fresh = extract_descriptors(network, paths, names, progress=False)
+    assert_close(changed, fresh, rtol=1e-5) and not np.allclose(changed, first)
+    before = callable_identity(network)
+    with torch.no_grad():
+        network.conv.weight[0, 0] += 1.0
+    assert callable_identity(network) != before  # a parameter
+    network.register_buffer("scale", torch.ones(1))
+    with_buffer = callable_identity(network)
+    network.scale += 1
+    assert callable_identity(network) != with_buffer  # a buffer
+    assert callable_identity(lambda x: x.mean(dim=(2, 3))) != callable_identity(lambda x: x.amax(dim=(2, 3)))
+    exponent = 2.0
+    assert callable_identity(lambda x: x.pow(exponent)) == callable_identity(lambda x: x.pow(exponent))
+
+    class Holder:
+        def __init__(self) -> None:
+            self.handle = open(os.devnull)  # state that no digest describes
+
+        def __call__(self, images):
+            return images.mean(dim=(2, 3))
+
+    holder = Holder()
+    try:
+        with pytest.raises(UnfingerprintableModel, match="weights_id"):
+            extract_descriptors(holder, paths, names, path, "queries", progress=False)
+        model = from_callable(holder, weights_id="holder-v1")  # the caller names it: accepted
+        assert model.fingerprint["weights"] == "holder-v1"
+    finally:
+        holder.handle.close()

@@ -50,7 +50,8 @@ class ShapeModel:
 def model(**preprocessing: object) -> tuple[ShapeModel, object]:
     network = ShapeModel()
     options = {"min_side": DEFAULT_MIN_SIDE, **preprocessing}
-    return network, from_callable(network, name="shape", preprocessing=Preprocessing(**options))
+    # it records every batch's shape: a fixed key, or the cache would see a new model each time
+    return network, from_callable(network, name="shape", preprocessing=Preprocessing(**options), weights_id="v1")
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:

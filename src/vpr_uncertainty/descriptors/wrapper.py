@@ -11,6 +11,7 @@ Importing this module does not import torch; wrapping a model does.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -57,6 +58,9 @@ class DescriptorModel:
         Identity of the weights (a checksum, a release file name, a torch.hub entry point with its arguments).
     descriptor_dim : int, optional
         Expected descriptor size D, checked on the first batch when given.
+    identity : callable, optional
+        Computes the weights identity anew at each :attr:`fingerprint` (for models whose state may change after
+        wrapping); ``weights_id`` is then what it was at wrapping.
     """
 
     def __init__(
@@ -67,6 +71,7 @@ class DescriptorModel:
         *,
         weights_id: str,
         descriptor_dim: int | None = None,
+        identity: Callable[[], str] | None = None,
     ) -> None:
         if not callable(network):
             raise TypeError(f"network must be callable (images -> descriptors), got {type(network).__name__}")
@@ -77,6 +82,7 @@ class DescriptorModel:
         self.preprocessing = preprocessing
         self.weights_id = str(weights_id)
         self.descriptor_dim = descriptor_dim
+        self._identity = identity
         self.device: Any = "cpu"
 
     def __repr__(self) -> str:
@@ -84,8 +90,14 @@ class DescriptorModel:
 
     @property
     def fingerprint(self) -> dict[str, Any]:
-        """What determines the descriptors: model name, weights identity and preprocessing."""
-        return {"model": self.name, "weights": self.weights_id, "preprocessing": self.preprocessing.to_dict()}
+        """What determines the descriptors: model name, weights identity and preprocessing.
+
+        For a model made from Python (:func:`from_callable` without ``weights_id``) the identity is computed
+        again each time (:func:`~vpr_uncertainty.descriptors.identity.callable_identity`), so a changed
+        attribute, parameter or line of code is seen even after wrapping.
+        """
+        weights = self.weights_id if self._identity is None else self._identity()
+        return {"model": self.name, "weights": weights, "preprocessing": self.preprocessing.to_dict()}
 
     def to(self, device: Any) -> DescriptorModel:
         """Move the network to ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, a ``torch.device``); returns self."""
@@ -199,17 +211,6 @@ def from_torchscript(
     ).to(device)
 
 
-def _module_digest(module: Any) -> str | None:
-    state_dict = getattr(module, "state_dict", None)
-    if state_dict is None:
-        return None
-    digest = hashlib.sha256()
-    for key, tensor in sorted(state_dict().items()):
-        digest.update(key.encode())
-        digest.update(tensor.detach().to("cpu").contiguous().numpy().tobytes())
-    return digest.hexdigest()
-
-
 def from_callable(
     network: Callable[[Any], Any],
     *,
@@ -220,17 +221,18 @@ def from_callable(
 ) -> DescriptorModel:
     """A model from a Python callable or ``torch.nn.Module``.
 
-    The weights identity is a checksum of the module's ``state_dict`` when it has one, else ``weights_id``
-    (required then, so that a cache can tell two callables apart).
+    Without ``weights_id`` the model's identity is a digest of its code, parameters, buffers and plain
+    attributes (:func:`~vpr_uncertainty.descriptors.identity.callable_identity`), computed again whenever the cache
+    checks it; a model holding something that cannot be hashed is refused (UnfingerprintableModel) unless
+    ``weights_id`` names it.
     """
+    identity = None
     if weights_id is None:
-        digest = _module_digest(network)
-        if digest is None:
-            qualname = getattr(network, "__qualname__", type(network).__qualname__)
-            module = getattr(network, "__module__", "")
-            weights_id = f"callable:{module}.{qualname}"
-        else:
-            weights_id = f"state-dict-sha256:{digest}"
+        from vpr_uncertainty.descriptors.identity import callable_identity
+
+        weights_id = callable_identity(network)  # refuses an unfingerprintable model now, not at first use
+        identity = functools.partial(callable_identity, network)
     if name is None:
         name = getattr(network, "__name__", None) or type(network).__name__
-    return DescriptorModel(name, network, preprocessing or Preprocessing(), weights_id=weights_id).to(device)
+    model = DescriptorModel(name, network, preprocessing or Preprocessing(), weights_id=weights_id, identity=identity)
+    return model.to(device)
