@@ -232,12 +232,12 @@ def test_gv_methods_say_they_need_images() -> None:
     for name in ("GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG"):
         with pytest.raises(ValueError, match="needs the query and database image files"):
             get_method(name)(retrieval)
-    with pytest.raises(ValueError, match="2 query_paths for 1 queries"):
+    with pytest.raises(ValueError, match="query_paths holds 2 images but the results have 1 queries"):
         gv_sift(retrieval, query_paths=["q.jpg", "r.jpg"], database_paths=["d.jpg"])
-    with pytest.raises(ValueError, match="database image 1 but only 1 database_paths"):
+    with pytest.raises(ValueError, match="database_paths holds 1 images but the results have at least 2 database"):
         gv_sift(_retrieval([[1, 0]]), query_paths=["q.jpg"], database_paths=["d.jpg"])
     with pytest.raises(ValueError, match=r"cannot read image .*q\.jpg: it does not exist"):
-        gv_sift(retrieval, query_paths=["q.jpg"], database_paths=["d.jpg"])
+        gv_sift(retrieval, query_paths=["q.jpg"], database_paths=["d.jpg", "e.jpg"])
     with pytest.raises(ValueError, match="features_path"):
         gv_h5(retrieval)
 

@@ -86,7 +86,7 @@ def test_bad_method_spec_is_one_clear_error(spec, message):
 def test_unknown_option_of_a_lazily_imported_method_is_an_error():
     """Regression: `btl_haed=` was dropped silently; options of a spec must be known to the method."""
     pytest.importorskip("torch")
-    with pytest.raises(ValueError, match="BTL has no option 'btl_haed' \\(its options: btl_head, database_desc"):
+    with pytest.raises(ValueError, match="BTL has no option 'btl_haed' \\(its options: allow_train_queries, btl_head"):
         get_method("BTL:btl_haed=head.pt")
 
 
@@ -112,7 +112,8 @@ def _retrieval_from_positions(
     squared = ((queries[:, None, :] - database[None, :, :]) ** 2).sum(axis=2)
     nearest = np.argsort(squared, axis=1)[:, :6]
     farthest = np.argpartition(-squared, 200, axis=1)[:, :200]
-    far = np.take_along_axis(farthest, rng.integers(0, 200, size=(n_queries, 4)), axis=1)
+    picks = rng.permuted(np.tile(np.arange(200), (n_queries, 1)), axis=1)[:, :4]  # 4 distinct far images
+    far = np.take_along_axis(farthest, picks, axis=1)
     indices = np.concatenate([nearest[:, :1], far[:, :1], nearest[:, 1:], far[:, 1:]], axis=1).astype(np.int64)
     indices[::3, :2] = indices[::3, 1::-1]  # every third answer wrong: a far image first
     scores = (0.9 - 0.002 * np.arange(k) - rng.uniform(0, 0.001, (n_queries, 1))).astype(np.float32)

@@ -229,6 +229,10 @@ def _from_json(path: Path, n_database: int | None) -> sparse.csr_array:
         content = json.loads(_read_text(path))
     except json.JSONDecodeError as error:
         raise ValueError(f"{path} is not valid JSON ({error}); expected a list of lists of database indices") from None
+    except RecursionError:
+        raise ValueError(
+            f"{path}: the JSON is nested too deeply to read; expected a list of lists of database indices"
+        ) from None
     lists = content.get("positives") if isinstance(content, dict) else content
     if not isinstance(lists, list) or not all(isinstance(item, list) for item in lists):
         raise ValueError(f"{path}: expected a JSON list of lists of database indices (one list per query)")

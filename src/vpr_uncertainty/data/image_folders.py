@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["IMAGE_SPLIT_FOLDERS", "find_split_folders", "retrieval_image_paths"]
+__all__ = ["IMAGE_SPLIT_FOLDERS", "check_image_counts", "find_split_folders", "retrieval_image_paths"]
 
 #: (queries folder, database folder) pairs a dataset folder may have: VPR-Bench, then the downloader's layout.
 IMAGE_SPLIT_FOLDERS: tuple[tuple[str, str], ...] = (("query", "ref"), ("queries", "database"))
@@ -44,6 +44,63 @@ def find_split_folders(folder: str | Path, *, argument: str = "images") -> tuple
             return folder / queries, folder / database
     expected = " or ".join(f"{q}/ and {d}/" for q, d in IMAGE_SPLIT_FOLDERS)
     raise FileNotFoundError(f"{folder} has no image subfolders {expected} (argument {argument})")
+
+
+def check_image_counts(
+    retrieval: Retrieval,
+    n_query_images: int,
+    n_database_images: int,
+    *,
+    queries: str,
+    database: str,
+    arguments: tuple[str, str] | None = None,
+) -> None:
+    """Refuse image lists that cannot be the retrieval's images: query i and database image j must be images i, j.
+
+    One image too many or too few would make a method that looks at images (``GV-*``) verify a query against
+    the wrong picture, silently. ``evaluate --images``, ``reproduce`` (a config's ``images``) and the ``GV-*``
+    methods all check their images here.
+
+    Parameters
+    ----------
+    retrieval : Retrieval
+    n_query_images, n_database_images : int
+        How many query and database images were found.
+    queries, database : str
+        What holds them, for the message (e.g. the folder ``"corridor/ref"``).
+    arguments : (str, str), optional
+        The arguments that named the query and the database images, for the message (``("images", "images")``).
+
+    Raises
+    ------
+    ValueError
+        When there are not exactly ``retrieval.n_queries`` query images, or not exactly ``retrieval.n_database``
+        database images (at least the largest candidate index + 1 when the retrieval does not know its database
+        size); the message gives both counts.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from vpr_uncertainty.retrieval import Retrieval
+    >>> retrieval = Retrieval(np.array([[0.9]]), np.array([[1]]), positives=[[1]])
+    >>> check_image_counts(retrieval, 1, 3, queries="q/", database="db/")
+    Traceback (most recent call last):
+    ...
+    ValueError: db/ holds 3 images but the results have 2 database images
+    """
+    query_note, database_note = (f" (argument {argument})" for argument in arguments) if arguments else ("", "")
+    if n_query_images != retrieval.n_queries:
+        raise ValueError(
+            f"{queries} holds {n_query_images} images but the results have {retrieval.n_queries} queries{query_note}"
+        )
+    n_database = retrieval.n_database
+    largest = int(retrieval.indices.max()) if retrieval.indices.size else -1
+    if (n_database is not None and n_database_images != n_database) or largest >= n_database_images:
+        expected = n_database if n_database is not None else f"at least {largest + 1}"
+        raise ValueError(
+            f"{database} holds {n_database_images} images but the results have {expected} database "
+            f"images{database_note}"
+        )
 
 
 def _listed(folder: Path, argument: str) -> list[Path]:
@@ -119,17 +176,12 @@ def retrieval_image_paths(
         query_paths = _listed(query_folder, query_argument)
     if database_paths is None:
         database_paths = _listed(database_folder, database_argument)
-    if len(query_paths) != retrieval.n_queries:
-        raise ValueError(
-            f"{query_folder} holds {len(query_paths)} images but the results have {retrieval.n_queries} queries "
-            f"(argument {query_argument})"
-        )
-    n_database = retrieval.n_database
-    largest = int(retrieval.indices.max()) if retrieval.indices.size else -1
-    if (n_database is not None and len(database_paths) != n_database) or largest >= len(database_paths):
-        expected = n_database if n_database is not None else f"at least {largest + 1}"
-        raise ValueError(
-            f"{database_folder} holds {len(database_paths)} images but the results have {expected} database "
-            f"images (argument {database_argument})"
-        )
+    check_image_counts(
+        retrieval,
+        len(query_paths),
+        len(database_paths),
+        queries=str(query_folder),
+        database=str(database_folder),
+        arguments=(query_argument, database_argument),
+    )
     return query_paths, database_paths

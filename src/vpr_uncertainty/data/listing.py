@@ -2,6 +2,9 @@
 
 :func:`scan_images` walks a folder recursively:
 
+* hidden entries (names starting with ``.``: ``.hidden.jpg``, ``.thumbnails/``, macOS ``._0001.jpg``) are never
+  listed nor entered, as :func:`glob.glob` skips them: a stray hidden file would otherwise become image 0 and
+  shift every index of a ground truth given by index;
 * a file with an image suffix (:data:`IMAGE_EXTENSIONS`) is listed, even when it is a broken or looping symbolic
   link: extraction then reports it as an image that cannot be used, with the reason, and the indices of the other
   images stay what they would be without the fault (VPR-Bench's ground truth is by index);
@@ -19,12 +22,23 @@ import errno
 import os
 from pathlib import Path
 
-__all__ = ["IMAGE_EXTENSIONS", "ImageListingError", "describe_unlisted", "list_images", "scan_images"]
+__all__ = ["IMAGE_EXTENSIONS", "ImageListingError", "describe_unlisted", "is_hidden", "list_images", "scan_images"]
 
 #: File extensions read as images (case-insensitive).
 IMAGE_EXTENSIONS: frozenset[str] = frozenset(
     {".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".bmp", ".tif", ".tiff", ".webp"}
 )
+
+
+def is_hidden(name: str) -> bool:
+    """Whether a file or folder name is hidden (starts with ``.``); hidden entries are never listed as images.
+
+    Examples
+    --------
+    >>> is_hidden(".hidden.jpg"), is_hidden("0000000.jpg")
+    (True, False)
+    """
+    return name.startswith(".")
 
 
 class ImageListingError(ValueError):
@@ -70,9 +84,10 @@ def scan_images(folder: str | Path) -> tuple[list[Path], list[dict[str, str]]]:
     Returns
     -------
     paths : list of Path
-        Files whose suffix is in :data:`IMAGE_EXTENSIONS` (case-insensitive), sorted by their POSIX path relative
-        to ``folder``; broken or looping links with such a suffix included (they fail when read, naming the
-        reason). File names that are not valid UTF-8 are kept as Python decodes them (surrogate escapes).
+        Files whose suffix is in :data:`IMAGE_EXTENSIONS` (case-insensitive) and that are not hidden (nor under a
+        hidden folder), sorted by their POSIX path relative to ``folder``; broken or looping links with such a
+        suffix included (they fail when read, naming the reason). File names that are not valid UTF-8 are kept
+        as Python decodes them (surrogate escapes).
     problems : list of dict
         ``{"path": ..., "error": ...}`` for each sub-folder that cannot be read and each broken link without an
         image suffix; images under them may be missing.
@@ -89,6 +104,8 @@ def scan_images(folder: str | Path) -> tuple[list[Path], list[dict[str, str]]]:
             problems.append({"path": str(directory), "error": f"cannot read the folder: {error.strerror or error}"})
             return
         for entry in entries:
+            if is_hidden(entry.name):
+                continue
             path = Path(entry.path)
             try:
                 is_dir = entry.is_dir()

@@ -109,7 +109,7 @@ def load_vprbench_similarity(path: str | Path) -> np.ndarray:
     return similarity.astype(np.float32)
 
 
-def load_vprbench_dataset(root: str | Path, *, name: str | None = None) -> Dataset:
+def load_vprbench_dataset(root: str | Path, *, name: str | None = None, n_database: int | None = None) -> Dataset:
     """Read a VPR-Bench image dataset: ``query/``, ``ref/`` and ``ground_truth_new.npy``.
 
     The ground truth is an explicit list of positives per query (no positions): see
@@ -121,19 +121,24 @@ def load_vprbench_dataset(root: str | Path, *, name: str | None = None) -> Datas
         The dataset folder, e.g. ``VPR-Bench/datasets/corridor``.
     name : str, optional
         Dataset name; by default the folder name.
+    n_database : int, optional
+        The number of reference images the ground truth is about. By default the largest positive index + 1: the
+        ground truth's own count, which ``ref/`` must match (give it only for a dataset whose last reference
+        images are no query's positive).
 
     Returns
     -------
     Dataset
-        Database = ``ref/`` images, queries = ``query/`` images, each sorted by name; names relative to
-        ``root`` (``ref/0000000.jpg``); no positions.
+        Database = ``ref/`` images, queries = ``query/`` images, each sorted by name, hidden files (``.*``) left
+        out; names relative to ``root`` (``ref/0000000.jpg``); no positions.
 
     Raises
     ------
     FileNotFoundError
         When a folder or the ground truth is missing.
     ValueError
-        When the ground truth does not match the number of images.
+        When the number of images in ``query/`` or ``ref/`` differs from the ground truth's (the message names the
+        folder and both counts): one stray or missing image would shift every index after it.
     """
     from vpr_uncertainty.data.folder import list_images
 
@@ -148,7 +153,18 @@ def load_vprbench_dataset(root: str | Path, *, name: str | None = None) -> Datas
     ground_truth = root / "ground_truth_new.npy"
     if not ground_truth.is_file():
         raise FileNotFoundError(f"{root} is not a VPR-Bench dataset: no ground_truth_new.npy")
-    positives = load_vprbench_ground_truth(ground_truth, n_database=len(paths["ref"]))
+    positives = load_vprbench_ground_truth(ground_truth, n_database=n_database)
+    if positives.shape[1] != len(paths["ref"]):
+        covered = (
+            f"is about {positives.shape[1]} database images (n_database)"
+            if n_database is not None
+            else f"covers {positives.shape[1]} database images (its largest positive index is {positives.shape[1] - 1})"
+        )
+        raise ValueError(
+            f"{root / 'ref'} holds {len(paths['ref'])} images but the ground truth {ground_truth} {covered}: a stray "
+            "or missing image would shift every index after it; remove the extra file (or, when the last reference "
+            "images are no query's positive, give n_database)"
+        )
     if positives.shape[0] != len(paths["query"]):
         raise ValueError(
             f"{ground_truth} has ground truth for {positives.shape[0]} queries but {root / 'query'} holds "

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr_uncertainty._hdf5 import hard_links, open_dataset
+
 __all__ = [
     "DATABASE_PREFIXES",
     "HLOC_DATASET",
@@ -41,34 +43,33 @@ def _h5py():
     return h5py
 
 
-def _names(handle) -> list[str]:
-    """The images of an open file: the parents of its ``global_descriptor`` datasets, sorted."""
+def _descriptor_datasets(handle, path: str | Path):
+    """``(name, dataset)`` of every ``global_descriptor`` of an open file, refusing links and storage that reach
+    outside it (:func:`vpr_uncertainty._hdf5.hard_links`)."""
     h5py = _h5py()
-    names: list[str] = []
+    for name, item in hard_links(handle, path):
+        if isinstance(item, h5py.Dataset) and name.rsplit("/", 1)[-1] == HLOC_DATASET:
+            yield name, item
 
-    def visit(name: str, obj) -> None:
-        if isinstance(obj, h5py.Dataset) and name.rsplit("/", 1)[-1] == HLOC_DATASET:
-            names.append(obj.parent.name.strip("/"))
 
-    handle.visititems(visit)
-    return sorted(names)
+def _names(handle, path: str | Path) -> list[str]:
+    """The images of an open file: the parents of its ``global_descriptor`` datasets, sorted."""
+    return sorted(name.rpartition("/")[0] for name, _ in _descriptor_datasets(handle, path))
 
 
 def is_hloc_file(path: str | Path) -> bool:
-    """Whether ``path`` is an HDF5 file holding at least one hloc ``global_descriptor``."""
+    """Whether ``path`` is an HDF5 file holding at least one hloc ``global_descriptor``.
+
+    Raises
+    ------
+    ValueError
+        When a link or a dataset met before the first descriptor reaches outside the file (see
+        :mod:`vpr_uncertainty._hdf5`).
+    """
     h5py = _h5py()
     try:
         with h5py.File(path, "r") as handle:
-            found = []
-
-            def visit(name: str, obj) -> bool | None:
-                if isinstance(obj, h5py.Dataset) and name.rsplit("/", 1)[-1] == HLOC_DATASET:
-                    found.append(name)
-                    return True  # stop at the first
-                return None
-
-            handle.visititems(visit)
-            return bool(found)
+            return next(_descriptor_datasets(handle, path), None) is not None
     except OSError:
         return False
 
@@ -82,6 +83,16 @@ def _split_of(name: str) -> str | None:
     if first in DATABASE_PREFIXES:
         return "database"
     return None
+
+
+def _row(handle, name: str, path: Path) -> np.ndarray:
+    """The global descriptor of image ``name``: a 1-D dataset of the file itself, as float32."""
+    dataset = open_dataset(handle, f"{name}/{HLOC_DATASET}", path)
+    if dataset.ndim != 1:
+        raise ValueError(
+            f"{path}: {name}/{HLOC_DATASET} has shape {dataset.shape}; expected one 1-D descriptor (D,) per image"
+        )
+    return np.asarray(dataset[()], dtype=np.float32)
 
 
 def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -104,15 +115,16 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
     Raises
     ------
     ValueError
-        When the file holds no global descriptors, descriptors of different sizes, or no image of ``split``
-        although its names carry split prefixes.
+        When the file holds no global descriptors, a descriptor that is not 1-D, descriptors of different sizes,
+        no image of ``split`` although its names carry split prefixes, or a soft or external link, external
+        storage or a virtual dataset (:mod:`vpr_uncertainty._hdf5`: bytes from outside the file are refused).
     """
     h5py = _h5py()
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"descriptor file not found: {path}")
     with h5py.File(path, "r") as handle:
-        names = _names(handle)
+        names = _names(handle, path)
         if not names:
             raise ValueError(f"{path} holds no hloc global descriptors (groups with a '{HLOC_DATASET}' dataset)")
         splits = {name: _split_of(name) for name in names}
@@ -122,7 +134,7 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
                 present = sorted(set(splits.values()) - {None})
                 raise ValueError(f"{path}: no {split} images among its names (they hold {present} images)")
             names = chosen
-        rows = [np.asarray(handle[name][HLOC_DATASET][()], dtype=np.float32).reshape(-1) for name in names]
+        rows = [_row(handle, name, path) for name in names]
     sizes = sorted({row.size for row in rows})
     if len(sizes) > 1:
         raise ValueError(f"{path}: global descriptors of different sizes {sizes}; expected one size")

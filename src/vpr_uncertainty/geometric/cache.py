@@ -30,6 +30,7 @@ import h5py
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty._hdf5 import open_present
 from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 
 __all__ = [
@@ -43,6 +44,7 @@ __all__ = [
 ]
 
 CACHE_FORMAT_VERSION = 2
+_FEATURE_DATASETS = ("keypoints", "descriptors", "scores", "image_size")
 STAGE = "local features"
 
 
@@ -81,7 +83,8 @@ def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
 
     ``descriptors`` stored as (D, N), hloc's layout, are transposed to (N, D) (also when D == N: a square array
     is taken to be hloc's); (N, D) is read as it is. float16 is widened to float32.
-    A file without ``image_size`` gets the extent of the keypoints.
+    A file without ``image_size`` gets the extent of the keypoints. A soft or external link, external storage or
+    a virtual dataset on the way is refused with a ValueError (:mod:`vpr_uncertainty._hdf5`).
     """
     if not isinstance(file, h5py.File):
         with h5py.File(file, "r") as handle:
@@ -95,8 +98,10 @@ def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
     group = file[name]
     if "keypoints" not in group or "descriptors" not in group:
         raise KeyError(f"{file.filename}:{name} lacks 'keypoints' or 'descriptors' (not hloc's local-feature layout)")
-    keypoints = np.asarray(group["keypoints"][()], np.float32).reshape(-1, 2)
-    descriptors = np.asarray(group["descriptors"][()])
+    # Each dataset checked (no soft or external link, external storage or virtual dataset): bytes of this file only.
+    stored = open_present(file, tuple(f"{name}/{key}" for key in _FEATURE_DATASETS), file.filename)
+    keypoints = np.asarray(stored[f"{name}/keypoints"][()], np.float32).reshape(-1, 2)
+    descriptors = np.asarray(stored[f"{name}/descriptors"][()])
     n = len(keypoints)
     if descriptors.ndim != 2:
         raise ValueError(f"{file.filename}:{name}/descriptors must be 2-D, got shape {descriptors.shape}")
@@ -106,9 +111,9 @@ def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
         raise ValueError(f"{file.filename}:{name}: {n} keypoints but descriptors of shape {descriptors.shape}")
     if descriptors.dtype == np.float16:
         descriptors = descriptors.astype(np.float32)
-    scores = np.asarray(group["scores"][()], np.float32).reshape(-1) if "scores" in group else None
+    scores = np.asarray(stored[f"{name}/scores"][()], np.float32).reshape(-1) if "scores" in group else None
     if "image_size" in group:
-        image_size = np.asarray(group["image_size"][()]).reshape(2)
+        image_size = np.asarray(stored[f"{name}/image_size"][()]).reshape(2)
     else:
         image_size = np.ceil(keypoints.max(axis=0) + 1) if n else np.ones(2)
     return LocalFeatures(keypoints, np.ascontiguousarray(descriptors), scores, image_size)

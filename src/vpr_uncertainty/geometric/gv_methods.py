@@ -7,12 +7,14 @@ gets 0 inliers. ``GV-SIFT``, ``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG`` and ``GV
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
+from vpr_uncertainty.data.image_folders import check_image_counts
 from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE
 from vpr_uncertainty.geometric.matching import NearestNeighborMatcher
 from vpr_uncertainty.geometric.presets import H5_MODULES, require_modules
@@ -29,20 +31,33 @@ __all__ = [
 ]
 
 
-def _check_paths(retrieval: Retrieval, query_paths: object, database_paths: object, method: str) -> None:
+def _check_paths(
+    retrieval: Retrieval,
+    query_paths: Sequence[str | Path] | None,
+    database_paths: Sequence[str | Path] | None,
+    method: str,
+) -> None:
     if query_paths is None or database_paths is None:
         raise ValueError(
             f"{method} verifies images: it needs the query and database image files "
             "(options query_paths=..., database_paths=..., indexed like the retrieval)"
         )
-    if len(query_paths) != retrieval.n_queries:
-        raise ValueError(f"{method}: {len(query_paths)} query_paths for {retrieval.n_queries} queries")
-    top = retrieval.indices[:, 0] if retrieval.k else np.zeros(0, np.int64)
-    if top.size and top.max() >= len(database_paths):
-        raise ValueError(
-            f"{method}: the retrieval refers to database image {int(top.max())} but only "
-            f"{len(database_paths)} database_paths were given"
-        )
+    check_image_counts(
+        retrieval,
+        len(query_paths),
+        len(database_paths),
+        queries=f"{method}: query_paths{_folder_of(query_paths)}",
+        database=f"{method}: database_paths{_folder_of(database_paths)}",
+    )
+
+
+def _folder_of(paths: Sequence[str | Path]) -> str:
+    """`` (under FOLDER)``: the deepest folder holding every path, for messages; empty when there is none."""
+    try:
+        folder = os.path.commonpath([os.path.dirname(os.fspath(path)) for path in paths])
+    except (TypeError, ValueError):  # no paths, or absolute and relative paths mixed
+        return ""
+    return f" (under {folder})" if folder else ""
 
 
 def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:

@@ -27,7 +27,7 @@ import numpy as np
 
 from vpr_uncertainty.retrieval._positives import coerce_positives
 
-__all__ = ["check_indices", "check_integers", "check_retrieval_fields", "check_scores"]
+__all__ = ["check_distinct", "check_indices", "check_integers", "check_retrieval_fields", "check_scores"]
 
 _INT64_MAX = np.iinfo(np.int64).max
 
@@ -101,6 +101,42 @@ def check_indices(indices: object, scores: np.ndarray) -> np.ndarray:
             "missing candidate must have index -1 and score -inf, and only a missing one"
         )
     return indices
+
+
+def check_distinct(indices: np.ndarray, names: dict[str, object]) -> None:
+    """Refuse a database image listed twice among one query's candidates, and a name given to two images.
+
+    A repeated candidate counts one image twice in recall@N and in the score-shape methods; a repeated name
+    makes a lookup by name (images, local features) pick one of two images. The file reader checks both.
+
+    Parameters
+    ----------
+    indices : ndarray of shape (Q, K), int64
+        ``-1`` (a missing candidate) may repeat.
+    names : dict
+        Field name -> 1-D array of names, or None.
+    """
+    if indices.ndim == 2 and indices.shape[1] > 1:
+        ordered = np.sort(indices, axis=1)
+        repeated = (ordered[:, 1:] == ordered[:, :-1]) & (ordered[:, 1:] >= 0)
+        if repeated.any():
+            row, column = _first(repeated)
+            raise ValueError(
+                f"indices: query {row} lists database image {int(ordered[row, column + 1])} twice among its "
+                "candidates; expected each database image at most once per query"
+            )
+    for field, value in names.items():
+        if value is None:
+            continue
+        array = np.asarray(value)
+        unique, counts = np.unique(array, return_counts=True)
+        if (counts > 1).any():
+            name = unique[np.argmax(counts > 1)]
+            rows = np.flatnonzero(array == name)[:2].tolist()
+            raise ValueError(
+                f"{field} holds {str(name)!r} twice (entries {rows[0]} and {rows[1]}); expected one distinct name "
+                "per image"
+            )
 
 
 def _check_distances(distances: object, indices: np.ndarray) -> np.ndarray:

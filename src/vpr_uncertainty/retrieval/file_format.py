@@ -26,8 +26,9 @@ Writes are atomic (:func:`vpr_uncertainty.cache.atomic_write`): the archive is w
 beside the target, fsynced, then renamed over it, so an interrupted write never leaves a truncated file. Reading
 checks every field (see :mod:`vpr_uncertainty.retrieval._checks`) and what only a file has: ``format_version``
 an integer between 1 and :data:`FORMAT_VERSION`; the CSR ground truth (``positives_indptr``,
-``positives_indices``, ``n_database``) consistent; ``config`` a JSON object.
-A zero-byte, truncated or non-``.npz`` file is reported as such.
+``positives_indices``, ``n_database``) consistent; ``config`` a JSON object; no database image twice among one
+query's candidates, no name twice among the query or the database names. A zero-byte, truncated or non-``.npz``
+file is reported as such.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ import numpy as np
 from scipy import sparse
 
 from vpr_uncertainty.cache import atomic_write
-from vpr_uncertainty.retrieval._checks import check_indices, check_integers, check_scores
+from vpr_uncertainty.retrieval._checks import check_distinct, check_indices, check_integers, check_scores
 from vpr_uncertainty.retrieval.result import Retrieval
 
 __all__ = ["FORMAT_VERSION", "load_retrieval", "save_retrieval"]
@@ -104,7 +105,7 @@ def load_retrieval(path: str | Path) -> Retrieval:
         scores = check_scores(arrays["scores"])  # first, so that the positives are checked against them
         check_indices(arrays["indices"], scores)
         positives = _positives(arrays, scores.shape[0])
-        return Retrieval(
+        retrieval = Retrieval(
             scores=scores,
             indices=arrays["indices"],
             positives=positives,
@@ -115,6 +116,9 @@ def load_retrieval(path: str | Path) -> Retrieval:
             database_positions=arrays.get("database_positions"),
             config=_config(arrays),
         )
+        names = {"query_names": retrieval.query_names, "database_names": retrieval.database_names}
+        check_distinct(retrieval.indices, names)
+        return retrieval
     except ValueError as error:
         raise ValueError(f"retrieval file {path}: {error}") from None
 

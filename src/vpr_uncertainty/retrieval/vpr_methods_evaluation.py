@@ -95,8 +95,14 @@ def read_arguments(log: str | Path) -> dict[str, Any]:
 
 
 def _jpg_images(folder: Path) -> list[Path]:
-    """Its image list: every ``*.jpg`` under ``folder``, recursively, sorted by path (``sorted(glob(...))``)."""
-    return sorted(folder.glob("**/*.jpg"), key=lambda path: str(path))
+    """Its image list: every ``*.jpg`` under ``folder``, recursively, sorted by path (``sorted(glob(...))``).
+
+    Hidden files and folders (names starting with ``.``) are left out, as :func:`glob.glob` leaves them out.
+    """
+    from vpr_uncertainty.data.listing import is_hidden
+
+    found = (path for path in folder.glob("**/*.jpg") if not any(map(is_hidden, path.relative_to(folder).parts)))
+    return sorted(found, key=lambda path: str(path))
 
 
 def _utm(paths: list[Path], folder: Path) -> np.ndarray:
