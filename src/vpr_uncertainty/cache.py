@@ -7,10 +7,16 @@ stored fingerprint equals the one the current run computes. Per-image stages als
 
 - :func:`content_key` of a file: its size, its modification time in nanoseconds and a BLAKE2b hash of its bytes.
   Files up to :data:`FULL_HASH_BYTES` (every image) are hashed whole; larger files (similarity matrices,
-  descriptor files of millions of rows) hash their first and last :data:`EDGE_BYTES` only, a documented cheap key
-  that catches any rewrite which changes the size, the modification time or either end of the file.
+  descriptor files of millions of rows) hash their first and last :data:`EDGE_BYTES` only and add their status
+  change time (``st_ctime_ns``, which every write updates and :func:`os.utime` cannot set back): a documented cheap
+  key that catches any rewrite on a filesystem that keeps the change time. :func:`file_digest` hashes every byte
+  (what ``reproduce --verify`` checks such files with).
 - :func:`array_digest` of in-memory arrays: dtype, shape and every byte.
 - :func:`fingerprint`: SHA-256 of the canonical JSON of ``{"protocol", "stage", "config", "inputs"}``.
+- :func:`payload_checksum` / :func:`verify_checksum`: ``"blake2b:"`` + :func:`array_digest` of what an artefact
+  stores (its arrays, and its text as UTF-8 bytes), written with the artefact and recomputed on read; a mismatch
+  (:class:`ChecksumError`, naming the file) means the artefact was changed after it was written, whatever its size
+  and modification time say.
 - :func:`atomic_path` / :func:`atomic_write`: write to a temporary file in the target's folder, flush and fsync
   it, then :func:`os.replace` it over the target: an interrupted write (crash, SIGKILL, disk full) never leaves a
   truncated artefact, only the previous one or none.
@@ -27,30 +33,36 @@ False
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
-import tempfile
 import warnings
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import IO, Any, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
+
+from vpr_uncertainty.atomic_files import atomic_path, atomic_write, write_json, write_text
 
 __all__ = [
     "EDGE_BYTES",
     "FULL_HASH_BYTES",
     "PROTOCOL",
     "CacheWarning",
+    "ChecksumError",
     "array_digest",
     "atomic_path",
     "atomic_write",
     "content_key",
+    "file_digest",
     "fingerprint",
+    "is_partly_hashed",
+    "named_files_key",
+    "payload_checksum",
     "read_if_fresh",
     "stale_notice",
+    "verify_checksum",
     "write_json",
     "write_text",
 ]
@@ -70,6 +82,10 @@ class CacheWarning(UserWarning):
     """A cache was truncated, foreign or of an older layout, and is rebuilt (the message names it and why)."""
 
 
+class ChecksumError(ValueError):
+    """An artefact's payload does not match the checksum stored with it (changed on disk after it was written)."""
+
+
 def content_key(path: str | Path) -> str:
     """A key that changes when the content of the file changes: ``"size:mtime_ns:blake2b"``.
 
@@ -81,8 +97,9 @@ def content_key(path: str | Path) -> str:
     Returns
     -------
     str
-        Files up to :data:`FULL_HASH_BYTES` are hashed whole; larger ones by their first and last
-        :data:`EDGE_BYTES` (with the size and modification time, a cheap key for large result files).
+        Files up to :data:`FULL_HASH_BYTES` are hashed whole (``"size:mtime_ns:blake2b"``); larger ones by their
+        first and last :data:`EDGE_BYTES`, with their status change time (``"size:mtime_ns:ctime_ns:blake2b"``), a
+        cheap key for large result files; :func:`file_digest` hashes every byte.
 
     Examples
     --------
@@ -105,7 +122,56 @@ def content_key(path: str | Path) -> str:
             hasher.update(handle.read(EDGE_BYTES))
             handle.seek(-EDGE_BYTES, os.SEEK_END)
             hasher.update(handle.read(EDGE_BYTES))
+            return f"{stat.st_size}:{stat.st_mtime_ns}:{_change_time(stat)}:{hasher.hexdigest()}"
     return f"{stat.st_size}:{stat.st_mtime_ns}:{hasher.hexdigest()}"
+
+
+def _change_time(stat: os.stat_result) -> int:
+    """The status change time in nanoseconds (a write updates it; :func:`os.utime` cannot set it back)."""
+    return stat.st_ctime_ns
+
+
+def is_partly_hashed(path: str | Path) -> bool:
+    """Whether :func:`content_key` hashes only the ends of this file (larger than :data:`FULL_HASH_BYTES`)."""
+    return Path(path).stat().st_size > FULL_HASH_BYTES
+
+
+def file_digest(path: str | Path) -> str:
+    """``"blake2b:"`` and the BLAKE2b hash of every byte of a file, whatever its size (read in 1 MiB blocks).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> file = Path(tempfile.mkdtemp()) / "a.txt"
+    >>> _ = file.write_text("a")
+    >>> file_digest(file) == "blake2b:" + hashlib.blake2b(b"a", digest_size=16).hexdigest()
+    True
+    """
+    hasher = hashlib.blake2b(digest_size=16)
+    with Path(path).open("rb") as handle:
+        while block := handle.read(_BLOCK):
+            hasher.update(block)
+    return "blake2b:" + hasher.hexdigest()
+
+
+def named_files_key(values: Any) -> dict[str, str]:
+    """The :func:`content_key` of every value that names an existing file (a str or path), by resolved path.
+
+    For the options of a stage (``CAL:gate=gate.json``, ``btl_head=head.pt``): whatever file an option names is
+    part of the fingerprint by its content, whichever option and method name it. Values that are not paths of
+    existing files (numbers, words such as ``one-sided``) are left out. Relative paths are taken from the working
+    folder, as the methods that open them do.
+
+    Examples
+    --------
+    >>> named_files_key(["one-sided", 3.0, None])
+    {}
+    """
+    keys = {}
+    for value in values:
+        if isinstance(value, (str, os.PathLike)) and str(value) and Path(value).is_file():
+            keys[str(Path(value).resolve())] = content_key(value)
+    return dict(sorted(keys.items()))
 
 
 def array_digest(*arrays: Any) -> str:
@@ -145,6 +211,59 @@ def _hash_bytes(hasher: Any, array: np.ndarray, piece_bytes: int = 1 << 24) -> N
     step = max(1, piece_bytes // max(array.itemsize, 1))
     for start in range(0, flat.size, step):
         hasher.update(flat[start : start + step].tobytes())
+
+
+def payload_checksum(*parts: Any) -> str:
+    """The checksum of an artefact's payload: ``"blake2b:"`` + :func:`array_digest` of ``parts``.
+
+    Parameters
+    ----------
+    *parts : ndarray, str, bytes, None or row blocks
+        What the artefact stores, in a fixed order: arrays (or objects with ``row_blocks()``, hashed block by block),
+        text (hashed as its UTF-8 bytes) and None (an absent part).
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> payload_checksum(np.arange(3), "text") == payload_checksum(np.arange(3), "text")
+    True
+    >>> payload_checksum(np.arange(3), "text") == payload_checksum(np.arange(3), "texT")
+    False
+    """
+    arrays = [_as_bytes_array(part) if isinstance(part, (str, bytes)) else part for part in parts]
+    return "blake2b:" + array_digest(*arrays)
+
+
+def _as_bytes_array(part: str | bytes) -> np.ndarray:
+    data = part.encode("utf-8") if isinstance(part, str) else bytes(part)
+    return np.frombuffer(data, dtype=np.uint8)
+
+
+def verify_checksum(path: str | Path, stored: Any, *parts: Any, what: str = "payload") -> None:
+    """Raise :class:`ChecksumError` naming ``path`` unless ``stored`` is the :func:`payload_checksum` of ``parts``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The artefact (named in the message).
+    stored : str or None
+        The checksum stored with the artefact (None or "": it holds none).
+    *parts
+        What :func:`payload_checksum` was given when the artefact was written, read back from it.
+    what : str
+        What the checksum covers, for the message (e.g. ``"the 'database' descriptors"``).
+    """
+    if not stored:
+        raise ChecksumError(f"{path}: {what} has no checksum (written by an earlier version)")
+    found = payload_checksum(*parts)
+    if found != str(stored):
+        raise ChecksumError(
+            f"{path}: checksum mismatch of {what} (stored {str(stored)[:24]}..., read {found[:24]}...): "
+            "changed on disk after it was written"
+        )
 
 
 def _canonical(value: Any) -> Any:
@@ -189,97 +308,6 @@ def stale_notice(path: str | Path, reason: str, action: str = "rebuilding it", *
     """Warn in one line that the cache at ``path`` cannot be used (``reason``) and what happens instead."""
     reason = " ".join(str(reason).split())
     warnings.warn(f"cache {path}: {reason}; {action}", CacheWarning, stacklevel=stacklevel)
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """A temporary path beside ``path`` (same suffix) to write to; renamed over ``path`` when the block succeeds.
-
-    The temporary file is fsynced before the rename; on any exception (KeyboardInterrupt included) it is removed
-    and ``path`` is left as it was. A symbolic link is followed (the file it points to is replaced); a path that
-    exists and is not a regular file (a device, a pipe) is yielded itself and written in place.
-
-    Examples
-    --------
-    >>> import tempfile
-    >>> target = Path(tempfile.mkdtemp()) / "a.txt"
-    >>> with atomic_path(target) as temporary:
-    ...     _ = temporary.write_text("whole")
-    >>> target.read_text(), [p.name for p in target.parent.iterdir()]
-    ('whole', ['a.txt'])
-    """
-    path = Path(os.path.realpath(path))  # through a symbolic link: replace the file it points to, not the link
-    if path.exists() and not path.is_file():  # a device or a pipe (/dev/stdout, /dev/full): written in place
-        yield path
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
-    os.close(handle)
-    temporary = Path(name)
-    os.chmod(temporary, _file_mode(path))  # mkstemp makes 0600; give the file the mode open() would have
-    try:
-        yield temporary
-        with open(temporary, "rb+") as written:
-            os.fsync(written.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-    _fsync_folder(path.parent)
-
-
-def _file_mode(path: Path) -> int:
-    """The mode of the file at ``path`` when it exists, else what the process's umask gives a new file."""
-    try:
-        return path.stat().st_mode & 0o7777
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
-
-
-def _fsync_folder(folder: Path) -> None:
-    try:
-        descriptor = os.open(folder, os.O_RDONLY)
-    except OSError:  # e.g. Windows: folders cannot be opened
-        return
-    try:
-        os.fsync(descriptor)
-    except OSError:
-        pass
-    finally:
-        os.close(descriptor)
-
-
-@contextlib.contextmanager
-def atomic_write(path: str | Path, mode: str = "w", **open_options: Any) -> Iterator[IO[Any]]:
-    """Open a temporary file beside ``path`` for writing; it replaces ``path`` when the block succeeds.
-
-    Parameters
-    ----------
-    path : str or Path
-    mode : {"w", "wb"}
-    **open_options
-        Passed to :func:`open` (``encoding``, ``newline``).
-    """
-    if mode not in ("w", "wb"):
-        raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
-    if mode == "w":
-        open_options.setdefault("encoding", "utf-8")
-    with atomic_path(path) as temporary, open(temporary, mode, **open_options) as handle:
-        yield handle
-
-
-def write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8) to ``path`` atomically and return the path."""
-    with atomic_write(path) as handle:
-        handle.write(text)
-    return Path(path)
-
-
-def write_json(path: str | Path, document: Any) -> Path:
-    """Write ``document`` as indented JSON (one trailing newline) to ``path`` atomically and return the path."""
-    return write_text(path, json.dumps(document, indent=2, default=str) + "\n")
 
 
 def read_if_fresh(

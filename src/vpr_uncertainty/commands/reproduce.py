@@ -47,6 +47,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", type=output_directory, help="output folder (default: `out` of the config)")
     parser.add_argument("--force", action="store_true", help="recompute every cell, ignoring the cache")
     parser.add_argument(
+        "--verify",
+        action="store_true",
+        help="before reusing a cached cell, hash every byte of its input files over 64 MiB (a plain rerun keys "
+        "them by size, modification and change times and their first and last MiB) and recompute the cell when "
+        "one differs",
+    )
+    parser.add_argument(
         "--check",
         action="store_true",
         help="only validate the configuration: files, methods and their options, and what every method needs "
@@ -78,7 +85,7 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     if args.check:
         return 0
     with executor_from_args(args) as executor:
-        results = run_grid(config, force=args.force, executor=executor)
+        results = run_grid(config, force=args.force, executor=executor, verify=args.verify)
     cached = sum(cell.cached for cell in results)
     if cached:
         print(f"{cached} of {len(results)} cells read from the cache")

@@ -6,7 +6,8 @@ Layout (format version 2), read by :func:`read_descriptors`::
                                config (JSON: model name, weights identity, preprocessing, storage dtype),
                                fingerprint (:func:`vpr_uncertainty.cache.fingerprint` of the stage and config),
                                model (name), dtype ("float32" or "float16")
-    /database           attrs: complete (bool), failed (JSON list of {"name", "path", "error"} of skipped images)
+    /database           attrs: complete (bool), failed (JSON list of {"name", "path", "error"} of skipped images),
+                               checksum (once complete: see :mod:`vpr_uncertainty.descriptors._checks`)
         names           (N,) variable-length UTF-8 strings, unique once complete
         descriptors     (N, D) float32 or float16, L2-normalised rows, row i belongs to names[i]
         keys            (N,) :func:`vpr_uncertainty.cache.content_key` of the image file row i was computed from
@@ -17,17 +18,18 @@ computes exactly the images whose name is missing or whose content key differs (
 another dataset with the same names) and keeps the others. When extraction of a split completes, its rows are put
 in the order of the requested image list (skipped images left out, the newest row of a recomputed name kept) and
 ``complete`` is set. A file of another fingerprint (another model or preprocessing), of version 1 (no content
-keys), empty or truncated is rebuilt from scratch with a one-line :class:`~vpr_uncertainty.cache.CacheWarning`;
-a file that is not one of ours is never overwritten. Version 1 files are still read by :func:`read_descriptors`.
+keys), empty or truncated, or whose complete split no longer matches its payload checksum (a row, name or key
+changed on disk, whatever the file's size and time) is rebuilt from scratch with a one-line
+:class:`~vpr_uncertainty.cache.CacheWarning`; :func:`read_descriptors` verifies the checksum too and raises
+:class:`~vpr_uncertainty.cache.ChecksumError` naming the file. A complete split without a checksum (written before
+checksums) is sealed by the next run that resumes it. A file that is not one of ours is never overwritten.
+Version 1 files are still read by :func:`read_descriptors`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
-import os
-import re
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -36,6 +38,16 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache as protocol
+from vpr_uncertainty._hdf5 import open_present
+from vpr_uncertainty.descriptors._checks import (
+    describe_change,
+    first_line,
+    is_lock_error,
+    looks_like_hdf5,
+    split_checksum,
+    verify_split,
+    write_error,
+)
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SPLITS", "DescriptorCache", "cache_info", "read_descriptors"]
 
@@ -44,6 +56,7 @@ FORMAT_VERSION = 2
 #: Name of the stage in the fingerprint.
 STAGE = "descriptors"
 SPLITS = ("database", "queries")
+_DATASETS = ("names", "descriptors", "keys")
 DTYPES = ("float32", "float16")
 _CHUNK_ROWS = 256
 # No raw-data chunk cache in the writer: each batch goes to disk when written, so a failed write (disk full)
@@ -84,6 +97,7 @@ def split_layout(path: Path, split: str, *, stacklevel: int = 2) -> tuple[np.nda
             raise ValueError(f"{path} is not a vpr-uncertainty descriptor file (no format attribute {FORMAT!r})")
         if split not in handle:
             raise KeyError(f"{path} holds no {split!r} descriptors (it has: {', '.join(handle) or 'none'})")
+        open_present(handle, tuple(f"{split}/{key}" for key in _DATASETS), path)  # refuses bytes from outside it
         group = handle[split]
         count = _valid_length(group)
         if not group.attrs.get("complete", False):
@@ -96,7 +110,7 @@ def split_layout(path: Path, split: str, *, stacklevel: int = 2) -> tuple[np.nda
 
 
 def read_descriptors(
-    path: str | Path, split: str, *, names: Sequence[str] | None = None
+    path: str | Path, split: str, *, names: Sequence[str] | None = None, verify: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """Read the descriptors of one split from a descriptor cache.
 
@@ -108,6 +122,9 @@ def read_descriptors(
     names : sequence of str, optional
         Return exactly these images, in this order (KeyError naming the missing ones otherwise). By default
         every row, in file order (the dataset's order once extraction completed).
+    verify : bool, default=True
+        Check the split's payload checksum (:class:`~vpr_uncertainty.cache.ChecksumError` naming the file when it
+        no longer matches); the extraction reads back a split it has just verified or sealed without it.
 
     Returns
     -------
@@ -122,7 +139,10 @@ def read_descriptors(
     if count == 0:
         return stored_names, np.empty((0, 0), dtype=np.float32)
     with _import_h5py().File(path, "r") as handle:
-        descriptors = np.asarray(handle[split]["descriptors"][:count], dtype=np.float32)
+        stored = np.asarray(handle[split]["descriptors"][:count])
+        if verify:
+            verify_split(path, handle[split], split, count, stored)
+    descriptors = stored.astype(np.float32, copy=False)
     if names is None:
         return stored_names, descriptors
     index = {name: row for row, name in enumerate(stored_names)}
@@ -172,6 +192,8 @@ class DescriptorCache:
     model_name : str
     overwrite : bool
         Recreate the file even when the configuration matches.
+    verify : sequence of str
+        The complete splits whose payload checksum is verified when the file is opened (a mismatch rebuilds it).
     """
 
     def __init__(
@@ -182,6 +204,7 @@ class DescriptorCache:
         dtype: str = "float32",
         model_name: str = "",
         overwrite: bool = False,
+        verify: Sequence[str] = SPLITS,
     ) -> None:
         if dtype not in DTYPES:
             raise ValueError(f"dtype must be one of {DTYPES}, got {dtype!r}")
@@ -191,6 +214,7 @@ class DescriptorCache:
         self.config = json.dumps({**config, "dtype": dtype}, sort_keys=True)
         self.fingerprint = protocol.fingerprint(STAGE, json.loads(self.config))
         self.overwrite = overwrite
+        self.verify = tuple(verify)
         self.invalidated = False
         self._handle: Any = None
 
@@ -237,18 +261,26 @@ class DescriptorCache:
                     return f"written by an earlier version (format version {version}, without per-image content keys)"
                 stored, stored_config = handle.attrs.get("fingerprint", ""), handle.attrs.get("config", "")
         except OSError as error:
-            if _is_lock_error(error):
+            if is_lock_error(error):
                 raise ValueError(
                     f"{self.path} is open for writing in another process (HDF5 file lock); wait for it to finish "
                     "or choose another path"
                 ) from error
             if self.path.stat().st_size == 0:
                 return "empty file (0 bytes)"
-            if _looks_like_hdf5(self.path):
-                return f"truncated or damaged HDF5 file ({_first_line(error)})"
+            if looks_like_hdf5(self.path):
+                return f"truncated or damaged HDF5 file ({first_line(error)})"
             raise ValueError(f"{self.path} exists and is not an HDF5 file; choose another path or delete it") from error
         if stored != self.fingerprint:
-            return f"made by another model or preprocessing ({_describe_change(stored_config, self.config)})"
+            return f"made by another model or preprocessing ({describe_change(stored_config, self.config)})"
+        try:
+            with h5py.File(self.path, "r") as handle:
+                open_present(handle, tuple(f"{split}/{key}" for split in SPLITS for key in _DATASETS), self.path)
+                for split in self.verify:
+                    if split in handle:
+                        verify_split(self.path, handle[split], split, _valid_length(handle[split]))
+        except protocol.ChecksumError as error:
+            return f"corrupted ({str(error).removeprefix(f'{self.path}: ')})"
         return None
 
     def close(self) -> None:
@@ -263,7 +295,7 @@ class DescriptorCache:
         try:
             yield
         except (OSError, RuntimeError) as error:
-            raise _write_error(self.path, error) from error
+            raise write_error(self.path, error) from error
 
     def names(self, split: str) -> list[str]:
         """Names already stored for ``split`` (a name recomputed after its image changed appears twice)."""
@@ -295,6 +327,8 @@ class DescriptorCache:
             return
         group = self._handle.require_group(split)
         group.attrs["complete"] = False
+        if "checksum" in group.attrs:
+            del group.attrs["checksum"]  # rows change: sealed again by finalize
         if "descriptors" not in group:
             self._create(group, descriptors.shape[1])
         stored = group["descriptors"]
@@ -335,7 +369,8 @@ class DescriptorCache:
         stored = list(group["names"].asstr()[:count]) if count else []
         failed_text = json.dumps(list(failed))
         unchanged = stored == list(names) and "names" in group and count == group["names"].shape[0]
-        if unchanged and group.attrs.get("complete", False) and group.attrs.get("failed") == failed_text:
+        sealed = "checksum" in group.attrs
+        if unchanged and sealed and group.attrs.get("complete", False) and group.attrs.get("failed") == failed_text:
             return  # a rerun that computed nothing leaves the file untouched
         if not unchanged:
             index = {name: row for row, name in enumerate(stored)}  # the newest row of a name wins
@@ -360,40 +395,6 @@ class DescriptorCache:
                             del group[key]
         with self._writing():
             group.attrs["failed"] = failed_text
+            group.attrs["checksum"] = split_checksum(group, _valid_length(group))
             group.attrs["complete"] = True
             self._handle.flush()
-
-
-def _is_lock_error(error: OSError) -> bool:
-    """Whether HDF5 refused to open the file because another process holds its lock (not "sblock" of truncation)."""
-    text = str(error).lower()
-    return "unable to lock file" in text or getattr(error, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK)
-
-
-def _first_line(error: BaseException) -> str:
-    return (str(error).strip().splitlines() or [type(error).__name__])[0]
-
-
-def _write_error(path: Path, error: BaseException) -> OSError:
-    """An OSError with the errno of a failed HDF5 write (h5py puts it in the text of a RuntimeError)."""
-    number = getattr(error, "errno", None)
-    if not number:
-        found = re.search(r"errno = (\d+)", str(error))
-        number = int(found.group(1)) if found else errno.EIO
-    return OSError(number, f"{os.strerror(number)} (writing the descriptor cache)", str(path))
-
-
-def _looks_like_hdf5(path: Path) -> bool:
-    """Whether the file starts with the HDF5 signature (or with a part of it: a file cut within its first bytes)."""
-    with open(path, "rb") as handle:
-        head = handle.read(8)
-    return bool(head) and b"\x89HDF\r\n\x1a\n".startswith(head)
-
-
-def _describe_change(stored: str, current: str) -> str:
-    try:
-        old, new = json.loads(stored or "{}"), json.loads(current)
-    except json.JSONDecodeError:
-        return "unreadable fingerprint"
-    changed = sorted(key for key in set(old) | set(new) if old.get(key) != new.get(key))
-    return "changed: " + ", ".join(changed) if changed else "fingerprint differs"

@@ -259,7 +259,9 @@ def extract_descriptors(
     dtype = "float16" if half else "float32"
 
     cache = (
-        DescriptorCache(cache_path, model.fingerprint, dtype=dtype, model_name=model.name, overwrite=overwrite)
+        DescriptorCache(
+            cache_path, model.fingerprint, dtype=dtype, model_name=model.name, overwrite=overwrite, verify=(split,)
+        )
         if cache_path is not None
         else None
     )
@@ -316,7 +318,8 @@ def extract_descriptors(
             cache.close()
             from vpr_uncertainty.descriptors.cache import read_descriptors
 
-            return read_descriptors(cache_path, split)  # type: ignore[arg-type]
+            # verified when the cache was opened, or sealed by finalize: not hashed a second time
+            return read_descriptors(cache_path, split, verify=False)  # type: ignore[arg-type]
         dim = next(iter(memory.values())).shape[0] if memory else 0
         stacked = np.stack([memory[name] for name in kept]).astype(np.float32) if kept else np.empty((0, dim))
         return np.array(kept, dtype=str), stacked.astype(np.float32)

@@ -142,11 +142,15 @@ def _open_npy(path: Path) -> DescriptorRows:
 
 
 def _open_cache(path: Path, split: str) -> tuple[np.ndarray, DescriptorRows]:
-    """Names and lazily read rows of one split of the descriptor cache, checked as ``read_descriptors`` does."""
+    """Names and lazily read rows of one split of the descriptor cache, checked as ``read_descriptors`` does
+    (payload checksum included: one pass over the rows when the file is opened)."""
+    from vpr_uncertainty.descriptors._checks import verify_split
     from vpr_uncertainty.descriptors.cache import _import_h5py, split_layout
 
     h5py = _import_h5py()
     names, count, dimension = split_layout(path, split, stacklevel=3)
+    with h5py.File(path, "r") as handle:  # the payload checksum, one block of rows at a time
+        verify_split(path, handle[split], split, count)
     if count == 0:
         return names, DescriptorRows.from_array(np.empty((0, 0), np.float32), source=str(path))
 

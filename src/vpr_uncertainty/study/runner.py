@@ -1,12 +1,23 @@
 """Run the grid: every (VPR method, dataset) cell evaluated, or read from its cache under ``out/cells``.
 
 A cell's cache is two files named by the cell's key: ``KEY.json`` (the :func:`~vpr_uncertainty.cache.fingerprint`
-of the cell's inputs and the grid's settings, :meth:`Cell.to_dict` and the image paths) and ``KEY.npz``
-(:meth:`Cell.arrays`). Both are written atomically (:mod:`vpr_uncertainty.cache`). The inputs are keyed by content:
-results and ground-truth files by :func:`~vpr_uncertainty.cache.content_key`; for a cell computed from images
-(``model``), every image and the dataset's ground truth as well. A cell is read back only when its fingerprint
-matches; a cell cut short or unreadable is reported in one line and recomputed. Cells of the previous layouts
-(fingerprints of file sizes and times) no longer match and are recomputed.
+of the cell's inputs and the grid's settings, :meth:`Cell.to_dict`, the image paths and the cell's ``checksum``)
+and ``KEY.npz`` (:meth:`Cell.arrays` and the same ``fingerprint``). Both are written atomically
+(:mod:`vpr_uncertainty.cache`), the ``.npz`` first. The inputs are keyed by content: results and ground-truth files
+by :func:`~vpr_uncertainty.cache.content_key`; for a cell computed from images (``model``), every image and the
+dataset's ground truth as well; every file a method option names (``CAL:gate=gate.json``) by its
+:func:`~vpr_uncertainty.cache.content_key` too (:func:`~vpr_uncertainty.cache.named_files_key`).
+
+A cell is read back only when both files hold the expected fingerprint and the ``checksum`` (a
+:func:`~vpr_uncertainty.cache.payload_checksum` of the canonical JSON of the document and of every array, by name)
+matches what was read: a ``.json`` edited on disk, or a ``.json`` and a ``.npz`` of two different runs (a kill
+between the two renames), is reported in one line and recomputed, as is a cell cut short or unreadable. Cells of
+the previous layouts (no checksum) are recomputed with the same one-line notice.
+
+Input files larger than :data:`~vpr_uncertainty.cache.FULL_HASH_BYTES` are keyed cheaply (size, modification and
+change times, first and last MiB: :func:`~vpr_uncertainty.cache.content_key`); the cell also records the
+:func:`~vpr_uncertainty.cache.file_digest` of every byte of each, which ``run_grid(..., verify=True)``
+(``reproduce --verify``) recomputes and compares before reusing the cell.
 
 Image inputs run :func:`vpr_uncertainty.pipeline.run` (the stage spine) on the dataset loaded once here.
 
@@ -37,8 +48,8 @@ __all__ = ["HIT_COLUMNS", "candidates_needed", "load_cell", "run_cell", "run_gri
 
 #: Candidates per query whose correctness is kept for the qualitative figure.
 HIT_COLUMNS = 4
-#: Layout of the cell cache files (1: the layout before :meth:`Cell.to_dict`, read when its fingerprint matches).
-CACHE_VERSION = 2
+#: Layout of the cell cache files (3: with a checksum and the fingerprint in both files; 1 and 2 are recomputed).
+CACHE_VERSION = 3
 STAGE = "grid cell"
 
 
@@ -126,12 +137,25 @@ def _images_key(dataset: Any) -> str | None:
     return cache.fingerprint("images", {}, {**keys, "ground_truth": ground_truth_key(dataset.retrieval_fields())})
 
 
+def _option_files(methods: list[str]) -> dict[str, str]:
+    """The content key of every file the methods' options name (``CAL:gate=gate.json``), by resolved path."""
+    from vpr_uncertainty.methods import get_method
+
+    return cache.named_files_key(value for name in methods for value in get_method(name).bound.values())
+
+
 def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None) -> str:
     settings = {**config.settings(), "candidates": candidates_needed(config)}
-    return cache.fingerprint(STAGE, settings, {"input": entry.fingerprint(), "images": _images_key(dataset)})
+    inputs = {"input": entry.fingerprint(), "images": _images_key(dataset)}
+    option_files = _option_files(config.methods)
+    if option_files:  # only then: the fingerprints of grids whose options name no file are unchanged
+        inputs["option_files"] = option_files
+    return cache.fingerprint(STAGE, settings, inputs)
 
 
-def save_cell(cell: Cell, json_path: Path, npz_path: Path, fingerprint: str) -> None:
+def save_cell(
+    cell: Cell, json_path: Path, npz_path: Path, fingerprint: str, input_digests: dict[str, str] | None = None
+) -> None:
     """Write a cell's cache: its arrays to ``npz_path``, then its document to ``json_path``, each atomically.
 
     Parameters
@@ -140,42 +164,44 @@ def save_cell(cell: Cell, json_path: Path, npz_path: Path, fingerprint: str) -> 
     json_path, npz_path : Path
         The two files of the cell's cache.
     fingerprint : str
-        The fingerprint of the cell's inputs and settings, checked by :func:`load_cell`.
+        The fingerprint of the cell's inputs and settings, stored in both files and checked by :func:`load_cell`.
+    input_digests : dict of str to str, optional
+        :func:`~vpr_uncertainty.cache.file_digest` of the input files that the fingerprint hashes only in part.
     """
+    arrays = cell.arrays()
     with cache.atomic_write(npz_path, "wb") as file:
-        np.savez_compressed(file, **cell.arrays())
-    document = {
-        "version": CACHE_VERSION,
-        "fingerprint": fingerprint,
+        np.savez_compressed(file, **arrays, **{_FINGERPRINT: np.array(fingerprint)})
+    content = {
         "cell": cell.to_dict(),
         "query_paths": cell.query_paths,
         "database_paths": cell.database_paths,
+        "input_digests": dict(input_digests or {}),
     }
+    content = json.loads(json.dumps(content))  # as it will be read back (tuples as lists)
+    document = {"version": CACHE_VERSION, "fingerprint": fingerprint, **content}
+    document["checksum"] = cache.payload_checksum(*_checksum_parts(content, arrays))
     cache.write_text(json_path, json.dumps(document, indent=1) + "\n")
 
 
-def _version_1(meta: dict[str, Any]) -> dict[str, Any]:
-    """The :meth:`Cell.to_dict` of a cell cached in the layout of version 1."""
-    return {
-        "vpr_method": meta["vpr_method"],
-        "dataset": meta["dataset"],
-        **meta["evaluation"],
-        "ablation_alpha": {repr(float(a)): v for a, v in meta["ablation_alpha"]},
-        "ablation_k": {name: {str(k): v for k, v in curve} for name, curve in meta["ablation_k"].items()},
-    }
+_FINGERPRINT = "fingerprint"
+_CONTENT = ("cell", "query_paths", "database_paths", "input_digests")
 
 
-def load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None:
-    """A cell read from its cache, or None when the cache is missing, stale (another fingerprint) or unreadable.
+def load_cell(json_path: Path, npz_path: Path, fingerprint: str, verify_files: tuple[Path, ...] = ()) -> Cell | None:
+    """A cell read from its cache, or None when the cache is missing, stale (another fingerprint) or unusable.
 
-    An unreadable cell (cut short, foreign) is reported in one line (:class:`~vpr_uncertainty.cache.CacheWarning`).
+    A cell that cannot be used (cut short, foreign, of an earlier layout, changed on disk after it was written, or
+    whose two files come from two different runs) is reported in one line
+    (:class:`~vpr_uncertainty.cache.CacheWarning`).
 
     Parameters
     ----------
     json_path, npz_path : Path
-        The two files written by :func:`save_cell` (or by the previous layout).
+        The two files written by :func:`save_cell`.
     fingerprint : str
         The fingerprint the cache must hold.
+    verify_files : tuple of Path
+        Input files to hash whole and compare with the digests recorded when the cell was computed.
 
     Returns
     -------
@@ -187,22 +213,52 @@ def load_cell(json_path: Path, npz_path: Path, fingerprint: str) -> Cell | None:
         meta = json.loads(json_path.read_text())
         if meta.get("fingerprint") != fingerprint:
             return None
-        data = meta["cell"] if "cell" in meta else _version_1(meta)
+        if "checksum" not in meta:
+            cache.stale_notice(json_path, "written by an earlier version (no checksum)", "recomputing the cell")
+            return None
         with open(npz_path, "rb") as file, np.load(file, allow_pickle=False) as archive:
             arrays = {key: archive[key] for key in archive.files}
+        if str(arrays.pop(_FINGERPRINT, "")) != fingerprint:
+            cache.stale_notice(
+                npz_path, f"does not belong to {json_path.name} (another fingerprint)", "recomputing the cell"
+            )
+            return None
+        cache.verify_checksum(json_path, meta["checksum"], *_checksum_parts(meta, arrays), what="the cell")
+        recorded = meta.get("input_digests") or {}
+        for path in verify_files:
+            if recorded.get(str(path.resolve())) != cache.file_digest(path):
+                reason = f"input {path} differs from the one it was computed from (every byte hashed)"
+                cache.stale_notice(json_path, reason, "recomputing the cell")
+                return None
         return Cell.from_dict(
-            data,
+            meta["cell"],
             arrays,
             query_paths=meta.get("query_paths"),
             database_paths=meta.get("database_paths"),
             cached=True,
         )
+    except cache.ChecksumError as error:
+        cache.stale_notice(json_path, f"corrupted ({str(error).removeprefix(f'{json_path}: ')})", "recomputing it")
+        return None
     except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as error:  # cut short: recompute
         cache.stale_notice(json_path, f"unreadable cell (truncated or foreign: {error or type(error).__name__})")
         return None
 
 
-def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> Cell:
+def _checksum_parts(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> tuple[Any, ...]:
+    """What a cell's checksum covers: the canonical JSON of the document's content, then each array by name."""
+    text = json.dumps({key: meta.get(key) for key in _CONTENT}, sort_keys=True, separators=(",", ":"))
+    return (text, *(part for name in sorted(arrays) for part in (name, arrays[name])))
+
+
+def _partly_hashed(entry: InputEntry, config: GridConfig) -> tuple[Path, ...]:
+    """The cell's input files that :func:`~vpr_uncertainty.cache.content_key` hashes only in part (the large ones)."""
+    paths = [path for path in (entry.scores, entry.ground_truth) if path is not None]
+    paths += [Path(path) for path in _option_files(config.methods)]
+    return tuple(path for path in paths if path.is_file() and cache.is_partly_hashed(path))
+
+
+def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False, verify: bool = False) -> Cell:
     """Evaluate one (VPR method, dataset) cell, or read it from ``config.out/cells`` when it is up to date.
 
     Parameters
@@ -213,6 +269,10 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         The grid's settings (methods, k, α, ablations, output folder).
     force : bool, default=False
         Recompute the cell even when its cache is up to date.
+    verify : bool, default=False
+        Before reusing the cell, hash every byte of its input files larger than
+        :data:`~vpr_uncertainty.cache.FULL_HASH_BYTES` (normally keyed by size, times and both ends) and recompute
+        the cell when one differs from what it was computed from.
 
     Returns
     -------
@@ -224,10 +284,12 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
     json_path, npz_path = cells / f"{entry.key}.json", cells / f"{entry.key}.npz"
     dataset = _image_dataset(entry)
     fingerprint = _cell_fingerprint(entry, config, dataset)
+    large = _partly_hashed(entry, config)
     if not force:
-        cached = load_cell(json_path, npz_path, fingerprint)
+        cached = load_cell(json_path, npz_path, fingerprint, large if verify else ())
         if cached is not None:
             return cached
+    input_digests = {str(path.resolve()): cache.file_digest(path) for path in large}
     seconds: dict[str, float] = {}
     start = time.perf_counter()
     retrieval, evaluation, dataset = _load_cell_input(entry, config, out, dataset, seconds)
@@ -283,17 +345,22 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False) -> C
         else held_out_evaluation(retrieval, config, cache_dir=out / "local_features", **options),
         stage_seconds=seconds,
     )
-    save_cell(cell, json_path, npz_path, fingerprint)
+    save_cell(cell, json_path, npz_path, fingerprint, input_digests)
     return cell
 
 
-def _run_cell_task(entry: InputEntry, config: GridConfig, force: bool) -> Cell:
+def _run_cell_task(entry: InputEntry, config: GridConfig, force: bool, verify: bool = False) -> Cell:
     """:func:`run_cell` with positional settings (the task an executor runs for each cell)."""
-    return run_cell(entry, config, force=force)
+    return run_cell(entry, config, force=force, verify=verify)
 
 
 def run_grid(
-    config: GridConfig, *, force: bool = False, progress: bool | None = None, executor: Any = None
+    config: GridConfig,
+    *,
+    force: bool = False,
+    progress: bool | None = None,
+    executor: Any = None,
+    verify: bool = False,
 ) -> list[Cell]:
     """Run (or read from the cache) every cell of the grid, with a progress bar.
 
@@ -310,6 +377,8 @@ def run_grid(
         process. With Ray each cell is a task that reads and writes the cell cache under ``config.out/cells``
         itself, so that folder must be on a filesystem every worker sees; a rerun on any executor reads the cells
         already finished.
+    verify : bool, default=False
+        Hash every byte of the large input files before reusing a cell (see :func:`run_cell`).
 
     Returns
     -------
@@ -320,11 +389,11 @@ def run_grid(
 
     with progress_bar(total=len(config.inputs), desc="grid", unit="cell", enabled=progress, leave=True) as bar:
         if executor is not None and executor.name != "local":
-            task = partial(_run_cell_task, config=config, force=force)
+            task = partial(_run_cell_task, config=config, force=force, verify=verify)
             return executor.map(task, config.inputs, on_result=lambda cell: bar.update(1))
         cells = []
         for entry in config.inputs:
             bar.set_postfix_str(f"{entry.vpr_method} / {entry.dataset}", refresh=False)
-            cells.append(run_cell(entry, config, force=force))
+            cells.append(run_cell(entry, config, force=force, verify=verify))
             bar.update(1)
     return cells
