@@ -5,6 +5,7 @@ One local Ray cluster (2 CPUs) for the module. Real inputs: the corridor's NetVL
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 import sys
@@ -141,3 +142,113 @@ def test_reproduce_with_an_unreachable_address_is_one_line(grid, capsys):
     with pytest.raises(SystemExit) as refused:  # argparse: usage error
         main(["reproduce", str(grid), "--executor", "ray", "--connect-timeout", "0"])
     assert refused.value.code == 2 and "must be a number of seconds > 0" in capsys.readouterr().err
+
+
+class _StallingRay:
+    """A stand-in for the ray module whose init never returns (as when a worker dies during start-up)."""
+
+    def __init__(self, error: type[BaseException] | None = None) -> None:
+        self.error, self.shutdowns = error, 0
+
+    def init(self, **options):
+        import time
+
+        if self.error is not None:
+            raise self.error()
+        while True:
+            time.sleep(0.05)
+
+    def is_initialized(self) -> bool:
+        return True
+
+    def shutdown(self) -> None:
+        self.shutdowns += 1
+
+
+def test_ray_start_up_is_bounded_and_leaves_nothing_behind():
+    import time
+
+    from vpr_uncertainty.executors import start_ray
+
+    stalling = _StallingRay()
+    started = time.monotonic()
+    with pytest.raises(TimeoutError, match=r"Ray did not start within 0\.5 s"):
+        start_ray(stalling, {"address": "local"}, 0.5)
+    assert time.monotonic() - started < 5 and stalling.shutdowns == 1
+    interrupted = _StallingRay(KeyboardInterrupt)  # Ctrl-C during start-up: honoured, and cleaned up
+    with pytest.raises(KeyboardInterrupt):
+        start_ray(interrupted, {"address": "local"}, 30)
+    assert interrupted.shutdowns == 1
+    import signal
+
+    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)  # no alarm left armed
+
+
+def test_the_command_line_unwinds_on_sigterm(monkeypatch):
+    import signal
+
+    from vpr_uncertainty import cli
+
+    seen = {}
+
+    def handler(args):
+        seen["handler"] = signal.getsignal(signal.SIGTERM)
+        return 0
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(parser, "parse_args", lambda argv: argparse.Namespace(command="x", handler=handler))
+    before = signal.getsignal(signal.SIGTERM)
+    assert cli.main(["x"]) == 0
+    assert seen["handler"] is cli._terminated and signal.getsignal(signal.SIGTERM) == before
+    with pytest.raises(SystemExit) as stopped:
+        cli._terminated(signal.SIGTERM, None)
+    assert stopped.value.code == 128 + signal.SIGTERM
+
+
+def test_sigterm_shuts_down_the_cluster_the_executor_started(tmp_path):
+    """SIGTERM left Ray's processes running; now the executor's context closes and they stop."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    pytest.importorskip("ray")
+    script = tmp_path / "hold.py"
+    script.write_text(
+        "import signal, time\n"
+        "import ray\n"
+        "from vpr_uncertainty import cli\n"
+        "from vpr_uncertainty.executors import RayExecutor\n"
+        "signal.signal(signal.SIGTERM, cli._terminated)\n"
+        "with RayExecutor(workers=1):\n"
+        "    print(ray._private.worker._global_node.get_session_dir_path(), flush=True)\n"
+        "    time.sleep(300)\n"
+    )
+    process = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        session = process.stdout.readline().strip()
+        assert session, "the cluster did not start"
+        assert _processes_of(session), "no Ray process names the session"
+        process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=60) == 128 + signal.SIGTERM
+        deadline = time.monotonic() + 30
+        while _processes_of(session) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert not _processes_of(session)
+    finally:
+        if process.poll() is None:
+            process.kill()
+
+
+def _processes_of(session: str) -> list[int]:
+    """PIDs of the processes whose command line names a Ray session folder."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if session.encode() in (entry / "cmdline").read_bytes():
+                    found.append(int(entry.name))
+            except OSError:
+                continue
+    return found

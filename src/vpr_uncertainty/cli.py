@@ -10,7 +10,9 @@ import argparse
 import importlib
 import os
 import pickle
+import signal
 import sys
+import threading
 import traceback
 import warnings
 import zipfile
@@ -124,8 +126,17 @@ def _short_warning(message, category, filename, lineno, line=None) -> str:
     return f"warning: {message}\n"
 
 
+def _task_cause(error: BaseException) -> BaseException:
+    """The error a Ray task raised, for the ``RayTaskError`` that carries it (whose text is the remote traceback)."""
+    cause = getattr(error, "cause", None)
+    if isinstance(cause, BaseException) and any(kind.__name__ == "RayTaskError" for kind in type(error).__mro__):
+        return _task_cause(cause)
+    return error
+
+
 def exit_status(error: BaseException) -> int | None:
     """Exit status for ``error``: 2 input, 1 runtime, 130 interrupt; None for an unexpected error (a bug)."""
+    error = _task_cause(error)
     if isinstance(error, KeyboardInterrupt):
         return EXIT_INTERRUPTED
     if isinstance(error, _INPUT_ERRORS):
@@ -136,7 +147,8 @@ def exit_status(error: BaseException) -> int | None:
 
 
 def _message(error: BaseException) -> str:
-    """The one line that describes ``error``."""
+    """The one line that describes ``error`` (for an error raised in a Ray task, the task's own error)."""
+    error = _task_cause(error)
     if isinstance(error, KeyError) and error.args:
         return str(error.args[0])
     if isinstance(error, OSError) and error.strerror and error.filename is not None:
@@ -153,8 +165,23 @@ def _debug_requested(args: argparse.Namespace | None) -> bool:
     return bool(getattr(args, "debug", False)) or os.environ.get(DEBUG_VARIABLE, "") not in {"", "0"}
 
 
+def _terminated(signum: int, frame: object) -> None:
+    """SIGTERM: unwind like Ctrl-C, so that every context closes (a Ray cluster the command started shuts down)."""
+    raise SystemExit(128 + signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vpr-uncertainty`` command; returns the exit status."""
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminated) if in_main_thread else None
+    try:
+        return _main(argv)
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     args: argparse.Namespace | None = None
     prefix = "vpr-uncertainty"
     try:

@@ -12,8 +12,11 @@ whose worker dies is retried by Ray (``max_retries``); a run that is stopped is 
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
@@ -21,10 +24,12 @@ from typing import Any
 __all__ = [
     "CONNECT_TIMEOUT",
     "EXECUTORS",
+    "START_TIMEOUT",
     "LocalExecutor",
     "RayExecutor",
     "get_executor",
     "import_ray",
+    "start_ray",
     "wait_for_address",
 ]
 
@@ -34,6 +39,9 @@ EXECUTORS = ("local", "ray")
 MAX_RETRIES = 3
 #: Seconds to wait for a Ray cluster at an explicit address to accept a connection (``--connect-timeout``).
 CONNECT_TIMEOUT = 30.0
+#: Seconds a Ray start-up (``ray.init``: a new local cluster, or the connection to one) may take before it is
+#: abandoned and whatever it started is shut down.
+START_TIMEOUT = 180.0
 
 
 def import_ray() -> Any:
@@ -137,6 +145,8 @@ class RayExecutor:
     connect_timeout : float, default=30
         Seconds to wait for the cluster at ``host:port`` (or ``ray://host:port``) to accept a connection before a
         ConnectionError (Ray itself would wait for minutes on an address where nothing listens).
+    start_timeout : float, default=180
+        Seconds ``ray.init`` may take (see :func:`start_ray`).
     """
 
     name = "ray"
@@ -147,13 +157,15 @@ class RayExecutor:
         workers: int | None = None,
         gpus_per_worker: float = 0.0,
         connect_timeout: float = CONNECT_TIMEOUT,
+        start_timeout: float = START_TIMEOUT,
     ) -> None:
         self.workers = _check_workers(workers)
         self.gpus_per_worker = _check_gpus(gpus_per_worker)
         if address is not None and (not isinstance(address, str) or not address.strip()):
             raise ValueError(f"address must be a non-empty string such as 'auto' or 'host:6379', got {address!r}")
-        if not (isinstance(connect_timeout, (int, float)) and 0 < connect_timeout < math.inf):
-            raise ValueError(f"connect_timeout must be a positive number of seconds, got {connect_timeout!r}")
+        for option, value in (("connect_timeout", connect_timeout), ("start_timeout", start_timeout)):
+            if not (isinstance(value, (int, float)) and 0 < value < math.inf):
+                raise ValueError(f"{option} must be a positive number of seconds, got {value!r}")
         if address is not None:
             wait_for_address(address, connect_timeout)
         self.ray = import_ray()
@@ -164,7 +176,7 @@ class RayExecutor:
             options["log_to_driver"] = False
             if address is None and self.workers is not None:
                 options["num_cpus"] = self.workers
-            self.ray.init(**options)
+            start_ray(self.ray, options, start_timeout)
             self._owns_cluster = True
         if self.workers is None:
             self.workers = max(1, int(self.ray.cluster_resources().get("CPU", 1)))
@@ -247,6 +259,43 @@ class RayExecutor:
 Executor = LocalExecutor | RayExecutor
 
 
+def start_ray(ray: Any, options: dict[str, Any], timeout: float) -> None:
+    """``ray.init(**options)`` bounded by ``timeout`` seconds, leaving nothing behind when it fails.
+
+    A local cluster whose start-up stalls (a worker killed while it starts hung ``ray.init`` for 13 minutes) raises
+    TimeoutError after ``timeout``; that, Ctrl-C or any other error during start-up shuts down whatever Ray had
+    started before it propagates. The bound uses SIGALRM, so it applies in the main thread of a POSIX process
+    (elsewhere ``ray.init`` runs unbounded). A Python SIGTERM handler of the caller (the command line's, which
+    unwinds so that the cluster is shut down) is put back after Ray replaced it with its own.
+    """
+    bounded = hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+
+    what = "a new local cluster" if options.get("address") == "local" else f"the cluster at {options.get('address')}"
+
+    def expire(signum: int, frame: Any) -> None:
+        raise TimeoutError(f"Ray did not start within {timeout:g} s ({what}); whatever it had started was shut down")
+
+    previous = signal.signal(signal.SIGALRM, expire) if bounded else None
+    terminate = signal.getsignal(signal.SIGTERM) if bounded else None
+    try:
+        if bounded:
+            signal.setitimer(signal.ITIMER_REAL, timeout)
+        ray.init(**options)
+        if callable(terminate):  # Ray's core worker installs its own SIGTERM handler: keep the caller's
+            signal.signal(signal.SIGTERM, terminate)
+    except BaseException:
+        if bounded:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+        if ray.is_initialized() or options.get("address") == "local":
+            with contextlib.suppress(Exception):  # the start-up error is the one to report
+                ray.shutdown()
+        raise
+    finally:
+        if bounded:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+
+
 def wait_for_address(address: str, timeout: float) -> None:
     """Wait until something accepts a TCP connection at a Ray ``address`` (``host:port`` or ``ray://host:port``).
 
@@ -278,6 +327,7 @@ def get_executor(
     workers: int | None = None,
     gpus_per_worker: float = 0.0,
     connect_timeout: float = CONNECT_TIMEOUT,
+    start_timeout: float = START_TIMEOUT,
 ) -> Executor:
     """The executor called ``name``.
 
@@ -292,6 +342,8 @@ def get_executor(
         GPUs per Ray task or actor (``ray`` only).
     connect_timeout : float, default=30
         Seconds to wait for a Ray cluster at ``address`` (``ray`` only).
+    start_timeout : float, default=180
+        Seconds Ray's start-up may take (``ray`` only).
 
     Returns
     -------
@@ -305,5 +357,9 @@ def get_executor(
             raise ValueError("address and gpus_per_worker apply to the ray executor only, not to 'local'")
         return LocalExecutor(workers)
     return RayExecutor(
-        address=address, workers=workers, gpus_per_worker=gpus_per_worker, connect_timeout=connect_timeout
+        address=address,
+        workers=workers,
+        gpus_per_worker=gpus_per_worker,
+        connect_timeout=connect_timeout,
+        start_timeout=start_timeout,
     )
