@@ -6,6 +6,7 @@ One local Ray cluster (2 CPUs) for the module. Real inputs: the corridor's NetVL
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import shutil
 import sys
@@ -252,3 +253,63 @@ def _processes_of(session: str) -> list[int]:
             except OSError:
                 continue
     return found
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (from /proc's parent links)."""
+    parents = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                parents[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+    found, frontier = [], [pid]
+    while frontier:
+        children = [child for child, parent in parents.items() if parent in frontier]
+        found += children
+        frontier = children
+    return found
+
+
+def test_workers_killed_while_the_local_cluster_starts_give_a_timeout_not_a_hang():
+    """Real Ray: every worker SIGKILLed as it appears during start-up hung ray.init for up to 13 minutes."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    pytest.importorskip("ray")
+    code = (
+        "from vpr_uncertainty.executors import RayExecutor\n"
+        "try:\n"
+        "    with RayExecutor(workers=1, start_timeout=10) as executor:\n"
+        "        print('started', executor.map(abs, [-1]), flush=True)\n"
+        "except TimeoutError as error:\n"
+        "    print('timeout', error, flush=True)\n"
+    )
+    process = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+    )
+    started, killed = time.monotonic(), 0
+    try:
+        while process.poll() is None and time.monotonic() - started < 120:
+            for pid in _descendants(process.pid):
+                try:
+                    command = Path(f"/proc/{pid}/cmdline").read_bytes()
+                except OSError:
+                    continue
+                if b"default_worker.py" in command or command.startswith(b"ray::"):
+                    with contextlib.suppress(OSError):
+                        os.kill(pid, signal.SIGKILL)
+                        killed += 1
+            time.sleep(0.05)
+        assert process.poll() is not None, "still starting after 120 s"
+        output = process.stdout.read()
+        # a timeout (what start-up with its workers killed gives here), or a start that recovered: never a hang
+        assert "timeout Ray did not start within 10 s" in output or output.startswith("started"), (killed, output)
+        assert not [pid for pid in _descendants(process.pid)]  # nothing left running
+    finally:
+        if process.poll() is None:
+            process.kill()
