@@ -2,12 +2,14 @@
 
 :func:`atomic_path` / :func:`atomic_write`: write to a temporary file in the target's folder, flush and fsync it,
 then :func:`os.replace` it over the target: an interrupted write (crash, SIGKILL, disk full) never leaves a truncated
-artefact, only the previous one or none.
+artefact, only the previous one or none. A failed write (disk full, quota, I/O error) raises an :class:`OSError`
+that names the target file (never its temporary file, never no file): ``No space left on device: PATH``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import tempfile
@@ -37,7 +39,13 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """
     path = Path(os.path.realpath(path))  # through a symbolic link: replace the file it points to, not the link
     if path.exists() and not path.is_file():  # a device or a pipe (/dev/stdout, /dev/full): written in place
-        yield path
+        try:
+            yield path
+        except OSError as error:
+            named = _naming_target(error, path, path)
+            if named is error:
+                raise
+            raise named from error
         return
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
@@ -49,10 +57,39 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         with open(temporary, "rb+") as written:
             os.fsync(written.fileno())
         os.replace(temporary, path)
+    except OSError as error:
+        temporary.unlink(missing_ok=True)
+        named = _naming_target(error, temporary, path)
+        if named is error:
+            raise
+        raise named from error
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise
     _fsync_folder(path.parent)
+
+
+#: Errors of a write that say nothing of which file: named after the file being written when they carry no name.
+_WRITE_ERRNOS = frozenset(
+    getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EFBIG", "EIO", "EROFS") if hasattr(errno, name)
+)
+
+
+def _naming_target(error: OSError, temporary: Path, path: Path) -> OSError:
+    """``error`` naming ``path`` (the file being written) instead of none or of its temporary file.
+
+    An error that names another file (an input read within the block) or that has no errno is returned unchanged.
+    The new error is of the class :class:`OSError` gives its errno (``ENOSPC``: OSError, ``EACCES``:
+    PermissionError), so that ``str`` and the command line's one-line message read ``No space left on device: PATH``.
+    """
+    if not error.errno or error.filename2 is not None:
+        return error
+    if error.filename is None:
+        if error.errno not in _WRITE_ERRNOS:
+            return error
+    elif str(error.filename) != str(temporary):
+        return error
+    return OSError(error.errno, error.strerror or os.strerror(error.errno), str(path))
 
 
 def _file_mode(path: Path) -> int:

@@ -100,6 +100,7 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
         raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")
     digests = corridor_files()
     try:
+        from vpr_uncertainty.atomic_files import atomic_write
         from vpr_uncertainty.progress import progress_bar
 
         for name in progress_bar(missing, desc="downloading corridor", unit="file"):
@@ -109,9 +110,8 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
                 content = response.read()
             if hashlib.sha256(content).hexdigest() != digests[name]:
                 raise OSError(f"checksum mismatch for {name} downloaded from {CORRIDOR_URL}")
-            partial = target.with_name(target.name + ".part")
-            partial.write_bytes(content)
-            partial.replace(target)
+            with atomic_write(target, "wb") as handle:  # a full disk names the file; nothing half-written kept
+                handle.write(content)
     except (urllib.error.URLError, OSError, TimeoutError) as error:
         raise FileNotFoundError(
             f"cannot download the corridor dataset ({error}); this machine may be offline. {where}"

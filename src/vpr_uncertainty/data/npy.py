@@ -5,11 +5,13 @@ or foreign file (a text file, a ``.npz`` archive renamed ``.npy``) gives a ``Val
 says what was expected, instead of an ``EOFError`` or an ``UnpicklingError``. Object arrays are refused unless
 the caller allows them; then their pickled payload is read with
 :func:`~vpr_uncertainty.data.legacy_pickle.restricted_unpickle`, which can rebuild arrays, numbers, strings and
-lists but runs nothing the file names.
+lists but runs nothing the file names. A file that cannot be mapped or read for lack of memory or address space
+(``ulimit -v``) raises a :class:`MemoryError` naming it and its size.
 """
 
 from __future__ import annotations
 
+import errno
 import math
 from pathlib import Path
 
@@ -63,6 +65,8 @@ def read_npy(path: str | Path, *, what: str, allow_objects: bool = False, mmap: 
     ValueError
         When the file is empty, truncated, not a ``.npy`` file, an object array (unless allowed) or holds pickled
         data other than arrays, numbers, strings and builtin containers.
+    MemoryError
+        When the process cannot map (or read) the whole file: its address-space limit is below its size.
     """
     path = Path(path)
     if not path.is_file():
@@ -84,10 +88,8 @@ def read_npy(path: str | Path, *, what: str, allow_objects: bool = False, mmap: 
             elif version == (2, 0):
                 shape, _, dtype = npy_format.read_array_header_2_0(handle)
             else:  # format 3.0 (utf-8 field names): never used for object arrays; let NumPy read it all
-                if mmap:
-                    return npy_format.open_memmap(path, mode="r")
                 handle.seek(0)
-                return npy_format.read_array(handle, allow_pickle=False)
+                return _read_data(handle, path, what, mmap=mmap)
         except ValueError as error:
             message = str(error)
             if message.startswith("EOF"):
@@ -106,10 +108,37 @@ def read_npy(path: str | Path, *, what: str, allow_objects: bool = False, mmap: 
                 f"{path} is truncated: its header announces a {dtype} array of shape {shape} ({expected} bytes of "
                 f"data) but only {available} bytes follow; expected {what}"
             )
-        if mmap and expected > 0:  # mmap cannot map zero bytes
-            return npy_format.open_memmap(path, mode="r")
         handle.seek(0)
+        return _read_data(handle, path, what, mmap=mmap and expected > 0)  # mmap cannot map zero bytes
+
+
+def _read_data(handle, path: Path, what: str, *, mmap: bool) -> np.ndarray:
+    """The array of the open file ``handle`` (at its start), memory-mapped whole when ``mmap``.
+
+    Mapping needs address space for the whole file (and reading needs memory for it): when the process cannot get
+    it (``ulimit -v`` below the file's size, or memory exhausted), a :class:`MemoryError` names the file, its size
+    and what to do, instead of ``[Errno 12] Cannot allocate memory`` alone.
+    """
+    try:
+        if mmap:
+            return npy_format.open_memmap(path, mode="r")
         return npy_format.read_array(handle, allow_pickle=False)
+    except (MemoryError, OSError) as error:
+        if isinstance(error, OSError) and error.errno != errno.ENOMEM:
+            raise
+        size = path.stat().st_size / 2**30
+        how = "map" if mmap else "read"
+        raise MemoryError(
+            f"{path}: cannot {how} the {size:.2f} GiB file holding {what} ({_reason(error)}): this process's "
+            "memory or address-space limit (ulimit -v) is below its size; raise the limit (or free memory); a "
+            "similarity matrix can also be given as the top-k of each query (a retrieval .npz)"
+        ) from error
+
+
+def _reason(error: BaseException) -> str:
+    if isinstance(error, OSError) and error.strerror:
+        return f"[Errno {error.errno}] {error.strerror}"
+    return str(error) or type(error).__name__
 
 
 def _read_object_array(handle, path: Path, shape: tuple[int, ...]) -> np.ndarray:

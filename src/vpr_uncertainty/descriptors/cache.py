@@ -23,6 +23,9 @@ changed on disk, whatever the file's size and time) is rebuilt from scratch with
 :class:`~vpr_uncertainty.cache.CacheWarning`; :func:`read_descriptors` verifies the checksum too and raises
 :class:`~vpr_uncertainty.cache.ChecksumError` naming the file. A complete split without a checksum (written before
 checksums) is sealed by the next run that resumes it. A file that is not one of ours is never overwritten.
+Rows holding NaN or infinite values (an unsealed split, a model that once produced them) are recomputed by the next
+extraction with a one-line notice; :func:`read_descriptors` refuses them (ValueError naming the file and image).
+``overwrite`` never replaces a file another process holds open for writing (its HDF5 lock): ValueError naming it.
 Version 1 files are still read by :func:`read_descriptors`.
 """
 
@@ -39,15 +42,7 @@ import numpy as np
 
 from vpr_uncertainty import cache as protocol
 from vpr_uncertainty._hdf5 import open_present
-from vpr_uncertainty.descriptors._checks import (
-    describe_change,
-    first_line,
-    is_lock_error,
-    looks_like_hdf5,
-    split_checksum,
-    verify_split,
-    write_error,
-)
+from vpr_uncertainty.descriptors import _checks
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SPLITS", "DescriptorCache", "cache_info", "read_descriptors"]
 
@@ -141,7 +136,8 @@ def read_descriptors(
     with _import_h5py().File(path, "r") as handle:
         stored = np.asarray(handle[split]["descriptors"][:count])
         if verify:
-            verify_split(path, handle[split], split, count, stored)
+            _checks.verify_split(path, handle[split], split, count, stored)
+    _checks.check_finite(path, split, stored, stored_names)  # a checksum proves the bytes, not that they are numbers
     descriptors = stored.astype(np.float32, copy=False)
     if names is None:
         return stored_names, descriptors
@@ -228,6 +224,8 @@ class DescriptorCache:
     def open(self) -> None:
         h5py = _import_h5py()
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.overwrite and self.path.exists():
+            _checks.refuse_if_in_use(self.path, h5py)  # never replaced while another process writes it
         if self.path.exists() and not self.overwrite:
             reason = self._stale_reason(h5py)
             if reason is None:
@@ -261,24 +259,21 @@ class DescriptorCache:
                     return f"written by an earlier version (format version {version}, without per-image content keys)"
                 stored, stored_config = handle.attrs.get("fingerprint", ""), handle.attrs.get("config", "")
         except OSError as error:
-            if is_lock_error(error):
-                raise ValueError(
-                    f"{self.path} is open for writing in another process (HDF5 file lock); wait for it to finish "
-                    "or choose another path"
-                ) from error
+            if _checks.is_lock_error(error):
+                raise _checks.in_use_error(self.path) from error
             if self.path.stat().st_size == 0:
                 return "empty file (0 bytes)"
-            if looks_like_hdf5(self.path):
-                return f"truncated or damaged HDF5 file ({first_line(error)})"
+            if _checks.looks_like_hdf5(self.path):
+                return f"truncated or damaged HDF5 file ({_checks.first_line(error)})"
             raise ValueError(f"{self.path} exists and is not an HDF5 file; choose another path or delete it") from error
         if stored != self.fingerprint:
-            return f"made by another model or preprocessing ({describe_change(stored_config, self.config)})"
+            return f"made by another model or preprocessing ({_checks.describe_change(stored_config, self.config)})"
         try:
             with h5py.File(self.path, "r") as handle:
                 open_present(handle, tuple(f"{split}/{key}" for split in SPLITS for key in _DATASETS), self.path)
                 for split in self.verify:
                     if split in handle:
-                        verify_split(self.path, handle[split], split, _valid_length(handle[split]))
+                        _checks.verify_split(self.path, handle[split], split, _valid_length(handle[split]))
         except protocol.ChecksumError as error:
             return f"corrupted ({str(error).removeprefix(f'{self.path}: ')})"
         return None
@@ -295,7 +290,7 @@ class DescriptorCache:
         try:
             yield
         except (OSError, RuntimeError) as error:
-            raise write_error(self.path, error) from error
+            raise _checks.write_error(self.path, error) from error
 
     def names(self, split: str) -> list[str]:
         """Names already stored for ``split`` (a name recomputed after its image changed appears twice)."""
@@ -312,6 +307,7 @@ class DescriptorCache:
             return {}
         names = group["names"].asstr()[:count]
         keys = group["keys"].asstr()[:count] if "keys" in group else [""] * count
+        keys = _checks.blank_non_finite(self.path, group, split, names, keys)  # rows holding NaN are recomputed
         return dict(zip(names, keys, strict=True))
 
     def append(self, split: str, names: Sequence[str], descriptors: np.ndarray, keys: Sequence[str]) -> None:
@@ -395,6 +391,6 @@ class DescriptorCache:
                             del group[key]
         with self._writing():
             group.attrs["failed"] = failed_text
-            group.attrs["checksum"] = split_checksum(group, _valid_length(group))
+            group.attrs["checksum"] = _checks.split_checksum(group, _valid_length(group))
             group.attrs["complete"] = True
             self._handle.flush()

@@ -4,7 +4,8 @@
 one), runs the model batch by batch and appends each batch to the cache (see :mod:`vpr_uncertainty.descriptors.cache`)
 before starting the next, so an interrupted run resumes where it stopped. Images that cannot be used (see
 :mod:`vpr_uncertainty.descriptors.images`: unreadable, corrupt, decompression bombs, smaller than the model's minimum;
-also names that are not valid UTF-8, which the cache cannot store) either stop the extraction with an error naming
+also names that are not valid UTF-8, which the cache cannot store, and images for which the model produces NaN or
+infinite values, never written to the cache) either stop the extraction with an error naming
 the first of them (``on_error="fail"``) or are left out, counted in one warning per split that names the first
 few, and recorded with their reasons in the cache's ``failed`` attribute (``on_error="skip"``).
 
@@ -164,9 +165,36 @@ def _forward(model: DescriptorModel, images: list[np.ndarray]) -> np.ndarray:
             output = np.empty((len(images), descriptors.shape[1]), dtype=np.float32)
         output[positions] = descriptors
     assert output is not None
-    if not np.isfinite(output).all():
-        raise FloatingPointError(f"model {model.name!r} produced non-finite descriptors")
-    return output
+    return output  # checked by the caller, which knows the images and the cache (_finite_rows)
+
+
+#: The reason recorded (``on_error="skip"``) for an image whose descriptor holds NaN or infinite values.
+NON_FINITE = "the model produced NaN or infinite descriptor values for it"
+
+
+def _finite_rows(
+    model: DescriptorModel,
+    good: list[tuple[str, Path]],
+    descriptors: np.ndarray,
+    cache_path: str | Path | None,
+    on_error: str,
+    failed: list[dict[str, str]],
+) -> tuple[list[str], np.ndarray]:
+    """The names and rows of ``good`` images whose descriptors are finite; the others stop the extraction
+    (``on_error="fail"``: ValueError naming them and the cache, which never receives them) or are left out."""
+    bad = ~np.isfinite(descriptors).all(axis=1)
+    if not bad.any():
+        return [name for name, _ in good], descriptors
+    left_out = [(name, path) for (name, path), is_bad in zip(good, bad, strict=True) if is_bad]
+    if on_error == "fail":
+        shown = ", ".join(f"'{printable(name)}'" for name, _ in left_out[:3])
+        where = f"; none of them was written to {printable(cache_path)}" if cache_path is not None else ""
+        raise ValueError(
+            f"model {model.name!r} produced NaN or infinite descriptors for {len(left_out)} image(s): {shown}"
+            f"{where}; check the model, or leave such images out (on_error='skip', --on-error skip)"
+        )
+    failed.extend({"name": name, "path": str(path), "error": NON_FINITE} for name, path in left_out)
+    return [name for (name, _), is_bad in zip(good, bad, strict=True) if not is_bad], descriptors[~bad]
 
 
 def extract_descriptors(
@@ -291,15 +319,17 @@ def extract_descriptors(
             contextlib.closing(_described(todo, model, batch_size, workers, executor, model_factory)) as described,
         ):
             for decoded, descriptors in described:
-                good_names: list[str] = []
+                good: list[tuple[str, Path]] = []
                 for (_, name, path), result in decoded:
                     if isinstance(result, ImageDecodeError):
                         if on_error == "fail":
                             raise result
                         failed.append({"name": name, "path": str(path), "error": result.reason})
                         continue
-                    good_names.append(name)
+                    good.append((name, path))
+                good_names = [name for name, _ in good]
                 if descriptors is not None:
+                    good_names, descriptors = _finite_rows(model, good, descriptors, cache_path, on_error, failed)
                     if cache is not None:
                         cache.append(split, good_names, descriptors, [keys[name] for name in good_names])
                     else:

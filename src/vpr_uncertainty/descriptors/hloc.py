@@ -170,11 +170,17 @@ def write_hloc_descriptors(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with h5py.File(path, "a") as handle:
-        for row, name in enumerate(names):
-            if name in handle:
-                del handle[name]
-            group = handle.create_group(name)
-            group.create_dataset(HLOC_DATASET, data=descriptors[row])
-            if image_sizes is not None:
-                group.create_dataset("image_size", data=np.asarray(image_sizes[row], dtype=np.int64))
+        try:
+            for row, name in enumerate(names):
+                if name in handle:
+                    del handle[name]
+                group = handle.create_group(name)
+                group.create_dataset(HLOC_DATASET, data=descriptors[row])
+                if image_sizes is not None:
+                    group.create_dataset("image_size", data=np.asarray(image_sizes[row], dtype=np.int64))
+            handle.flush()
+        except (OSError, RuntimeError) as error:  # disk full, I/O error: an OSError naming this file
+            from vpr_uncertainty.descriptors._checks import write_error
+
+            raise write_error(path, error, "hloc global features") from error
     return path

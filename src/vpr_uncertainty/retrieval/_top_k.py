@@ -9,6 +9,7 @@ re-sorted whole, so ties always go to the lower database index.
 
 from __future__ import annotations
 
+import errno
 from collections.abc import Callable
 
 import numpy as np
@@ -42,13 +43,22 @@ class MappedRows:
         if step != 1:
             raise ValueError("MappedRows reads contiguous row blocks only")
         row_bytes = self.shape[1] * self.dtype.itemsize
-        return np.memmap(
-            self.filename,
-            dtype=self.dtype,
-            mode="r",
-            offset=self.offset + start * row_bytes,
-            shape=(max(stop - start, 0), self.shape[1]),
-        )
+        try:
+            return np.memmap(
+                self.filename,
+                dtype=self.dtype,
+                mode="r",
+                offset=self.offset + start * row_bytes,
+                shape=(max(stop - start, 0), self.shape[1]),
+            )
+        except OSError as error:
+            if error.errno != errno.ENOMEM:
+                raise
+            raise MemoryError(
+                f"{self.filename}: cannot map rows {start}–{stop - 1} ({(stop - start) * row_bytes / 2**20:.0f} MiB) "
+                f"([Errno {error.errno}] {error.strerror}); read it in smaller blocks (block_rows) or raise this "
+                "process's address-space limit (ulimit -v)"
+            ) from error
 
 
 def _top_k_block(block: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

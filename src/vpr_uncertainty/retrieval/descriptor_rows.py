@@ -10,7 +10,8 @@ reads any range of rows as a new float32 array:
   the resident memory of the process while it is mapped: a block read costs one block of memory. A
   Fortran-ordered file is sliced through the mapping instead (its rows are not contiguous);
 * the HDF5 descriptor cache (:mod:`vpr_uncertainty.descriptors.cache`) is read by slices of its ``descriptors``
-  dataset (float32 or float16 storage), the file opened for each block; the image names are read whole;
+  dataset (float32 or float16 storage), the file opened for each block; the image names are read whole; a block
+  holding NaN or infinite values is refused with a ValueError naming the file, the split and the image;
 * hloc's global-feature files (:mod:`vpr_uncertainty.descriptors.hloc`, one HDF5 group per image) are read whole.
 
 :func:`~vpr_uncertainty.retrieval.search.search_descriptors` searches a :class:`DescriptorRows` database block by
@@ -144,7 +145,7 @@ def _open_npy(path: Path) -> DescriptorRows:
 def _open_cache(path: Path, split: str) -> tuple[np.ndarray, DescriptorRows]:
     """Names and lazily read rows of one split of the descriptor cache, checked as ``read_descriptors`` does
     (payload checksum included: one pass over the rows when the file is opened)."""
-    from vpr_uncertainty.descriptors._checks import verify_split
+    from vpr_uncertainty.descriptors._checks import check_finite, verify_split
     from vpr_uncertainty.descriptors.cache import _import_h5py, split_layout
 
     h5py = _import_h5py()
@@ -156,7 +157,9 @@ def _open_cache(path: Path, split: str) -> tuple[np.ndarray, DescriptorRows]:
 
     def read(start: int, stop: int) -> np.ndarray:
         with h5py.File(path, "r") as block_handle:
-            return block_handle[split]["descriptors"][start:stop]
+            block = block_handle[split]["descriptors"][start:stop]
+        check_finite(path, split, block, names, first_row=start)  # naming the file, not only "database row i"
+        return block
 
     return names, DescriptorRows(read, (count, dimension), source=f"{path} ({split})")
 
