@@ -210,6 +210,44 @@ def test_a_corrupt_cache_file_is_extracted_again(scene: dict[str, list[Path]], t
     assert stats.cached == 2
 
 
+def test_deferred_writes_read_the_cache_and_leave_the_writing_to_the_driver(
+    scene: dict[str, list[Path]], tmp_path: Path
+) -> None:
+    """Inside ``deferred_writes`` (a grid cell run as a Ray task) the cache is read and never written; the features
+    come back to the caller, whose ``store_features`` writes them: the same file a direct extraction writes."""
+    from vpr_uncertainty.geometric.cache import store_features
+    from vpr_uncertainty.geometric.deferred import deferred_writes
+    from vpr_uncertainty.geometric.sift import SIFTExtractor
+
+    paths = scene["query"] + scene["database"]
+    extractor = SIFTExtractor(max_side=320)
+    direct, _ = extract_features(paths, extractor, cache_dir=tmp_path / "direct", workers=1)
+    names = image_names(paths)
+    extract_features(paths[:2], extractor, names=names[:2], cache_dir=tmp_path / "task", workers=1)  # 2 cached
+    file = cache_path(tmp_path / "task", extractor)
+    before = file.read_bytes()
+    with deferred_writes() as pending:
+        first, stats = extract_features(paths, extractor, cache_dir=tmp_path / "task", workers=1)
+        assert (stats.extracted, stats.cached) == (3, 2)
+        _, stats = extract_features(paths[2:], extractor, names=names[2:], cache_dir=tmp_path / "task", workers=1)
+        assert (stats.extracted, stats.cached) == (0, 3)  # kept in memory for the rest of the task
+    assert file.read_bytes() == before  # not written inside the context
+    assert [len(entry.features) for entry in pending] == [3] and pending[0].path == file
+    assert store_features([pending, pending]) == 3  # an image two tasks extracted is written once
+    again, stats = extract_features(paths, extractor, cache_dir=tmp_path / "task", workers=1)
+    assert (stats.extracted, stats.cached) == (0, 5)
+    for name in direct:
+        for features in (first[name], again[name]):
+            np.testing.assert_array_equal(features.keypoints, direct[name].keypoints)
+            np.testing.assert_array_equal(features.descriptors, direct[name].descriptors)
+    for entry in pending:  # a cache that cannot be written (here: a folder in its place) is one notice, not an error
+        entry.path = tmp_path / "blocked" / entry.path.name
+        entry.path.mkdir(parents=True)
+    with pytest.warns(CacheWarning) as notices:
+        assert store_features([pending]) == 0
+    assert "not written" in str(notices[-1].message)
+
+
 # --- the GV methods ------------------------------------------------------------------------------------------------
 
 

@@ -15,13 +15,19 @@ its weights or ``max_side`` starts a new file, while the same configuration reus
 group records the :func:`~vpr_uncertainty.cache.content_key` of its image file (attribute ``content_key``); an
 image that changed on disk (or a group of the previous layout, without a key) is extracted again. The file is
 created whole (atomically); a truncated or unreadable file is reported in one line and rebuilt.
+
+Who writes the cache: the process that calls :func:`extract_features`, except inside
+:func:`~vpr_uncertainty.geometric.deferred.deferred_writes` (a grid cell running as an executor task, see
+:func:`vpr_uncertainty.study.run_grid`): there the caches are only read (several tasks may read one file at once),
+what is extracted is kept in memory and returned to the driver, which writes it with :func:`store_features` once no
+task is running. No task ever opens a shared cache file for writing.
 """
 
 from __future__ import annotations
 
 import json
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,6 +37,7 @@ import numpy as np
 
 from vpr_uncertainty import cache
 from vpr_uncertainty._hdf5 import open_present
+from vpr_uncertainty.geometric.deferred import PendingFeatures, active_store
 from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 
 __all__ = [
@@ -40,6 +47,7 @@ __all__ = [
     "extract_features",
     "image_names",
     "read_features",
+    "store_features",
     "write_features",
 ]
 
@@ -119,8 +127,19 @@ def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
     return LocalFeatures(keypoints, np.ascontiguousarray(descriptors), scores, image_size)
 
 
-def write_features(file: h5py.File, name: str, features: LocalFeatures, *, source: str | Path | None = None) -> None:
-    """Write one image's features in hloc's layout, replacing an existing group of that name."""
+def write_features(
+    file: h5py.File,
+    name: str,
+    features: LocalFeatures,
+    *,
+    source: str | Path | None = None,
+    content_key: str | None = None,
+) -> None:
+    """Write one image's features in hloc's layout, replacing an existing group of that name.
+
+    The group records ``content_key`` (the :func:`~vpr_uncertainty.cache.content_key` of the image file, taken when
+    it was extracted), else the content key of ``source`` now, else none.
+    """
     if name in file:
         del file[name]
     group = file.create_group(name)
@@ -128,8 +147,10 @@ def write_features(file: h5py.File, name: str, features: LocalFeatures, *, sourc
     group.create_dataset("descriptors", data=np.ascontiguousarray(features.descriptors.T))
     group.create_dataset("scores", data=features.scores)
     group.create_dataset("image_size", data=features.image_size)
-    if source is not None:
-        group.attrs["content_key"] = cache.content_key(source)
+    if content_key is None and source is not None:
+        content_key = cache.content_key(source)
+    if content_key is not None:
+        group.attrs["content_key"] = content_key
 
 
 def _group_names(file: h5py.File) -> list[str]:
@@ -159,6 +180,75 @@ def _open_cache(path: Path, config: str) -> h5py.File:
         handle.attrs["config"] = config
         handle.attrs["fingerprint"] = config_fingerprint(json.loads(config))
     return h5py.File(path, "a")
+
+
+def _read_only(path: Path, config: str) -> h5py.File | None:
+    """The cache file opened for reading, or None when it is missing, unreadable or of another configuration (the
+    driver rebuilds it, with the one-line notice, when it writes)."""
+    if not path.is_file():
+        return None
+    try:
+        handle = h5py.File(path, "r")
+    except OSError:
+        return None
+    if handle.attrs.get("fingerprint") == config_fingerprint(json.loads(config)):
+        return handle
+    handle.close()
+    return None
+
+
+def store_features(pending: Iterable[Iterable[PendingFeatures]]) -> int:
+    """Write the local features that tasks extracted (:mod:`~vpr_uncertainty.geometric.deferred`) to their caches.
+
+    Called by the driver once no task is running: it is the one writer of the files. An image extracted by several
+    tasks is written once; one already in the file with the same content key is kept. A missing, unreadable or
+    foreign file is created (or rebuilt, with the one-line notice) first; a file that cannot be written (locked by
+    another run, disk full) is reported in one line (:class:`~vpr_uncertainty.cache.CacheWarning`) and left as is.
+
+    Parameters
+    ----------
+    pending : iterable of iterable of PendingFeatures
+        What each task returned.
+
+    Returns
+    -------
+    int
+        Images written.
+    """
+    merged: dict[Path, PendingFeatures] = {}
+    for entries in pending:
+        for entry in entries:
+            target = merged.setdefault(Path(entry.path), PendingFeatures(Path(entry.path), entry.config))
+            target.features.update(entry.features)
+    written = 0
+    for path, entry in merged.items():
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with _open_cache(path, entry.config) as handle:
+                for name, (features, key) in entry.features.items():
+                    group = handle.get(name)
+                    if (
+                        isinstance(group, h5py.Group)
+                        and group.attrs.get("content_key") == key
+                        and "image_size" in group
+                    ):
+                        continue
+                    write_features(handle, name, features, content_key=key)
+                    written += 1
+        except OSError as error:  # e.g. locked by another run: the results are computed, only the cache is missed
+            cache.stale_notice(path, f"not written ({error})", "a rerun extracts these images again")
+    return written
+
+
+def _deferred_features(entry: PendingFeatures, unique: Mapping[str, str | Path]) -> dict[str, LocalFeatures]:
+    """The features that an earlier call of the same task kept in memory, of the images unchanged since."""
+    found = {}
+    for name, path in unique.items():
+        if name in entry.features and Path(path).is_file():
+            features, key = entry.features[name]
+            if key == cache.content_key(path):
+                found[name] = features
+    return found
 
 
 @dataclass
@@ -195,7 +285,8 @@ def extract_features(
     executor : LocalExecutor or RayExecutor, optional
         With Ray, the images to extract are sent in chunks to Ray tasks
         (:func:`~vpr_uncertainty.geometric.distributed.extract_on_executor`); this process still reads and writes the
-        cache, each chunk as it comes back.
+        cache, each chunk as it comes back. Inside
+        :func:`~vpr_uncertainty.geometric.deferred.deferred_writes` the cache is read, never written.
 
     Returns
     -------
@@ -211,17 +302,28 @@ def extract_features(
     features: dict[str, LocalFeatures] = {}
     stats = ExtractionStats()
     handle: h5py.File | None = None
+    deferred: PendingFeatures | None = None
     try:
         if cache_dir is not None:
             file_path = cache_path(cache_dir, extractor)
-            file_path.parent.mkdir(parents=True, exist_ok=True)
             config = json.dumps(extractor.config(), sort_keys=True, default=str)
-            handle = _open_cache(file_path, config)
-            for name, path in unique.items():
-                if name in handle and "image_size" in handle[name]:
-                    stored = handle[name].attrs.get("content_key")
-                    if stored is not None and Path(path).is_file() and stored == cache.content_key(path):
-                        features[name] = read_features(handle, name)
+            store = active_store()
+            if store is None:
+                file_path.parent.mkdir(parents=True, exist_ok=True)
+                handle = _open_cache(file_path, config)
+            else:  # a task: read the shared file, keep what is extracted for the driver
+                deferred = store.setdefault(file_path, PendingFeatures(file_path, config))
+                features.update(_deferred_features(deferred, unique))
+                handle = _read_only(file_path, config)
+            if handle is not None:
+                for name, path in unique.items():
+                    if name not in features and name in handle and "image_size" in handle[name]:
+                        stored = handle[name].attrs.get("content_key")
+                        if stored is not None and Path(path).is_file() and stored == cache.content_key(path):
+                            features[name] = read_features(handle, name)
+            if deferred is not None and handle is not None:
+                handle.close()
+                handle = None
         todo = [name for name in unique if name not in features]
         stats.cached = len(features)
         from vpr_uncertainty.progress import progress_bar
@@ -236,7 +338,9 @@ def extract_features(
         for position, result in bar:
             name = todo[position]
             features[name] = result
-            if handle is not None:
+            if deferred is not None:
+                deferred.features[name] = (result, cache.content_key(unique[name]))
+            elif handle is not None:
                 write_features(handle, name, result, source=unique[name])
                 if (position + 1) % 32 == 0:
                     handle.flush()  # an interrupted run keeps (and a rerun resumes from) what was extracted

@@ -2,26 +2,23 @@
 
 A cell's cache is two files named by the cell's key: ``KEY.json`` (the :func:`~vpr_uncertainty.cache.fingerprint`
 of the cell's inputs and the grid's settings, :meth:`Cell.to_dict`, the image paths and the cell's ``checksum``)
-and ``KEY.npz`` (:meth:`Cell.arrays` and the same ``fingerprint``). Both are written atomically
+and ``KEY.npz`` (:meth:`Cell.arrays` and the same ``fingerprint``), each written atomically
 (:mod:`vpr_uncertainty.cache`), the ``.npz`` first. The inputs are keyed by content: results and ground-truth files
 by :func:`~vpr_uncertainty.cache.content_key`; for a cell computed from images (``model``), every image and the
-dataset's ground truth as well; every file a method option names (``CAL:gate=gate.json``) by its
-:func:`~vpr_uncertainty.cache.content_key` too (:func:`~vpr_uncertainty.cache.named_files_key`).
+dataset's ground truth as well; every file a method option names (``CAL:gate=gate.json``) by its content key too
+(:func:`~vpr_uncertainty.cache.named_files_key`).
 
 A cell is read back only when both files hold the expected fingerprint and the ``checksum`` (a
 :func:`~vpr_uncertainty.cache.payload_checksum` of the canonical JSON of the document and of every array, by name)
 matches what was read: a ``.json`` edited on disk, or a ``.json`` and a ``.npz`` of two different runs (a kill
-between the two renames), is reported in one line and recomputed, as is a cell cut short or unreadable. Cells of
-the previous layouts (no checksum) are recomputed with the same one-line notice.
-
-Input files larger than :data:`~vpr_uncertainty.cache.FULL_HASH_BYTES` are keyed cheaply (size, modification and
-change times, first and last MiB: :func:`~vpr_uncertainty.cache.content_key`); the cell also records the
+between the two renames), is reported in one line and recomputed, as is a cell cut short, unreadable or of a
+previous layout (no checksum). Input files larger than :data:`~vpr_uncertainty.cache.FULL_HASH_BYTES` are keyed
+cheaply (size, modification and change times, first and last MiB); the cell also records the
 :func:`~vpr_uncertainty.cache.file_digest` of every byte of each, which ``run_grid(..., verify=True)``
 (``reproduce --verify``) recomputes and compares before reusing the cell.
 
-Image inputs run :func:`vpr_uncertainty.pipeline.run` (the stage spine) on the dataset loaded once here.
-
-With the grid's ``calibration`` option, each cell also holds every method's held-out evaluation
+Image inputs run :func:`vpr_uncertainty.pipeline.run` (the stage spine) on the dataset loaded once here. With the
+grid's ``calibration`` option, each cell also holds every method's held-out evaluation
 (:mod:`vpr_uncertainty.study.heldout`); the option is part of the settings, hence of the fingerprint.
 """
 
@@ -230,13 +227,8 @@ def load_cell(json_path: Path, npz_path: Path, fingerprint: str, verify_files: t
                 reason = f"input {path} differs from the one it was computed from (every byte hashed)"
                 cache.stale_notice(json_path, reason, "recomputing the cell")
                 return None
-        return Cell.from_dict(
-            meta["cell"],
-            arrays,
-            query_paths=meta.get("query_paths"),
-            database_paths=meta.get("database_paths"),
-            cached=True,
-        )
+        paths = {"query_paths": meta.get("query_paths"), "database_paths": meta.get("database_paths")}
+        return Cell.from_dict(meta["cell"], arrays, **paths, cached=True)
     except cache.ChecksumError as error:
         cache.stale_notice(json_path, f"corrupted ({str(error).removeprefix(f'{json_path}: ')})", "recomputing it")
         return None
@@ -376,7 +368,8 @@ def run_grid(
         Where the cells run (:func:`vpr_uncertainty.executors.get_executor`); default: one after the other in this
         process. With Ray each cell is a task that reads and writes the cell cache under ``config.out/cells``
         itself, so that folder must be on a filesystem every worker sees; a rerun on any executor reads the cells
-        already finished.
+        already finished. The tasks only read the shared local-feature caches (``config.out/local_features``): this
+        process writes what they extracted once every cell is done (a failed grid leaves them to the rerun).
     verify : bool, default=False
         Hash every byte of the large input files before reusing a cell (see :func:`run_cell`).
 
@@ -389,8 +382,13 @@ def run_grid(
 
     with progress_bar(total=len(config.inputs), desc="grid", unit="cell", enabled=progress, leave=True) as bar:
         if executor is not None and executor.name != "local":
-            task = partial(_run_cell_task, config=config, force=force, verify=verify)
-            return executor.map(task, config.inputs, on_result=lambda cell: bar.update(1))
+            from vpr_uncertainty.geometric.cache import store_features
+            from vpr_uncertainty.geometric.deferred import deferring_writes
+
+            task = partial(deferring_writes, partial(_run_cell_task, config=config, force=force, verify=verify))
+            results = executor.map(task, config.inputs, on_result=lambda result: bar.update(1))
+            store_features(pending for _, pending in results)  # no task is running: this process is the one writer
+            return [cell for cell, _ in results]
         cells = []
         for entry in config.inputs:
             bar.set_postfix_str(f"{entry.vpr_method} / {entry.dataset}", refresh=False)
