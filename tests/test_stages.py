@@ -8,6 +8,7 @@ empty folder: the independent reference of what the answer must be.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import warnings
 from pathlib import Path
@@ -241,3 +242,24 @@ def test_stages_compose_without_the_pipeline(corridor_copy, tmp_path):
         piped = run(corridor_copy, tmp_path / "run")
     np.testing.assert_array_equal(found.retrieval.indices, piped.retrieval.indices)
     assert uncertainty.evaluation.recall_at_n[1] == piped.evaluation.recall_at_n[1]
+
+
+def test_a_retrieval_npz_changed_on_disk_is_refused_and_rebuilt(corridor_copy, tmp_path):
+    """One score of retrieval.npz changed (every field still valid, the fingerprint kept) was reused silently."""
+    from vpr_uncertainty.retrieval import load_retrieval
+
+    out = tmp_path / "run"
+    first = run(corridor_copy, out)
+    path = out / "retrieval.npz"
+    arrays = dict(np.load(path, allow_pickle=False))
+    arrays["scores"] = arrays["scores"].copy()
+    arrays["scores"][0, 0] += 0.01  # still sorted, still a valid file
+    stat = path.stat()
+    np.savez_compressed(path, **arrays)
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    with pytest.raises(ValueError, match="does not match the checksum stored with it"):
+        load_retrieval(path)
+    with pytest.warns(CacheWarning, match=r"retrieval\.npz.*checksum"):
+        again = run(corridor_copy, out)
+    assert_same_result(again, first)
+    load_retrieval(path)  # rebuilt: verifies again

@@ -12,6 +12,9 @@ Retrieval file (``.npz``, no pickles), format version 1
     ``query_names``, ``database_names``          (Q,), (D,) unicode (optional)
     ``query_positions``, ``database_positions``  (Q, m), (D, m) float64, usually m = 2 (optional)
     ``config``           JSON text describing what produced the file (optional)
+    ``checksum``         :func:`~vpr_uncertainty.cache.payload_checksum` of every other field, by name (written
+                         by :func:`save_retrieval`; verified on read when present, so a file changed on disk
+                         after it was written is refused, naming it; files of other tools may have none)
 
     Keys of ``config`` written by :func:`~vpr_uncertainty.retrieval.search.retrieve` and
     :func:`~vpr_uncertainty.data.attach.attach_ground_truth` (readers must ignore keys they do not know):
@@ -42,7 +45,7 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
-from vpr_uncertainty.cache import atomic_write
+from vpr_uncertainty.cache import ChecksumError, atomic_write, payload_checksum
 from vpr_uncertainty.retrieval._checks import check_distinct, check_indices, check_integers, check_scores
 from vpr_uncertainty.retrieval.result import Retrieval
 
@@ -75,9 +78,16 @@ def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
         value = getattr(retrieval, name)
         if value is not None:
             arrays[name] = np.asarray(value, dtype=np.float64)
+    arrays["checksum"] = np.array(_checksum(arrays))
     with atomic_write(path, "wb") as handle:  # written whole, then renamed: never a truncated file
         np.savez_compressed(handle, **arrays)
     return path
+
+
+def _checksum(arrays: dict[str, np.ndarray]) -> str:
+    """The payload checksum of a retrieval file's fields (every field but ``checksum``, in name order)."""
+    names = sorted(name for name in arrays if name != "checksum")
+    return payload_checksum(*(part for name in names for part in (name, arrays[name])))
 
 
 def load_retrieval(path: str | Path) -> Retrieval:
@@ -100,6 +110,7 @@ def load_retrieval(path: str | Path) -> Retrieval:
     missing = {"scores", "indices"} - set(arrays)
     if missing:
         raise ValueError(f"{path} is not a retrieval file: missing {sorted(missing)} (found {sorted(arrays)})")
+
     try:
         _format_version(arrays)
         scores = check_scores(arrays["scores"])  # first, so that the positives are checked against them
@@ -118,9 +129,16 @@ def load_retrieval(path: str | Path) -> Retrieval:
         )
         names = {"query_names": retrieval.query_names, "database_names": retrieval.database_names}
         check_distinct(retrieval.indices, names)
-        return retrieval
     except ValueError as error:
         raise ValueError(f"retrieval file {path}: {error}") from None
+    if "checksum" in arrays:  # last: a field that is wrong in itself is named first
+        stored = arrays["checksum"]
+        if stored.ndim != 0 or stored.dtype.kind != "U" or str(stored) != _checksum(arrays):
+            raise ChecksumError(
+                f"retrieval file {path}: its content does not match the checksum stored with it (changed on disk "
+                "after it was written); write it again (a run or retrieve rebuilds it)"
+            )
+    return retrieval
 
 
 # --- reading, field by field ----------------------------------------------------------------------------------
