@@ -210,6 +210,23 @@ def test_a_corrupt_cache_file_is_extracted_again(scene: dict[str, list[Path]], t
     assert stats.cached == 2
 
 
+def test_features_changed_on_disk_are_extracted_again(scene: dict[str, list[Path]], tmp_path: Path) -> None:
+    """One keypoint of a cached image edited in place (the file's size kept) was used silently (issue 20 row 1)."""
+    from vpr_uncertainty.geometric.sift import SIFTExtractor
+
+    extractor = SIFTExtractor(max_side=160)
+    first, _ = extract_features(scene["query"], extractor, cache_dir=tmp_path, workers=1)
+    name = next(name for name, features in first.items() if len(features))
+    with h5py.File(cache_path(tmp_path, extractor), "r+") as handle:
+        handle[name]["keypoints"][0, 0] += 5.0
+    with pytest.warns(CacheWarning, match=r"features of 1 image\(s\) do not match their checksum"):
+        again, stats = extract_features(scene["query"], extractor, cache_dir=tmp_path, workers=1)
+    assert (stats.extracted, stats.cached) == (1, len(first) - 1)
+    np.testing.assert_array_equal(again[name].keypoints, first[name].keypoints)
+    _, stats = extract_features(scene["query"], extractor, cache_dir=tmp_path, workers=1)
+    assert stats.extracted == 0  # rewritten with its checksum
+
+
 def test_deferred_writes_read_the_cache_and_leave_the_writing_to_the_driver(
     scene: dict[str, list[Path]], tmp_path: Path
 ) -> None:

@@ -151,6 +151,19 @@ def write_features(
         content_key = cache.content_key(source)
     if content_key is not None:
         group.attrs["content_key"] = content_key
+    group.attrs["checksum"] = _group_checksum(group)
+
+
+def _group_checksum(group: h5py.Group) -> str:
+    """The payload checksum of one image's stored features (every dataset of the group, by name)."""
+    names = sorted(key for key in _FEATURE_DATASETS if key in group)
+    return cache.payload_checksum(*(part for key in names for part in (key, group[key][()])))
+
+
+def _intact(handle: h5py.File, name: str) -> bool:
+    """Whether an image's cached features are the bytes that were written (their checksum matches)."""
+    group = handle[name]
+    return group.attrs.get("checksum") == _group_checksum(group)
 
 
 def _group_names(file: h5py.File) -> list[str]:
@@ -316,11 +329,22 @@ def extract_features(
                 features.update(_deferred_features(deferred, unique))
                 handle = _read_only(file_path, config)
             if handle is not None:
+                changed = []
                 for name, path in unique.items():
                     if name not in features and name in handle and "image_size" in handle[name]:
                         stored = handle[name].attrs.get("content_key")
                         if stored is not None and Path(path).is_file() and stored == cache.content_key(path):
-                            features[name] = read_features(handle, name)
+                            if _intact(handle, name):
+                                features[name] = read_features(handle, name)
+                            else:
+                                changed.append(name)
+                if changed:  # one line for all: edited on disk, or written before features carried a checksum
+                    cache.stale_notice(
+                        file_path,
+                        f"the features of {len(changed)} image(s) do not match their checksum (first: {changed[0]!r}; "
+                        "changed on disk, or written by an earlier version)",
+                        "extracting them again",
+                    )
             if deferred is not None and handle is not None:
                 handle.close()
                 handle = None
