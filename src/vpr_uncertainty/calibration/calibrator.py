@@ -263,19 +263,21 @@ def fit_logistic(
     penalty = np.full(design.shape[1], 1.0 / regularisation)
     penalty[0] = 0.0
     theta = np.zeros(design.shape[1])
+    ridge = np.diag(penalty) + 1e-12 * np.eye(len(theta))
+    objective = _objective(design, target, theta, penalty)
     for _ in range(100):
         z = design @ theta
         p = 0.5 * (1.0 + np.tanh(0.5 * z))
         gradient = design.T @ (p - target) + penalty * theta
         weight = np.maximum(p * (1.0 - p), 1e-12)
-        hessian = (design.T * weight) @ design + np.diag(penalty)
-        step = np.linalg.solve(hessian + 1e-12 * np.eye(len(theta)), gradient)
+        step = np.linalg.solve((design.T * weight) @ design + ridge, gradient)
         # Damped step: halve while the objective does not decrease (separable data, far starts).
-        objective = _objective(design, target, theta, penalty)
         scale = 1.0
-        while scale > 1e-6 and _objective(design, target, theta - scale * step, penalty) > objective + 1e-15:
+        trial = _objective(design, target, theta - step, penalty)
+        while scale > 1e-6 and trial > objective + 1e-15:
             scale *= 0.5
-        theta = theta - scale * step
+            trial = _objective(design, target, theta - scale * step, penalty)
+        theta, objective = theta - scale * step, trial
         if np.abs(scale * step).max() < tolerance:
             break
     return float(theta[0]), theta[1:]
