@@ -33,7 +33,15 @@ from vpr_uncertainty import baselines as _baselines
 from vpr_uncertainty import scores as _scores
 from vpr_uncertainty._validation import check_k, check_top_k_scores
 
-__all__ = ["DEFAULT_FEATURES", "FEATURES", "aliasing_ratio", "feature_matrix", "row_features", "row_statistics"]
+__all__ = [
+    "DEFAULT_FEATURES",
+    "FEATURES",
+    "aliasing_ratio",
+    "check_features",
+    "feature_matrix",
+    "row_features",
+    "row_statistics",
+]
 
 #: Every feature :func:`feature_matrix` can build, in a fixed order.
 FEATURES: tuple[str, ...] = ("s1", "gap", "ratio", "RS", "SD", "SU", "zscore", "PA")
@@ -42,7 +50,8 @@ FEATURES: tuple[str, ...] = ("s1", "gap", "ratio", "RS", "SD", "SU", "zscore", "
 DEFAULT_FEATURES: tuple[str, ...] = ("s1", "gap", "PA", "SU")
 
 
-def _check_features(features: Sequence[str]) -> tuple[str, ...]:
+def check_features(features: Sequence[str]) -> tuple[str, ...]:
+    """``features`` as a tuple, checked: a non-empty sequence of distinct names from :data:`FEATURES`."""
     if isinstance(features, str) or not features:
         raise ValueError(f"features must be a non-empty list of names from {FEATURES}, got {features!r}")
     unknown = [name for name in features if name not in FEATURES]
@@ -75,7 +84,7 @@ def feature_matrix(scores: object, *, k: int = 10, features: Sequence[str] = DEF
     >>> feature_matrix(np.array([[0.8, 0.4, 0.2]]), k=3, features=("s1", "gap", "RS", "SD", "zscore")).round(4)
     array([[0.8   , 0.4   , 0.375 , 0.5   , 0.8333]])
     """
-    names = _check_features(features)
+    names = check_features(features)
     k = check_k(k)
     array = check_top_k_scores(scores)
     if array.shape[1] < 2:
@@ -178,7 +187,7 @@ def row_features(values: Sequence[float], *, k: int = 10, features: Sequence[str
         "SU": 0.5 * (runners_up / best) + 0.5 * (median / best) if positive else 1 - best,
         "zscore": (best - runners_up) / spread if spread > 0 else 0.0,
     }
-    names = _check_features(features)
+    names = check_features(features)
     if "PA" in names:
         table["PA"] = aliasing_ratio(best, second)
     return [table[name] for name in names]

@@ -33,7 +33,7 @@ import numpy as np
 
 from vpr_uncertainty.calibration.calibrator import Calibrator, fit_calibrator
 from vpr_uncertainty.calibration.certify import certify_rankings, check_rankings, default_rankings, needed_message
-from vpr_uncertainty.calibration.features import DEFAULT_FEATURES, feature_matrix
+from vpr_uncertainty.calibration.features import DEFAULT_FEATURES, check_features
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.calibration.guarantee import (
     cuts_at_coverage,
@@ -100,8 +100,7 @@ def calibrate_arrays(
     if unlabelled is not None and unlabelled.size:
         width = min(scores.shape[1], unlabelled.shape[1])
         pool_scores = np.concatenate([scores[:, :width], unlabelled[:, :width]]).astype(np.float64)
-    model_features = DEFAULT_FEATURES if features is None else tuple(features)
-    feature_matrix(scores[:1], k=k, features=model_features if features is not None else ("SU",))  # checks names
+    model_features = DEFAULT_FEATURES if features is None else check_features(features)
     pool_features = feature_columns(pool_scores, k, model_features if features is not None else ())
     labelled_features = {name: column[: correct.size] for name, column in pool_features.items()}
     model_features = tuple(name for name in model_features if name in pool_features)
