@@ -86,17 +86,19 @@ def cache_path(cache_dir: str | Path, extractor: Extractor) -> Path:
     return Path(cache_dir) / f"{extractor.name}-{config_fingerprint(extractor.config())[:16]}.h5"
 
 
-def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
+def read_features(file: h5py.File | str | Path, name: str, *, verify: bool = False) -> LocalFeatures:
     """Read one image's features from an hloc-layout HDF5 file (an open file or its path).
 
     ``descriptors`` stored as (D, N), hloc's layout, are transposed to (N, D) (also when D == N: a square array
     is taken to be hloc's); (N, D) is read as it is. float16 is widened to float32.
     A file without ``image_size`` gets the extent of the keypoints. A soft or external link, external storage or
-    a virtual dataset on the way is refused with a ValueError (:mod:`vpr_uncertainty._hdf5`).
+    a virtual dataset on the way is refused with a ValueError (:mod:`vpr_uncertainty._hdf5`). With ``verify``,
+    features whose bytes do not match the checksum the cache stored with them raise
+    :class:`~vpr_uncertainty.cache.ChecksumError` (each dataset is read once, for both).
     """
     if not isinstance(file, h5py.File):
         with h5py.File(file, "r") as handle:
-            return read_features(handle, name)
+            return read_features(handle, name, verify=verify)
     if name not in file:
         example = next(iter(_group_names(file)), None)
         raise KeyError(
@@ -107,9 +109,12 @@ def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
     if "keypoints" not in group or "descriptors" not in group:
         raise KeyError(f"{file.filename}:{name} lacks 'keypoints' or 'descriptors' (not hloc's local-feature layout)")
     # Each dataset checked (no soft or external link, external storage or virtual dataset): bytes of this file only.
-    stored = open_present(file, tuple(f"{name}/{key}" for key in _FEATURE_DATASETS), file.filename)
-    keypoints = np.asarray(stored[f"{name}/keypoints"][()], np.float32).reshape(-1, 2)
-    descriptors = np.asarray(stored[f"{name}/descriptors"][()])
+    opened = open_present(file, tuple(f"{name}/{key}" for key in _FEATURE_DATASETS), file.filename)
+    raw = {path.rsplit("/", 1)[1]: dataset[()] for path, dataset in opened.items()}  # each dataset read once
+    if verify and group.attrs.get("checksum") != _checksum(raw):
+        raise cache.ChecksumError(f"{file.filename}:{name}: the features do not match their checksum")
+    keypoints = np.asarray(raw["keypoints"], np.float32).reshape(-1, 2)
+    descriptors = np.asarray(raw["descriptors"])
     n = len(keypoints)
     if descriptors.ndim != 2:
         raise ValueError(f"{file.filename}:{name}/descriptors must be 2-D, got shape {descriptors.shape}")
@@ -119,9 +124,9 @@ def read_features(file: h5py.File | str | Path, name: str) -> LocalFeatures:
         raise ValueError(f"{file.filename}:{name}: {n} keypoints but descriptors of shape {descriptors.shape}")
     if descriptors.dtype == np.float16:
         descriptors = descriptors.astype(np.float32)
-    scores = np.asarray(stored[f"{name}/scores"][()], np.float32).reshape(-1) if "scores" in group else None
+    scores = np.asarray(raw["scores"], np.float32).reshape(-1) if "scores" in raw else None
     if "image_size" in group:
-        image_size = np.asarray(stored[f"{name}/image_size"][()]).reshape(2)
+        image_size = np.asarray(raw["image_size"]).reshape(2)
     else:
         image_size = np.ceil(keypoints.max(axis=0) + 1) if n else np.ones(2)
     return LocalFeatures(keypoints, np.ascontiguousarray(descriptors), scores, image_size)
@@ -156,14 +161,11 @@ def write_features(
 
 def _group_checksum(group: h5py.Group) -> str:
     """The payload checksum of one image's stored features (every dataset of the group, by name)."""
-    names = sorted(key for key in _FEATURE_DATASETS if key in group)
-    return cache.payload_checksum(*(part for key in names for part in (key, group[key][()])))
+    return _checksum({key: group[key][()] for key in _FEATURE_DATASETS if key in group})
 
 
-def _intact(handle: h5py.File, name: str) -> bool:
-    """Whether an image's cached features are the bytes that were written (their checksum matches)."""
-    group = handle[name]
-    return group.attrs.get("checksum") == _group_checksum(group)
+def _checksum(raw: Mapping[str, Any]) -> str:
+    return cache.payload_checksum(*(part for key in sorted(raw) for part in (key, raw[key])))
 
 
 def _group_names(file: h5py.File) -> list[str]:
@@ -334,9 +336,9 @@ def extract_features(
                     if name not in features and name in handle and "image_size" in handle[name]:
                         stored = handle[name].attrs.get("content_key")
                         if stored is not None and Path(path).is_file() and stored == cache.content_key(path):
-                            if _intact(handle, name):
-                                features[name] = read_features(handle, name)
-                            else:
+                            try:
+                                features[name] = read_features(handle, name, verify=True)
+                            except cache.ChecksumError:
                                 changed.append(name)
                 if changed:  # one line for all: edited on disk, or written before features carried a checksum
                     cache.stale_notice(
