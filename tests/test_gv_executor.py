@@ -19,7 +19,6 @@ pytest.importorskip("cv2")
 ray = pytest.importorskip("ray")
 
 from vpr_uncertainty import read_results  # noqa: E402
-from vpr_uncertainty.calibration.heldout import subset_queries  # noqa: E402
 from vpr_uncertainty.evaluation import correct_at_n, evaluate  # noqa: E402
 from vpr_uncertainty.executors import get_executor  # noqa: E402
 from vpr_uncertainty.geometric import distributed  # noqa: E402
@@ -37,7 +36,7 @@ def corridor(corridor_dir: Path, corridor_matches_dir: Path) -> SimpleNamespace:
     rows = np.concatenate([np.flatnonzero(correct)[::15][:4], np.flatnonzero(~correct)[::8][:4]])  # both classes
     query_paths = sorted((corridor_dir / "query").glob("*.jpg"))
     return SimpleNamespace(
-        retrieval=subset_queries(retrieval, rows),
+        retrieval=retrieval.subset_queries(rows),
         query_paths=[query_paths[row] for row in rows],
         database_paths=sorted((corridor_dir / "ref").glob("*.jpg")),
         matrix=matrix,

@@ -9,7 +9,6 @@ predictions pooled).
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -22,7 +21,7 @@ from vpr_uncertainty.calibration.quality import brier_score, expected_calibratio
 from vpr_uncertainty.calibration.rankings import stratified_split
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["HeldOutEvaluation", "evaluate_held_out", "subset_queries"]
+__all__ = ["HeldOutEvaluation", "evaluate_held_out"]
 
 _METRICS = ("auc_pr", "average_precision", "aurc")
 
@@ -40,24 +39,6 @@ def _check_split_sizes(correct: np.ndarray, calibration: np.ndarray, held_out: n
             f"wrong) of {correct.size}: a held-out figure needs at least {MIN_HELD_OUT} queries and "
             f"{MIN_HELD_OUT_PER_OUTCOME} of each outcome; lower the fraction"
         )
-
-
-def subset_queries(retrieval: Retrieval, rows: np.ndarray) -> Retrieval:
-    """The retrieval of the queries ``rows`` only (same database)."""
-    rows = np.asarray(rows)
-
-    def take(value: Any) -> Any:
-        return None if value is None else value[rows]
-
-    return dataclasses.replace(
-        retrieval,
-        scores=retrieval.scores[rows],
-        indices=retrieval.indices[rows],
-        positives=take(retrieval.positives),
-        distances=take(retrieval.distances),
-        query_names=take(retrieval.query_names),
-        query_positions=take(retrieval.query_positions),
-    )
 
 
 @dataclass
@@ -193,7 +174,7 @@ def evaluate_held_out(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the notes of the first repeat are kept below
             evaluation = evaluate(
-                subset_queries(retrieval, held_out),
+                retrieval.subset_queries(held_out),
                 [e.name for e in entries],
                 k=k,
                 alpha=alpha,

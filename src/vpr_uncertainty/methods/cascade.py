@@ -98,12 +98,6 @@ def combine_cascade(score_uncertainty: np.ndarray, verified: np.ndarray, gv_unce
     return combined
 
 
-def _subset(retrieval: Retrieval, rows: np.ndarray) -> Retrieval:
-    from vpr_uncertainty.calibration.heldout import subset_queries
-
-    return subset_queries(retrieval, rows)
-
-
 def run_cascade(
     retrieval: Retrieval,
     *,
@@ -132,7 +126,7 @@ def run_cascade(
         if sub_options.get("query_paths") is not None:
             paths = list(sub_options["query_paths"])
             sub_options["query_paths"] = [paths[row] for row in verified]
-        gv_result = gv(_subset(retrieval, verified), **sub_options)
+        gv_result = gv(retrieval.subset_queries(verified), **sub_options)
         gv_uncertainty = np.asarray(getattr(gv_result, "uncertainty", gv_result), dtype=np.float64)
     combined = combine_cascade(score_uncertainty, verified, gv_uncertainty)
     n_queries = max(retrieval.n_queries, 1)

@@ -15,6 +15,7 @@ laid out on a line that only encode which images match); an absent key means met
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -74,6 +75,23 @@ class Retrieval:
             if value is not None:
                 return len(value)
         return None
+
+    def subset_queries(self, rows: np.ndarray) -> Retrieval:
+        """The retrieval of the queries ``rows`` only (an index array or a boolean mask), same database."""
+        rows = np.asarray(rows)
+
+        def take(value: Any) -> Any:
+            return None if value is None else value[rows]
+
+        return dataclasses.replace(
+            self,
+            scores=self.scores[rows],
+            indices=self.indices[rows],
+            positives=take(self.positives),
+            distances=take(self.distances),
+            query_names=take(self.query_names),
+            query_positions=take(self.query_positions),
+        )
 
     @property
     def n_queries(self) -> int:
