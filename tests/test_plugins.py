@@ -7,9 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
-from vpr_uncertainty.methods import METHODS, available_methods, register_method
-from vpr_uncertainty.plugins import Registry, load_target, merge_options
+from vpr_uncertainty.evaluation import evaluate
+from vpr_uncertainty.methods import METHODS, available_methods, default_method_names, register_method
+from vpr_uncertainty.plugins import Registry, load_plugins, load_target, merge_options
 from vpr_uncertainty.retrieval import Retrieval
 
 
@@ -51,7 +51,7 @@ def test_lazy_target_names_the_extra_when_its_module_is_missing():
 def test_method_kinds_replace_the_parallel_lists():
     assert available_methods(kind="score") == ["RS", "SD", "SU", "PA", "L2", "BM", "SU-adaptive", "margin"]
     assert available_methods(kind="geometric") == ["GV-SIFT", "GV-DISK-LG", "GV-XFEAT", "GV-SP-SG", "GV-SP-LG", "GV-H5"]
-    assert DEFAULT_METHODS == ("RS", "SD", "SU", "PA", "L2", "BM")
+    assert default_method_names() == ["RS", "SD", "SU", "PA", "L2", "BM"]
     assert METHODS.get("BTL").kind == "learned" and METHODS.get("SUE").kind == "spatial"
 
 
@@ -100,3 +100,44 @@ def test_descriptor_models_are_registry_entries():
     assert available_models() == MODELS.names()
     with pytest.raises(KeyError, match=r"did you mean 'cosplace'\?.*or a TorchScript file"):
         get_model_spec("cosplac")
+
+
+def test_a_default_plugin_method_runs_in_evaluate_without_a_method_list():
+    # Before: evaluate()'s default list was frozen when evaluation was imported, so a plugin registered later with
+    # default=True ran in `run` but not in `evaluate()`.
+    register_method("LATE-DEFAULT", lambda retrieval: -retrieval.scores[:, 0], description="test", default=True)
+    try:
+        assert "LATE-DEFAULT" in evaluate(_retrieval(), timing_repeats=1).methods
+    finally:
+        METHODS.unregister("LATE-DEFAULT")
+
+
+def test_suggestions_only_above_the_similarity_cutoff():
+    with pytest.raises(KeyError) as error:
+        METHODS.get("GPA")
+    assert "did you mean" not in str(error.value)
+    with pytest.raises(KeyError, match="did you mean 'GV-SIFT'"):
+        METHODS.get("GV-SFIT")
+
+
+def test_load_plugins_imports_a_module_that_registers_its_entries(tmp_path, monkeypatch):
+    (tmp_path / "my_vpr_plugin.py").write_text(
+        "from vpr_uncertainty.methods import register_method\n"
+        "register_method('ENT-TEST', lambda retrieval: -retrieval.scores[:, 0], description='test')\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    try:
+        load_plugins(["my_vpr_plugin"])
+        assert "ENT-TEST" in available_methods()
+    finally:
+        METHODS.unregister("ENT-TEST")
+    with pytest.raises(ImportError, match="plugin module 'no_such_plugin_xyz' not found"):
+        load_plugins(["no_such_plugin_xyz"])
+
+
+def test_the_package_registers_its_higher_layers_through_its_entry_points():
+    from importlib import metadata
+
+    groups = {entry.value for entry in metadata.entry_points(group="vpr_uncertainty.plugins")}
+    assert {"vpr_uncertainty.geometric", "vpr_uncertainty.btl"} <= groups
+    assert {"GV-SIFT", "BTL", "SUE", "CAL"} <= set(available_methods())

@@ -1,6 +1,11 @@
 """One plugin mechanism for every extension point: uncertainty methods, GV presets, descriptor models, dataset
 formats and named datasets.
 
+Plugins are modules that register entries when imported. :func:`load_plugins` imports every module of the
+entry-point group ``vpr_uncertainty.plugins`` (the package's own higher layers register their methods this way,
+as a user's package does) and the modules named on the command line (``--plugin MODULE``). A registry loads them
+when a name is not found; functions that list a registry's names call :func:`load_plugins` first.
+
 A :class:`Registry` holds declarative entries, each with at least a ``name`` (most also declare a
 ``description``, what they ``requires``, the pip ``extra`` they need and their default ``options``). It gives
 
@@ -36,12 +41,65 @@ from __future__ import annotations
 
 import difflib
 import importlib
-from collections.abc import Callable, Iterator, Mapping
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Any, Generic, TypeVar
 
-__all__ = ["Registry", "load_target", "merge_options", "missing_extra_message"]
+__all__ = ["ENTRY_POINT_GROUP", "Registry", "load_plugins", "load_target", "merge_options", "missing_extra_message"]
 
 T = TypeVar("T")
+
+#: The entry-point group whose modules :func:`load_plugins` imports (``module`` or ``module:function``).
+ENTRY_POINT_GROUP = "vpr_uncertainty.plugins"
+#: A known name is suggested for an unknown one above this similarity (difflib ratio), or at it for a name of the
+#: same length (a swap or a wrong letter): "GV-SFIT" -> "GV-SIFT" (0.86), "alpah" -> "alpha" (0.8, same length),
+#: but not "GPA" -> "PA" (0.8, a letter more).
+SUGGESTION_CUTOFF = 0.8
+_entry_points_loaded = False
+
+
+def load_plugins(modules: Iterable[str] = ()) -> None:
+    """Import the plugin modules of the entry-point group (once per process), then ``modules``.
+
+    Importing a plugin module registers its entries. A ``module:function`` entry point is imported and its
+    function called with no argument.
+
+    Raises
+    ------
+    ImportError
+        When one of ``modules``, or an entry point of this package, cannot be imported. A third-party entry point
+        that fails is a warning (a broken plugin must not stop the toolkit).
+    """
+    global _entry_points_loaded
+    if not _entry_points_loaded:
+        _entry_points_loaded = True
+        from importlib import metadata
+
+        for entry_point in metadata.entry_points(group=ENTRY_POINT_GROUP):
+            distribution = getattr(entry_point.dist, "name", None) or "unknown"
+            try:
+                _import_plugin(entry_point.value)
+            except Exception as error:
+                if distribution.replace("_", "-") == "vpr-uncertainty":
+                    raise
+                warnings.warn(
+                    f"plugin {entry_point.name!r} of {distribution} could not be loaded and is left out: {error}",
+                    stacklevel=2,
+                )
+    for module in modules:
+        try:
+            _import_plugin(module)
+        except ModuleNotFoundError as error:
+            if error.name and module.startswith(error.name):
+                raise ImportError(f"plugin module {module!r} not found (is it on the Python path?)") from None
+            raise
+
+
+def _import_plugin(target: str) -> None:
+    module_name, _, function = target.partition(":")
+    module = importlib.import_module(module_name.strip())
+    if function:
+        getattr(module, function.strip())()
 
 
 def missing_extra_message(what: str, module: str | None, extra: str | None) -> str:
@@ -136,7 +194,14 @@ class Registry(Generic[T]):
         key = self._aliases.get(key, key)
         if key in self._entries:
             return key
-        close = difflib.get_close_matches(key, [*self._entries, *self._aliases], n=1, cutoff=0.6)
+        if not _entry_points_loaded:
+            load_plugins()
+            return self._key(name)
+        close = [
+            known
+            for known in difflib.get_close_matches(key, [*self._entries, *self._aliases], n=1, cutoff=SUGGESTION_CUTOFF)
+            if len(known) == len(key) or difflib.SequenceMatcher(None, key, known).ratio() > SUGGESTION_CUTOFF
+        ]
         close = close or [known for known in self._entries if known.lower() == key.lower()]
         hint = ""
         if close:

@@ -18,8 +18,8 @@ from vpr_uncertainty.commands._arguments import (
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 from vpr_uncertainty.commands._evaluate_inputs import add_input_options, read_inputs
 from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args, executor_options
-from vpr_uncertainty.evaluation import DEFAULT_METHODS, evaluate
-from vpr_uncertainty.methods import available_methods, get_method, split_method_list
+from vpr_uncertainty.evaluation import evaluate
+from vpr_uncertainty.methods import available_methods, default_method_names, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
 from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K
 
@@ -92,7 +92,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--methods",
         type=method_list,
         help=f"comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided "
-        f"(default {','.join(DEFAULT_METHODS)}, plus SUE when SCORES holds metric positions; as run and demo)",
+        f"(default {','.join(default_method_names())}, plus SUE when SCORES holds metric positions; as run and demo)",
     )
     parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
     add_input_options(parser)

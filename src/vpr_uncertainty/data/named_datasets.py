@@ -28,12 +28,11 @@ import numpy as np
 
 from vpr_uncertainty.data.dataset import Dataset, PositionKind, _line_coordinate
 from vpr_uncertainty.data.folder import load_folder_dataset
-from vpr_uncertainty.data.formats import DATASET_FORMAT_REGISTRY, detect_format, has_split, read_format
+from vpr_uncertainty.data.formats import detect_format, has_split, read_format
 from vpr_uncertainty.data.positives import positives_within_frames
 from vpr_uncertainty.plugins import Registry
 
 __all__ = [
-    "DATASET_FORMATS",
     "DATA_ROOT_VARIABLE",
     "NAMED_DATASETS",
     "NAMED_DATASET_REGISTRY",
@@ -49,7 +48,6 @@ __all__ = [
 DATA_ROOT_VARIABLE = "VPR_UNCERTAINTY_DATA"
 #: Names of the formats :func:`load_dataset` reads (at import; the registry is
 #: :data:`~vpr_uncertainty.data.formats.DATASET_FORMAT_REGISTRY`).
-DATASET_FORMATS: tuple[str, ...] = tuple(DATASET_FORMAT_REGISTRY.names())
 
 
 @dataclass(frozen=True)

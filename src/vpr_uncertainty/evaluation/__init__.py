@@ -28,7 +28,7 @@ The metrics live in :mod:`~vpr_uncertainty.evaluation.metrics`, the result types
 here.
 """
 
-from vpr_uncertainty.evaluation._evaluate import DEFAULT_METHODS, RECALL_LEVELS, evaluate, time_per_query
+from vpr_uncertainty.evaluation._evaluate import RECALL_LEVELS, evaluate, time_per_query
 from vpr_uncertainty.evaluation._notes import FewerCandidatesWarning
 from vpr_uncertainty.evaluation.metrics import (
     RECALL_NS,
@@ -46,7 +46,6 @@ from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 from vpr_uncertainty.evaluation.threshold import ThresholdChoice, threshold_at_precision
 
 __all__ = [
-    "DEFAULT_METHODS",
     "RECALL_LEVELS",
     "RECALL_NS",
     "Evaluation",

@@ -31,18 +31,16 @@ from vpr_uncertainty.evaluation.timing import LATENCY_KINDS, latency_batch1, tim
 from vpr_uncertainty.methods import (
     DetailedUncertainty,
     OwnRetrievalUncertainty,
-    available_methods,
     check_options,
+    default_method_names,
     get_method,
 )
 
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["DEFAULT_METHODS", "RECALL_LEVELS", "evaluate", "time_per_query"]
+__all__ = ["RECALL_LEVELS", "evaluate", "time_per_query"]
 
-#: The methods evaluated when none are named: the registered entries declared ``default=True``.
-DEFAULT_METHODS: tuple[str, ...] = tuple(available_methods(default=True))
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
 
 
@@ -70,7 +68,7 @@ def time_per_query(
 
 def evaluate(
     retrieval: Retrieval,
-    methods: Sequence[str] = DEFAULT_METHODS,
+    methods: Sequence[str] | None = None,
     *,
     k: int = 10,
     alpha: float = 0.5,
@@ -88,8 +86,9 @@ def evaluate(
     ----------
     retrieval : Retrieval
         Top-k retrieval with its ground truth (``retrieval.positives``).
-    methods : sequence of str
-        Registered method names (see :func:`vpr_uncertainty.available_methods`).
+    methods : sequence of str, optional
+        Registered method names (see :func:`vpr_uncertainty.available_methods`); by default the registry's default
+        entries at call time (:func:`~vpr_uncertainty.methods.default_method_names`), plugins included.
     k, alpha : int, float
         Options of the score-based methods (k candidates, weight α of SU). When the retrieval holds fewer than
         k candidates per query, the methods use those it has: a :class:`FewerCandidatesWarning` and a note say
@@ -128,6 +127,8 @@ def evaluate(
         )
     if retrieval.n_queries == 0:
         raise ValueError("the retrieval has no queries")
+    if methods is None:
+        methods = default_method_names()
     if not methods:
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work

@@ -17,7 +17,7 @@ import numpy as np
 
 from vpr_uncertainty.method_specs import split_method_list, typed_option
 from vpr_uncertainty.methods.returns import DetailedUncertainty, OwnRetrievalUncertainty
-from vpr_uncertainty.plugins import Registry, load_target
+from vpr_uncertainty.plugins import Registry, load_plugins, load_target
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
@@ -351,6 +351,7 @@ def available_methods(**attributes: Any) -> list[str]:
     >>> available_methods(kind="geometric")[:2]
     ['GV-SIFT', 'GV-DISK-LG']
     """
+    load_plugins()
     return METHODS.names(**attributes)
 
 

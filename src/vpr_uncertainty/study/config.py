@@ -16,8 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.evaluation import DEFAULT_METHODS
-from vpr_uncertainty.methods import get_method, split_method_list
+from vpr_uncertainty.methods import default_method_names, get_method, split_method_list
 from vpr_uncertainty.study.bootstrap_config import bootstrap_settings
 from vpr_uncertainty.study.config_file import read_mapping
 from vpr_uncertainty.study.heldout import calibration_option, full_query_methods, runs_cal
@@ -110,7 +109,7 @@ class GridConfig:
 
     out: Path
     inputs: list[InputEntry]
-    methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
+    methods: list[str] = field(default_factory=default_method_names)
     k: int = 10
     alpha: float = 0.5
     alphas: list[float] = field(default_factory=lambda: list(DEFAULT_ALPHAS))
@@ -159,7 +158,7 @@ def _numbers(data: dict, key: str, default: Any, kind: type, problems: list[str]
 
 def _methods(data: dict, problems: list[str]) -> list[str]:
     """The method specs of ``methods`` (a list, or one comma-separated string), each checked."""
-    raw = data.get("methods", list(DEFAULT_METHODS))
+    raw = data.get("methods") or default_method_names()
     try:
         specs = split_method_list(raw) if isinstance(raw, str) else raw
     except ValueError as error:
