@@ -24,7 +24,7 @@ from pathlib import Path
 
 from bench_geometric import resized_copies
 from vpr_uncertainty.executors import get_executor
-from vpr_uncertainty.stages.descriptors import DescriptorsConfig, extract
+from vpr_uncertainty.pipeline.extract import ExtractConf, extract
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -48,9 +48,7 @@ def corridor_images(data: Path) -> dict:
 def timed_extraction(images: dict, batch_size: int, executor=None) -> float:
     with tempfile.TemporaryDirectory() as folder:
         start = time.perf_counter()
-        extract(
-            DescriptorsConfig(batch_size=batch_size, progress=False), images, Path(folder) / "d.h5", executor=executor
-        )
+        extract(ExtractConf(batch_size=batch_size, progress=False), images, Path(folder) / "d.h5", executor=executor)
         return time.perf_counter() - start
 
 
@@ -59,9 +57,9 @@ def startup_seconds(images: dict, batch_size: int) -> tuple[float, float]:
     import ray
 
     from vpr_uncertainty.descriptors import extract_descriptors
-    from vpr_uncertainty.stages.descriptors import model_of
+    from vpr_uncertainty.pipeline.extract import model_of
 
-    conf = DescriptorsConfig(batch_size=batch_size, progress=False)
+    conf = ExtractConf(batch_size=batch_size, progress=False)
     model = model_of(conf)  # the driver's model, loaded before the clock starts
     paths, names = images["database"]
     start = time.perf_counter()

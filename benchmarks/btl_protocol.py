@@ -37,8 +37,8 @@ from vpr_uncertainty.calibration.heldout import subset_queries
 from vpr_uncertainty.data.attach import attach_ground_truth
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import evaluate
+from vpr_uncertainty.pipeline.extract import ExtractConf, extract
 from vpr_uncertainty.retrieval import retrieve
-from vpr_uncertainty.stages.descriptors import DescriptorsConfig, extract
 
 MODEL = "efficientnet-lite0-gem"
 BASELINES = ["SU", "BM"]
@@ -50,7 +50,7 @@ def corridor_inputs(corridor: Path, work: Path) -> dict:
     for split, folder in (("database", "ref"), ("queries", "query")):
         paths = sorted((corridor / folder).glob("*.jpg"))
         images[split] = (paths, [path.name for path in paths])
-    result = extract(DescriptorsConfig(model=MODEL, batch_size=32, progress=False), images, work / "descriptors.h5")
+    result = extract(ExtractConf(model=MODEL, batch_size=32, progress=False), images, work / "descriptors.h5")
     positives = load_vprbench_ground_truth(corridor / "ground_truth_new.npy", n_database=len(images["database"][0]))
     retrieval = attach_ground_truth(
         retrieve(result.descriptors["database"], result.descriptors["queries"], k=10),

@@ -114,7 +114,7 @@ def netvlad_grid(tmp_path: Path, corridor_dir: Path, corridor_matches_dir: Path)
 
 
 def _cells(config_path: Path, out: str = "out"):
-    from vpr_uncertainty.study import load_config, run_grid
+    from vpr_uncertainty.pipeline.grid import load_config, run_grid
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -232,7 +232,7 @@ def test_a_large_results_file_edited_in_the_middle_is_seen_by_its_change_time(ne
 def test_verify_hashes_every_byte_of_a_large_results_file(netvlad_grid, large_files, monkeypatch):
     """On a filesystem whose change time does not tell (simulated), a plain rerun trusts the documented cheap key;
     ``reproduce --verify`` hashes every byte and recomputes."""
-    from vpr_uncertainty.study import load_config, run_grid
+    from vpr_uncertainty.pipeline.grid import load_config, run_grid
 
     monkeypatch.setattr(cache, "_change_time", lambda stat: 0)
     config = netvlad_grid()

@@ -50,7 +50,7 @@ def _hloc_file(path: Path, rows: dict[str, np.ndarray]) -> Path:
 def _retrieve(tmp_path: Path, database: Path, queries: Path, capsys) -> tuple[int, str]:
     pytest.importorskip("faiss")
     out = tmp_path / "r.npz"
-    code = main(["retrieve", "--database", str(database), "--queries", str(queries), "--out", str(out), "--k", "2"])
+    code = main(["retrieve", "--database", str(database), "--queries", str(queries), "--out", str(out), "--top-k", "2"])
     return code, capsys.readouterr().err
 
 
@@ -81,7 +81,7 @@ def test_row7_hidden_files_are_not_images_and_an_extra_image_is_refused(tmp_path
 @pytest.mark.realdata
 def test_row8_reproduce_refuses_images_that_do_not_match_the_matrix(tmp_path, corridor_dir, corridor_matches_dir):
     """Before: GV-SIFT verified query i against ``ref/`` image j + 1 (AUC-PR 0.874 -> another number, exit 0)."""
-    from vpr_uncertainty.study import load_config, run_grid
+    from vpr_uncertainty.pipeline.grid import load_config, run_grid
 
     images = _corridor_copy(corridor_dir, tmp_path / "images")
     shutil.copy(images / "ref" / "0000005.jpg", images / "ref" / "000000.jpg")  # one more reference image, first

@@ -23,7 +23,7 @@ ray = pytest.importorskip("ray")
 
 from conftest import results_numbers  # noqa: E402
 from vpr_uncertainty.executors import get_executor  # noqa: E402
-from vpr_uncertainty.study import load_config, run_grid, write_results  # noqa: E402
+from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_results  # noqa: E402
 
 pytestmark = [pytest.mark.realdata, pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")]
 

@@ -359,10 +359,10 @@ def test_btl_method_errors_are_clear(trained, tmp_path):
 
 
 def _run_cli(argv: list[str]) -> int:
-    from vpr_uncertainty.commands import train_btl
+    from vpr_uncertainty.pipeline import train_btl
 
     parser = argparse.ArgumentParser(prog="vpr-uncertainty")
-    train_btl.add_parser(parser.add_subparsers(dest="command", required=True))
+    train_btl.add_cli(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
     return args.handler(args)
 

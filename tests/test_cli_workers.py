@@ -1,8 +1,8 @@
 """``--workers N``: one name for "how many parallel workers" on run, extract, reproduce and evaluate.
 
 With ``--executor ray`` it is the number of Ray workers given to the executor; with ``--executor local`` it keeps
-its local meaning (image decoding threads of run/extract) or is refused (reproduce, evaluate). ``--ray-workers``
-is its deprecated alias. No Ray cluster is started here: ``get_executor`` is replaced by a recorder.
+its local meaning (image decoding threads of run/extract) or is refused (reproduce, evaluate). ``--ray-workers``,
+its former name, is refused. No Ray cluster is started here: ``get_executor`` is replaced by a recorder.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from vpr_uncertainty.cli import build_parser, main
-from vpr_uncertainty.commands._executor import executor_options, local_workers
+from vpr_uncertainty.pipeline.options import executor_options, local_workers
 
 _REQUIRED = {
     "run": ["--dataset", "d", "--out", "o"],
@@ -77,11 +77,11 @@ def test_workers_stay_the_decoding_threads_with_the_local_executor(command):
 def test_run_gives_the_workers_to_ray_and_no_decoding_threads(tmp_path, monkeypatch, seen):
     configs = []
 
-    def fake_run(config, executor=None):
-        configs.append((config.num_workers, executor.name))
+    def fake_run(conf, dataset, out, executor=None):
+        configs.append((conf.extract.workers, executor.name))
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("vpr_uncertainty.pipeline.run", fake_run)
+    monkeypatch.setattr("vpr_uncertainty.pipeline.run.run", fake_run)
     assert main(["run", "--dataset", "d", "--out", str(tmp_path), "--executor", "ray", "--workers", "2"]) == 130
     assert seen == {"name": "ray", "address": None, "workers": 2, "gpus_per_worker": 0.0, "connect_timeout": 30.0}
     assert configs == [(None, "ray")]
@@ -90,40 +90,21 @@ def test_run_gives_the_workers_to_ray_and_no_decoding_threads(tmp_path, monkeypa
 def test_run_keeps_the_decoding_threads_with_the_local_executor(tmp_path, monkeypatch, seen):
     configs = []
 
-    def fake_run(config):
-        configs.append(config.num_workers)
+    def fake_run(conf, dataset, out, executor=None):
+        configs.append(conf.extract.workers)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("vpr_uncertainty.pipeline.run", fake_run)
+    monkeypatch.setattr("vpr_uncertainty.pipeline.run.run", fake_run)
     assert main(["run", "--dataset", "d", "--out", str(tmp_path), "--workers", "2"]) == 130
     assert seen == {"name": "local"}
     assert configs == [2]
 
 
 @pytest.mark.parametrize("command", _COMMANDS)
-def test_ray_workers_is_a_deprecated_alias(command, capsys):
-    args = _parse(command, "--executor", "ray", "--ray-workers", "3")
-    assert executor_options(args)["workers"] == 3
-    assert "note: --ray-workers is deprecated; use --workers" in capsys.readouterr().err
-    same = _parse(command, "--executor", "ray", "--ray-workers", "3", "--workers", "3")
-    assert executor_options(same)["workers"] == 3  # the same value twice is no conflict
-    with pytest.raises(SystemExit):
-        build_parser().parse_args([command, "--help"])
-    assert "--ray-workers N" not in capsys.readouterr().out  # hidden: only named in --workers' help
-
-
-@pytest.mark.parametrize("command", _COMMANDS)
-def test_conflicting_workers_and_ray_workers_are_refused(command):
-    args = _parse(command, "--executor", "ray", "--workers", "2", "--ray-workers", "3")
-    with pytest.raises(ValueError, match="--workers 2 and --ray-workers 3 disagree"):
-        executor_options(args)
-
-
-def test_conflict_is_refused_by_the_command_before_any_work(tmp_path, capsys, seen):
-    argv = ["run", "--dataset", "d", "--out", str(tmp_path), "--executor", "ray", "--workers", "2"]
-    assert main([*argv, "--ray-workers", "3"]) == 2
-    assert "--workers 2 and --ray-workers 3 disagree" in capsys.readouterr().err
-    assert not seen  # no executor started
+def test_the_former_ray_workers_flag_is_refused(command, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        _parse(command, "--executor", "ray", "--ray-workers", "3")
+    assert exit_.value.code == 2 and "unrecognized arguments: --ray-workers" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("command", ["reproduce", "evaluate"])
@@ -133,9 +114,9 @@ def test_workers_without_a_local_meaning_are_refused_with_the_local_executor(com
 
 
 @pytest.mark.parametrize("command", _COMMANDS)
-def test_the_former_name_and_the_ray_only_options_are_refused_with_the_local_executor(command):
-    with pytest.raises(ValueError, match="--address, --ray-workers, --gpus-per-worker: only with --executor ray"):
-        executor_options(_parse(command, "--address", "auto", "--ray-workers", "2", "--gpus-per-worker", "1"))
+def test_the_ray_only_options_are_refused_with_the_local_executor(command):
+    with pytest.raises(ValueError, match="--address, --gpus-per-worker: only with --executor ray"):
+        executor_options(_parse(command, "--address", "auto", "--gpus-per-worker", "1"))
 
 
 @pytest.mark.parametrize("command", _COMMANDS)
@@ -153,11 +134,6 @@ def test_help_explains_both_meanings(command, capsys):
     assert "With --executor local:" in text
     local = "image decoding threads" if command in ("run", "extract") else "it is refused"
     assert local in text.split("With --executor local:")[1].split("--gpus-per-worker")[0]
-    assert "--ray-workers, its former name" in text
-
-
-def test_num_workers_alias_stays_with_the_decoding_threads():
-    assert local_workers(_parse("extract", "--num_workers", "3")) == 3
 
 
 def test_evaluate_on_ray_without_geometric_verification_is_refused_before_ray_starts(

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.cli import main
-from vpr_uncertainty.commands._arguments import command_wording
+from vpr_uncertainty.pipeline.options import command_wording
 from vpr_uncertainty.retrieval import read_results
 
 

@@ -151,10 +151,10 @@ def test_bad_position_files(tmp_path: Path) -> None:
 
 
 def run_command(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
-    from vpr_uncertainty.commands import datasets
+    from vpr_uncertainty.pipeline import datasets
 
     parser = argparse.ArgumentParser(prog="vpr-uncertainty")
-    datasets.add_parser(parser.add_subparsers(dest="command"))
+    datasets.add_cli(parser.add_subparsers(dest="command"))
     args = parser.parse_args(argv)
     assert args.handler(args) == 0
     return capsys.readouterr().out

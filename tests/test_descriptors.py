@@ -23,7 +23,6 @@ from conftest import assert_close
 torch = pytest.importorskip("torch")
 Image = pytest.importorskip("PIL.Image")
 
-from vpr_uncertainty.commands import extract as extract_command  # noqa: E402
 from vpr_uncertainty.descriptors import (  # noqa: E402
     ImageDecodeError,
     Preprocessing,
@@ -33,6 +32,7 @@ from vpr_uncertainty.descriptors import (  # noqa: E402
     read_descriptors,
 )
 from vpr_uncertainty.descriptors.models import from_callable  # noqa: E402
+from vpr_uncertainty.pipeline import extract as extract_command  # noqa: E402
 
 
 class CountingModel:
@@ -397,7 +397,7 @@ def test_preprocessing_validation_and_sizes():
 
 def test_package_import_does_not_import_torch():
     code = (
-        "import sys, vpr_uncertainty.descriptors, vpr_uncertainty.commands.extract\n"
+        "import sys, vpr_uncertainty.descriptors, vpr_uncertainty.pipeline.extract\n"
         "vpr_uncertainty.descriptors.available_models()\n"
         "assert 'torch' not in sys.modules, 'torch imported'"
     )
@@ -419,7 +419,7 @@ def make_dataset(root: Path, database: str, queries: str, images: list[Path]) ->
 
 def run_cli(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="vpr-uncertainty")
-    extract_command.add_parser(parser.add_subparsers(dest="command", required=True))
+    extract_command.add_cli(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
     return args.handler(args)
 

@@ -21,7 +21,7 @@ ray = pytest.importorskip("ray")
 from vpr_uncertainty.descriptors import extract_descriptors  # noqa: E402
 from vpr_uncertainty.descriptors.cache import cache_info, read_descriptors  # noqa: E402
 from vpr_uncertainty.descriptors.images import ImageDecodeError  # noqa: E402
-from vpr_uncertainty.stages.descriptors import DescriptorsConfig, extract, model_of  # noqa: E402
+from vpr_uncertainty.pipeline.extract import ExtractConf, extract, model_of  # noqa: E402
 
 N_IMAGES = 12
 
@@ -38,7 +38,7 @@ def images(corridor_dir: Path) -> dict:
 @pytest.fixture(scope="module")
 def local(images, tmp_path_factory):
     path = tmp_path_factory.mktemp("local") / "descriptors.h5"
-    return path, extract(DescriptorsConfig(batch_size=4, progress=False), images, path)
+    return path, extract(ExtractConf(batch_size=4, progress=False), images, path)
 
 
 def _fingerprint(path: Path) -> str:
@@ -49,7 +49,7 @@ def _fingerprint(path: Path) -> str:
 def test_ray_extraction_writes_the_local_artefact(ray_executor, images, local, tmp_path):
     local_path, expected = local
     path = tmp_path / "descriptors.h5"
-    result = extract(DescriptorsConfig(batch_size=4, progress=False), images, path, executor=ray_executor)
+    result = extract(ExtractConf(batch_size=4, progress=False), images, path, executor=ray_executor)
     assert _fingerprint(path) == _fingerprint(local_path)
     for split in ("database", "queries"):
         names, descriptors = result.split(split)
@@ -65,7 +65,7 @@ def test_ray_extraction_resumes_and_sends_only_missing_images(ray_executor, imag
     _, expected = local
     paths, names = images["database"]
     path = tmp_path / "descriptors.h5"
-    model = model_of(DescriptorsConfig())
+    model = model_of(ExtractConf())
     extract_descriptors(model, paths[:5], names[:5], path, "database", batch_size=4, progress=False)
     sent: list[str] = []
     kept, descriptors = extract_descriptors(
@@ -101,7 +101,7 @@ def test_a_killed_worker_loses_no_image(ray_executor, images, local, tmp_path):
     marker = tmp_path / "killed"
     written: list[str] = []
     kept, descriptors = extract_descriptors(
-        _dying(model_of(DescriptorsConfig()), marker),
+        _dying(model_of(ExtractConf()), marker),
         paths,
         names,
         tmp_path / "d.h5",
@@ -136,7 +136,7 @@ def unusable(images, tmp_path):
 
 def test_unusable_images_are_skipped_and_recorded_as_locally(ray_executor, unusable, tmp_path):
     """on_error="skip": the same kept images, descriptors and ``failed`` attribute as the local run."""
-    model = model_of(DescriptorsConfig())
+    model = model_of(ExtractConf())
     results = {}
     for name, run_on in (("local", None), ("ray", ray_executor)):
         path = tmp_path / f"{name}.h5"
@@ -161,7 +161,7 @@ def test_unusable_images_are_skipped_and_recorded_as_locally(ray_executor, unusa
 
 def test_an_unusable_image_fails_as_locally(ray_executor, unusable, tmp_path):
     """on_error="fail": the same error (the first unusable image) and the same batches kept as the local run."""
-    model = model_of(DescriptorsConfig())
+    model = model_of(ExtractConf())
     paths = unusable[1:]  # the first unusable image is now the one with the non-UTF-8 name, in the second batch
     errors, counts = [], []
     for name, run_on in (("local", None), ("ray", ray_executor)):
@@ -182,7 +182,7 @@ def test_a_batch_that_always_kills_its_worker_stops_the_run(ray_executor, images
     paths, names = images["database"]
     with pytest.raises(distributed.WorkerDiedError, match=r"killed its Ray worker 2 times.*run again to resume"):
         extract_descriptors(
-            _dying(model_of(DescriptorsConfig()), None),
+            _dying(model_of(ExtractConf()), None),
             paths[:4],
             names[:4],
             tmp_path / "d.h5",

@@ -17,7 +17,7 @@ import pytest
 
 from conftest import results_numbers
 from vpr_uncertainty.executors import LocalExecutor, get_executor, import_ray
-from vpr_uncertainty.study import load_config, run_grid, write_results
+from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_results
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
 

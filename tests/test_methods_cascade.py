@@ -164,7 +164,7 @@ def test_sift_cascade_on_the_corridor(corridor_dir, corridor_matches_dir):
 
 
 def _config(tmp_path, corridor_matches_dir, corridor_dir, *lines: str):
-    from vpr_uncertainty.study import load_config
+    from vpr_uncertainty.pipeline.grid import load_config
 
     path = tmp_path / "grid.toml"
     path.write_text(
@@ -209,10 +209,10 @@ def test_reproduce_config_takes_verify_fraction_for_a_cascade_only(tmp_path, cor
 def test_verify_fraction_flag_is_checked():
     import argparse
 
-    from vpr_uncertainty.commands import evaluate as evaluate_command
+    from vpr_uncertainty.pipeline import evaluate as evaluate_command
 
     parser = argparse.ArgumentParser()
-    evaluate_command.add_parser(parser.add_subparsers())
+    evaluate_command.add_cli(parser.add_subparsers())
     args = parser.parse_args(["evaluate", "x.npz", "--verify-fraction", "0.4", "--methods", "SU+GV-SIFT"])
     assert args.verify_fraction == 0.4 and args.methods == ["SU+GV-SIFT"]
     with pytest.raises(SystemExit):

@@ -100,7 +100,10 @@ def test_download_verifies_checksums(tmp_path, corridor_dir, monkeypatch):
 
 def test_cuda_extraction_searches_on_cpu_without_gpu_faiss(monkeypatch, tmp_path, corridor_dir, capsys):
     """Regression: --device cuda was passed on to faiss-cpu, which rejects it."""
-    from vpr_uncertainty import pipeline, retrieval
+    from vpr_uncertainty import retrieval
+    from vpr_uncertainty.pipeline.evaluate import EvaluateConf
+    from vpr_uncertainty.pipeline.extract import ExtractConf
+    from vpr_uncertainty.pipeline.run import RunConf, run
 
     seen = {}
     real_retrieve = retrieval.retrieve
@@ -121,7 +124,8 @@ def test_cuda_extraction_searches_on_cpu_without_gpu_faiss(monkeypatch, tmp_path
     monkeypatch.setattr(retrieval, "faiss_gpu_available", lambda: False)
     monkeypatch.setattr(extract, "extract_descriptors", fake_extract)
     monkeypatch.setattr(models, "load_model", lambda name, device: type("M", (), {"name": name})())
-    result = pipeline.run(pipeline.RunConfig(dataset=corridor_dir, out=tmp_path / "run", device="cuda", methods=["SU"]))
+    conf = RunConf(extract=ExtractConf(device="cuda"), evaluate=EvaluateConf(methods=["SU"]))
+    result = run(conf, corridor_dir, tmp_path / "run")
     assert seen == {"device": "cpu", "extraction_devices": ["cuda", "cuda"]}
     assert capsys.readouterr().out == ""  # the library prints nothing: the note is returned for the command
     assert any("searching on the CPU" in note for note in result.notes)

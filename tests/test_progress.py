@@ -97,9 +97,9 @@ def test_progress_flags_before_or_after_the_command(tmp_path, capsys, before, af
 
 
 def test_every_command_takes_the_progress_flags():
-    from vpr_uncertainty.cli import COMMANDS, build_parser
+    from vpr_uncertainty.cli import build_parser, command_names
 
     parser = build_parser()
     commands = next(action for action in parser._actions if action.dest == "command").choices
-    for name in COMMANDS:
+    for name in command_names():
         assert {"--progress", "--no-progress"} <= set(commands[name]._option_string_actions), name

@@ -109,9 +109,9 @@ def test_exceptions_map_to_one_line_and_exit_status(monkeypatch, capsys, error, 
     def handler(args):
         raise error
 
-    from vpr_uncertainty.commands import datasets
+    from vpr_uncertainty.pipeline import datasets
 
-    monkeypatch.setattr(datasets, "_run_datasets", handler)
+    monkeypatch.setattr(datasets, "_handle", handler)
     assert main(["datasets"]) == status
     err = capsys.readouterr().err
     line = assert_one_line(err, "vpr-uncertainty datasets: ")
@@ -124,9 +124,9 @@ def test_exceptions_map_to_one_line_and_exit_status(monkeypatch, capsys, error, 
 
 
 def test_unexpected_error_is_a_bug_with_its_traceback(monkeypatch, capsys):
-    from vpr_uncertainty.commands import datasets
+    from vpr_uncertainty.pipeline import datasets
 
-    monkeypatch.setattr(datasets, "_run_datasets", lambda args: None.shape)
+    monkeypatch.setattr(datasets, "_handle", lambda args: None.shape)
     assert main(["datasets"]) == 1
     err = capsys.readouterr().err
     assert "Traceback" in err and err.strip().splitlines()[-1].startswith("vpr-uncertainty datasets: internal error")
@@ -134,12 +134,12 @@ def test_unexpected_error_is_a_bug_with_its_traceback(monkeypatch, capsys):
 
 @pytest.mark.parametrize("how", ["flag", "environment"])
 def test_debug_shows_the_traceback_and_keeps_the_status(monkeypatch, capsys, how):
-    from vpr_uncertainty.commands import datasets
+    from vpr_uncertainty.pipeline import datasets
 
     def handler(args):
         raise ValueError("bad value")
 
-    monkeypatch.setattr(datasets, "_run_datasets", handler)
+    monkeypatch.setattr(datasets, "_handle", handler)
     argv = ["datasets"]
     if how == "flag":
         argv.insert(0, "--debug")
@@ -213,7 +213,7 @@ def test_bogus_device_is_a_usage_error(capsys, command):
 
 @pytest.mark.parametrize("device", ["cpu", "cuda", "cuda:1", "mps"])
 def test_device_names_accepted(device):
-    from vpr_uncertainty.commands._arguments import device_name
+    from vpr_uncertainty.pipeline.options import device_name
 
     assert device_name(device) == device
 
@@ -417,7 +417,7 @@ def test_interrupted_retrieval_write_keeps_the_previous_file(tmp_path, monkeypat
 
 
 def test_reproduce_recomputes_a_cell_whose_arrays_were_cut_short(tmp_path):
-    from vpr_uncertainty.study.runner import load_cell
+    from vpr_uncertainty.pipeline.grid import load_cell
 
     json_path, npz_path = tmp_path / "cell.json", tmp_path / "cell.npz"
     json_path.write_text(json.dumps({"fingerprint": "abc"}))

@@ -209,7 +209,10 @@ def _folder_dataset(root: Path) -> Path:
 @pytest.mark.filterwarnings("ignore:AUC-PR and AP are undefined")
 def test_run_skip_reports_every_image_left_out_and_fail_names_it(tmp_path, monkeypatch):
     """Regression: an unreadable sub-folder silently dropped its queries and `run` exited 0 under fail."""
-    from vpr_uncertainty import descriptors, pipeline
+    from vpr_uncertainty import descriptors
+    from vpr_uncertainty.pipeline.evaluate import EvaluateConf
+    from vpr_uncertainty.pipeline.extract import ExtractConf
+    from vpr_uncertainty.pipeline.run import RunConf, run
 
     root = _folder_dataset(tmp_path / "dataset")
     _unreadable(root / "queries" / "locked", monkeypatch)
@@ -218,9 +221,13 @@ def test_run_skip_reports_every_image_left_out_and_fail_names_it(tmp_path, monke
         dataset = load_folder_dataset(root)
         assert dataset.n_queries == 5 and [Path(item["path"]).name for item in dataset.unlisted] == ["locked"]
         with pytest.raises(ImageListingError, match=r"locked \(cannot read the folder"):
-            pipeline.run(pipeline.RunConfig(dataset=root, out=tmp_path / "fail", methods=["SU"], k=2))
+            run(RunConf(evaluate=EvaluateConf(methods=["SU"], k=2)), root, tmp_path / "fail")
         with pytest.warns(UserWarning) as caught:
-            pipeline.run(pipeline.RunConfig(dataset=root, out=tmp_path / "run", methods=["SU"], k=2, on_error="skip"))
+            run(
+                RunConf(extract=ExtractConf(on_error="skip"), evaluate=EvaluateConf(methods=["SU"], k=2)),
+                root,
+                tmp_path / "run",
+            )
     finally:
         (root / "queries" / "locked").chmod(0o755)
     messages = " | ".join(str(w.message) for w in caught)

@@ -14,23 +14,23 @@ from scipy import sparse
 
 from vpr_uncertainty import evaluate
 from vpr_uncertainty.cli import main
-from vpr_uncertainty.commands import reproduce as reproduce_command
-from vpr_uncertainty.commands.evaluate import method_list
 from vpr_uncertainty.methods import get_method, parse_method_spec, split_method_list
+from vpr_uncertainty.pipeline import grid as reproduce_command
+from vpr_uncertainty.pipeline.evaluate import method_list
+from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_results
 from vpr_uncertainty.retrieval import Retrieval, save_retrieval
 from vpr_uncertainty.spatial import spatial_uncertainty
-from vpr_uncertainty.study import load_config, run_grid, write_results
 
 
 def _reproduce(argv: list[str]) -> int:
     parser = argparse.ArgumentParser()
-    reproduce_command.add_parser(parser.add_subparsers())
+    reproduce_command.add_cli(parser.add_subparsers())
     args = parser.parse_args(["reproduce", *argv])
     return args.handler(args)
 
 
 def _no_work(monkeypatch) -> None:
-    import vpr_uncertainty.study.runner as module
+    import vpr_uncertainty.pipeline.grid as module
 
     def fail(*args, **kwargs):
         raise AssertionError("work started before the configuration was checked")

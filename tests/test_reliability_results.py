@@ -132,7 +132,7 @@ def _grid_config(tmp_path: Path, matrix_path: Path, gt_path: Path, k: int, ks: l
 
 
 def test_reproduce_with_k_100_computes_k_100_and_keeps_every_k_of_the_ablation(tmp_path):
-    from vpr_uncertainty.study import load_config, run_grid, write_results
+    from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_results
 
     matrix_path, gt_path, similarity = _write_matrix(tmp_path)
     config = load_config(_grid_config(tmp_path, matrix_path, gt_path, 100, [10, 60, 100]))
@@ -149,7 +149,7 @@ def test_reproduce_with_k_100_computes_k_100_and_keeps_every_k_of_the_ablation(t
 
 
 def test_reproduce_notes_ks_left_out_when_a_retrieval_file_has_fewer_candidates(tmp_path):
-    from vpr_uncertainty.study import load_config, run_grid
+    from vpr_uncertainty.pipeline.grid import load_config, run_grid
 
     retrieval = _retrieval(n_queries=20, k=6, n_database=30)
     retrieval.positives = sparse.csr_array(np.eye(20, 30, dtype=bool))

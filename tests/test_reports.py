@@ -12,12 +12,12 @@ import pytest
 from scipy import sparse
 
 from conftest import assert_close
+from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports, write_results
 from vpr_uncertainty.reports.heatmaps import delta_matrix
 from vpr_uncertainty.reports.html import Section, embed_png, render_report
 from vpr_uncertainty.reports.qualitative import choose_queries
 from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_latex, table1_markdown
 from vpr_uncertainty.retrieval import Retrieval, save_retrieval
-from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 
 
 def _retrieval(seed: int, n_queries: int = 40, n_database: int = 60, k: int = 20) -> Retrieval:

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from scipy import sparse
 
-from vpr_uncertainty.commands import reproduce as reproduce_command
+from vpr_uncertainty.pipeline import grid as reproduce_command
+from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports
 from vpr_uncertainty.reports import REPORT_FIGURES, register_report_figure
 from vpr_uncertainty.reports.figures import parse_figure_spec
 from vpr_uncertainty.retrieval import Retrieval, save_retrieval
-from vpr_uncertainty.study import load_config, run_grid, write_reports
 
 
 def _retrieval(seed: int, n_queries: int = 30, n_database: int = 40, k: int = 10) -> Retrieval:
@@ -152,7 +152,7 @@ def test_registration_is_checked(tmp_path):
 def test_reproduce_command_without_table1(tmp_path, capsys):
     """The command printed table1.md unconditionally; with a report that has no Table 1 it must not fail."""
     parser = argparse.ArgumentParser()
-    reproduce_command.add_parser(parser.add_subparsers())
+    reproduce_command.add_cli(parser.add_subparsers())
     args = parser.parse_args(["reproduce", str(_grid(tmp_path, 'report = ["pr_curves"]'))])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

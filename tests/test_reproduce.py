@@ -19,7 +19,8 @@ from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
 from conftest import assert_close
 from vpr_uncertainty import evaluate
-from vpr_uncertainty.commands import reproduce as reproduce_command
+from vpr_uncertainty.pipeline import grid as reproduce_command
+from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports, write_results
 from vpr_uncertainty.reports.ablations import DPI as ABLATION_DPI
 from vpr_uncertainty.reports.ablations import ablation_figsize
 from vpr_uncertainty.reports.heatmaps import DPI as HEATMAP_DPI
@@ -27,7 +28,6 @@ from vpr_uncertainty.reports.heatmaps import heatmap_figsize
 from vpr_uncertainty.reports.qualitative import DPI as QUALITATIVE_DPI
 from vpr_uncertainty.reports.qualitative import qualitative_figsize
 from vpr_uncertainty.retrieval import read_results
-from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 
 METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]
 CHROMIUM = Path("/usr/bin/chromium")
@@ -39,7 +39,7 @@ def _ci() -> bool:
 
 def _main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser()
-    reproduce_command.add_parser(parser.add_subparsers())
+    reproduce_command.add_cli(parser.add_subparsers())
     args = parser.parse_args(["reproduce", *argv])
     return args.handler(args)
 
@@ -264,7 +264,7 @@ def test_missing_inputs_are_all_reported_before_any_work(tmp_path, corridor_matc
         f'[[inputs]]\nprecomputed_matches = "{corridor_matches_dir}"\nground_truth = "{tmp_path / "gt.npy"}"\n'
         f'[[inputs]]\nvpr_method = "x"\ndataset = "corridor"\nscores = "missing.npz"\n'
     )
-    import vpr_uncertainty.study.runner as module
+    import vpr_uncertainty.pipeline.grid as module
 
     def no_work(*args, **kwargs):
         raise AssertionError("work started before the configuration was validated")
@@ -285,7 +285,7 @@ def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_
     """An entry with dataset + model goes through pipeline.run (stubbed here: extraction is tested elsewhere)."""
     import types
 
-    import vpr_uncertainty.pipeline as pipeline
+    import vpr_uncertainty.pipeline.run as pipeline
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -295,9 +295,9 @@ def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_
         )
     calls = []
 
-    def fake_run(config):
-        calls.append(config)
-        evaluation = evaluate(retrieval, config.methods, k=config.k)
+    def fake_run(conf, dataset, out):
+        calls.append((conf, out))
+        evaluation = evaluate(retrieval, conf.evaluate.methods, k=conf.evaluate.k)
         return types.SimpleNamespace(retrieval=retrieval, evaluation=evaluation, stage_seconds={"extraction": 1.5})
 
     monkeypatch.setattr(pipeline, "run", fake_run)
@@ -311,9 +311,9 @@ def test_model_entry_runs_the_pipeline(tmp_path, corridor_dir, corridor_matches_
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert _main([str(config_path)]) == 0
-    (call,) = calls
-    assert call.model == "efficientnet-lite0-gem" and call.device == "cpu"
-    assert call.retrieval_k == 30 and call.out == tmp_path / "out" / "runs" / "efficientnet-lite0-gem__corridor"
+    ((call, out),) = calls
+    assert call.extract.model == "efficientnet-lite0-gem" and call.extract.device == "cpu"
+    assert call.retrieve.top_k == 30 and out == tmp_path / "out" / "runs" / "efficientnet-lite0-gem__corridor"
     cell = json.loads((tmp_path / "out" / "cells" / "efficientnet-lite0-gem__corridor.json").read_text())
     assert len(cell["query_paths"]) == 111 and cell["query_paths"][0].endswith("query/0000000.jpg")
     assert cell["cell"]["stage_seconds"]["pipeline_extraction"] == 1.5  # the pipeline's stages, per cell

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty import cli
-from vpr_uncertainty.commands import retrieve as retrieve_command
+from vpr_uncertainty.pipeline import retrieve as retrieve_command
 from vpr_uncertainty.retrieval import load_retrieval
 
 pytest.importorskip("faiss")
@@ -17,10 +17,10 @@ pytest.importorskip("faiss")
 
 def run_retrieve(argv: list[str], *, through_cli: bool = True) -> int:
     """Through the CLI when the command is wired (errors become exit status 2), else through its own parser."""
-    if through_cli and "retrieve" in cli.COMMANDS:
+    if through_cli:
         return cli.main(["retrieve", *argv])
     parser = argparse.ArgumentParser(prog="vpr-uncertainty")
-    retrieve_command.add_parser(parser.add_subparsers(dest="command", required=True))
+    retrieve_command.add_cli(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["retrieve", *argv])
     return args.handler(args)
 
@@ -84,7 +84,7 @@ def test_retrieve_then_evaluate_with_no_other_argument(problem, tmp_path, capsys
 
 def test_retrieve_without_positions_then_evaluate_asks_for_ground_truth(problem, tmp_path, capsys):
     out = tmp_path / "r.npz"
-    argv = ["--database", str(problem["db"]), "--queries", str(problem["q"]), "--out", str(out), "--k", "5"]
+    argv = ["--database", str(problem["db"]), "--queries", str(problem["q"]), "--out", str(out), "--top-k", "5"]
     assert run_retrieve([*argv, "--index", "HNSW16", "--search-params", "efSearch=64"]) == 0
     retrieval = load_retrieval(out)
     assert retrieval.k == 5 and retrieval.positives is None and retrieval.config["index"] == "HNSW16"
@@ -122,10 +122,8 @@ def test_retrieve_errors_are_clear(problem, tmp_path, extra, message):
 
 
 def test_retrieve_through_the_wired_cli(problem, tmp_path, monkeypatch, capsys):
-    if "retrieve" not in cli.COMMANDS:
-        monkeypatch.setattr(cli, "COMMANDS", (*cli.COMMANDS, "retrieve"))
     argv = ["retrieve", "--database", str(problem["db"]), "--queries", str(problem["q"])]
-    assert cli.main([*argv, "--out", str(tmp_path / "r.npz"), "--k", "3"]) == 0
+    assert cli.main([*argv, "--out", str(tmp_path / "r.npz"), "--top-k", "3"]) == 0
     assert load_retrieval(tmp_path / "r.npz").k == 3
     assert cli.main([*argv, "--out", str(tmp_path / "r.npz"), "--index", "Nonsense"]) == 2
     assert "index-factory" in capsys.readouterr().err
@@ -186,7 +184,9 @@ def test_retrieve_from_a_descriptor_cache(tmp_path, capsys):
             names = [f"{split}/{i:03d}.jpg" for i in range(count)]
             group.create_dataset("names", data=names, dtype=h5py.string_dtype())
     out = tmp_path / "r.npz"
-    assert cli.main(["retrieve", "--database", str(path), "--queries", str(path), "--out", str(out), "--k", "4"]) == 0
+    assert (
+        cli.main(["retrieve", "--database", str(path), "--queries", str(path), "--out", str(out), "--top-k", "4"]) == 0
+    )
     retrieval = load_retrieval(out)
     assert retrieval.query_names.tolist() == [f"queries/{i:03d}.jpg" for i in range(6)]
     assert retrieval.database_names[39] == "database/039.jpg" and retrieval.n_database == 40

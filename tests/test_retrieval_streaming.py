@@ -257,7 +257,7 @@ def test_the_retrieve_command_streams_a_npy_database(tmp_path, spy_blocks):
     queries = np.concatenate([rng.standard_normal((20, 16)), database[[5, 6]]]).astype(np.float32)
     np.save(tmp_path / "db.npy", database)
     np.save(tmp_path / "q.npy", queries)
-    common = ["retrieve", "--database", str(tmp_path / "db.npy"), "--queries", str(tmp_path / "q.npy"), "--k", "7"]
+    common = ["retrieve", "--database", str(tmp_path / "db.npy"), "--queries", str(tmp_path / "q.npy"), "--top-k", "7"]
     assert cli.main([*common, "--out", str(tmp_path / "streamed.npz"), "--database-block", "64"]) == 0
     # The fingerprint hashes the file in blocks of 64 MiB (here the whole file at once), then the search streams it.
     assert searches == [64] and reads[0] == (0, 400) and max(stop - start for start, stop in reads[1:]) == 64

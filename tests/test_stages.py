@@ -19,6 +19,8 @@ import pytest
 
 from conftest import assert_close
 from vpr_uncertainty.cache import CacheWarning
+from vpr_uncertainty.pipeline.evaluate import EvaluateConf
+from vpr_uncertainty.pipeline.extract import ExtractConf
 
 pytest.importorskip("torch")
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
@@ -54,11 +56,12 @@ def _use_tiny_model(tiny_model):
 
 
 def run(dataset: Path, out: Path):
-    from vpr_uncertainty.pipeline import RunConfig, run
+    from vpr_uncertainty.pipeline.run import RunConf, run
 
+    conf = RunConf(extract=ExtractConf(model=str(MODEL[0]), batch_size=64), evaluate=EvaluateConf(methods=["SU", "RS"]))
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", category=DeprecationWarning)  # torch.jit.load
-        return run(RunConfig(dataset=dataset, out=out, model=str(MODEL[0]), methods=["SU", "RS"], batch_size=64))
+        return run(conf, dataset, out)
 
 
 def forwarded(monkeypatch) -> list[int]:
@@ -202,14 +205,9 @@ def test_results_json_is_written_once_and_never_read_back(corridor_copy, tmp_pat
 def test_stages_compose_without_the_pipeline(corridor_copy, tmp_path):
     """The stage functions, composed by hand, give the pipeline's answer and return their artefacts' paths."""
     from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.stages import (
-        DescriptorsConfig,
-        RetrievalConfig,
-        UncertaintyConfig,
-        evaluate,
-        extract,
-        search,
-    )
+    from vpr_uncertainty.pipeline.evaluate import evaluate
+    from vpr_uncertainty.pipeline.extract import extract
+    from vpr_uncertainty.pipeline.retrieve import RetrieveConf, search
 
     dataset = load_dataset(corridor_copy)
     images = {
@@ -218,12 +216,12 @@ def test_stages_compose_without_the_pipeline(corridor_copy, tmp_path):
     }
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", category=DeprecationWarning)  # torch.jit.load
-        descriptors = extract(DescriptorsConfig(model=MODEL[0], progress=False), images, tmp_path / "d.h5")
+        descriptors = extract(ExtractConf(model=MODEL[0], progress=False), images, tmp_path / "d.h5")
     assert descriptors.path == tmp_path / "d.h5" and descriptors.path.is_file()
     fields = dataset.retrieval_fields()
     ground_truth = {key: fields[key] for key in ("positives", "query_names", "database_names")}
     found = search(
-        RetrievalConfig(k=20),
+        RetrieveConf(top_k=20),
         descriptors.split("database"),
         descriptors.split("queries"),
         ground_truth,
@@ -231,9 +229,9 @@ def test_stages_compose_without_the_pipeline(corridor_copy, tmp_path):
     )
     assert found.path.is_file() and not found.reused
     assert search(
-        RetrievalConfig(k=20), descriptors.split("database"), descriptors.split("queries"), ground_truth, found.path
+        RetrieveConf(top_k=20), descriptors.split("database"), descriptors.split("queries"), ground_truth, found.path
     ).reused
-    uncertainty = evaluate(UncertaintyConfig(methods=["SU", "RS"]), found.retrieval, tmp_path / "u.npz")
+    uncertainty = evaluate(EvaluateConf(methods=["SU", "RS"]), found.retrieval, tmp_path / "u.npz")
     with np.load(uncertainty.path) as stored:
         assert str(stored["fingerprint"]) == uncertainty.fingerprint
         assert_close(stored["SU"], uncertainty.evaluation.methods["SU"].uncertainty)

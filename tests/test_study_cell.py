@@ -12,8 +12,8 @@ from scipy import sparse
 
 from conftest import assert_close
 from vpr_uncertainty import Retrieval, evaluate
+from vpr_uncertainty.pipeline.grid import Cell, load_config, run_grid, write_results
 from vpr_uncertainty.retrieval import save_retrieval
-from vpr_uncertainty.study import Cell, load_config, run_grid, write_results
 
 
 def _retrieval(seed: int = 0, n_queries: int = 50, n_database: int = 60, k: int = 20) -> Retrieval:
@@ -147,13 +147,6 @@ def test_a_cell_document_without_uncertainties_is_recomputed(tmp_path):
     (again,) = _grid(config_path)
     assert not again.cached
     assert_close(again.evaluation.methods["SU"].auc_pr, fresh.evaluation.methods["SU"].auc_pr)
-
-
-def test_the_former_module_name_still_imports():
-    import vpr_uncertainty.reproduce as former
-    import vpr_uncertainty.study as study
-
-    assert former.run_grid is study.run_grid and former.Cell is study.Cell and former.load_config is study.load_config
 
 
 def test_evaluate_sets_own_correctness_only_for_own_retrieval_methods():

@@ -15,10 +15,17 @@ import pytest
 from scipy import sparse
 
 from vpr_uncertainty.calibration.heldout import evaluate_held_out
+from vpr_uncertainty.pipeline.grid import (
+    _cell_fingerprint,
+    candidates_needed,
+    held_out_evaluation,
+    load_config,
+    run_grid,
+    write_reports,
+    write_results,
+)
+from vpr_uncertainty.pipeline.grid_config import fitted_per_split, full_query_methods
 from vpr_uncertainty.retrieval import MATRIX_TOP_K, Retrieval, read_results
-from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
-from vpr_uncertainty.study.heldout import fitted_per_split, full_query_methods, held_out_evaluation
-from vpr_uncertainty.study.runner import _cell_fingerprint, candidates_needed
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
 
@@ -147,7 +154,7 @@ def test_fitted_per_split_only_for_cal_without_gate():
 
 
 def test_cell_with_too_few_wrong_answers_has_undefined_held_out_numbers_and_a_note():
-    from vpr_uncertainty.study.config import GridConfig
+    from vpr_uncertainty.pipeline.grid_config import GridConfig
 
     scores = np.tile(np.array([[0.9, 0.5, 0.4]], dtype=np.float32), (6, 1)) - np.arange(6)[:, None] * 0.01
     indices = np.tile(np.arange(3), (6, 1))

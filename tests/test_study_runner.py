@@ -16,7 +16,7 @@ import pytest
 
 from conftest import assert_close
 from vpr_uncertainty.cache import CacheWarning
-from vpr_uncertainty.study import load_config, run_grid
+from vpr_uncertainty.pipeline.grid import load_config, run_grid
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
 

@@ -8,8 +8,8 @@ import warnings
 import numpy as np
 from scipy import sparse
 
+from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_results
 from vpr_uncertainty.retrieval import Retrieval, save_retrieval
-from vpr_uncertainty.study import load_config, run_grid, write_results
 
 
 def _grid(folder):

@@ -1,7 +1,8 @@
 """Command line: ``vpr-uncertainty <command> --help`` explains each command.
 
-Thin by design: each command lives in :mod:`vpr_uncertainty.commands` and calls the library functions. This
-module turns what goes wrong into one line on stderr and an exit status (see :data:`EXIT_STATUS_HELP`).
+It only collects the commands of the stage modules (:mod:`vpr_uncertainty.pipeline`), loads the plugins (the
+entry-point group ``vpr_uncertainty.plugins`` and ``--plugin MODULE``), and turns what goes wrong into one line on
+stderr and an exit status (see :data:`EXIT_STATUS_HELP`).
 """
 
 from __future__ import annotations
@@ -19,31 +20,19 @@ import zipfile
 from collections.abc import Sequence
 from typing import NoReturn
 
-from vpr_uncertainty.commands._arguments import add_progress_options
+from vpr_uncertainty.pipeline import COMMAND_MODULES
+from vpr_uncertainty.pipeline.options import add_progress_options
 
 __all__ = [
-    "COMMANDS",
     "EXIT_INPUT",
     "EXIT_INTERRUPTED",
     "EXIT_RUNTIME",
     "build_parser",
+    "command_names",
     "exit_status",
     "main",
     "package_version",
 ]
-
-#: Command modules in :mod:`vpr_uncertainty.commands`, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = (
-    "demo",
-    "run",
-    "evaluate",
-    "calibrate",
-    "reproduce",
-    "datasets",
-    "extract",
-    "retrieve",
-    "train-btl",
-)
 
 #: Exit statuses: a usage or input error (what the user can fix in the command line or the files it names), a
 #: failure while running (disk full, a library or device failure), an interrupt (Ctrl-C, as the shells do).
@@ -86,7 +75,11 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(plugins: Sequence[str] = ()) -> argparse.ArgumentParser:
+    """The parser of every command, after loading the plugins (entry points and ``plugins``)."""
+    from vpr_uncertainty.plugins import load_plugins
+
+    load_plugins(plugins)
     parser = _Parser(
         prog="vpr-uncertainty",
         description="How much to doubt each answer of a visual place recognition system, and how good that "
@@ -100,14 +93,37 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help=f"show the full Python traceback of an error (also: environment variable {DEBUG_VARIABLE}=1)",
     )
+    parser.add_argument(
+        "--plugin",
+        action="append",
+        default=[],
+        metavar="MODULE",
+        help="import MODULE (on the Python path) before anything else: its uncertainty methods, models, formats and "
+        "figures are then available to every command (repeatable; installed packages register theirs through the "
+        "entry-point group vpr_uncertainty.plugins)",
+    )
     add_progress_options(parser, top_level=True)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        importlib.import_module(f"vpr_uncertainty.commands.{name.replace('-', '_')}").add_parser(subparsers)
-        command = subparsers.choices[name]
+    for module in COMMAND_MODULES:
+        importlib.import_module(f"vpr_uncertainty.pipeline.{module}").add_cli(subparsers)
+    for command in subparsers.choices.values():
         if "--progress" not in command._option_string_actions:  # every command takes the progress flags
             add_progress_options(command)
     return parser
+
+
+def command_names() -> list[str]:
+    """The commands, in the order ``--help`` lists them."""
+    parser = build_parser()
+    return [name for action in parser._subparsers._group_actions for name in action.choices]  # type: ignore[union-attr]
+
+
+def _plugins(argv: Sequence[str]) -> list[str]:
+    """The ``--plugin`` modules of ``argv`` (before the command), read before the parser is built."""
+    early = argparse.ArgumentParser(add_help=False)
+    early.add_argument("--plugin", action="append", default=[])
+    known, _ = early.parse_known_args(list(argv))
+    return known.plugin
 
 
 def package_version() -> str:
@@ -185,7 +201,8 @@ def _main(argv: Sequence[str] | None) -> int:
     args: argparse.Namespace | None = None
     prefix = "vpr-uncertainty"
     try:
-        args = build_parser().parse_args(argv)
+        argv = sys.argv[1:] if argv is None else list(argv)
+        args = build_parser(_plugins(argv)).parse_args(argv)
         prefix = f"vpr-uncertainty {args.command}"
         warnings.formatwarning = _short_warning
         from vpr_uncertainty.progress import progress_default

@@ -1,7 +1,7 @@
 """The built-in report figures of a grid (registered in :mod:`vpr_uncertainty.reports.figures`).
 
 Each is ``write(cells, config, out_dir, **options) -> list[Path]``: it receives the typed results
-(:class:`~vpr_uncertainty.study.Cell`, whose evaluations hold the stored uncertainties) and recomputes nothing.
+(the grid cells, whose evaluations hold the stored uncertainties) and recomputes nothing.
 """
 
 from __future__ import annotations
@@ -9,10 +9,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from html import escape
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.reports.ablations import plot_alpha_ablation, plot_k_ablation
+from vpr_uncertainty.reports.figures import slug
 from vpr_uncertainty.reports.heatmaps import plot_delta_heatmaps
 from vpr_uncertainty.reports.held_out import table1_cells, table1_note
 from vpr_uncertainty.reports.plots import write_rejection_curves
@@ -27,10 +28,6 @@ from vpr_uncertainty.reports.table1 import (
     table1_markdown,
 )
 from vpr_uncertainty.reports.ties import build_ties_table, ties_csv, ties_markdown
-from vpr_uncertainty.study.config import slug
-
-if TYPE_CHECKING:
-    from vpr_uncertainty.study import Cell, GridConfig
 
 __all__ = [
     "cascade_section",
@@ -61,13 +58,13 @@ def _with_vectors(pngs: Sequence[Path]) -> list[Path]:
     return paths
 
 
-def _table1(cells: Sequence[Cell], config: GridConfig, metric: str):
+def _table1(cells: Sequence[Any], config: Any, metric: str):
     # With the calibration option, Table 1 (AUC-PR) holds the held-out means; AP and AURC stay on all queries.
     chosen = table1_cells(cells) if metric == "auc_pr" else cells
     return build_table1(chosen, metric, bootstrap=getattr(config, "bootstrap", 0), seed=getattr(config, "seed", 0))
 
 
-def _write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path, metric: str, stem: str) -> list[Path]:
+def _write_table1(cells: Sequence[Any], config: Any, out_dir: Path, metric: str, stem: str) -> list[Path]:
     table = _table1(cells, config, metric)
     note = table1_note(cells) if metric == "auc_pr" else None
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -79,23 +76,23 @@ def _write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path, metr
     return paths
 
 
-def write_table1(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_table1(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``table1.md``, ``table1.csv`` and ``table1.tex`` (booktabs): AUC-PR, with intervals when bootstrapped."""
     return _write_table1(cells, config, out_dir, "auc_pr", "table1")
 
 
-def write_table1_ap(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_table1_ap(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``table1_ap.{md,csv,tex}``: Table 1 of average precision."""
     return _write_table1(cells, config, out_dir, "average_precision", "table1_ap")
 
 
-def write_table1_aurc(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_table1_aurc(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``table1_aurc.{md,csv,tex}``: Table 1 of AURC (lower is better)."""
     return _write_table1(cells, config, out_dir, "aurc", "table1_aurc")
 
 
 def _section(metric: str):
-    def section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+    def section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
         table = _table1(cells, config, metric)
         html = table1_html(table) + f'<p class="note">{escape(marks_note(table))} ms/query: mean time per query.</p>'
         held_out = table1_note(cells) if metric == "auc_pr" else None
@@ -110,7 +107,7 @@ table1_ap_section = _section("average_precision")
 table1_aurc_section = _section("aurc")
 
 
-def write_ties(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_ties(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``ties.md`` and ``ties.csv``: the share of tied queries and the distinct values of every method."""
     table = build_ties_table(cells)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -120,17 +117,17 @@ def write_ties(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list
     return paths
 
 
-def ties_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+def ties_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
     """The ties table as preformatted Markdown."""
     return f"<pre>{escape(ties_markdown(build_ties_table(cells)))}</pre>"
 
 
-def write_heatmaps(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_heatmaps(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``figures/delta_<RS|SD|SU>.png`` (and ``.pdf``): ΔAUC-PR against each baseline."""
     return _with_vectors(plot_delta_heatmaps(cells, out_dir / "figures"))
 
 
-def write_ablations(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_ablations(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``figures/ablation_alpha.png`` and ``figures/ablation_k.png`` (and ``.pdf``), for the ablations the cells
     hold."""
     paths = []
@@ -141,7 +138,7 @@ def write_ablations(cells: Sequence[Cell], config: GridConfig, out_dir: Path) ->
     return _with_vectors(paths)
 
 
-def write_pr_curves(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_pr_curves(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``figures/pr/<vpr method>__<dataset>.png`` (and ``.pdf``) for every cell."""
     return [
         path
@@ -154,7 +151,7 @@ def write_pr_curves(cells: Sequence[Cell], config: GridConfig, out_dir: Path) ->
     ]
 
 
-def pr_curves_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+def pr_curves_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
     """The note under the PR curves: what their axes and their area are."""
     return (
         '<p class="note">x: recall = correct answers accepted / answerable queries; y: precision = correct '
@@ -164,14 +161,14 @@ def pr_curves_section(cells: Sequence[Cell], config: GridConfig, written: list[P
     )
 
 
-def write_cascade(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_cascade(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``figures/cascade__<SCORE>_<GV>.png`` (and ``.pdf``): AUC-PR against the fraction verified."""
     from vpr_uncertainty.reports.cascade import plot_cascade
 
     return plot_cascade(cells, out_dir / "figures")
 
 
-def cascade_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+def cascade_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
     """Each cascade's measured fraction verified, AUC-PR and time per query beside its two methods, as a table."""
     from html import escape
 
@@ -200,7 +197,7 @@ def cascade_section(cells: Sequence[Cell], config: GridConfig, written: list[Pat
     return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
 
 
-def write_qualitative(cells: Sequence[Cell], config: GridConfig, out_dir: Path, *, rank_by: str = "SU") -> list[Path]:
+def write_qualitative(cells: Sequence[Any], config: Any, out_dir: Path, *, rank_by: str = "SU") -> list[Path]:
     """``figures/qualitative__<vpr method>__<dataset>.png`` for the cells of ``config.qualitative`` (default: the
     first cell with images); queries chosen by the uncertainties of ``rank_by``."""
     chosen = [c for c in cells if c.query_paths and (config.qualitative is None or c.vpr_method in config.qualitative)]

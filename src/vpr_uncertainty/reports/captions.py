@@ -17,7 +17,7 @@ def _names(values: Sequence[str]) -> str:
 
 
 def _cell_of(path: Path, cells: Sequence[Any]) -> Any:
-    from vpr_uncertainty.study.config import slug
+    from vpr_uncertainty.reports.figures import slug
 
     for cell in cells:
         if path.stem.endswith(f"{slug(cell.vpr_method)}__{slug(cell.dataset)}"):

@@ -48,7 +48,7 @@ def cascade_curve(correct: np.ndarray, score: np.ndarray, gv: np.ndarray, fracti
 
 def plot_cascade(cells: Sequence[Any], out_dir: str | Path) -> list[Path]:
     """``cascade__<SCORE>_<GV>.png`` (and ``.pdf``) for each cascade of :func:`cascades`."""
-    from vpr_uncertainty.study.config import slug
+    from vpr_uncertainty.reports.figures import slug
 
     plt = pyplot()
     paths = []

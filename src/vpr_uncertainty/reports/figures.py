@@ -6,11 +6,10 @@ that writes it::
 
     write(cells, config, out_dir, **options) -> list[Path]
 
-``cells`` are the grid's typed results (:class:`~vpr_uncertainty.study.Cell`, with their stored uncertainties),
-``config`` its :class:`~vpr_uncertainty.study.GridConfig`, ``out_dir`` the output folder (figures go to
-``out_dir / "figures"`` by convention). :func:`~vpr_uncertainty.study.write_reports` calls every selected figure
-in registration order and gives each a section of ``report.html`` that embeds the PNG files it wrote. A figure
-is selected by name, optionally with options as in a method spec (``"qualitative:rank_by=RS"``,
+``cells`` are the grid's typed results (``Cell``, with their stored uncertainties), ``config`` its ``GridConfig``,
+``out_dir`` the output folder (figures go to ``out_dir / "figures"`` by convention). ``reproduce`` calls every
+selected figure in registration order and gives each a section of ``report.html`` that embeds the PNG files it
+wrote. A figure is selected by name, optionally with options as in a method spec (``"qualitative:rank_by=RS"``,
 :func:`parse_figure_spec`); the ``report`` key of a grid configuration lists the selected ones.
 
 Examples
@@ -24,6 +23,7 @@ Examples
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,8 +38,15 @@ __all__ = [
     "ReportFigure",
     "parse_figure_spec",
     "register_report_figure",
+    "slug",
     "unmet_figure_needs",
 ]
+
+
+def slug(text: str) -> str:
+    """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
+
 
 FigureWriter = Callable[..., "list[Path]"]
 

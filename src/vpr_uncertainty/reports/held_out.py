@@ -1,6 +1,6 @@
 """The held-out calibration option in the report: Table 1 from held-out means, and the ``reliability`` figure.
 
-With the grid's ``calibration`` option (:mod:`vpr_uncertainty.study.heldout`) every cell holds ``held_out``: each
+With the grid's ``calibration`` option (``calibration`` in ``reproduce --help``) every cell holds ``held_out``: each
 method's AUC-PR on the held-out queries of every split, CAL's included. :func:`table1_cells` shows Table 1 those
 means instead of the AUC-PR on all queries (CAL has no number on all queries: its gate is fitted per split), and
 :func:`table1_note` says so. :func:`write_reliability` draws CAL's reliability diagram of each cell (held-out
@@ -14,14 +14,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from vpr_uncertainty.calibration.quality import Reliability
+from vpr_uncertainty.reports.figures import slug
 from vpr_uncertainty.reports.reliability import plot_reliability
-from vpr_uncertainty.study.config import slug
-
-if TYPE_CHECKING:
-    from vpr_uncertainty.study import Cell, GridConfig
 
 __all__ = ["HeldOutCell", "reliability_section", "table1_cells", "table1_note", "write_reliability"]
 
@@ -53,7 +50,7 @@ class HeldOutCell:
     evaluation: HeldOutEvaluationView
 
 
-def _held_out_cell(cell: Cell) -> HeldOutCell:
+def _held_out_cell(cell: Any) -> HeldOutCell:
     methods = {}
     for name, numbers in cell.held_out["methods"].items():
         full = cell.evaluation.methods.get(name)
@@ -67,7 +64,7 @@ def _held_out_cell(cell: Cell) -> HeldOutCell:
     return HeldOutCell(cell.vpr_method, cell.dataset, HeldOutEvaluationView(methods))
 
 
-def table1_cells(cells: Sequence[Cell]) -> list[Any]:
+def table1_cells(cells: Sequence[Any]) -> list[Any]:
     """The cells Table 1 is built from: ``cells`` themselves, or their held-out views when they hold one.
 
     Parameters
@@ -88,7 +85,7 @@ def table1_cells(cells: Sequence[Cell]) -> list[Any]:
     return [_held_out_cell(cell) for cell in cells]
 
 
-def table1_note(cells: Sequence[Cell]) -> str | None:
+def table1_note(cells: Sequence[Any]) -> str | None:
     """One sentence saying that Table 1 holds held-out means, with the option's values; None without it."""
     found = next((cell.held_out for cell in cells if cell.held_out is not None), None)
     if found is None:
@@ -101,11 +98,11 @@ def table1_note(cells: Sequence[Cell]) -> str | None:
     )
 
 
-def _quality(cell: Cell) -> dict[str, Any] | None:
+def _quality(cell: Any) -> dict[str, Any] | None:
     return (cell.held_out or {}).get("calibration_quality", {}).get("CAL")
 
 
-def write_reliability(cells: Sequence[Cell], config: GridConfig, out_dir: Path) -> list[Path]:
+def write_reliability(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``figures/reliability/<vpr method>__<dataset>.png``: CAL's held-out reliability diagram of each cell."""
     paths = []
     for cell in cells:
@@ -124,7 +121,7 @@ def _mean_std(mean: float | None, std: float | None) -> str:
     return f"{mean:.3f}" if std is None else f"{mean:.3f} ± {std:.3f}"
 
 
-def reliability_section(cells: Sequence[Cell], config: GridConfig, written: list[Path]) -> str:
+def reliability_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
     """An HTML table: per cell, CAL's held-out AUC-PR, ECE and Brier (mean ± std over the splits) and the split."""
     head = "".join(
         f"<th>{name}</th>"

@@ -71,7 +71,7 @@ def plot_qualitative(
 
     Parameters
     ----------
-    cell : vpr_uncertainty.study.Cell
+    cell : vpr_uncertainty.pipeline.grid_report.Cell
         The cell: its images, top-k scores, indices, hits and its evaluation's uncertainties.
     path : str or Path
         The PNG to write.

@@ -103,7 +103,7 @@ def _mean(values: Sequence[float | None]) -> float | None:
 def build_table1(
     cells: Sequence, metric: str = "auc_pr", *, bootstrap: int = 0, seed: int = 0, level: float = 0.05
 ) -> Table1:
-    """Average a metric of the grid over datasets; ``cells`` are :class:`vpr_uncertainty.study.Cell`.
+    """Average a metric of the grid over datasets; ``cells`` are :class:`vpr_uncertainty.pipeline.grid_report.Cell`.
 
     Parameters
     ----------

@@ -1,29 +1,320 @@
-"""The configuration of a reproduction grid (see :mod:`vpr_uncertainty.study`): reading and checking it.
+"""The configuration of a reproduction grid (``reproduce CONFIG``), read and checked in one place.
 
 :func:`load_config` reads a TOML or YAML file and reports every problem at once, before any work: syntax errors
-(one line naming the file and the line), unknown keys, values of the wrong type (naming the key and the value),
-missing files, unknown uncertainty methods or method options, unknown report figures (``report``) or their
-options, report figures whose needs no input meets, ``vpr_methods`` that do not exist (with the
-folders that do), names in ``qualitative`` that match no cell, and every need of every (cell, method) pair that
-the cell's inputs cannot meet (positions for SUE, images for GV-*, a head and descriptors for BTL).
+(one line naming the file and the line), unknown keys, values of the wrong type, missing files, unknown uncertainty
+methods or options, unknown report figures or their options, ``vpr_methods`` that do not exist, names in
+``qualitative`` that match no cell, and every need of every (cell, method) pair that the cell's inputs cannot meet
+(positions for SUE, images for GV-*, a head and descriptors for BTL). The schema is in ``reproduce --help``.
 """
 
 from __future__ import annotations
 
 import difflib
-import re
+import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from vpr_uncertainty.methods import default_method_names, get_method, split_method_list
-from vpr_uncertainty.study.bootstrap_config import bootstrap_settings
-from vpr_uncertainty.study.config_file import read_mapping
-from vpr_uncertainty.study.heldout import calibration_option, full_query_methods, runs_cal
-from vpr_uncertainty.study.needs import unmet_needs
-from vpr_uncertainty.study.report_config import qualitative_methods, report_figures
+from vpr_uncertainty.methods import default_method_names, describe_needs, get_method, split_method_list
+from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, slug, unmet_figure_needs
 
-__all__ = ["DEFAULT_ALPHAS", "DEFAULT_KS", "GridConfig", "InputEntry", "load_config"]
+if TYPE_CHECKING:
+    pass
+
+
+def read_mapping(path: Path) -> dict[str, Any]:
+    """The top-level mapping of a TOML or YAML file; a syntax error is one line naming the file and the line."""
+    suffix = path.suffix.lower()
+    if suffix == ".toml":
+        import tomllib
+
+        try:
+            with path.open("rb") as file:
+                return tomllib.load(file)
+        except tomllib.TOMLDecodeError as error:  # its message ends with "(at line L, column C)"
+            raise ValueError(f"{path}: invalid TOML: {error}") from None
+        except UnicodeDecodeError as error:
+            raise ValueError(f"{path}: not a UTF-8 text file ({error.reason} at byte {error.start})") from None
+    if suffix in (".yaml", ".yml"):
+        try:
+            import yaml
+        except ImportError as error:
+            raise ImportError(
+                f"reading {path} needs pyyaml (pip install pyyaml), or write the config as TOML"
+            ) from error
+        try:
+            data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except yaml.YAMLError as error:
+            mark = getattr(error, "problem_mark", None)
+            where = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+            problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+            raise ValueError(f"{path}{where}: invalid YAML: {problem}") from None
+        except UnicodeDecodeError as error:
+            raise ValueError(f"{path}: not a UTF-8 text file ({error.reason} at byte {error.start})") from None
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: the configuration must be a mapping at the top level")
+        return data
+    raise ValueError(f"unsupported configuration file {path}: expected .toml, .yaml or .yml")
+
+
+def _count(data: dict[str, Any], key: str, problems: list[str]) -> int:
+    value = data.get(key, 0)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        problems.append(f"{key} must be an integer >= 0, got {value!r}")
+        return 0
+    return value
+
+
+def bootstrap_settings(data: dict[str, Any], methods: list[str], problems: list[str]) -> tuple[int, int, str | None]:
+    """``(bootstrap, seed, reference)`` of the config; a reference must be one of the grid's methods."""
+    bootstrap, seed = _count(data, "bootstrap", problems), _count(data, "seed", problems)
+    reference = data.get("reference")
+    if reference is not None:
+        if not isinstance(reference, str):
+            problems.append(f"reference must be a method name, got {reference!r}")
+            reference = None
+        elif methods and reference not in methods:
+            problems.append(
+                f"reference {reference!r} (the method of the paired tests) is not among methods ({', '.join(methods)})"
+            )
+    return bootstrap, seed, reference
+
+
+#: The keys of the ``calibration`` table, with their defaults.
+CALIBRATION_DEFAULTS: dict[str, Any] = {"fraction": 0.3, "repeats": 20, "seed": 0}
+_EXAMPLE = "calibration = {fraction = 0.3, repeats = 20, seed = 0}"
+
+
+def fitted_per_split(spec: str) -> bool:
+    """Whether ``spec`` is CAL without a gate file: a gate exists only for the splits of a held-out evaluation.
+
+    Examples
+    --------
+    >>> fitted_per_split("CAL"), fitted_per_split("CAL:gate=gate.json"), fitted_per_split("SU")
+    (True, False, False)
+    """
+    entry = get_method(spec)
+    return (entry.base or entry.name) == "CAL" and not entry.bound.get("gate")
+
+
+def runs_cal(methods: list[str]) -> bool:
+    """Whether ``methods`` holds CAL (with or without a gate file)."""
+    return any((get_method(spec).base or get_method(spec).name) == "CAL" for spec in methods)
+
+
+def full_query_methods(methods: list[str], calibration: dict[str, Any] | None) -> list[str]:
+    """The methods evaluated on all queries: ``methods`` less CAL without a gate file when the option is set."""
+    if calibration is None:
+        return list(methods)
+    return [spec for spec in methods if not fitted_per_split(spec)]
+
+
+def _number(table: dict, key: str, problems: list[str]) -> Any:
+    value = table.get(key, CALIBRATION_DEFAULTS[key])
+    if key == "fraction":
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < 1.0:
+            problems.append(f"calibration.fraction must be a number strictly between 0 and 1, got {value!r}")
+            return None
+        return float(value)
+    low = 1 if key == "repeats" else 0
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        problems.append(f"calibration.{key} must be an integer >= {low}, got {value!r}")
+        return None
+    return int(value)
+
+
+def calibration_option(raw: Any, methods: list[str], problems: list[str]) -> dict[str, Any] | None:
+    """The checked ``calibration`` table ``{fraction, repeats, seed}`` (missing keys take their defaults), or None.
+
+    Problems (appended to ``problems``): not a table, unknown keys, values of the wrong type or range, no method
+    left for the evaluation on all queries, methods the held-out splits cannot serve (a trained BTL head).
+
+    Examples
+    --------
+    >>> calibration_option({"fraction": 0.5}, ["SU", "CAL"], [])
+    {'fraction': 0.5, 'repeats': 20, 'seed': 0}
+    >>> problems = []
+    >>> calibration_option({"fraction": 1.5, "repeat": 3}, ["SU"], problems)
+    >>> problems[0]
+    "calibration: unknown key 'repeat' (expected fraction, repeats, seed)"
+    """
+    if raw is None:
+        return None
+    if not isinstance(raw, dict):
+        problems.append(f"calibration must be a table such as {_EXAMPLE}, got {raw!r}")
+        return None
+    count = len(problems)
+    problems += [
+        f"calibration: unknown key {key!r} (expected {', '.join(CALIBRATION_DEFAULTS)})"
+        for key in raw
+        if key not in CALIBRATION_DEFAULTS
+    ]
+    option = {key: _number(raw, key, problems) for key in CALIBRATION_DEFAULTS}
+    try:
+        entries = [get_method(spec) for spec in methods]  # already checked by the caller; unknown ones skipped
+    except (KeyError, ValueError, TypeError, ImportError):
+        entries = []
+    if entries and not full_query_methods(methods, option):
+        problems.append("calibration: methods holds only CAL; add a method to evaluate on all queries (e.g. SU)")
+    problems += [
+        f"calibration: {entry.name} is not supported by the held-out evaluation (it needs "
+        f"{' and '.join(entry.requires)}, which the splits do not pass on); remove it or the calibration table"
+        for entry in entries
+        if entry.kind == "learned"
+    ]
+    return option if len(problems) == count else None
+
+
+#: What the grid gives every method of a cell: a local-feature cache folder; image paths when it has images.
+_GRID_OPTIONS = ("cache_dir",)
+_IMAGE_OPTIONS = ("query_paths", "database_paths")
+#: How a config meets each need (see vpr_uncertainty.methods.NEEDS).
+_HINTS = {
+    "database_positions": "a retrieval .npz holding database_positions, or a dataset with positions",
+    "images": 'images = "FOLDER" (with query/ and ref/) in this input, or a model input',
+    "btl_head": 'the option in the method name, e.g. "BTL:btl_head=HEAD.pt"',
+    "descriptors": "a model input, or BTL:query_descriptors=DESC.h5,database_descriptors=DESC.h5",
+    "local_features": 'the option in the method name, e.g. "GV-H5:features_path=FEATURES.h5"',
+    "gate": 'the option in the method name ("CAL:gate=GATE.json"), or calibration = {fraction = 0.3, repeats = 20, '
+    "seed = 0} to fit CAL on each split of a held-out evaluation",
+}
+
+
+def _retrieval_fields(entry: InputEntry) -> set[str] | str:
+    """Names of the fields a cell's retrieval will have, or a problem (str) when its file cannot be read."""
+    if entry.model is not None:
+        from vpr_uncertainty.data import load_dataset
+
+        options = entry.run_options
+        try:
+            dataset = load_dataset(entry.dataset_source, root=options.get("root"), split=options.get("split"))
+        except (OSError, ValueError, KeyError) as error:
+            return f"dataset {entry.dataset_source!r} cannot be read: {error}"
+        return {key for key, value in dataset.retrieval_fields().items() if value is not None}
+    fields = {"scores", "indices", "distances", "positives"}
+    is_retrieval = entry.file_format == "retrieval" or (
+        entry.file_format == "auto" and entry.scores.suffix.lower() == ".npz"
+    )
+    if is_retrieval:
+        try:
+            with zipfile.ZipFile(entry.scores) as archive:
+                fields = {name.removesuffix(".npy") for name in archive.namelist()}
+        except (OSError, zipfile.BadZipFile) as error:
+            return f"{entry.scores} is not a readable retrieval file (.npz): {error}"
+    return fields
+
+
+def _inputs_exist(entry: InputEntry) -> bool:
+    if entry.model is None:
+        return entry.scores is not None and entry.scores.is_file()
+    root = entry.run_options.get("root")
+    return Path(entry.dataset_source).exists() or (root is not None and (Path(root) / entry.dataset_source).exists())
+
+
+def unmet_needs(entries: list[InputEntry], methods: list[str]) -> list[str]:
+    """Every (cell, method) pair whose method needs what the cell's inputs do not give, one line each.
+
+    A cell gives its retrieval's fields (a retrieval file's arrays, the positions of a dataset), the image files
+    when it has images (``images`` or a model input), the descriptors for a model input, and a feature cache.
+    """
+    from vpr_uncertainty.pipeline.run import STAGE_INPUTS
+
+    found = [get_method(name) for name in methods]
+    lines = []
+    for entry in entries:
+        if not _inputs_exist(entry):
+            continue  # reported as missing by the config loader
+        cell = f"cell {entry.vpr_method} / {entry.dataset}"
+        given = {*_GRID_OPTIONS, *(_IMAGE_OPTIONS if entry.images is not None else ())}
+        if entry.model is not None:
+            given |= set(STAGE_INPUTS)
+        if any(method.unmet_needs(given) for method in found):  # read the inputs only when it matters
+            fields = _retrieval_fields(entry)
+            if isinstance(fields, str):
+                lines.append(f"{cell}: {fields}")
+                continue
+            given |= fields
+        for method in found:
+            for need in method.unmet_needs(given):
+                hint = f"; give {_HINTS[need]}" if need in _HINTS else ""
+                lines.append(f"{cell}: {method.name} needs {describe_needs([need])}{hint}")
+    return lines
+
+
+def qualitative_methods(raw: Any, entries: list[InputEntry], problems: list[str]) -> list[str] | None:
+    """The VPR methods whose cells get a qualitative figure; a name that matches no cell is a problem."""
+    if raw is None:
+        return None
+    names = [raw] if isinstance(raw, str) else raw
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        problems.append(f"qualitative must be a list of VPR method names (cells of the grid), got {raw!r}")
+        return None
+    known = sorted({entry.vpr_method for entry in entries})
+    with_images = {entry.vpr_method for entry in entries if entry.images is not None or entry.model is not None}
+    lower = {name.lower(): name for name in known}
+    for name in names:
+        if name not in known:
+            close = difflib.get_close_matches(name.lower(), list(lower), n=1, cutoff=0.6)
+            hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
+            problems.append(
+                f"qualitative names {name!r}, which is no VPR method of the grid{hint} VPR methods: {', '.join(known)}"
+            )
+        elif name not in with_images:
+            problems.append(f"qualitative names {name!r}, but no input of that VPR method has images (images = ...)")
+    return names
+
+
+def report_figures(
+    raw: Any,
+    entries: list[InputEntry],
+    ablations: bool,
+    problems: list[str],
+    methods: Sequence[str] = (),
+    *,
+    calibrated: bool = False,
+) -> list[str] | None:
+    """The report figures to write (names or specs, see :mod:`vpr_uncertainty.reports.figures`); None: all.
+
+    ``methods`` (the grid's uncertainty methods) tell whether the cascade figure can be drawn; ``calibrated``: CAL
+    runs on held-out queries (the ``calibration`` option with CAL among the methods).
+    """
+    if raw is None:
+        return None
+    try:
+        specs = split_method_list(raw) if isinstance(raw, str) else raw
+    except ValueError as error:
+        problems.append(f"report: {error}")
+        return None
+    if not isinstance(specs, list) or not all(isinstance(spec, str) for spec in specs):
+        problems.append(f'report must be a list of report figure names such as ["table1", "pr_curves"], got {raw!r}')
+        return None
+    if not specs:
+        problems.append(f"report is empty: name at least one report figure ({', '.join(REPORT_FIGURES.names())})")
+    available = {"evaluation", "uncertainties"} | ({"ablations"} if ablations else set())
+    if calibrated:
+        available.add("calibration")
+    if any(entry.images is not None or entry.model is not None for entry in entries):
+        available.add("images")
+    bases = {name.split(":")[0] for name in methods}
+    if any(set(name.split("+")) <= bases for name in bases if name.count("+") == 1):
+        available.add("cascade")
+    names = []
+    for spec in specs:
+        try:
+            name, _ = parse_figure_spec(spec)
+        except (KeyError, ValueError) as error:
+            problems.append(str(error.args[0]) if error.args else str(error))
+            continue
+        names.append(name)
+        note = unmet_figure_needs(REPORT_FIGURES.get(name), available)
+        if note:
+            problems.append(f"{note}, which no input of the grid gives")
+    problems += [
+        f"report figure {name!r} is listed more than once" for name in sorted({n for n in names if names.count(n) > 1})
+    ]
+    return list(specs)
+
 
 DEFAULT_ALPHAS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
 DEFAULT_KS: tuple[int, ...] = (2, 3, 5, 10, 15, 20, 30, 50)
@@ -105,7 +396,7 @@ class InputEntry:
 
 @dataclass
 class GridConfig:
-    """The parsed configuration of a grid (see :mod:`vpr_uncertainty.study`)."""
+    """The parsed configuration of a grid (``reproduce --help``)."""
 
     out: Path
     inputs: list[InputEntry]
@@ -119,7 +410,7 @@ class GridConfig:
     bootstrap: int = 0
     seed: int = 0
     reference: str | None = None
-    calibration: dict[str, Any] | None = None  # {fraction, repeats, seed}: see vpr_uncertainty.study.heldout
+    calibration: dict[str, Any] | None = None  # {fraction, repeats, seed}: held-out evaluation per cell
     verify_fraction: float | None = None
 
     def settings(self) -> dict[str, Any]:
@@ -135,11 +426,6 @@ class GridConfig:
     def method_options(self) -> dict[str, Any]:
         """Options for the uncertainty methods beyond k and α (the cascades' ``verify_fraction``)."""
         return {} if self.verify_fraction is None else {"verify_fraction": self.verify_fraction}
-
-
-def slug(text: str) -> str:
-    """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
 
 
 def _numbers(data: dict, key: str, default: Any, kind: type, problems: list[str]) -> list:

@@ -1,20 +1,21 @@
-"""The typed result of one grid cell (one VPR method on one dataset) and its dictionary form.
-
-:meth:`Cell.to_dict` is the cell's entry in ``results.json``; :meth:`Cell.arrays` holds what the JSON leaves out
-(correctness, uncertainties, top-k scores and indices, hits); :meth:`Cell.from_dict` rebuilds the cell from both.
+"""The result of a grid cell (:class:`Cell`) and the files a grid writes: results.json/csv, the report figures
+and report.html.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import csv
+import json
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.cache import atomic_write, write_text
 from vpr_uncertainty.evaluation import Evaluation
-
-__all__ = ["CSV_FIELDS", "Cell"]
+from vpr_uncertainty.pipeline.grid_config import GridConfig
 
 CSV_FIELDS = (
     "vpr_method",
@@ -59,7 +60,7 @@ class Cell:
         The images, when the cell has them.
     held_out : dict, optional
         The held-out evaluation of the grid's ``calibration`` option (every method's mean and std over the splits,
-        CAL's calibration quality; :func:`vpr_uncertainty.study.heldout.held_out_evaluation`); None without it.
+        CAL's calibration quality; :func:`~vpr_uncertainty.pipeline.grid.held_out_evaluation`); None without it.
     cached : bool
         Whether the cell was read from the cache.
     stage_seconds : dict of str to float, optional
@@ -181,3 +182,127 @@ class Cell:
             cached=cached,
             stage_seconds=data.get("stage_seconds"),
         )
+
+
+def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
+    """Write ``results.json`` (every cell's evaluation and ablations) and the long-format ``results.csv``.
+
+    With the grid's calibration option, ``results.json`` records it (``"calibration": {fraction, repeats, seed}``)
+    and each cell's held-out means and standard deviations (``"held_out"``).
+
+    Parameters
+    ----------
+    cells : sequence of Cell
+        The grid's results (see :func:`~vpr_uncertainty.pipeline.grid.run_grid`).
+    config : GridConfig
+        The grid's settings and output folder.
+
+    Returns
+    -------
+    dict of str to Path
+        ``results_json`` and ``results_csv``.
+    """
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    document: dict[str, Any] = {"settings": config.settings()}
+    if config.calibration is not None:  # the held-out option: each cell then holds "held_out"
+        document["calibration"] = dict(config.calibration)
+    document["cells"] = [cell.to_dict() for cell in cells]
+    json_path = out / "results.json"
+    write_text(json_path, json.dumps(document, indent=2) + "\n")
+    rows = [row for cell in cells for row in cell.rows()]
+    recall_fields = sorted({key for row in rows for key in row if key.startswith("recall@")}, key=lambda s: int(s[7:]))
+    csv_path = out / "results.csv"
+    with atomic_write(csv_path, newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=[*CSV_FIELDS, *recall_fields])
+        writer.writeheader()
+        writer.writerows(rows)
+    return {"results_json": json_path, "results_csv": csv_path}
+
+
+def write_reports(
+    cells: Sequence[Cell], config: GridConfig, *, html: bool = True, figures: Sequence[str] | None = None
+) -> dict[str, Any]:
+    """Every selected report figure (:data:`~vpr_uncertainty.reports.figures.REPORT_FIGURES`), then ``report.html``.
+
+    The built-in figures are Table 1 (md, csv, tex), the ΔAUC-PR heatmaps, the ablations, the PR curves and the
+    qualitative figures; a registered figure (:func:`~vpr_uncertainty.reports.register_report_figure`) is written
+    after them and gets its own section of ``report.html``. A figure whose needs the cells do not meet (no
+    images, no ablation) is not written; its section says why.
+
+    Parameters
+    ----------
+    cells : sequence of Cell
+        The grid's results; the figures receive them with their stored uncertainties.
+    config : GridConfig
+        The grid's settings and output folder; ``config.report`` selects the figures (default: every registered
+        one) and ``config.qualitative`` the VPR methods with a qualitative figure.
+    html : bool, default=True
+        Also write ``report.html``.
+    figures : sequence of str, optional
+        Figure names or specs (``"qualitative:rank_by=RS"``) to write instead of ``config.report``.
+
+    Returns
+    -------
+    dict of str to list of Path or Path
+        The files each figure wrote, by figure name; each file other than a figure (PNG, PDF, SVG) also under
+        ``<name>_<suffix>`` when it is the figure's only file of that suffix (``table1_md``, ``table1_csv``,
+        ``table1_tex``); and ``report_html``.
+
+    Raises
+    ------
+    KeyError
+        For an unknown figure name (naming the closest one and listing the available ones).
+    ValueError
+        For an unknown option of a figure, or a bad value.
+    """
+    from html import escape
+
+    from vpr_uncertainty.reports.captions import figure_caption, settings_table
+    from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
+    from vpr_uncertainty.reports.html import Section, write_report
+
+    specs = figures if figures is not None else config.report
+    selected = [parse_figure_spec(spec) for spec in (REPORT_FIGURES.names() if specs is None else specs)]
+    out = Path(config.out)
+    available = _available_needs(cells)
+    paths: dict[str, Any] = {}
+    sections = []
+    for name, options in selected:
+        entry = REPORT_FIGURES.get(name)
+        note = unmet_figure_needs(entry, available)
+        written = [] if note else entry.write(cells, config, out, **options)
+        paths[name] = written
+        suffixes = [path.suffix for path in written]
+        for path in written:
+            if path.suffix not in (".png", ".pdf", ".svg") and suffixes.count(path.suffix) == 1:
+                paths[f"{name}_{path.suffix.lstrip('.')}"] = path
+        body = "" if note else entry.section_html(cells, config, written, **options)
+        if entry.title and entry.description:
+            body = f'<p class="note">{escape(entry.description)}</p>' + body
+        if note:
+            body += f'<p class="note">Not written: {escape(note)}.</p>'
+        pngs = [(figure_caption(name, path, cells), path) for path in written if path.suffix.lower() == ".png"]
+        sections.append(Section(entry.heading, body, figures=pngs))
+    if html:
+        intro = settings_table(cells, config)
+        paths["report_html"] = write_report(
+            out / "report.html", "vpr-uncertainty: reproduction report", sections, intro=intro
+        )
+    return paths
+
+
+def _available_needs(cells: Sequence[Cell]) -> set[str]:
+    """The needs of report figures (:data:`~vpr_uncertainty.reports.figures.FIGURE_NEEDS`) the cells meet."""
+    available = {"evaluation", "uncertainties"}
+    if any(cell.query_paths and cell.database_paths for cell in cells):
+        available.add("images")
+    if any(cell.ablation_alpha for cell in cells) or any(curve for c in cells for curve in c.ablation_k.values()):
+        available.add("ablations")
+    if any("CAL" in (cell.held_out or {}).get("calibration_quality", {}) for cell in cells):
+        available.add("calibration")
+    from vpr_uncertainty.reports.cascade import cascades
+
+    if cascades(cells):
+        available.add("cascade")
+    return available

@@ -1,32 +1,19 @@
-"""Stage 4, reports: an evaluation → ``results.md``, ``pr_curves.png`` and, last, ``results.json``.
+"""Stage 4, ``report``: an evaluation -> ``results.md``, ``pr_curves.png`` and, last, ``results.json``.
 
-Every file is written atomically (:mod:`vpr_uncertainty.cache`) and exactly once: ``results.json`` is written
-after the table and the plot, so the time it records for this stage includes them.
+Every file is written atomically and exactly once; ``results.json`` comes after the table and the plot, so the time
+it records for this stage includes them.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty import cache
 
-__all__ = ["ReportsResult", "format_reranking", "write_reports"]
-
-
-@dataclass
-class ReportsResult:
-    """The files :func:`write_reports` wrote, by role: ``table``, ``plot``, ``results``."""
-
-    paths: dict[str, Path]
-
-    @property
-    def path(self) -> Path:
-        """``results.json``."""
-        return self.paths["results"]
+__all__ = ["format_reranking", "main"]
 
 
 def format_reranking(reranking: Mapping[str, Any]) -> str:
@@ -37,23 +24,23 @@ def format_reranking(reranking: Mapping[str, Any]) -> str:
     return f"re-ranking the top {reranking['top_k']} by {reranking['method']} inliers: {pairs}"
 
 
-def write_reports(
-    out: str | Path,
+def main(
     evaluation: Any,
+    out: str | Path,
     *,
     dataset: str,
     model: str,
     document: Mapping[str, Any],
     stage_seconds: dict[str, float],
     reranking: Mapping[str, Any] | None = None,
-) -> ReportsResult:
-    """Write the table, the precision-recall plot and ``results.json`` into ``out``.
+) -> dict[str, Path]:
+    """Write the table, the precision-recall plot and ``results.json`` into the folder ``out``.
 
     Parameters
     ----------
+    evaluation : Evaluation
     out : str or Path
         The run directory.
-    evaluation : Evaluation
     dataset, model : str
         The names in the titles of the table and the plot.
     document : mapping
@@ -65,7 +52,8 @@ def write_reports(
 
     Returns
     -------
-    ReportsResult
+    dict of str to Path
+        ``results`` (results.json), ``table`` (results.md) and ``plot`` (pr_curves.png).
     """
     from vpr_uncertainty.reports import format_table, plot_rejection_curves
 
@@ -84,4 +72,4 @@ def write_reports(
         **({"reranking": dict(reranking)} if reranking else {}),
     }
     results = cache.write_json(out / "results.json", content)
-    return ReportsResult(paths={"results": results, "table": table, "plot": plot})
+    return {"results": results, "table": table, "plot": plot}

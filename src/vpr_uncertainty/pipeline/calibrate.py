@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.commands._arguments import candidate_count, command_wording, output_file
+from vpr_uncertainty.pipeline.options import candidate_count, command_wording, output_file
 from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K, Retrieval, read_results
 
-__all__ = ["add_parser"]
+__all__ = ["add_cli"]
 
 
 def _probability(text: str) -> float:
@@ -30,7 +30,7 @@ def _names(text: str) -> tuple[str, ...]:
     return names
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``calibrate`` command."""
     parser = subparsers.add_parser(
         "calibrate",
@@ -88,10 +88,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="estimate how many labelled queries certify --target-precision at a useful recall; writes no gate",
     )
     parser.add_argument("--plot", type=output_file, metavar="FILE", help="write the reliability diagram")
-    parser.set_defaults(handler=_run_calibrate)
+    parser.set_defaults(handler=_handle)
 
 
-def _run_calibrate(args: argparse.Namespace) -> int:
+def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.calibration import calibrate
     from vpr_uncertainty.calibration.quality import brier_score, expected_calibration_error, reliability_diagram
     from vpr_uncertainty.evaluation import correct_at_n

@@ -6,10 +6,10 @@ import argparse
 import json
 from pathlib import Path
 
-__all__ = ["add_parser"]
+__all__ = ["add_cli"]
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``datasets`` command."""
     parser = subparsers.add_parser(
         "datasets",
@@ -26,10 +26,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("names", nargs="*", metavar="NAME", help="only these datasets (default: all)")
     parser.add_argument("--root", type=Path, help="data root (default: $VPR_UNCERTAINTY_DATA)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    parser.set_defaults(handler=_run_datasets)
+    parser.set_defaults(handler=_handle)
 
 
-def _run_datasets(args: argparse.Namespace) -> int:
+def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.data.named_datasets import (
         DATA_ROOT_VARIABLE,
         NAMED_DATASETS,

@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vpr_uncertainty.commands._arguments import (
-    add_deprecated_alias,
+from vpr_uncertainty.pipeline.options import (
     add_progress_options,
     command_wording,
     device_name,
@@ -15,10 +14,10 @@ from vpr_uncertainty.commands._arguments import (
     positive_int,
 )
 
-__all__ = ["add_parser"]
+__all__ = ["add_cli"]
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``train-btl`` command."""
     parser = subparsers.add_parser(
         "train-btl",
@@ -57,7 +56,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="POS.npy",
         help="database positions (D x 2, metres, or frame indices)",
     )
-    add_deprecated_alias(source, "--positions", new="--database-positions", dest="positions", type=Path)
     source.add_argument("--query-positions", type=Path, metavar="POS.npy", help="query positions (Q x 2)")
     source.add_argument(
         "--gt",
@@ -67,7 +65,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="explicit ground truth instead of positions: VPR-Bench ground_truth_new.npy, bool .npy, .json, .txt, "
         ".npz (queries x database, or database x database without queries)",
     )
-    add_deprecated_alias(source, "--positives", new="--gt", dest="positives", type=Path)
     source.add_argument(
         "--run", type=Path, metavar="DIR", help="run directory holding descriptors.h5 and retrieval.npz (positives)"
     )
@@ -103,13 +100,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--threads", type=positive_int, help="CPU threads of PyTorch (default: its own choice; 1 on a busy machine)"
     )
     add_progress_options(parser)
-    parser.set_defaults(handler=_run_train_btl)
+    parser.set_defaults(handler=_handle)
 
 
 _INPUTS = ("descriptors", "query_descriptors", "positions", "query_positions", "positives", "run")
 
 
-def _run_train_btl(args: argparse.Namespace) -> int:
+def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.btl import BTLTrainingConfig, save_btl_head, save_training_curve, train_btl_head
 
     if args.threads:

@@ -1,47 +1,146 @@
-"""Run the grid: every (VPR method, dataset) cell evaluated, or read from its cache under ``out/cells``.
+"""``reproduce``, the grid: VPR methods x datasets x uncertainty methods, then tables, figures and report.html.
 
-A cell's cache is two files named by the cell's key: ``KEY.json`` (the :func:`~vpr_uncertainty.cache.fingerprint`
-of the cell's inputs and the grid's settings, :meth:`Cell.to_dict`, the image paths and the cell's ``checksum``)
-and ``KEY.npz`` (:meth:`Cell.arrays` and the same ``fingerprint``), each written atomically
-(:mod:`vpr_uncertainty.cache`), the ``.npz`` first. The inputs are keyed by content: results and ground-truth files
-by :func:`~vpr_uncertainty.cache.content_key`; for a cell computed from images (``model``), every image and the
-dataset's ground truth as well; every file a method option names (``CAL:gate=gate.json``) by its content key too
-(:func:`~vpr_uncertainty.cache.named_files_key`).
-
-A cell is read back only when both files hold the expected fingerprint and the ``checksum`` (a
-:func:`~vpr_uncertainty.cache.payload_checksum` of the canonical JSON of the document and of every array, by name)
-matches what was read: a ``.json`` edited on disk, or a ``.json`` and a ``.npz`` of two different runs (a kill
-between the two renames), is reported in one line and recomputed, as is a cell cut short, unreadable or of a
-previous layout (no checksum). Input files larger than :data:`~vpr_uncertainty.cache.FULL_HASH_BYTES` are keyed
-cheaply (size, modification and change times, first and last MiB); the cell also records the
-:func:`~vpr_uncertainty.cache.file_digest` of every byte of each, which ``run_grid(..., verify=True)``
-(``reproduce --verify``) recomputes and compares before reusing the cell.
-
-Image inputs run :func:`vpr_uncertainty.pipeline.run` (the stage spine) on the dataset loaded once here. With the
-grid's ``calibration`` option, each cell also holds every method's held-out evaluation
-(:mod:`vpr_uncertainty.study.heldout`); the option is part of the settings, hence of the fingerprint.
+One grid cell = one (VPR method, dataset). A cell's cache is two files named by the cell's key under ``out/cells``:
+``KEY.json`` (the fingerprint of the cell's inputs and the grid's settings, :meth:`Cell.to_dict`, the image paths
+and the cell's ``checksum``) and ``KEY.npz`` (:meth:`Cell.arrays` and the same fingerprint), each written
+atomically, the ``.npz`` first. Inputs are keyed by content (results and ground-truth files, every image of a cell
+computed from images, every file a method option names). A cell is read back only when both files hold the
+expected fingerprint and checksum; otherwise it is reported in one line and recomputed. Input files larger than
+:data:`~vpr_uncertainty.cache.FULL_HASH_BYTES` are keyed cheaply (size, times, first and last MiB) and hashed whole
+with ``--verify``. Image inputs run :func:`vpr_uncertainty.pipeline.run.run` on the dataset loaded once here.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 import warnings
 import zipfile
+from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from vpr_uncertainty import cache
-from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, correct_at_n, evaluate
-from vpr_uncertainty.study.ablations import ablation_curves, ks_left_out_note
-from vpr_uncertainty.study.cell import Cell
-from vpr_uncertainty.study.config import GridConfig, InputEntry
-from vpr_uncertainty.study.heldout import full_query_methods, held_out_evaluation
+from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, auc_pr, correct_at_n
+from vpr_uncertainty.methods import get_method
+from vpr_uncertainty.pipeline.evaluate import TOP_K, EvaluateConf, evaluate
+from vpr_uncertainty.pipeline.grid_config import GridConfig, InputEntry, full_query_methods, load_config
+from vpr_uncertainty.pipeline.grid_report import Cell, write_reports, write_results
+from vpr_uncertainty.pipeline.options import (
+    VERIFY_FRACTION_HELP,
+    add_bootstrap_options,
+    add_executor_options,
+    executor_from_args,
+    executor_options,
+    fraction,
+    output_directory,
+)
 
-__all__ = ["HIT_COLUMNS", "candidates_needed", "load_cell", "run_cell", "run_grid", "save_cell"]
+if TYPE_CHECKING:
+    from vpr_uncertainty.retrieval import Retrieval
+
+__all__ = [
+    "Cell",
+    "GridConfig",
+    "add_cli",
+    "held_out_evaluation",
+    "load_config",
+    "run_cell",
+    "run_grid",
+    "write_reports",
+    "write_results",
+]
+
+_EXAMPLE = """example config (TOML; relative paths are relative to the config file):
+  out = "runs/reproduce"
+  methods = ["RS", "SD", "SU", "PA", "L2", "BM"]   # options in the name: "SUE:clip=one-sided" (needs positions)
+  k = 10
+  # calibration = {fraction = 0.3, repeats = 20, seed = 0}   # held-out Table 1 (add "CAL" to methods)
+
+  [[inputs]]
+  precomputed_matches = "data/vprbench/precomputed_matches/corridor"
+  ground_truth = "data/vprbench/corridor/ground_truth_new.npy"
+  images = "data/vprbench/corridor"
+
+  [[inputs]]
+  dataset = "data/vprbench/corridor"
+  model = "efficientnet-lite0-gem"
+"""
+
+
+def add_cli(subparsers: argparse._SubParsersAction) -> None:
+    """Register the ``reproduce`` command."""
+    parser = subparsers.add_parser(
+        "reproduce",
+        help="run VPR methods x datasets x uncertainty methods and write tables, figures and report.html",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Run every (VPR method, dataset) cell of CONFIG with every uncertainty method, from precomputed\n"
+            "similarity matrices, retrieval files or images, then write results.json, results.csv, Table 1\n"
+            "(md/csv/tex), the ΔAUC-PR heatmaps, the α and k ablations, the PR curves, a qualitative figure and\n"
+            "report.html into the output folder. The whole config is checked before any work; cells already\n"
+            "computed with the same inputs and settings are read from out/cells (use --force to recompute)."
+        ),
+        epilog=_EXAMPLE,
+    )
+    parser.add_argument("config", type=Path, metavar="CONFIG", help="grid configuration (.toml, or .yaml with pyyaml)")
+    parser.add_argument("--out", type=output_directory, help="output folder (default: `out` of the config)")
+    parser.add_argument("--force", action="store_true", help="recompute every cell, ignoring the cache")
+    parser.add_argument(
+        "--verify",
+        action="store_true",
+        help="before reusing a cached cell, hash every byte of its input files over 64 MiB (a plain rerun keys "
+        "them by size, modification and change times and their first and last MiB) and recompute the cell when "
+        "one differs",
+    )
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="only validate the configuration: files, methods and their options, and what every method needs "
+        "from every cell (positions, images, a head), all problems listed at once",
+    )
+    parser.add_argument("--no-report", action="store_true", help="write results.json/csv only (no tables, figures)")
+    add_bootstrap_options(parser, defaults_from_config=True)
+    parser.add_argument(
+        "--verify-fraction",
+        type=fraction,
+        metavar="F",
+        help=VERIFY_FRACTION_HELP.replace("(default 0.3;", "(default: verify_fraction of CONFIG, else 0.3;"),
+    )
+    add_executor_options(parser, ray_workers="the grid cells run as Ray tasks at once (default: the cluster's CPUs)")
+    parser.set_defaults(handler=_handle)
+
+
+def _handle(args: argparse.Namespace) -> int:
+    executor_options(args)  # bad executor options fail before any work
+    config = load_config(args.config, out=args.out, bootstrap=args.bootstrap, seed=args.seed, reference=args.reference)
+    if args.verify_fraction is not None:
+        if not any("+" in name.split(":")[0] for name in config.methods):
+            raise ValueError(f"--verify-fraction: {args.config} selects no cascade SCORE+GV (e.g. SU+GV-SIFT)")
+        config.verify_fraction = args.verify_fraction
+    cells = {(e.vpr_method, e.dataset) for e in config.inputs}
+    print(f"{args.config}: {len(cells)} cells x {len(config.methods)} uncertainty methods -> {config.out}")
+    if args.check:
+        return 0
+    with executor_from_args(args) as executor:
+        results = run_grid(config, force=args.force, executor=executor, verify=args.verify)
+    cached = sum(cell.cached for cell in results)
+    if cached:
+        print(f"{cached} of {len(results)} cells read from the cache")
+    paths = write_results(results, config)
+    if not args.no_report:
+        paths.update(write_reports(results, config))
+        if "table1_md" in paths:
+            print(paths["table1_md"].read_text(), end="")
+    for name in ("results_json", "results_csv", "report_html"):
+        if name in paths:
+            print(f"wrote {paths[name]}")
+    return 0
+
 
 #: Candidates per query whose correctness is kept for the qualitative figure.
 HIT_COLUMNS = 4
@@ -64,40 +163,48 @@ def candidates_needed(config: GridConfig) -> int:
     return max([config.k, *config.ks, max(RECALL_NS)])
 
 
+def evaluate_conf(config: GridConfig) -> EvaluateConf:
+    """The evaluation every cell of ``config`` runs (CAL without a gate file only on held-out splits)."""
+    return EvaluateConf(
+        methods=full_query_methods(config.methods, config.calibration),
+        k=config.k,
+        alpha=config.alpha,
+        bootstrap=config.bootstrap,
+        seed=config.seed,
+        reference=config.reference,
+        options=config.method_options(),
+    )
+
+
 def _load_cell_input(
     entry: InputEntry, config: GridConfig, out: Path, dataset: Any = None, seconds: dict | None = None
 ) -> tuple[Any, Evaluation | None, Any]:
     """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None); the
     pipeline's stage times are added to ``seconds`` (as ``pipeline_<stage>``)."""
     if entry.model is None:
-        from vpr_uncertainty.retrieval import MATRIX_TOP_K, read_results
+        from vpr_uncertainty.retrieval import read_results
 
         retrieval = read_results(
             entry.scores,
             ground_truth=entry.ground_truth,
             file_format=entry.file_format,
-            top_k=max(MATRIX_TOP_K, candidates_needed(config)),
+            top_k=max(TOP_K, candidates_needed(config)),
         )
         return retrieval, None, None
-    from vpr_uncertainty.pipeline import RunConfig, run
+    from vpr_uncertainty.pipeline.extract import ExtractConf
+    from vpr_uncertainty.pipeline.retrieve import RetrieveConf
+    from vpr_uncertainty.pipeline.run import RunConf, run
 
     options = dict(entry.run_options)
-    result = run(
-        RunConfig(
-            dataset=dataset if dataset is not None else entry.dataset_source,
-            out=out / "runs" / entry.key,
-            model=entry.model,
-            methods=full_query_methods(config.methods, config.calibration),
-            k=config.k,
-            alpha=config.alpha,
-            retrieval_k=candidates_needed(config),
-            bootstrap=config.bootstrap,
-            seed=config.seed,
-            reference=config.reference,
-            method_options=config.method_options(),
-            **options,
-        )
+    extract_options = {key: options.pop(key) for key in ("device", "batch_size") if key in options}
+    retrieve_options = {key: options.pop(key) for key in ("index",) if key in options}
+    conf = RunConf(
+        extract=ExtractConf(model=entry.model, **extract_options),
+        retrieve=RetrieveConf(top_k=candidates_needed(config), **retrieve_options),
+        evaluate=evaluate_conf(config),
+        **options,
     )
+    result = run(conf, dataset if dataset is not None else entry.dataset_source, out / "runs" / entry.key)
     if seconds is not None:
         seconds.update({f"pipeline_{stage}": value for stage, value in result.stage_seconds.items()})
     return result.retrieval, result.evaluation, dataset if dataset is not None else result.dataset
@@ -125,7 +232,7 @@ def _images_key(dataset: Any) -> str | None:
     """The content of a dataset's images and ground truth, for the fingerprint of a cell computed from images."""
     if dataset is None or not dataset.has_images:
         return None
-    from vpr_uncertainty.stages.retrieval import ground_truth_key
+    from vpr_uncertainty.pipeline.retrieve import ground_truth_key
 
     keys = {
         split: [cache.content_key(path) if Path(path).is_file() else "missing" for path in paths]
@@ -300,18 +407,8 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False, veri
     options = {} if query_paths is None else {"query_paths": query_paths, "database_paths": database_paths}
     start = time.perf_counter()
     if evaluation is None:
-        evaluation = evaluate(
-            retrieval,
-            full_query_methods(config.methods, config.calibration),
-            k=config.k,
-            alpha=config.alpha,
-            cache_dir=out / "local_features",
-            bootstrap=config.bootstrap,
-            seed=config.seed,
-            reference=config.reference,
-            **config.method_options(),
-            **options,
-        )
+        inputs = {"cache_dir": out / "local_features", **options}
+        evaluation = evaluate(evaluate_conf(config), retrieval, inputs=inputs).evaluation
     seconds["uncertainty_and_evaluation"] = time.perf_counter() - start
     start = time.perf_counter()
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
@@ -359,7 +456,7 @@ def run_grid(
     Parameters
     ----------
     config : GridConfig
-        The validated grid (see :func:`vpr_uncertainty.study.load_config`).
+        The validated grid (see :func:`~vpr_uncertainty.pipeline.grid_config.load_config`).
     force : bool, default=False
         Recompute every cell, ignoring the cache.
     progress : bool, optional
@@ -395,3 +492,101 @@ def run_grid(
             cells.append(run_cell(entry, config, force=force, verify=verify))
             bar.update(1)
     return cells
+
+
+def ablation_curves(
+    retrieval: Retrieval, correct: np.ndarray, *, k: int, alphas: Sequence[float], ks: Sequence[int]
+) -> tuple[dict[float, float | None], dict[str, dict[int, float | None]]]:
+    """AUC-PR of SU for every α (at ``k``) and of RS and SD for every k the retrieval holds.
+
+    Parameters
+    ----------
+    retrieval : Retrieval
+        The cell's retrieval.
+    correct : ndarray of shape (Q,), bool
+        Whether each query's top-1 answer is correct.
+    k : int
+        The k of the α ablation (at most the candidates per query are used).
+    alphas : sequence of float
+        Weights α of SU.
+    ks : sequence of int
+        Values of k for RS and SD; those above the candidates per query are left out.
+
+    Returns
+    -------
+    alpha_curve : dict of float to float or None
+        α -> AUC-PR of SU; None when every answer is correct, or none is.
+    k_curve : dict of str to dict of int to float or None
+        ``"RS"`` and ``"SD"`` -> k -> AUC-PR.
+    """
+    both = bool(correct.any() and not correct.all())
+    su, rs, sd = get_method("SU"), get_method("RS"), get_method("SD")
+    k = min(k, retrieval.k)
+    alpha_curve = {a: (auc_pr(correct, su(retrieval, k=k, alpha=a)) if both else None) for a in alphas}
+    k_curve: dict[str, dict[int, float | None]] = {"RS": {}, "SD": {}}
+    for value in ks:
+        if value > retrieval.k:
+            continue
+        for name, method in (("RS", rs), ("SD", sd)):
+            k_curve[name][value] = auc_pr(correct, method(retrieval, k=value)) if both else None
+    return alpha_curve, k_curve
+
+
+def ks_left_out_note(ks: Sequence[int], available: int) -> str | None:
+    """A note when the k ablation leaves out ks larger than the ``available`` candidates per query (else None)."""
+    left_out = [value for value in ks if value > available]
+    if not left_out:
+        return None
+    return (
+        f"k ablation: k = {', '.join(map(str, left_out))} left out, the retrieval holds {available} candidates "
+        "per query"
+    )
+
+
+def held_out_evaluation(retrieval: Retrieval, config: GridConfig, **options: Any) -> dict[str, Any]:
+    """Every method of the grid on the held-out queries of the grid's splits, as JSON types.
+
+    Parameters
+    ----------
+    retrieval : Retrieval
+        The cell's retrieval, with its ground truth.
+    config : GridConfig
+        Holds ``calibration`` (fraction, repeats, seed), ``methods``, ``k`` and ``alpha``.
+    **options
+        Further inputs of the methods (the image paths and the local-feature cache of the cell).
+
+    Returns
+    -------
+    dict
+        :meth:`~vpr_uncertainty.calibration.heldout.HeldOutEvaluation.to_dict`. When the splits are impossible
+        (fewer than 2 correct or 2 wrong answers), every method's ``auc_pr`` is None and ``notes`` says why.
+    """
+    from vpr_uncertainty.calibration.heldout import evaluate_held_out
+
+    option = config.calibration
+    if option is None:
+        raise ValueError("the grid has no calibration option (calibration = {fraction, repeats, seed})")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the first split's notes are kept in the result
+            result = evaluate_held_out(
+                retrieval,
+                config.methods,
+                calibration_fraction=option["fraction"],
+                repeats=option["repeats"],
+                seed=option["seed"],
+                k=config.k,
+                alpha=config.alpha,
+                **options,
+            )
+    except ValueError as error:
+        if "at least 2 correct and 2 wrong" not in str(error):
+            raise
+        empty = {"auc_pr": None, "auc_pr_std": None, "average_precision": None, "aurc": None}
+        return {
+            "n_queries": retrieval.n_queries,
+            "calibration": dict(option),
+            "methods": {get_method(spec).name: dict(empty) for spec in config.methods},
+            "notes": [f"no held-out evaluation: {error}"],
+        }
+    return result.to_dict()

@@ -1,0 +1,30 @@
+"""The stages of the data flow, one module each in hloc's shape, and the commands that run them.
+
+Each stage module holds its configuration (a frozen dataclass whose fields are also its command-line options), a
+``main(conf, inputs, out) -> Path`` and its ``add_cli(subparsers)``:
+
+=====================  ==========================  ===================================================================
+module                 artefact                    reused when
+=====================  ==========================  ===================================================================
+:mod:`.extract`        ``descriptors.h5``          per image: same model, preprocessing and image content
+:mod:`.retrieve`       ``retrieval.npz``           same options, descriptors and ground truth
+:mod:`.evaluate`       ``uncertainties.npz``       never (it measures the time per query)
+:mod:`.report`         ``results.{json,md}``, plot never (cheap)
+:mod:`.run`            all of the above            the one composer (``run``, ``demo``)
+:mod:`.grid`           ``out/cells``, report.html  per cell: same inputs (by content) and settings (``reproduce``)
+=====================  ==========================  ===================================================================
+
+:mod:`.calibrate`, :mod:`.datasets` and :mod:`.train_btl` are the commands beside the data flow.
+"""
+
+#: The modules whose ``add_cli`` the command line collects, in the order ``--help`` lists their commands.
+COMMAND_MODULES: tuple[str, ...] = (
+    "run",
+    "evaluate",
+    "calibrate",
+    "grid",
+    "datasets",
+    "extract",
+    "retrieve",
+    "train_btl",
+)

@@ -1,0 +1,477 @@
+"""Stage 3, ``evaluate``: a retrieval -> every uncertainty, evaluated, and ``uncertainties.npz``.
+
+``uncertainties.npz`` holds one (Q,) array per uncertainty method (higher = less trustworthy), ``correct`` (Q,)
+bool and the ``fingerprint`` of the methods, their options and the retrieval. The evaluation measures the time per
+query of each method, so it always runs (local features for geometric verification have their own cache).
+This module holds the one call of :func:`vpr_uncertainty.evaluation.evaluate` that every command goes through.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vpr_uncertainty import cache
+from vpr_uncertainty.pipeline.options import (
+    VERIFY_FRACTION_HELP,
+    add_executor_options,
+    add_options,
+    candidate_count,
+    checked_number,
+    command_wording,
+    conf_from_args,
+    executor_from_args,
+    executor_options,
+    fraction,
+    integer_at_least,
+    non_negative_float,
+    option,
+    output_file,
+    positive_int,
+    write_output,
+)
+from vpr_uncertainty.scores import check_alpha
+
+__all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "evaluate", "main", "method_list"]
+
+STAGE = "uncertainty"
+#: Candidates read from a full similarity matrix: enough for k = 10 and recall@20.
+TOP_K = 20
+
+
+def method_list(text: str) -> list[str]:
+    """Comma-separated method specs (``SU,SUE:clip=one-sided,slope=300``) checked against the registry."""
+    from vpr_uncertainty.methods import get_method, split_method_list
+
+    try:
+        specs = split_method_list(text)
+        names = [get_method(spec).name for spec in specs]
+    except (KeyError, ValueError, TypeError, ImportError) as error:
+        raise argparse.ArgumentTypeError(str(error.args[0]) if error.args else str(error)) from None
+    if not names:
+        raise argparse.ArgumentTypeError("expected a comma-separated list of method names, e.g. SU,PA,BM")
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"method listed more than once: {', '.join(twice)}")
+    return names
+
+
+METHOD_SPEC_HELP = (
+    "A method can carry its own options after a colon, e.g. SUE:clip=one-sided,slope=350 (the published SUE);\n"
+    "each variant is reported under its spec, so --methods SUE,SUE:clip=one-sided compares both. Options:\n"
+    "SU: k, alpha; SUE: k, slope, clip (symmetric | one-sided | none), max_deviation; RS/SD/BM/L2/PA/margin: k."
+)
+
+
+@dataclass(frozen=True)
+class EvaluateConf:
+    """Which uncertainties are computed and how they are evaluated; each field is also a command-line option."""
+
+    methods: Sequence[str] | None = option(
+        None,
+        "comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided (default: the "
+        "registry's defaults, RS,SD,SU,PA,L2,BM, plus SUE when the positions are metric)",
+        type=method_list,
+    )
+    k: int = option(10, "candidates per query for RS/SD/SU", type=candidate_count)
+    alpha: float = option(0.5, "weight of RS in SU, in [0, 1]", type=checked_number(check_alpha))
+    bootstrap: int = option(
+        0,
+        "bootstrap resamples for 95 %% intervals of AUC-PR, AP and AURC, a paired test of each method's AUC-PR against "
+        "the reference (Holm-corrected) and a best marked only where significant; 0 = none, 1000 is usual",
+        type=integer_at_least(0),
+        metavar="N",
+    )
+    seed: int = option(0, "seed of the bootstrap resamples (and of the held-out splits)", type=integer_at_least(0))
+    reference: str | None = option(
+        None,
+        "the method every other one is tested against (default: SU when evaluated, else the first method)",
+        metavar="NAME",
+    )
+    options: Mapping[str, Any] = field(default_factory=dict)  # further method options (btl_head, verify_fraction)
+
+    def __post_init__(self) -> None:
+        check_alpha(self.alpha)  # before any work (run extracts descriptors first)
+
+    def method_names(self, *, metric_positions: bool) -> list[str]:
+        """``methods``, else the registry's defaults (with SUE when the positions are metric)."""
+        from vpr_uncertainty.methods import default_method_names
+
+        return list(self.methods) if self.methods else default_method_names(metric_positions=metric_positions)
+
+
+@dataclass
+class Evaluated:
+    """What :func:`evaluate` produced: the evaluation in memory, and the file when one was written."""
+
+    evaluation: Any
+    fingerprint: str
+    path: Path | None = None
+
+
+def evaluate(
+    conf: EvaluateConf,
+    retrieval: Any,
+    path: str | Path | None = None,
+    *,
+    inputs: Mapping[str, Any] | None = None,
+    retrieval_fingerprint: str | None = None,
+    latency: bool = False,
+) -> Evaluated:
+    """Every uncertainty of ``conf`` on ``retrieval``, evaluated; the uncertainties written to ``path`` if given.
+
+    Parameters
+    ----------
+    conf : EvaluateConf
+    retrieval : Retrieval
+        With its ground truth.
+    path : str or Path, optional
+        ``uncertainties.npz``.
+    inputs : mapping, optional
+        What image-based methods need (``query_paths``, ``database_paths``, descriptors, ``cache_dir``,
+        ``device``) and where geometric verification runs (``executor``); not part of the fingerprint (the
+        retrieval's fingerprint covers their content, and every executor gives the same results).
+    retrieval_fingerprint : str, optional
+        The fingerprint of the retrieval file.
+    latency : bool
+        Also measure each score-based method's latency at batch size 1.
+    """
+    from vpr_uncertainty.evaluation import evaluate as evaluate_methods
+
+    kind = retrieval.config.get("position_kind")
+    metric = retrieval.database_positions is not None and kind in (None, "metres")
+    methods = conf.method_names(metric_positions=metric)
+    evaluation = evaluate_methods(
+        retrieval,
+        methods,
+        k=conf.k,
+        alpha=conf.alpha,
+        bootstrap=conf.bootstrap,
+        seed=conf.seed,
+        reference=conf.reference,
+        latency=latency,
+        **{**dict(inputs or {}), **dict(conf.options)},
+    )
+    described = {"methods": methods, "k": conf.k, "alpha": conf.alpha, "options": dict(conf.options)}
+    fingerprint = cache.fingerprint(STAGE, described, {"retrieval": retrieval_fingerprint})
+    if path is not None:
+        path = Path(path)
+        arrays = {name: method.uncertainty for name, method in evaluation.methods.items()}
+        with cache.atomic_write(path, "wb") as handle:
+            np.savez_compressed(handle, correct=evaluation.correct, fingerprint=np.array(fingerprint), **arrays)
+    return Evaluated(evaluation=evaluation, fingerprint=fingerprint, path=path)
+
+
+def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_truth: str | Path | None = None) -> Path:
+    """Evaluate the uncertainties of ``results`` (any file :func:`vpr_uncertainty.read_results` reads) into ``out``."""
+    from vpr_uncertainty.retrieval import read_results
+
+    retrieval = read_results(results, ground_truth=ground_truth, top_k=max(TOP_K, conf.k))
+    return evaluate(conf, retrieval, out).path  # type: ignore[return-value]
+
+
+# --- what the command reads besides SCORES -------------------------------------------------------------------
+
+_IMAGES_HINT = (
+    "give --images DIR (a dataset folder with query/ and ref/, or queries/ and database/) or --query-images and "
+    "--database-images"
+)
+
+
+def _verifying(methods: list[str]) -> list[str]:
+    from vpr_uncertainty.methods import get_method
+
+    def verifies(name: str) -> bool:
+        entry = get_method(name)
+        accepted = entry.accepted_options()
+        if accepted is None:  # takes any option (a cascade SCORE+GV, a plugin): what it requires says
+            return "images" in entry.requires
+        return "query_paths" in accepted
+
+    return [name for name in methods if verifies(name)]
+
+
+def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list[str], dict[str, Any], list[str]]:
+    """SCORES and the image folders of the command's arguments: (retrieval, methods, image options, notes)."""
+    from vpr_uncertainty.retrieval import read_results
+    from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_vpr_methods_evaluation
+
+    top_k = max(TOP_K, conf.k)  # a full matrix gives as many candidates as k asks, and enough for recall@20
+    notes: list[str] = []
+    log_paths: tuple[Any, Any] = (None, None)
+    if Path(args.scores).is_dir() and args.format == "auto":
+        log = read_vpr_methods_evaluation(args.scores, ground_truth=args.gt, radius=args.radius, top_k=top_k)
+        retrieval, notes, log_paths = log.retrieval, log.notes, (log.query_paths, log.database_paths)
+    else:
+        if args.radius is not None:
+            raise ValueError(
+                "--radius applies to VPR-methods-evaluation log folders; a results file holds or is given (--gt) "
+                "its ground truth"
+            )
+        retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
+    kind = retrieval.config.get("position_kind")
+    methods = conf.method_names(metric_positions=retrieval.database_positions is not None and kind in (None, "metres"))
+    verifying = _verifying(methods)
+    folders = {"images": args.images, "query_images": args.query_images, "database_images": args.database_images}
+    given = any(value is not None for value in folders.values())
+    if given and not verifying:
+        raise ValueError(
+            "--images, --query-images and --database-images feed the methods that verify images (GV-*); "
+            "none is in --methods"
+        )
+    options: dict[str, Any] = {}
+    if verifying:
+        if given:
+            from vpr_uncertainty.data.image_folders import retrieval_image_paths
+
+            query_paths, database_paths = retrieval_image_paths(retrieval, **folders)
+        elif log_paths[0] is not None:
+            query_paths, database_paths = log_paths
+            notes.append("images: the folders named in the log folder's info.log")
+        else:
+            raise ValueError(
+                f"{', '.join(verifying)} verif{'ies' if len(verifying) == 1 else 'y'} images: {_IMAGES_HINT}"
+            )
+        options = {"query_paths": [str(p) for p in query_paths], "database_paths": [str(p) for p in database_paths]}
+    return retrieval, methods, options, notes
+
+
+# --- command line --------------------------------------------------------------------------------------------
+
+
+def _method_help() -> str:
+    from vpr_uncertainty.methods import available_methods, get_method
+
+    return "\n".join(f"  {name:<8} {get_method(name).description}" for name in available_methods())
+
+
+def _open_fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must lie strictly between 0 and 1, got {text}")
+    return value
+
+
+def add_cli(subparsers: argparse._SubParsersAction) -> None:
+    """The ``evaluate`` command."""
+    from vpr_uncertainty.retrieval import INPUT_FORMATS
+
+    parser = subparsers.add_parser(
+        "evaluate",
+        help="evaluate uncertainty methods on precomputed VPR results",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Compute each uncertainty method on precomputed results and measure how well it predicts a correct\n"
+            "top-1 answer: AUC-PR (trapezoid, the convention of the VPR uncertainty tables), average precision,\n"
+            "AURC, recall at 100 % precision and the time per query.\n\n"
+            "SCORES is one of:\n"
+            "  retrieval.npz                a retrieval file (scores, indices, optionally the ground truth)\n"
+            "  matrix.npy                   a full similarity matrix, queries x database, higher = more similar\n"
+            "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy object array, read safely)\n"
+            "  LOGDIR/                      a VPR-methods-evaluation log folder saved with --save_descriptors\n"
+            "                               (ground truth derived from its image names when --gt is not given)\n\n"
+            "Uncertainty methods:\n" + _method_help() + "\n\n" + METHOD_SPEC_HELP
+        ),
+        epilog=(
+            "example:\n  vpr-uncertainty evaluate \\\n"
+            "      precomputed_matches/corridor/NetVLAD/precomputed_data_corrected.npy \\\n"
+            "      --gt corridor/ground_truth_new.npy --json results.json --plot pr.png"
+        ),
+    )
+    parser.add_argument("scores", type=Path, metavar="SCORES", help="results file (see above)")
+    parser.add_argument(
+        "--gt",
+        type=Path,
+        help="ground truth: VPR-Bench ground_truth_new.npy, boolean (Q x D) .npy, .json list of lists, "
+        ".txt with one line of positive indices per query, or .npz; required unless SCORES holds it",
+    )
+    parser.add_argument(
+        "--format", choices=INPUT_FORMATS, default="auto", help="how to read SCORES (default: from its name)"
+    )
+    add_options(parser, EvaluateConf, only=("methods", "k", "alpha"))
+    parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
+    group = parser.add_argument_group(
+        "images, for the methods that verify them (GV-*): query i and database image j are the i-th and j-th "
+        "images of their folder, sorted by path (VPR-Bench, VPR-datasets-downloader), or the names a retrieval "
+        "file holds"
+    )
+    group.add_argument(
+        "--images",
+        type=Path,
+        metavar="DIR",
+        help="dataset folder with query/ and ref/ (VPR-Bench) or queries/ and database/ image subfolders",
+    )
+    group.add_argument("--query-images", type=Path, metavar="DIR", help="folder of the query images")
+    group.add_argument("--database-images", type=Path, metavar="DIR", help="folder of the database images")
+    parser.add_argument(
+        "--radius",
+        type=non_negative_float,
+        help="VPR-methods-evaluation log folders: positives within this many metres (default: the run's "
+        "positive_dist_threshold, else 25)",
+    )
+    parser.add_argument("--json", type=output_file, metavar="FILE", help="write the results as JSON")
+    parser.add_argument(
+        "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
+    )
+    parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    parser.add_argument(
+        "--latency",
+        action="store_true",
+        help="also measure each score-based method's latency at batch size 1 (median of 3 runs of 200 "
+        "single-query calls; latency_ms_batch1 in --json)",
+    )
+    held_out = parser.add_argument_group(
+        "held-out evaluation (no leakage): every method on the same held-out queries of random splits; "
+        "CAL is fitted on the rest"
+    )
+    held_out.add_argument(
+        "--calibration-fraction",
+        type=_open_fraction,
+        metavar="F",
+        help="share of the queries used to fit CAL in each split, in (0, 1), e.g. 0.3",
+    )
+    held_out.add_argument("--repeats", type=positive_int, default=20, help="random splits (default 20)")
+    add_options(
+        parser.add_argument_group(
+            "confidence intervals and paired tests (paired bootstrap over queries: the same resamples for every method)"
+        ),
+        EvaluateConf,
+        only=("bootstrap", "seed", "reference"),
+    )
+    learned = parser.add_argument_group("options of methods that need more than scores")
+    learned.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: the head written by train-btl")
+    learned.add_argument(
+        "--descriptors",
+        type=Path,
+        metavar="DESC.h5",
+        help="BTL: descriptor cache (from extract or run) holding the queries and the database",
+    )
+    learned.add_argument(
+        "--allow-train-queries",
+        action="store_true",
+        help="BTL: evaluate the head even on queries it was trained on (refused otherwise; the table marks it ‡)",
+    )
+    add_executor_options(
+        parser,
+        ray_workers="the geometric-verification tasks in flight, for the GV-* methods (default: the cluster's CPUs)",
+    )
+    parser.set_defaults(handler=_handle)
+
+
+def method_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The method options the flags of ``evaluate``, ``run`` and ``reproduce`` give (only those given)."""
+    options: dict[str, Any] = {}
+    for name in ("btl_head", "verify_fraction"):
+        if getattr(args, name, None) is not None:
+            options[name] = getattr(args, name)
+    if getattr(args, "descriptors", None) is not None:
+        options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
+    if getattr(args, "allow_train_queries", False):
+        options["allow_train_queries"] = True
+    return options
+
+
+def _handle(args: argparse.Namespace) -> int:
+    from vpr_uncertainty.reports import format_table, plot_rejection_curves
+
+    conf = conf_from_args(EvaluateConf, args, options=method_options(args))
+    executor_options(args)  # bad executor options fail before any work
+    wording = {"images": "--images", "query_images": "--query-images", "database_images": "--database-images"}
+    with command_wording(ground_truth="--gt GT", database_positions="--database-positions", **wording):
+        retrieval, methods, image_options, notes = read_inputs(args, conf)
+        conf = conf_from_args(EvaluateConf, args, methods=methods, options={**conf.options, **image_options})
+        for note in notes:
+            print(f"note: {note}")
+        if args.calibration_fraction is not None and args.bootstrap:
+            raise ValueError(
+                "--bootstrap and --calibration-fraction cannot be combined: the held-out evaluation reports its "
+                "spread over the random splits instead"
+            )
+        if args.executor != "local":
+            _check_verifies(methods)
+        with executor_from_args(args) as executor:
+            inputs = {} if executor.name == "local" else {"executor": executor}  # GV-* verify their pairs there
+            if args.calibration_fraction is not None:
+                return _held_out(args, conf, retrieval, inputs)
+            evaluation = evaluate(conf, retrieval, inputs=inputs, latency=args.latency).evaluation
+    print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
+    if args.latency:
+        print(_latency_line(evaluation))
+    if args.json:
+        write_output(args.json, json.dumps(evaluation.to_dict(), indent=2) + "\n")
+        print(f"wrote {args.json}")
+    if args.plot:
+        plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _check_verifies(methods: list[str]) -> None:
+    """Refuse ``--executor ray`` when no selected method verifies images (nothing of evaluate would run there)."""
+    from vpr_uncertainty.methods import get_method
+
+    if not any(get_method(name).kind in ("geometric", "cascade") for name in methods):
+        raise ValueError(
+            f"--executor ray: evaluate runs only geometric verification (GV-*, SCORE+GV) on Ray, and none of the "
+            f"selected methods ({', '.join(methods)}) verifies images; drop --executor or add e.g. GV-SIFT"
+        )
+
+
+def _latency_line(evaluation: Any) -> str:
+    pairs = [
+        f"{name} {method.timings['latency_ms_batch1']:.4f}"
+        for name, method in evaluation.methods.items()
+        if "latency_ms_batch1" in method.timings
+    ]
+    return "latency at batch size 1 (ms/query, median of 3 runs of 200 calls): " + (", ".join(pairs) or "none")
+
+
+def _held_out(args: argparse.Namespace, conf: EvaluateConf, retrieval: Any, inputs: dict[str, Any]) -> int:
+    from vpr_uncertainty.calibration.heldout import evaluate_held_out
+
+    result = evaluate_held_out(
+        retrieval,
+        list(conf.methods or ()),
+        calibration_fraction=args.calibration_fraction,
+        repeats=args.repeats,
+        seed=conf.seed,
+        k=conf.k,
+        alpha=conf.alpha,
+        **{**inputs, **dict(conf.options)},
+    )
+    print(
+        f"{args.scores}: {result.repeats} random splits, {result.n_calibration} calibration / "
+        f"{result.n_held_out} held-out queries (seed {result.seed}); mean ± std over the splits"
+    )
+    print(f"{'method':<10} {'AUC-PR':>16} {'AP':>16} {'AURC':>16}")
+
+    def cell(name: str, metric: str) -> str:
+        mean, std = result.mean(name, metric), result.std(name, metric)
+        return "n/a" if mean is None else f"{mean:.4f} ± {std or 0.0:.4f}"
+
+    for name in result.values:
+        print(f"{name:<10} {cell(name, 'auc_pr'):>16} {cell(name, 'average_precision'):>16} {cell(name, 'aurc'):>16}")
+    if "CAL" in result.quality:
+        quality = result.quality["CAL"]
+        print(f"CAL calibration on held-out queries: ECE {quality['ece']:.3f}, Brier {quality['brier']:.3f}")
+    if args.json:
+        write_output(args.json, json.dumps(result.to_dict(), indent=2) + "\n")
+        print(f"wrote {args.json}")
+    if args.plot:
+        if "CAL" not in result.quality:
+            raise ValueError("--plot with --calibration-fraction draws CAL's reliability diagram: add CAL to --methods")
+        from vpr_uncertainty.calibration.quality import Reliability
+        from vpr_uncertainty.reports.reliability import plot_reliability
+
+        plot_reliability(Reliability(**result.quality["CAL"]["reliability"]), args.plot, title="held-out reliability")
+        print(f"wrote {args.plot}")
+    return 0

@@ -1,0 +1,420 @@
+"""Options declared once: a stage's configuration is a frozen dataclass whose fields carry their command-line help;
+:func:`add_options` derives the flags from it and :func:`conf_from_args` reads them back.
+
+Also the argument types that reject bad values with a message argparse prints as is, and the option groups that
+several commands share (progress, executor, bootstrap).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import re
+import tempfile
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from vpr_uncertainty.executors import CONNECT_TIMEOUT
+
+__all__ = [
+    "VERIFY_FRACTION_HELP",
+    "add_bootstrap_options",
+    "add_executor_options",
+    "add_options",
+    "add_progress_options",
+    "apply_threads",
+    "candidate_count",
+    "checked_number",
+    "command_wording",
+    "conf_from_args",
+    "device_name",
+    "executor_from_args",
+    "executor_options",
+    "fraction",
+    "integer_at_least",
+    "local_workers",
+    "non_negative_float",
+    "option",
+    "output_directory",
+    "output_file",
+    "positive_int",
+    "write_output",
+]
+
+
+# --- argument types ------------------------------------------------------------------------------------------
+
+
+def integer_at_least(minimum: int) -> Callable[[str], int]:
+    """An argparse type accepting integers >= ``minimum``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text}")
+        return value
+
+    parse.__name__ = f"integer_at_least_{minimum}"
+    return parse
+
+
+#: Positive integers (batch sizes, epochs, k of a search).
+positive_int = integer_at_least(1)
+#: Candidates per query for RS/SD/SU: the best match and at least one runner-up.
+candidate_count = integer_at_least(2)
+
+
+def non_negative_float(text: str) -> float:
+    """An argparse type accepting finite numbers >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0 <= value < math.inf:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """An argparse type accepting numbers in [0, 1] (``--alpha``, ``--verify-fraction``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"must lie in [0, 1], got {text}")
+    return value
+
+
+def checked_number(check: Callable[[float], Any]) -> Callable[[str], float]:
+    """An argparse type for a number that the library's own check accepts (the check is written once, there)."""
+
+    def parse(text: str) -> float:
+        try:
+            return check(float(text))
+        except (TypeError, ValueError) as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    parse.__name__ = getattr(check, "__name__", "number")
+    return parse
+
+
+_DEVICE = re.compile(r"(cpu|mps|cuda(:\d+)?)")
+
+
+def device_name(text: str) -> str:
+    """An argparse type accepting cpu, cuda, cuda:N and mps (whether the device is present is checked where used)."""
+    if not _DEVICE.fullmatch(text):
+        raise argparse.ArgumentTypeError(f"expected cpu, cuda, cuda:N or mps, got {text!r}")
+    return text
+
+
+def _check_writable(path: Path) -> None:
+    """Raise ArgumentTypeError unless ``path`` could be created (probed with a temporary file in its nearest
+    existing ancestor, removed at once)."""
+    ancestor = path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise argparse.ArgumentTypeError(f"{ancestor} is a file, so {path} cannot be created under it")
+    try:
+        with tempfile.NamedTemporaryFile(dir=ancestor, prefix=".vpr-uncertainty-probe-"):
+            pass
+    except OSError as error:
+        raise argparse.ArgumentTypeError(f"cannot write in {ancestor}: {error.strerror or error}") from None
+
+
+def output_file(text: str) -> Path:
+    """An argparse type for a file the command writes: not a folder, and creatable or writable."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a folder; expected a file name")
+    if path.exists():
+        if not os.access(path, os.W_OK):
+            raise argparse.ArgumentTypeError(f"{path} exists and is not writable")
+    else:
+        _check_writable(path)
+    return path
+
+
+def output_directory(text: str) -> Path:
+    """An argparse type for a folder the command writes into: not an existing file, and creatable."""
+    path = Path(text)
+    if path.exists():
+        if not path.is_dir():
+            raise argparse.ArgumentTypeError(f"{path} exists and is not a folder; expected an output folder")
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise argparse.ArgumentTypeError(f"{path} is not writable")
+    else:
+        _check_writable(path)
+    return path
+
+
+def write_output(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (creating its folder); an OSError always names the file."""
+    from vpr_uncertainty.cache import write_text
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_text(path, text)
+    except OSError as error:
+        if error.filename is None and error.errno is not None:
+            raise OSError(error.errno, error.strerror, str(path)) from error
+        raise
+
+
+@contextmanager
+def command_wording(**flags: str) -> Iterator[None]:
+    """Re-word library errors for the command line: ``(argument NAME)`` becomes the command's flag.
+
+    The library names its arguments (``"give the ground truth (argument ground_truth)"``); a command says
+    ``command_wording(ground_truth="--gt GT")`` around its calls, and the user reads the flag to type.
+    """
+    try:
+        yield
+    except (ValueError, TypeError, FileNotFoundError, FloatingPointError) as error:
+        text = str(error.args[0]) if len(error.args) == 1 else ""
+        reworded = text
+        for argument, flag in flags.items():
+            reworded = reworded.replace(f"argument {argument}", flag)
+        if reworded == text:
+            raise
+        raise type(error)(reworded) from error
+
+
+# --- options declared once, on the configuration -------------------------------------------------------------
+
+
+def option(default: Any = None, help: str = "", *, flag: str | None = None, **argparse_options: Any) -> Any:
+    """A configuration field that is also a command-line option.
+
+    ``help`` is the flag's help (the default is appended unless it is None or False); ``flag`` overrides the
+    name derived from the field (``batch_size`` -> ``--batch-size``); ``argparse_options`` (``type``,
+    ``choices``, ``metavar``) are passed to ``add_argument``. A field declared with plain ``dataclasses.field``
+    (or a default) is not an option.
+    """
+    metadata = {"help": help, "flag": flag, "argparse": argparse_options}
+    if isinstance(default, (list, dict, set)):
+        return dataclasses.field(default_factory=lambda: type(default)(default), metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def _options(conf_class: type, names: Iterable[str] | None) -> list[dataclasses.Field]:
+    chosen = None if names is None else set(names)
+    found = [f for f in dataclasses.fields(conf_class) if "help" in f.metadata]
+    if chosen is not None:
+        unknown = chosen - {f.name for f in found}
+        if unknown:
+            raise ValueError(f"{conf_class.__name__} has no option {sorted(unknown)}")
+        found = [f for f in found if f.name in chosen]
+    return found
+
+
+def add_options(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    conf_class: type,
+    *,
+    only: Iterable[str] | None = None,
+    help: dict[str, str] | None = None,
+    defaults: dict[str, Any] | None = None,
+) -> None:
+    """Add one flag per option of ``conf_class`` (a dataclass built with :func:`option`).
+
+    ``only`` restricts the options; ``help`` and ``defaults`` replace the help and default of some (a command
+    whose defaults come from elsewhere, e.g. a config file, says so in its help).
+    """
+    for field in _options(conf_class, only):
+        meta = field.metadata
+        text = (help or {}).get(field.name, meta["help"])
+        flag = meta["flag"] or "--" + field.name.replace("_", "-")
+        if defaults and field.name in defaults:
+            default = defaults[field.name]
+        elif field.default is not dataclasses.MISSING:
+            default = field.default
+        else:
+            default = field.default_factory()  # type: ignore[misc]
+        if default is False and not meta["argparse"]:
+            parser.add_argument(flag, dest=field.name, action="store_true", help=text)
+            continue
+        if default is not None and "(default" not in text:
+            text += f" (default {default})"
+        parser.add_argument(flag, dest=field.name, default=default, help=text, **meta["argparse"])
+
+
+def conf_from_args(conf_class: type, args: argparse.Namespace, **values: Any) -> Any:
+    """``conf_class`` with the options that ``args`` holds (those :func:`add_options` added), then ``values``."""
+    given = {f.name: getattr(args, f.name) for f in _options(conf_class, None) if hasattr(args, f.name)}
+    return conf_class(**{**given, **values})
+
+
+# --- option groups shared by several commands ----------------------------------------------------------------
+
+#: Help of ``--verify-fraction`` (evaluate, run, reproduce).
+VERIFY_FRACTION_HELP = (
+    "cascades SCORE+GV (e.g. SU+GV-SIFT): the fraction of the queries, the most uncertain by SCORE, that are "
+    "geometrically verified, in [0, 1] (default 0.3; per method: SU+GV-SIFT:verify_fraction=0.5)"
+)
+
+
+def add_progress_options(parser: argparse.ArgumentParser, *, top_level: bool = False) -> None:
+    """``--progress`` / ``--no-progress`` (progress bars on stderr; default: only when stderr is a terminal). On a
+    command, they override the same flags given before the command."""
+    group = parser.add_mutually_exclusive_group()
+    default = None if top_level else argparse.SUPPRESS
+    group.add_argument(
+        "--progress",
+        dest="progress",
+        action="store_const",
+        const=True,
+        default=default,
+        help="show progress bars on stderr even when it is not a terminal (a log file, a pipe)",
+    )
+    group.add_argument(
+        "--no-progress",
+        dest="progress",
+        action="store_const",
+        const=False,
+        default=default,
+        help="no progress bars (default: shown only when stderr is a terminal)",
+    )
+
+
+def apply_threads(threads: int | None) -> None:
+    """``torch.set_num_threads(threads)`` when ``--threads`` was given."""
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+
+
+def add_bootstrap_options(
+    parser: argparse.ArgumentParser, *, seed: bool = True, defaults_from_config: bool = False
+) -> None:
+    """``--bootstrap``, ``--reference`` and (when ``seed``) ``--seed`` in one group; with ``defaults_from_config``
+    they default to None, so that a config file's values apply unless given."""
+    where = " (default: the config's, else {})" if defaults_from_config else " (default {})"
+    group = parser.add_argument_group(
+        "confidence intervals and paired tests (paired bootstrap over queries: the same resamples for every method)"
+    )
+    group.add_argument(
+        "--bootstrap",
+        type=integer_at_least(0),
+        default=None if defaults_from_config else 0,
+        metavar="N",
+        help="bootstrap resamples for 95 %% intervals of AUC-PR, AP and AURC, a paired test of each method's AUC-PR "
+        "against the reference (Holm-corrected) and a best marked only where significant; 0 = none, 1000 is usual"
+        + where.format(0),
+    )
+    if seed:
+        group.add_argument(
+            "--seed",
+            type=integer_at_least(0),
+            default=None if defaults_from_config else 0,
+            help="seed of the bootstrap resamples" + where.format(0),
+        )
+    group.add_argument(
+        "--reference",
+        metavar="NAME",
+        default=None,
+        help="the method every other one is tested against (default: SU when evaluated, else the first method)",
+    )
+
+
+#: What ``--workers`` means with ``--executor local`` in ``run`` and ``extract``.
+DECODING_THREADS = "image decoding threads (default min(4, CPUs); 0 = none)"
+_RAY_WORKERS = "the Ray tasks or actors in flight (default: the cluster's CPUs)"
+
+
+def _seconds(text: str) -> float:
+    value = non_negative_float(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text}")
+    return value
+
+
+def add_executor_options(
+    parser: argparse.ArgumentParser, *, local_workers: str | None = None, ray_workers: str = _RAY_WORKERS
+) -> None:
+    """``--executor``, ``--address``, ``--workers``, ``--connect-timeout``, ``--gpus-per-worker``.
+
+    ``--workers`` is the one name for "how many parallel workers": with Ray, the tasks or actors in flight
+    (``ray_workers`` says which); locally, ``local_workers`` (e.g. :data:`DECODING_THREADS`), or refused when None.
+    """
+    group = parser.add_argument_group("executor (where the work runs, and how many workers run it)")
+    group.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="local: in this process (default); ray: as tasks on a Ray cluster (needs the [ray] extra)",
+    )
+    group.add_argument(
+        "--address",
+        metavar="ADDRESS",
+        help="Ray cluster to connect to (host:port or 'auto'); default: start a local one (--executor ray only)",
+    )
+    local = local_workers or "no meaning, so it is refused (the work runs one item after another)"
+    group.add_argument(
+        "--workers",
+        type=integer_at_least(0),
+        metavar="N",
+        help=f"how many parallel workers. With --executor ray: {ray_workers}. With --executor local: {local}",
+    )
+    group.add_argument(
+        "--connect-timeout",
+        type=_seconds,
+        default=CONNECT_TIMEOUT,
+        metavar="SECONDS",
+        help=f"how long to wait for the Ray cluster at --address to answer (default {CONNECT_TIMEOUT:g} s)",
+    )
+    group.add_argument(
+        "--gpus-per-worker",
+        type=non_negative_float,
+        default=0.0,
+        metavar="G",
+        help="GPUs Ray assigns to each worker (default 0; fractions share a GPU)",
+    )
+    parser.set_defaults(workers_mean_locally=local_workers is not None)
+
+
+def executor_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments of :func:`~vpr_uncertainty.executors.get_executor` that the options ask for; a
+    ValueError for a Ray-only option with ``--executor local`` or ``--workers 0`` with Ray."""
+    workers = args.workers
+    if args.executor == "local":
+        given = [flag for flag, value in (("--address", args.address),) if value is not None]
+        if workers is not None and not getattr(args, "workers_mean_locally", False):
+            given.append("--workers")
+        if args.gpus_per_worker:
+            given.append("--gpus-per-worker")
+        if given:
+            raise ValueError(f"{', '.join(given)}: only with --executor ray")
+        return {"name": "local"}
+    if workers == 0:
+        raise ValueError("--workers 0: --executor ray needs at least 1 worker (omit it for the cluster's CPUs)")
+    return {
+        "name": args.executor,
+        "address": args.address,
+        "workers": workers,
+        "gpus_per_worker": args.gpus_per_worker,
+        "connect_timeout": args.connect_timeout,
+    }
+
+
+def local_workers(args: argparse.Namespace) -> int | None:
+    """``--workers`` in its local meaning (image decoding threads) with ``--executor local``; None with Ray."""
+    return args.workers if args.executor == "local" else None
+
+
+def executor_from_args(args: argparse.Namespace) -> Any:
+    """The executor the options ask for (a context manager), after :func:`executor_options`' checks."""
+    from vpr_uncertainty.executors import get_executor
+
+    options = executor_options(args)
+    return get_executor(options.pop("name"), **options)
