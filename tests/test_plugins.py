@@ -141,3 +141,34 @@ def test_the_package_registers_its_higher_layers_through_its_entry_points():
     groups = {entry.value for entry in metadata.entry_points(group="vpr_uncertainty.plugins")}
     assert {"vpr_uncertainty.geometric", "vpr_uncertainty.btl"} <= groups
     assert {"GV-SIFT", "BTL", "SUE", "CAL"} <= set(available_methods())
+
+
+def test_a_plugin_module_named_on_the_command_line_gives_the_cli_its_method(tmp_path, monkeypatch, capsys):
+    """Before: `evaluate --methods ENT` with a user's method needed a wrapper script around cli.main."""
+    from vpr_uncertainty.cli import main
+
+    (tmp_path / "entropy_plugin.py").write_text(
+        "import numpy as np\n"
+        "from vpr_uncertainty.methods import register_method\n"
+        "def entropy(retrieval, *, k=10):\n"
+        "    s = np.exp(retrieval.scores[:, :k]); p = s / s.sum(axis=1, keepdims=True)\n"
+        "    return -(p * np.log(p)).sum(axis=1)\n"
+        "register_method('ENT', entropy, description='entropy of the softmax of the top-k scores')\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    matrix = tmp_path / "sim.npy"
+    rng = np.random.default_rng(0)
+    np.save(matrix, rng.random((12, 15)).astype(np.float32))
+    ground_truth = tmp_path / "gt.json"
+    ground_truth.write_text("[" + ",".join(f"[{i}]" for i in range(12)) + "]")
+    try:
+        with pytest.raises(SystemExit) as exit_:  # a usage error
+            main(["evaluate", str(matrix), "--gt", str(ground_truth), "--methods", "ENT,SU"])
+        assert exit_.value.code == 2 and "unknown uncertainty method 'ENT'" in capsys.readouterr().err
+        argv = ["--plugin", "entropy_plugin", "evaluate", str(matrix), "--gt", str(ground_truth), "--methods", "ENT,SU"]
+        assert main(argv) == 0
+        assert "ENT" in capsys.readouterr().out
+    finally:
+        METHODS.unregister("ENT")
+    assert main(["--plugin", "no_such_plugin_xyz", "datasets"]) == 2
+    assert "plugin module 'no_such_plugin_xyz' not found" in capsys.readouterr().err
