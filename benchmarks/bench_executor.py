@@ -24,7 +24,8 @@ from pathlib import Path
 
 from bench_geometric import resized_copies
 from vpr_uncertainty.executors import get_executor
-from vpr_uncertainty.pipeline.extract import ExtractConf, extract
+from vpr_uncertainty.pipeline.extract import ExtractConf
+from vpr_uncertainty.pipeline.extract import compute as extract
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

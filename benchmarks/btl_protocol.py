@@ -37,7 +37,8 @@ from vpr_uncertainty.calibration.heldout import subset_queries
 from vpr_uncertainty.data.attach import attach_ground_truth
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import evaluate
-from vpr_uncertainty.pipeline.extract import ExtractConf, extract
+from vpr_uncertainty.pipeline.extract import ExtractConf
+from vpr_uncertainty.pipeline.extract import compute as extract
 from vpr_uncertainty.retrieval import retrieve
 
 MODEL = "efficientnet-lite0-gem"

@@ -21,7 +21,8 @@ ray = pytest.importorskip("ray")
 from vpr_uncertainty.descriptors import extract_descriptors  # noqa: E402
 from vpr_uncertainty.descriptors.cache import cache_info, read_descriptors  # noqa: E402
 from vpr_uncertainty.descriptors.images import ImageDecodeError  # noqa: E402
-from vpr_uncertainty.pipeline.extract import ExtractConf, extract, model_of  # noqa: E402
+from vpr_uncertainty.pipeline.extract import ExtractConf, model_of  # noqa: E402
+from vpr_uncertainty.pipeline.extract import compute as extract  # noqa: E402
 
 N_IMAGES = 12
 

@@ -205,9 +205,10 @@ def test_results_json_is_written_once_and_never_read_back(corridor_copy, tmp_pat
 def test_stages_compose_without_the_pipeline(corridor_copy, tmp_path):
     """The stage functions, composed by hand, give the pipeline's answer and return their artefacts' paths."""
     from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.pipeline.evaluate import evaluate
-    from vpr_uncertainty.pipeline.extract import extract
-    from vpr_uncertainty.pipeline.retrieve import RetrieveConf, search
+    from vpr_uncertainty.pipeline.evaluate import compute as evaluate
+    from vpr_uncertainty.pipeline.extract import compute as extract
+    from vpr_uncertainty.pipeline.retrieve import RetrieveConf
+    from vpr_uncertainty.pipeline.retrieve import compute as search
 
     dataset = load_dataset(corridor_copy)
     images = {

@@ -38,7 +38,7 @@ from vpr_uncertainty.pipeline.options import (
 )
 from vpr_uncertainty.scores import check_alpha
 
-__all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "evaluate", "main", "method_list"]
+__all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "compute", "main", "method_list"]
 
 STAGE = "uncertainty"
 #: Candidates read from a full similarity matrix: enough for k = 10 and recall@20.
@@ -108,14 +108,14 @@ class EvaluateConf:
 
 @dataclass
 class Evaluated:
-    """What :func:`evaluate` produced: the evaluation in memory, and the file when one was written."""
+    """What :func:`compute` produced: the evaluation in memory, and the file when one was written."""
 
     evaluation: Any
     fingerprint: str
     path: Path | None = None
 
 
-def evaluate(
+def compute(
     conf: EvaluateConf,
     retrieval: Any,
     path: str | Path | None = None,
@@ -173,7 +173,7 @@ def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_tru
     from vpr_uncertainty.retrieval import read_results
 
     retrieval = read_results(results, ground_truth=ground_truth, top_k=max(TOP_K, conf.k))
-    return evaluate(conf, retrieval, out).path  # type: ignore[return-value]
+    return compute(conf, retrieval, out).path  # type: ignore[return-value]
 
 
 # --- what the command reads besides SCORES -------------------------------------------------------------------
@@ -402,7 +402,7 @@ def _handle(args: argparse.Namespace) -> int:
             inputs = {} if executor.name == "local" else {"executor": executor}  # GV-* verify their pairs there
             if args.calibration_fraction is not None:
                 return _held_out(args, conf, retrieval, inputs)
-            evaluation = evaluate(conf, retrieval, inputs=inputs, latency=args.latency).evaluation
+            evaluation = compute(conf, retrieval, inputs=inputs, latency=args.latency).evaluation
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
     if args.latency:
         print(_latency_line(evaluation))

@@ -34,7 +34,7 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = ["Descriptors", "ExtractConf", "add_cli", "extract", "main", "model_of"]
+__all__ = ["Descriptors", "ExtractConf", "add_cli", "compute", "main", "model_of"]
 
 SPLITS = ("database", "queries")
 #: Image files a dataset folder scan picks up (case-insensitive).
@@ -80,7 +80,7 @@ class ExtractConf:
 
 @dataclass
 class Descriptors:
-    """What :func:`extract` produced: the file, and the descriptors and names of each split in memory.
+    """What :func:`compute` produced: the file, and the descriptors and names of each split in memory.
 
     Attributes
     ----------
@@ -118,7 +118,7 @@ def model_of(conf: ExtractConf) -> Any:
     return model
 
 
-def extract(
+def compute(
     conf: ExtractConf,
     images: Mapping[str, tuple[Sequence[str | Path], Sequence[str]]],
     path: str | Path,
@@ -180,7 +180,7 @@ def extract(
 
 def main(conf: ExtractConf, dataset: str | Path, out: str | Path, *, executor: Any = None) -> Path:
     """Descriptors of every image of ``dataset`` (a folder or a registered name) in the HDF5 file ``out``."""
-    return extract(conf, dataset_images(dataset), out, executor=executor).path
+    return compute(conf, dataset_images(dataset), out, executor=executor).path
 
 
 # --- reading a dataset's images ------------------------------------------------------------------------------
@@ -336,7 +336,7 @@ def _handle(args: argparse.Namespace) -> int:
         progress=getattr(args, "progress", None),
     )
     with executor_from_args(args) as executor:
-        result = extract(conf, splits, args.out, executor=None if executor.name == "local" else executor)
+        result = compute(conf, splits, args.out, executor=None if executor.name == "local" else executor)
     for split in SPLITS:
         kept, descriptors = result.split(split)
         skipped = len(splits[split][1]) - len(kept)

@@ -27,7 +27,8 @@ import numpy as np
 from vpr_uncertainty import cache
 from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, auc_pr, correct_at_n
 from vpr_uncertainty.methods import get_method
-from vpr_uncertainty.pipeline.evaluate import TOP_K, EvaluateConf, evaluate
+from vpr_uncertainty.pipeline import evaluate
+from vpr_uncertainty.pipeline.evaluate import TOP_K, EvaluateConf
 from vpr_uncertainty.pipeline.grid_config import GridConfig, InputEntry, full_query_methods, load_config
 from vpr_uncertainty.pipeline.grid_report import Cell, write_reports, write_results
 from vpr_uncertainty.pipeline.options import (
@@ -408,7 +409,7 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False, veri
     start = time.perf_counter()
     if evaluation is None:
         inputs = {"cache_dir": out / "local_features", **options}
-        evaluation = evaluate(evaluate_conf(config), retrieval, inputs=inputs).evaluation
+        evaluation = evaluate.compute(evaluate_conf(config), retrieval, inputs=inputs).evaluation
     seconds["uncertainty_and_evaluation"] = time.perf_counter() - start
     start = time.perf_counter()
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)

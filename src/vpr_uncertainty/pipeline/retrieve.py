@@ -28,7 +28,7 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = ["RetrieveConf", "Retrieved", "add_cli", "ground_truth_key", "main", "search", "search_device"]
+__all__ = ["RetrieveConf", "Retrieved", "add_cli", "compute", "ground_truth_key", "main", "search_device"]
 
 STAGE = "retrieval"
 
@@ -57,7 +57,7 @@ class RetrieveConf:
 
 @dataclass
 class Retrieved:
-    """What :func:`search` produced: the file, the retrieval in memory, its fingerprint, whether it was reused."""
+    """What :func:`compute` produced: the file, the retrieval in memory, its fingerprint, whether it was reused."""
 
     path: Path
     retrieval: Any
@@ -86,7 +86,7 @@ def ground_truth_key(fields: Mapping[str, Any]) -> str:
     return cache.fingerprint("ground_truth", dict(fields.get("config") or {}), {"arrays": cache.array_digest(*parts)})
 
 
-def search(
+def compute(
     conf: RetrieveConf,
     database: tuple[Any, np.ndarray],
     queries: tuple[Any, np.ndarray],
@@ -163,7 +163,7 @@ def main(
     database_names, database_array = open_descriptors(database, "database")
     query_names, query_array = load_descriptors(queries, "queries")
     describe = {"database": str(database), "queries": str(queries)}
-    found = search(
+    found = compute(
         conf, (database_names, database_array), (query_names, query_array), ground_truth, out, describe=describe
     )
     return found.path
@@ -290,7 +290,7 @@ def _handle(args: argparse.Namespace) -> int:
         describe["ground_truth"] = str(args.gt)
     conf = conf_from_args(RetrieveConf, args, progress=getattr(args, "progress", None))
     start = time.perf_counter()
-    found = search(
+    found = compute(
         conf, (database_names, database), (query_names, queries), ground_truth, args.out, describe=describe, copy=False
     )
     seconds = time.perf_counter() - start

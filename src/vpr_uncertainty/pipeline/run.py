@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.pipeline import report
-from vpr_uncertainty.pipeline.evaluate import METHOD_SPEC_HELP, EvaluateConf, evaluate, method_options
-from vpr_uncertainty.pipeline.extract import ExtractConf, add_threads_option, extract
+from vpr_uncertainty.pipeline import evaluate, extract, report, retrieve
+from vpr_uncertainty.pipeline.evaluate import METHOD_SPEC_HELP, EvaluateConf, method_options
+from vpr_uncertainty.pipeline.extract import ExtractConf, add_threads_option
 from vpr_uncertainty.pipeline.options import (
     DECODING_THREADS,
     VERIFY_FRACTION_HELP,
@@ -45,7 +45,7 @@ from vpr_uncertainty.pipeline.options import (
     option,
     output_directory,
 )
-from vpr_uncertainty.pipeline.retrieve import RetrieveConf, search, search_device
+from vpr_uncertainty.pipeline.retrieve import RetrieveConf, search_device
 
 __all__ = ["RunConf", "RunResult", "add_cli", "main", "run"]
 
@@ -224,13 +224,13 @@ def run(conf: RunConf, dataset: Any, out: str | Path, *, executor: Any = None) -
         "database": (dataset.database_paths, dataset.database_names),
         "queries": (dataset.query_paths, dataset.query_names),
     }
-    descriptors = extract(conf.extract, images, out / "descriptors.h5", executor=executor)
+    descriptors = extract.compute(conf.extract, images, out / "descriptors.h5", executor=executor)
     seconds["extraction"] = time.perf_counter() - start
 
     start = time.perf_counter()
     ground_truth, kept_database, kept_queries = _ground_truth(dataset, descriptors)
     device, note = search_device(conf.extract.device)  # the model's device; Faiss may lack the GPU
-    found = search(
+    found = retrieve.compute(
         dataclasses.replace(conf.retrieve, device=device),
         descriptors.split("database"),
         descriptors.split("queries"),
@@ -252,7 +252,7 @@ def run(conf: RunConf, dataset: Any, out: str | Path, *, executor: Any = None) -
     }
     if executor is not None:
         inputs["executor"] = executor  # a stage input: the GV-* methods verify their pairs there
-    evaluated = evaluate(
+    evaluated = evaluate.compute(
         conf.evaluate,
         retrieval,
         out / "uncertainties.npz",
