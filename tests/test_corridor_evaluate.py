@@ -68,8 +68,9 @@ def test_cli_errors_are_one_clear_line(tmp_path, capsys, corridor_dir):
     assert main(["evaluate", str(tmp_path / "missing.npy"), "--gt", str(corridor_dir / "ground_truth_new.npy")]) == 2
     assert "not found" in capsys.readouterr().err
     np.save(tmp_path / "sim.npy", np.ones((3, 4)))
-    assert main(["evaluate", str(tmp_path / "sim.npy"), "--gt", str(tmp_path / "sim.npy"), "--alpha", "2"]) == 2
-    assert "--alpha must lie in [0, 1]" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # a usage error, checked by the library's own check_alpha
+        main(["evaluate", str(tmp_path / "sim.npy"), "--gt", str(tmp_path / "sim.npy"), "--alpha", "2"])
+    assert exit_.value.code == 2 and "argument --alpha: alpha must lie in [0, 1]" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["evaluate", str(tmp_path / "sim.npy"), "--methods", "SU,nope"])
     assert "unknown uncertainty method 'nope'" in capsys.readouterr().err

@@ -172,7 +172,7 @@ def test_datasets_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     lines = {line.split()[0]: line for line in output.splitlines() if line.strip()}
     assert lines["st_lucia"].rstrip().endswith("yes") and lines["eynsham"].rstrip().endswith("no")
 
-    records = json.loads(run_command(["datasets", "--root", str(tmp_path), "--json", "st_lucia", "tokyo"], capsys))
+    records = json.loads(run_command(["datasets", "--root", str(tmp_path), "--json", "-", "st_lucia", "tokyo"], capsys))
     assert [record["name"] for record in records["datasets"]] == ["st_lucia", "tokyo247"]
     assert records["datasets"][0]["found"] is True and records["datasets"][1]["found"] is False
     assert records["datasets"][0]["path"] == str(tmp_path / "st_lucia" / "images" / "test")

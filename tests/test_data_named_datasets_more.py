@@ -25,7 +25,7 @@ def test_the_fields_datasets_are_named_with_where_to_get_them():
 
 def test_the_corridor_is_listed_as_present_under_the_data_root(corridor_dir, capsys):
     root = corridor_dir.parent.parent
-    assert main(["datasets", "--root", str(root), "--json"]) == 0
+    assert main(["datasets", "--root", str(root), "--json", "-"]) == 0
     records = {record["name"]: record for record in json.loads(capsys.readouterr().out)["datasets"]}
     assert records["corridor"]["found"] is True and records["corridor"]["path"] == str(corridor_dir)
     assert records["pitts30k"]["found"] is False

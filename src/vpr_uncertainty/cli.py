@@ -190,14 +190,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``vpr-uncertainty`` command; returns the exit status."""
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminated) if in_main_thread else None
-    try:
-        return _main(argv)
-    finally:
-        if in_main_thread:
-            signal.signal(signal.SIGTERM, previous)
-
-
-def _main(argv: Sequence[str] | None) -> int:
     args: argparse.Namespace | None = None
     prefix = "vpr-uncertainty"
     try:
@@ -231,6 +223,9 @@ def _main(argv: Sequence[str] | None) -> int:
             return EXIT_RUNTIME
         print(f"{prefix}: error: {_message(error)}", file=sys.stderr)
         return status
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

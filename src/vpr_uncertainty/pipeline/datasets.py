@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from vpr_uncertainty.pipeline.options import output_file, write_json
 
 __all__ = ["add_cli"]
 
@@ -25,7 +26,9 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("names", nargs="*", metavar="NAME", help="only these datasets (default: all)")
     parser.add_argument("--root", type=Path, help="data root (default: $VPR_UNCERTAINTY_DATA)")
-    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    parser.add_argument(
+        "--json", type=output_file, metavar="FILE", help="write the list as JSON to FILE ('-': standard output)"
+    )
     parser.set_defaults(handler=_handle)
 
 
@@ -47,7 +50,7 @@ def _handle(args: argparse.Namespace) -> int:
             | ({"path": str(found[entry.name])} if found[entry.name] is not None else {})
             for entry in entries
         ]
-        print(json.dumps({"root": None if root is None else str(root), "datasets": records}, indent=2))
+        write_json(args.json, {"root": None if root is None else str(root), "datasets": records})
         return 0
     header = ("name", "dataset", "folder under the root", "positives", "database", "queries", "present")
     rows = [

@@ -9,7 +9,6 @@ This module holds the one call of :func:`vpr_uncertainty.evaluation.evaluate` th
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +33,7 @@ from vpr_uncertainty.pipeline.options import (
     option,
     output_file,
     positive_int,
-    write_output,
+    write_json,
 )
 from vpr_uncertainty.scores import check_alpha
 
@@ -318,7 +317,9 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         help="VPR-methods-evaluation log folders: positives within this many metres (default: the run's "
         "positive_dist_threshold, else 25)",
     )
-    parser.add_argument("--json", type=output_file, metavar="FILE", help="write the results as JSON")
+    parser.add_argument(
+        "--json", type=output_file, metavar="FILE", help="write the results as JSON to FILE ('-': standard output)"
+    )
     parser.add_argument(
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
     )
@@ -407,8 +408,7 @@ def _handle(args: argparse.Namespace) -> int:
     if args.latency:
         print(_latency_line(evaluation))
     if args.json:
-        write_output(args.json, json.dumps(evaluation.to_dict(), indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_json(args.json, evaluation.to_dict())
     if args.plot:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)
         print(f"wrote {args.plot}")
@@ -464,8 +464,7 @@ def _held_out(args: argparse.Namespace, conf: EvaluateConf, retrieval: Any, inpu
         quality = result.quality["CAL"]
         print(f"CAL calibration on held-out queries: ECE {quality['ece']:.3f}, Brier {quality['brier']:.3f}")
     if args.json:
-        write_output(args.json, json.dumps(result.to_dict(), indent=2) + "\n")
-        print(f"wrote {args.json}")
+        write_json(args.json, result.to_dict())
     if args.plot:
         if "CAL" not in result.quality:
             raise ValueError("--plot with --calibration-fraction draws CAL's reliability diagram: add CAL to --methods")

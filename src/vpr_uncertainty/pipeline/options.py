@@ -42,6 +42,7 @@ __all__ = [
     "output_directory",
     "output_file",
     "positive_int",
+    "write_json",
     "write_output",
 ]
 
@@ -132,8 +133,10 @@ def _check_writable(path: Path) -> None:
 
 
 def output_file(text: str) -> Path:
-    """An argparse type for a file the command writes: not a folder, and creatable or writable."""
+    """An argparse type for a file the command writes: not a folder, and creatable or writable (``-``: stdout)."""
     path = Path(text)
+    if text == "-":
+        return path
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{path} is a folder; expected a file name")
     if path.exists():
@@ -187,6 +190,18 @@ def command_wording(**flags: str) -> Iterator[None]:
         if reworded == text:
             raise
         raise type(error)(reworded) from error
+
+
+def write_json(path: Path, document: Any) -> None:
+    """``--json FILE``: the document as indented JSON in ``FILE``, or on standard output for ``-``."""
+    import json
+
+    text = json.dumps(document, indent=2) + "\n"
+    if str(path) == "-":
+        print(text, end="")
+        return
+    write_output(path, text)
+    print(f"wrote {path}")
 
 
 # --- options declared once, on the configuration -------------------------------------------------------------
