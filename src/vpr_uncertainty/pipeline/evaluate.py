@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty.methods import default_method_names
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
@@ -74,8 +75,10 @@ class EvaluateConf:
 
     methods: Sequence[str] | None = option(
         None,
-        "comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided (default: the "
-        "registry's defaults, RS,SD,SU,PA,L2,BM, plus SUE when the positions are metric)",
+        lambda: (
+            "comma-separated uncertainty methods, each with optional options as in SUE:clip=one-sided (default: "
+            f"{','.join(default_method_names())}, plus SUE when the positions are metric)"
+        ),
         type=method_list,
     )
     k: int = option(10, "candidates per query for RS/SD/SU", type=candidate_count)
@@ -100,8 +103,6 @@ class EvaluateConf:
 
     def method_names(self, *, metric_positions: bool) -> list[str]:
         """``methods``, else the registry's defaults (with SUE when the positions are metric)."""
-        from vpr_uncertainty.methods import default_method_names
-
         return list(self.methods) if self.methods else default_method_names(metric_positions=metric_positions)
 
 

@@ -207,10 +207,13 @@ def write_json(path: Path, document: Any) -> None:
 # --- options declared once, on the configuration -------------------------------------------------------------
 
 
-def option(default: Any = None, help: str = "", *, flag: str | None = None, **argparse_options: Any) -> Any:
+def option(
+    default: Any = None, help: str | Callable[[], str] = "", *, flag: str | None = None, **argparse_options: Any
+) -> Any:
     """A configuration field that is also a command-line option.
 
-    ``help`` is the flag's help (the default is appended unless it is None or False); ``flag`` overrides the
+    ``help`` is the flag's help, or a function that writes it when the parser is built (a default that plugins
+    can change); the default is appended unless it is None or False; ``flag`` overrides the
     name derived from the field (``batch_size`` -> ``--batch-size``); ``argparse_options`` (``type``,
     ``choices``, ``metavar``) are passed to ``add_argument``. A field declared with plain ``dataclasses.field``
     (or a default) is not an option.
@@ -248,6 +251,7 @@ def add_options(
     for field in _options(conf_class, only):
         meta = field.metadata
         text = (help or {}).get(field.name, meta["help"])
+        text = text() if callable(text) else text
         flag = meta["flag"] or "--" + field.name.replace("_", "-")
         if defaults and field.name in defaults:
             default = defaults[field.name]
