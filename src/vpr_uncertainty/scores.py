@@ -44,13 +44,13 @@ median is computed; the input is read twice (an order check, then the product).
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 
 import numpy as np
 
 from vpr_uncertainty._validation import (
     as_score_array,
-    check_alpha,
     check_best_scores,
     check_k,
     check_rows,
@@ -69,6 +69,7 @@ __all__ = [
     "COSINE_TOLERANCE",
     "StatisticalUncertainty",
     "best_match",
+    "check_alpha",
     "l2_distance",
     "margin",
     "perceptual_aliasing",
@@ -79,6 +80,18 @@ __all__ = [
 ]
 
 _NONPOSITIVE_POLICIES = ("most_uncertain", "raise")
+
+
+def check_alpha(alpha: object, *, name: str = "alpha") -> float:
+    """``alpha``, SU's weight of RS, as a float; a TypeError or ValueError (naming ``name``) unless it is in [0, 1].
+
+    The one check of the range, for the library, the method specs and the command line (``name="--alpha"``).
+    """
+    if isinstance(alpha, bool) or not isinstance(alpha, numbers.Real):
+        raise TypeError(f"{name} must be a real number in [0, 1], got {alpha!r} of type {type(alpha).__name__}")
+    if not 0.0 <= float(alpha) <= 1.0:  # also rejects NaN
+        raise ValueError(f"{name} must lie in [0, 1], got {alpha}")
+    return float(alpha)
 
 
 def _combination_weights(n: int, rs_weight: float, sd_weight: float, dtype: np.dtype) -> np.ndarray:

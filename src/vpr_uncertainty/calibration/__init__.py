@@ -11,6 +11,7 @@
 * :mod:`~vpr_uncertainty.calibration.simulation`: the guarantee checked over many calibration draws.
 """
 
+from vpr_uncertainty.calibration import method  # noqa: F401  (registers CAL)
 from vpr_uncertainty.calibration.calibrator import Calibrator, fit_calibrator
 from vpr_uncertainty.calibration.features import DEFAULT_FEATURES, FEATURES, feature_matrix
 from vpr_uncertainty.calibration.fit import calibrate, calibrate_arrays

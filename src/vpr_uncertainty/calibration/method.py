@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.calibration.gate import Gate
+from vpr_uncertainty.methods import register_method
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["cal_uncertainty", "resolve_gate"]
@@ -40,3 +41,14 @@ def cal_uncertainty(retrieval: Retrieval, *, gate: Gate | None = None) -> np.nda
             "`vpr-uncertainty calibrate`), or a held-out evaluation that fits one per split"
         )
     return 1.0 - gate.probability_correct(retrieval.scores)
+
+
+register_method(
+    "CAL",
+    cal_uncertainty,
+    description="1 − calibrated P(correct) of a fitted gate (calibrate; fitted per split in held-out evaluate)",
+    requires=("gate",),
+    options={"gate": ""},
+    kind="calibrated",
+    resolve=resolve_gate,
+)

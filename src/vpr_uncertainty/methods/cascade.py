@@ -17,9 +17,8 @@ was at least as good as the alternatives we measured (see the README's cascade s
 threshold on inlier counts, whose scale differs between local features.
 
 The time per query of a cascade counts the score method on every query and geometric verification only on the
-verified queries, since only those are verified. :func:`run_cascade` returns
-:class:`~vpr_uncertainty.methods.entries.DetailedUncertainty` with ``verified_fraction`` and ``verified_queries``,
-which the evaluation reports beside the method's metrics.
+verified queries. :func:`run_cascade` returns a :class:`~vpr_uncertainty.methods.DetailedUncertainty` with
+``verified_fraction`` and ``verified_queries``, which the evaluation reports beside the method's metrics.
 """
 
 from __future__ import annotations
@@ -29,10 +28,23 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.methods.entries import METHODS, DetailedUncertainty, OwnRetrievalUncertainty, UncertaintyMethod
+from vpr_uncertainty.methods.entries import (
+    METHODS,
+    DetailedUncertainty,
+    OwnRetrievalUncertainty,
+    UncertaintyMethod,
+    register_composer,
+)
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["DEFAULT_VERIFY_FRACTION", "cascade_entry", "combine_cascade", "most_uncertain", "run_cascade"]
+__all__ = [
+    "DEFAULT_VERIFY_FRACTION",
+    "cascade_entry",
+    "combine_cascade",
+    "most_uncertain",
+    "run_cascade",
+    "split_cascade_name",
+]
 
 DEFAULT_VERIFY_FRACTION = 0.3
 _GEOMETRIC = "geometric"
@@ -187,3 +199,6 @@ def cascade_entry(name: str) -> UncertaintyMethod:
         bound={},
         base=None,
     )
+
+
+register_composer("+", cascade_entry)

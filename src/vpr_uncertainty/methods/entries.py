@@ -1,22 +1,17 @@
-"""Uncertainty-method entries: what one is (:class:`UncertaintyMethod`), where they are kept (:data:`METHODS`, a
-:class:`~vpr_uncertainty.plugins.Registry`), and the functions that add, find, parse and check them.
-
-Import them from :mod:`vpr_uncertainty.methods`, which also registers the built-in methods
-(:mod:`vpr_uncertainty.methods.builtin`); this module registers none, so the built-ins can import it.
-"""
+"""Uncertainty-method entries: what one is (:class:`UncertaintyMethod`), where they are kept (:data:`METHODS`), and
+the functions that add, find, parse and check them; the package ``__init__`` registers the built-ins."""
 
 from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.method_specs import split_method_list, typed_option
-from vpr_uncertainty.methods.returns import DetailedUncertainty, OwnRetrievalUncertainty
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target
 from vpr_uncertainty.retrieval import Retrieval
 
@@ -29,12 +24,99 @@ __all__ = [
     "UncertaintyMethod",
     "available_methods",
     "check_options",
+    "default_method_names",
     "describe_needs",
     "get_method",
     "parse_method_spec",
+    "register_composer",
     "register_method",
     "split_method_list",
+    "typed_option",
 ]
+
+
+_TRUE, _FALSE = {"true", "yes", "1", "on"}, {"false", "no", "0", "off"}
+
+
+def typed_option(text: str, default: Any, where: str) -> Any:
+    """``text`` converted to the type of ``default`` (str when the default is None or a string)."""
+    try:
+        if isinstance(default, bool):
+            if text.lower() not in _TRUE | _FALSE:
+                raise ValueError
+            return text.lower() in _TRUE
+        if isinstance(default, int):
+            return int(text)
+        if isinstance(default, float):
+            value = float(text)
+            if not math.isfinite(value):
+                raise ValueError
+            return value
+    except ValueError:
+        kind = {bool: "true or false", int: "an integer", float: "a finite number"}[type(default)]
+        raise ValueError(f"{where} must be {kind}, got {text!r}") from None
+    return text
+
+
+def split_method_list(text: str) -> list[str]:
+    """Split a comma-separated list of method specs; ``option=value`` items belong to the spec before them.
+
+    Examples
+    --------
+    >>> split_method_list("SU, SUE:clip=one-sided,slope=300, BM")
+    ['SU', 'SUE:clip=one-sided,slope=300', 'BM']
+    """
+    specs: list[str] = []
+    for item in (part.strip() for part in text.split(",")):
+        if not item:
+            continue
+        if "=" in item and ":" not in item.split("=", 1)[0]:
+            if not specs or ":" not in specs[-1]:
+                raise ValueError(f"option {item!r} follows no method spec (write NAME:{item})")
+            specs[-1] += f",{item}"
+        else:
+            specs.append(item)
+    return specs
+
+
+@dataclass
+class OwnRetrievalUncertainty:
+    """What a method returns when it answers the queries with its own retrieval (e.g. BTL's mean embeddings).
+
+    The evaluation then judges correctness by the top-1 of ``retrieval``, not by the shared retrieval, and says
+    so in its notes.
+
+    Attributes
+    ----------
+    uncertainty : ndarray of shape (Q,)
+        Higher = less trustworthy.
+    retrieval : Retrieval
+        The method's own top-k for the same queries, with the same ground truth.
+    details : dict of str to JSON values
+        Reported beside the method's metrics, as for :class:`DetailedUncertainty` (e.g. BTL's
+        ``trained_on_queries``).
+    """
+
+    uncertainty: np.ndarray
+    retrieval: Retrieval
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class DetailedUncertainty:
+    """What a method returns when it also reports numbers about its run (e.g. a cascade's ``verified_fraction``).
+
+    Attributes
+    ----------
+    uncertainty : ndarray of shape (Q,)
+        Higher = less trustworthy.
+    details : dict of str to JSON values
+        Reported beside the method's metrics (``results.json``, ``evaluate --json``).
+    """
+
+    uncertainty: np.ndarray
+    details: dict[str, Any] = field(default_factory=dict)
+
 
 MethodFunction = Callable[..., "np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty"]
 
@@ -330,12 +412,21 @@ def get_method(name: str) -> UncertaintyMethod:
     return dataclasses.replace(entry, name=f"{base}:{text}", bound={**entry.bound, **options}, base=base)
 
 
-def _lookup(name: str) -> UncertaintyMethod:
-    """The registered entry ``name``, or the cascade it names (``"SU+GV-SIFT"``, :mod:`.cascade`)."""
-    if "+" in name and name not in METHODS:
-        from vpr_uncertainty.methods.cascade import cascade_entry
+#: Builders of composite entries, by the separator their names hold (``"+"``: the cascades of :mod:`.cascade`).
+_COMPOSERS: dict[str, Callable[[str], UncertaintyMethod]] = {}
 
-        return cascade_entry(name)
+
+def register_composer(separator: str, compose: Callable[[str], UncertaintyMethod]) -> None:
+    """Make :func:`get_method` answer an unregistered name holding ``separator`` with ``compose(name)``."""
+    _COMPOSERS[separator] = compose
+
+
+def _lookup(name: str) -> UncertaintyMethod:
+    """The registered entry ``name``, or the composite it names (e.g. the cascade ``"SU+GV-SIFT"``)."""
+    if name not in METHODS:
+        for separator, compose in _COMPOSERS.items():
+            if separator in name:
+                return compose(name)
     return METHODS.get(name)
 
 
@@ -343,8 +434,13 @@ def _spec_items(spec: str) -> list[tuple[str, str]]:
     return [tuple(part.strip() for part in item.split("=", 1)) for item in spec.partition(":")[2].split(",")]
 
 
+#: Listings show the methods by kind (in this order), each kind in registration order.
+_KIND_ORDER = {"score": 0, "spatial": 1, "calibrated": 2, "geometric": 3, "learned": 4}
+
+
 def available_methods(**attributes: Any) -> list[str]:
-    """Names of the registered methods in registration order, optionally those with the given attributes.
+    """Names of the registered methods by kind (score, spatial, calibrated, geometric, learned, others), each kind in
+    registration order; optionally those with the given attributes.
 
     Examples
     --------
@@ -352,7 +448,8 @@ def available_methods(**attributes: Any) -> list[str]:
     ['GV-SIFT', 'GV-DISK-LG']
     """
     load_plugins()
-    return METHODS.names(**attributes)
+    entries = sorted(METHODS.entries(**attributes), key=lambda entry: _KIND_ORDER.get(entry.kind, len(_KIND_ORDER)))
+    return [entry.name for entry in entries]
 
 
 def default_method_names(*, metric_positions: bool = False) -> list[str]:

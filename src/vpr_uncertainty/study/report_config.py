@@ -8,7 +8,7 @@ import difflib
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from vpr_uncertainty.method_specs import split_method_list
+from vpr_uncertainty.methods import split_method_list
 from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
 
 if TYPE_CHECKING:
