@@ -205,7 +205,9 @@ def _load_and_check(config: RunConfig, methods: list[str] | None) -> Any:
         get_method(name)  # unknown names fail before any work
     geometric = available_methods(kind="geometric")
     if config.rerank is not None and get_method(config.rerank).name not in geometric:
-        raise ValueError(f"rerank needs a geometric verification method ({', '.join(geometric)}), got {config.rerank!r}")
+        raise ValueError(
+            f"rerank needs a geometric verification method ({', '.join(geometric)}), got {config.rerank!r}"
+        )
     if isinstance(config.dataset, (str, Path)):
         dataset = load_dataset(config.dataset, root=config.root, split=config.split, radius=config.radius)
     else:
