@@ -1,5 +1,5 @@
 """The bootstrap options shared by ``evaluate``, ``run`` and ``reproduce``: ``--bootstrap N``, ``--seed S`` and
-``--reference NAME`` (see :mod:`vpr_uncertainty.evaluation.significance`)."""
+``--reference NAME`` (see :mod:`vpr_uncertainty.evaluation.bootstrap`)."""
 
 from __future__ import annotations
 
