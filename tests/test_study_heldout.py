@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import sparse
 
-from vpr_uncertainty.calibration.heldout import evaluate_held_out
+from vpr_uncertainty.calibration.quality import evaluate_held_out
 from vpr_uncertainty.retrieval import MATRIX_TOP_K, Retrieval, read_results
 from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 from vpr_uncertainty.study.heldout import fitted_per_split, full_query_methods, held_out_evaluation

@@ -23,9 +23,9 @@ import numpy as np
 
 from vpr_uncertainty._validation import check_k
 from vpr_uncertainty.cache import write_text
-from vpr_uncertainty.calibration.calibrator import Calibrator
-from vpr_uncertainty.calibration.features import (
+from vpr_uncertainty.calibration.calibrator import (
     FEATURES,
+    Calibrator,
     aliasing_ratio,
     feature_matrix,
     row_features,

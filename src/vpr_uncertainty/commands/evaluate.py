@@ -228,7 +228,7 @@ def _fraction(text: str) -> float:
 
 
 def _run_held_out(args: argparse.Namespace, retrieval, options: dict) -> int:
-    from vpr_uncertainty.calibration.heldout import evaluate_held_out
+    from vpr_uncertainty.calibration.quality import evaluate_held_out
 
     result = evaluate_held_out(
         retrieval,

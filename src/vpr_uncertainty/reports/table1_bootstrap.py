@@ -16,8 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.evaluation.bootstrap import percentile_interval
-from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders
+from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders, percentile_interval
 
 __all__ = ["column_distributions", "table_significance"]
 

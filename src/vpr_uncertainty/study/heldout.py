@@ -3,7 +3,7 @@
 With the option, every cell is also evaluated on held-out queries: each of ``repeats`` random splits (seeded by
 ``seed``, stratified by correctness) fits ``CAL`` on a share ``fraction`` of the queries, and every uncertainty
 method, CAL included, is measured on the same remaining queries
-(:func:`vpr_uncertainty.calibration.heldout.evaluate_held_out`). The cell stores each method's mean and standard
+(:func:`vpr_uncertainty.calibration.quality.evaluate_held_out`). The cell stores each method's mean and standard
 deviation over the splits (``held_out`` in ``results.json``); Table 1 shows the means, and the ``reliability``
 report figure CAL's calibration quality. The evaluation on all queries (PR curves, heatmaps, ablations, qualitative
 figures) is unchanged; a bare ``CAL`` (no ``gate=`` file) is left out of it, since it has a gate only per split.
@@ -131,10 +131,10 @@ def held_out_evaluation(retrieval: Retrieval, config: GridConfig, **options: Any
     Returns
     -------
     dict
-        :meth:`~vpr_uncertainty.calibration.heldout.HeldOutEvaluation.to_dict`. When the splits are impossible
+        :meth:`~vpr_uncertainty.calibration.quality.HeldOutEvaluation.to_dict`. When the splits are impossible
         (fewer than 2 correct or 2 wrong answers), every method's ``auc_pr`` is None and ``notes`` says why.
     """
-    from vpr_uncertainty.calibration.heldout import evaluate_held_out
+    from vpr_uncertainty.calibration.quality import evaluate_held_out
 
     option = config.calibration
     if option is None:
