@@ -11,6 +11,10 @@ The paper's metrics (training-free, from the top-k scores alone)
     * :func:`similarity_distribution` SD = median(s_1 … s_k) / s_1
     * :func:`statistical_uncertainty` SU = α·RS + (1−α)·SD
 
+Training-free variant
+    * :func:`adaptive_statistical_uncertainty` SU-adaptive = α_q·RS + (1−α_q)·SD with α_q from the runners-up
+      (:func:`adaptive_alpha`)
+
 Score-only baselines
     * :func:`best_match` BM = −s_1
     * :func:`l2_distance` L2 = d_1, the top-1 descriptor distance
@@ -54,20 +58,15 @@ from vpr_uncertainty._validation import (
     check_best_scores,
     check_k,
     check_rows,
+    check_top_k_scores,
     raise_for_short_rows,
-)
-from vpr_uncertainty.baselines import (
-    COSINE_TOLERANCE,
-    best_match,
-    l2_distance,
-    margin,
-    perceptual_aliasing,
-    squared_distances_from_similarities,
 )
 
 __all__ = [
     "COSINE_TOLERANCE",
     "StatisticalUncertainty",
+    "adaptive_alpha",
+    "adaptive_statistical_uncertainty",
     "best_match",
     "check_alpha",
     "l2_distance",
@@ -397,3 +396,298 @@ class StatisticalUncertainty:
         """SU of many queries at once (see :func:`statistical_uncertainty`)."""
         policy = "raise" if self._raise_nonpositive else "most_uncertain"
         return statistical_uncertainty(scores, self._k, self._alpha, on_nonpositive=policy)
+
+
+#: How far outside [-1, 1] cosine similarities may lie through rounding (of normalised descriptors, of float32).
+COSINE_TOLERANCE = 1e-3
+
+
+def squared_distances_from_similarities(
+    scores: np.ndarray, *, method: str | None = None, check: bool = True
+) -> np.ndarray:
+    """Squared L2 distances of L2-normalised descriptors from their cosine similarities: d² = 2 − 2s.
+
+    The only place in the toolkit where this conversion is made. It holds only for cosine similarities, which
+    lie in [−1, 1]; values outside that range (by more than :data:`COSINE_TOLERANCE`, which allows for rounding)
+    mean the scores are some other similarity, and the converted distances would be meaningless (all clipped to
+    0 above 1, so constant). Values are clipped at 0 so that rounding (s slightly above 1) never gives a
+    negative square; ``-inf`` (a missing candidate) gives ``+inf``.
+
+    Parameters
+    ----------
+    scores : ndarray
+        Cosine similarities (any shape).
+    method : str, optional
+        The uncertainty method that needs the distances, named in the error.
+    check : bool, default=True
+        Check the range. Only a caller whose scores come from L2-normalised descriptors by construction (the
+        descriptor search, where an approximate index may exceed 1 slightly) passes False.
+
+    Raises
+    ------
+    ValueError
+        When a finite score lies outside [−1, 1] (beyond the tolerance), naming the method and the range found.
+
+    Examples
+    --------
+    >>> squared_distances_from_similarities(np.array([[1.0, 0.5, -1.0]]))
+    array([[0., 1., 4.]])
+    """
+    scores = np.asarray(scores)
+    if check and scores.size:
+        finite = scores[np.isfinite(scores)] if np.issubdtype(scores.dtype, np.floating) else scores
+        if finite.size:
+            low, high = float(finite.min()), float(finite.max())
+            if low < -1 - COSINE_TOLERANCE or high > 1 + COSINE_TOLERANCE:
+                who = f"{method} needs" if method else "converting similarities to distances needs"
+                raise ValueError(
+                    f"{who} descriptor distances: the similarities lie in [{low:g}, {high:g}], outside [-1, 1], so "
+                    "they are not cosine similarities of L2-normalised descriptors and d² = 2 − 2s does not hold; "
+                    "give the squared L2 distances (the retrieval's distances), or use a method that reads the "
+                    "similarities only (BM, RS, SD, SU)"
+                )
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.maximum(2 - 2 * scores, 0)
+
+
+def _top_distances(scores: np.ndarray, distances: object, n: int, method: str) -> np.ndarray:
+    """First ``n`` columns of the L2 distances (not squared), from ``distances`` or from the similarities."""
+    if distances is None:
+        return np.sqrt(squared_distances_from_similarities(scores[:, :n], method=method))
+    squared = np.asarray(distances)
+    if squared.ndim != 2 or squared.shape[0] != scores.shape[0] or squared.shape[1] < n:
+        raise ValueError(f"distances must have shape ({scores.shape[0]}, >= {n}) to match scores, got {squared.shape}")
+    squared = squared[:, :n].astype(scores.dtype, copy=False)
+    if not (np.isfinite(squared).all() and (squared >= 0).all()):
+        raise ValueError("distances must be finite squared L2 distances >= 0 in the columns used")
+    if n > 1 and (squared[:, 1:] < squared[:, :-1]).any():
+        raise ValueError("distances must be sorted in ascending order along axis 1 (nearest first)")
+    return np.sqrt(squared)
+
+
+def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
+    check_k(k)
+    scores = check_top_k_scores(scores, sort=sort)
+    if scores.shape[0] and scores.shape[1] < columns:
+        raise ValueError(f"scores must have at least {columns} columns, got shape {scores.shape}")
+    if scores.shape[0] and not np.isfinite(scores[:, :columns]).all():
+        raise_for_short_rows(np.isfinite(scores[:, :columns]).sum(axis=1), needed=columns)
+    return scores
+
+
+def best_match(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
+    """BM: the negated top-1 similarity, −s_1.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, sorted descending along axis 1.
+    k : int, default=10
+        Accepted so every method shares one signature; only the best match is read.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> best_match(np.array([[0.8, 0.4], [0.3, 0.1]]))
+    array([-0.8, -0.3])
+    """
+    return -_prepare(scores, k, sort, 1)[:, 0]
+
+
+def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
+    """L2: the descriptor distance d_1 between the query and its best match.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, sorted descending along axis 1.
+    k : int, default=10
+        Accepted so every method shares one signature; only the best match is read.
+    distances : array-like of shape (Q, K), optional
+        Squared L2 distances of the same candidates, ascending. Without them the similarities are taken as
+        cosine similarities of L2-normalised descriptors, d² = 2 − 2s; L2 then ranks queries exactly as BM.
+        Similarities outside [−1, 1] then raise a ``ValueError`` (see :func:`squared_distances_from_similarities`).
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> l2_distance(np.array([[0.5, 0.0]]))
+    array([1.])
+    """
+    scores = _prepare(scores, k, sort, 1)
+    if distances is not None and sort:
+        distances = np.sort(np.asarray(distances), axis=1)
+    return _top_distances(scores, distances, 1, "L2")[:, 0]
+
+
+def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
+    """PA: the ratio d_1 / d_2 of the two nearest-neighbour distances (Lowe's ratio for places).
+
+    Close to 1 when a second place matches as well as the first. Two candidates at distance 0 give 1.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, sorted descending along axis 1.
+    k : int, default=10
+        Accepted so every method shares one signature; only the two best matches are read.
+    distances : array-like of shape (Q, K), optional
+        Squared L2 distances of the same candidates, ascending; by default d² = 2 − 2s, which needs cosine
+        similarities in [−1, 1] (see :func:`squared_distances_from_similarities`).
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> perceptual_aliasing(np.array([[0.5, -1.0], [1.0, 1.0]]))
+    array([0.5, 1. ])
+    """
+    scores = _prepare(scores, k, sort, 2)
+    if distances is not None and sort:
+        distances = np.sort(np.asarray(distances), axis=1)
+    top2 = _top_distances(scores, distances, 2, "PA")
+    first, second = top2[:, 0], top2[:, 1]
+    both_zero = second == 0
+    return np.divide(first, second, out=np.ones_like(first), where=~both_zero)
+
+
+def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
+    """Margin baseline: s_2 − s_1, the negated gap between the best match and the runner-up.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, sorted descending along axis 1.
+    k : int, default=10
+        Accepted so every method shares one signature; only the two best matches are read.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy (0 when the two best matches tie).
+
+    Examples
+    --------
+    >>> margin(np.array([[0.9, 0.5], [0.6, 0.6]]))
+    array([-0.4,  0. ])
+    """
+    scores = _prepare(scores, k, sort, 2)
+    return scores[:, 1] - scores[:, 0]
+
+
+#: α of a row whose runners-up have no spread (or a single runner-up): the paper's default.
+NO_EVIDENCE_ALPHA = 0.5
+
+
+def _alpha_of_runners_up(runners_up: np.ndarray) -> np.ndarray:
+    """α = 1 − |mean − median| / std of each row of sorted (descending), finite runners-up, shape (R, m)."""
+    values = runners_up.astype(np.float64, copy=False)
+    m = values.shape[1]
+    mean = values.mean(axis=1)
+    median = 0.5 * (values[:, (m - 1) // 2] + values[:, m // 2])  # rows are sorted
+    spread = values.std(axis=1)
+    # A spread at the rounding level of the values is no spread.
+    flat = spread <= 8 * np.finfo(np.float64).eps * np.maximum(np.abs(mean), np.finfo(np.float64).tiny)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        skew = np.abs(mean - median) / np.where(flat, 1.0, spread)
+    return np.where(flat, NO_EVIDENCE_ALPHA, np.clip(1.0 - skew, 0.0, 1.0))
+
+
+def adaptive_alpha(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
+    """The weight α_q of RS of each query: 1 − the nonparametric skew of its runners-up (see the module docstring).
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, higher = more similar, sorted descending along axis 1; ``-inf`` marks a
+        missing candidate at the end of a row (the row is then used with the candidates it has).
+    k : int, default=10
+        Number of candidates used (the first ``min(k, K)`` columns). Must be >= 2.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+
+    Returns
+    -------
+    ndarray of shape (Q,), float64
+        α_q in [0, 1].
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> adaptive_alpha(np.array([[0.9, 0.5, 0.4, 0.3], [0.9, 0.8, 0.3, 0.3], [0.9, 0.5, 0.5, 0.5]]), k=4).round(3)
+    array([1.   , 0.293, 0.5  ])
+
+    The first query's runners-up are symmetric (mean = median): RS. The second's mean is pulled up by one strong
+    runner-up: mostly SD. The third's have no spread: the default 1/2.
+    """
+    k = check_k(k)
+    scores = as_score_array(scores, sort=sort)
+    check_rows(scores)
+    n_queries = scores.shape[0]
+    n = min(k, scores.shape[1])
+    if n_queries == 0:
+        return np.empty(0, dtype=np.float64)
+    if n < 2:
+        raise_for_short_rows(np.full(n_queries, n))
+    top = scores[:, :n]
+    n_candidates = np.isfinite(top).sum(axis=1)
+    raise_for_short_rows(n_candidates)
+    alpha = np.empty(n_queries, dtype=np.float64)
+    for count in np.unique(n_candidates):  # usually one group: every row has n candidates
+        rows = np.flatnonzero(n_candidates == count)
+        alpha[rows] = _alpha_of_runners_up(top[rows, 1:count])
+    return alpha
+
+
+def adaptive_statistical_uncertainty(
+    scores: object, k: int = 10, *, sort: bool = False, on_nonpositive: str = "most_uncertain"
+) -> np.ndarray:
+    """SU with a per-query α: α_q·RS_q + (1 − α_q)·SD_q, α_q from :func:`adaptive_alpha`. Training-free.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, higher = more similar, sorted descending along axis 1.
+    k : int, default=10
+        Number of candidates used. Must be >= 2.
+    sort : bool, default=False
+        Sort each row for the caller instead of rejecting unsorted rows.
+    on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
+        What to do with rows whose best similarity is <= 0 (see :mod:`vpr_uncertainty.scores`).
+
+    Returns
+    -------
+    ndarray of shape (Q,)
+        Uncertainty, higher = less trustworthy.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> adaptive_statistical_uncertainty(np.array([[0.8, 0.4, 0.3, 0.2]]), k=4)  # α = 1: RS
+    array([0.375])
+    """
+    if sort:
+        scores = as_score_array(scores, sort=True)
+    rs = ratio_spread(scores, k, on_nonpositive=on_nonpositive)
+    sd = similarity_distribution(scores, k, on_nonpositive=on_nonpositive)
+    alpha = adaptive_alpha(scores, k).astype(rs.dtype)
+    return alpha * rs + (1 - alpha) * sd

@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty import baselines as _baselines
 from vpr_uncertainty import scores as _scores
 from vpr_uncertainty._validation import check_k, check_top_k_scores
 
@@ -397,7 +396,7 @@ def _column(name: str, top: np.ndarray, finite: np.ndarray, counts: np.ndarray, 
     elif name == "SU":
         return _scores.statistical_uncertainty(top, n)
     elif name == "PA":
-        return _baselines.perceptual_aliasing(top[:, :2], 2).astype(np.float64, copy=False)
+        return _scores.perceptual_aliasing(top[:, :2], 2).astype(np.float64, copy=False)
     else:  # zscore
         safe = np.where(finite, top, 0.0)
         last = safe[np.arange(len(top)), counts - 1]
@@ -471,7 +470,7 @@ def aliasing_ratio(best: float, second: float) -> float:
     A ValueError names the range when a similarity lies outside [−1, 1] (beyond rounding): the scores are then not
     cosine similarities and the distances would be meaningless.
     """
-    tolerance = _baselines.COSINE_TOLERANCE
+    tolerance = _scores.COSINE_TOLERANCE
     if not (-1.0 - tolerance <= second and best <= 1.0 + tolerance):
         raise ValueError(f"feature PA needs cosine similarities in [-1, 1], got s_1 = {best:g}, s_2 = {second:g}")
     first_squared, second_squared = max(2.0 - 2.0 * best, 0.0), max(2.0 - 2.0 * second, 0.0)

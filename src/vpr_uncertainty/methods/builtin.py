@@ -34,9 +34,7 @@ def _statistical_uncertainty(retrieval: Retrieval, *, k: int = 10, alpha: float 
 
 
 def _adaptive_statistical_uncertainty(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
-    from vpr_uncertainty.adaptive import adaptive_statistical_uncertainty
-
-    return adaptive_statistical_uncertainty(retrieval.scores, k)
+    return _scores.adaptive_statistical_uncertainty(retrieval.scores, k)
 
 
 def _best_match(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
