@@ -613,7 +613,14 @@ def _alpha_of_runners_up(runners_up: np.ndarray) -> np.ndarray:
 
 
 def adaptive_alpha(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
-    """The weight α_q of RS of each query: 1 − the nonparametric skew of its runners-up (see the module docstring).
+    """The weight α_q of RS of each query: 1 − the nonparametric skew of its runners-up.
+
+    γ_q = |mean(s_2..s_k) − median(s_2..s_k)| / std(s_2..s_k) ∈ [0, 1] (population std) and α_q = 1 − γ_q: a
+    homogeneous cohort of wrong candidates (mean = median) gives RS, one whose mean is pulled a standard deviation
+    away from its median (a revisit, an aliasing candidate) gives SD, the robust estimate (Hogg 1974's adaptive
+    estimators). Invariant to the location and scale of the scores. A cohort without spread gets
+    :data:`NO_EVIDENCE_ALPHA` = 1/2. Evidence (README, "Adaptive α"): mean AUC-PR 0.8145 against 0.8116 for α = 0.5
+    on the corridor matrices, mostly from a shift towards RS; hence ``SU-adaptive`` is not a default method.
 
     Parameters
     ----------

@@ -1,4 +1,5 @@
-"""Calibration quality of P(correct): expected calibration error, Brier score, reliability diagram.
+"""Calibration quality of P(correct): expected calibration error, Brier score, reliability diagram; the held-out
+evaluation over repeated splits; and the uncertainty method ``CAL`` (1 − P(correct) of a gate).
 
 ``probability`` is P(correct top-1), shape (Q,), in [0, 1]; ``correct`` the outcomes, shape (Q,), bool. Bins are
 equal-width over [0, 1]; the last bin includes 1.
@@ -207,7 +208,12 @@ def evaluate_held_out(
     model: str = "logistic",
     **options: Any,
 ) -> HeldOutEvaluation:
-    """Evaluate ``methods`` on held-out queries over ``repeats`` random splits (see the module docstring).
+    """Evaluate ``methods`` on held-out queries over ``repeats`` random splits, without leakage.
+
+    Each repeat splits the queries (stratified by correctness) into a calibration part and a held-out part; ``CAL``
+    is fitted on the calibration part, and every method, CAL included, is evaluated on the held-out part only.
+    Reported: mean and standard deviation over the repeats of AUC-PR, AP and AURC, and CAL's ECE, Brier score and
+    reliability diagram of all held-out predictions pooled.
 
     Parameters
     ----------

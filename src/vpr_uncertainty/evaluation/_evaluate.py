@@ -1,8 +1,5 @@
-"""Evaluate uncertainty methods on a retrieval: run each one, time it, and measure it with the metrics.
-
-:func:`evaluate` is the orchestration; the metrics are in :mod:`vpr_uncertainty.evaluation.metrics` and the
-result types in :mod:`vpr_uncertainty.evaluation.results`.
-"""
+""":func:`evaluate`: run each uncertainty method on a retrieval, time it (throughput, batch-1 latency, cold and warm
+geometric verification), measure it, and note where the input bends a convention."""
 
 from __future__ import annotations
 
@@ -367,7 +364,11 @@ def _snapshot(folder: Path | None) -> set[str]:
 def time_geometric(
     call: Callable[[Mapping[str, Any]], Any], options: Mapping[str, Any], *, repeats: int = 3
 ) -> tuple[Any, float, float | None]:
-    """A geometric method's result with its cold and warm time per call (see the module docstring).
+    """A geometric method's result with its cold and warm time per call.
+
+    Cold: one call that extracts every local feature it needs (with a fresh temporary cache when ``cache_dir``
+    already held features); warm: the median of calls that read every feature from the cache (matching and RANSAC
+    only).
 
     Parameters
     ----------

@@ -347,7 +347,13 @@ def method_row(method: MethodEvaluation) -> dict[str, Any]:
 
 
 def evaluation_frame(evaluation: Evaluation) -> pandas.DataFrame:
-    """One row per method, indexed by its name (see the module docstring for the columns).
+    """One row per method, indexed by its name, in the order evaluated; needs pandas (the ``pandas`` extra).
+
+    Columns, named as in ``results.json``: ``auc_pr``, ``average_precision`` (NaN when every answer is correct, or
+    none is), ``aurc`` (lower is better), ``recall_at_100_precision``, ``time_per_query_ms``, ``informative``,
+    ``tied_share``, ``precision_at_recall_<level>``; with a bootstrap ``<metric>_ci_low``/``_high`` and
+    ``delta_auc_pr``, ``p_value_holm``, ``significant``; ``own_recall@1`` for a method with its own retrieval; and
+    the method's optional timings and details (a cascade's ``verified_fraction``).
 
     Parameters
     ----------
