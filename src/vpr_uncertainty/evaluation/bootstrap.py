@@ -34,6 +34,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty.evaluation.metrics import check_labels
+
 if TYPE_CHECKING:
     from vpr_uncertainty.evaluation.results import Evaluation
 
@@ -101,23 +103,6 @@ def _counts(indices: np.ndarray, n_queries: int) -> np.ndarray:
     return np.bincount((indices + rows).ravel(), minlength=indices.shape[0] * n_queries).reshape(-1, n_queries)
 
 
-def _check_arrays(correct: object, uncertainty: object) -> tuple[np.ndarray, np.ndarray]:
-    correct = np.asarray(correct)
-    uncertainty = np.asarray(uncertainty, dtype=np.float64)
-    if correct.ndim != 1 or uncertainty.shape != correct.shape or correct.size == 0:
-        raise ValueError(
-            f"correct and uncertainty must both have shape (n_queries,) with n_queries >= 1, got {correct.shape} "
-            f"and {uncertainty.shape}"
-        )
-    if correct.dtype != bool:
-        if not np.isin(correct, (0, 1)).all():
-            raise ValueError(f"correct must be boolean, got values {np.unique(correct)[:5]}")
-        correct = correct.astype(bool)
-    if not np.isfinite(uncertainty).all():
-        raise ValueError(f"uncertainty contains {int((~np.isfinite(uncertainty)).sum())} NaN or inf values")
-    return correct, uncertainty
-
-
 def weighted_metrics(correct: object, uncertainty: object, weights: object) -> dict[str, np.ndarray]:
     """AUC-PR, AP and AURC of one method on many weighted copies of its queries at once.
 
@@ -144,7 +129,7 @@ def weighted_metrics(correct: object, uncertainty: object, weights: object) -> d
     >>> metrics["average_precision"], metrics["aurc"]
     (array([1., 1.]), array([0.11111111, 0.11111111]))
     """
-    correct, uncertainty = _check_arrays(correct, uncertainty)
+    correct, uncertainty = check_labels(correct, uncertainty)
     weights = np.asarray(weights, dtype=np.float64)
     if weights.ndim != 2 or weights.shape[1] != correct.size:
         raise ValueError(f"weights must have shape (n_resamples, {correct.size}), got {weights.shape}")
@@ -219,7 +204,7 @@ def bootstrap_metrics(
     arrays = {}
     for name in uncertainties:
         try:
-            arrays[name] = _check_arrays(labels[name], uncertainties[name])
+            arrays[name] = check_labels(labels[name], uncertainties[name])
         except ValueError as error:
             raise ValueError(f"method {name!r}: {error}") from None
     sizes = {name: pair[0].size for name, pair in arrays.items()}

@@ -39,6 +39,7 @@ __all__ = [
     "auc_pr",
     "aurc",
     "average_precision",
+    "check_labels",
     "correct_at_n",
     "precision_at_recall",
     "recall_at_full_precision",
@@ -129,7 +130,8 @@ def recall_at_n(indices: object, positives: object, ns: Sequence[int] = RECALL_N
     return {int(n): float(correct_at_n(indices, positives, n)[answerable].mean()) for n in ns if n <= indices.shape[1]}
 
 
-def _check_labels(correct: object, uncertainty: object) -> tuple[np.ndarray, np.ndarray]:
+def check_labels(correct: object, uncertainty: object) -> tuple[np.ndarray, np.ndarray]:
+    """``correct`` as bool and ``uncertainty`` as float64, both of shape (Q,) with Q >= 1, finite; else ValueError."""
     correct = np.asarray(correct)
     uncertainty = np.asarray(uncertainty, dtype=np.float64)
     if correct.ndim != 1 or uncertainty.shape != correct.shape:
@@ -174,7 +176,7 @@ def auc_pr(correct: object, uncertainty: object) -> float:
     >>> auc_pr([True, True, False, False], [0.1, 0.2, 0.3, 0.4])
     1.0
     """
-    correct, uncertainty = _check_labels(correct, uncertainty)
+    correct, uncertainty = check_labels(correct, uncertainty)
     _check_both_classes(correct)
     precision, recall, _ = precision_recall_curve(correct, -uncertainty)
     return float(auc(recall, precision))
@@ -199,7 +201,7 @@ def average_precision(correct: object, uncertainty: object) -> float:
     >>> average_precision([True, False, True, False], [0.1, 0.2, 0.3, 0.4])
     0.8333333333333333
     """
-    correct, uncertainty = _check_labels(correct, uncertainty)
+    correct, uncertainty = check_labels(correct, uncertainty)
     _check_both_classes(correct)
     return float(average_precision_score(correct, -uncertainty))
 
@@ -242,7 +244,7 @@ def rejection_curve(correct: object, uncertainty: object, *, n_answerable: int |
     >>> curve.precision, curve.recall
     (array([1.        , 1.        , 0.66666667]), array([0.5, 1. , 1. ]))
     """
-    correct, uncertainty = _check_labels(correct, uncertainty)
+    correct, uncertainty = check_labels(correct, uncertainty)
     n_answerable = correct.size if n_answerable is None else int(n_answerable)
     if n_answerable <= 0 or n_answerable < correct.sum():
         raise ValueError(
