@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from vpr_uncertainty.btl.protocol import PROTOCOLS, btl_protocol, train_for_protocol
-from vpr_uncertainty.calibration.heldout import subset_queries
+from vpr_uncertainty.calibration.quality import subset_queries
 from vpr_uncertainty.data.attach import attach_ground_truth
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import evaluate

@@ -107,11 +107,11 @@ def evaluate(
         Calls per method for the time per query (median; fewer when a call is slow). A geometric method's
         ``time_per_query_ms`` is its cold figure (every local feature extracted); its ``timings`` hold
         ``time_per_query_ms_cold`` and ``time_per_query_ms_warm`` (features read from the cache in
-        ``cache_dir``; absent without one), see :func:`~vpr_uncertainty.evaluation.timing.time_geometric`.
+        ``cache_dir``; absent without one), see :func:`time_geometric`.
     bootstrap : int, default=0
         Paired bootstrap resamples over queries (0: none): 95 % intervals of AUC-PR, AP and AURC, a paired test of
         each method's AUC-PR against ``reference`` (Holm-corrected), and the leaders of each metric; see
-        :func:`vpr_uncertainty.evaluation.significance.add_bootstrap`.
+        :func:`vpr_uncertainty.evaluation.bootstrap.add_bootstrap`.
     seed : int, default=0
         Seed of the bootstrap resamples.
     reference : str, optional

@@ -31,7 +31,7 @@ __all__ = [
     "method_summary",
 ]
 
-#: Optional time figures of a method (see :mod:`vpr_uncertainty.evaluation.timing`), in ms.
+#: Optional time figures of a method (see :func:`vpr_uncertainty.evaluate`), in ms.
 TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms_warm")
 #: Numbers a method reports about its own run (:class:`~vpr_uncertainty.methods.DetailedUncertainty`), written
 #: beside its metrics and read back by :meth:`MethodEvaluation.from_dict`.
@@ -205,7 +205,7 @@ class Evaluation:
 
     def to_frame(self) -> pandas.DataFrame:
         """One row per method: AUC-PR, AP, AURC, recall at 100 % precision, time per query, and the bootstrap
-        intervals when computed (columns: :mod:`vpr_uncertainty.evaluation.frame`). Needs pandas (the ``pandas``
+        intervals when computed (columns: :func:`evaluation_frame`). Needs pandas (the ``pandas``
         extra).
 
         Examples

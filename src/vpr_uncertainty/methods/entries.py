@@ -312,31 +312,16 @@ def register_method(
 ) -> UncertaintyMethod:
     """Add a method to the registry and return its entry.
 
-    Parameters
-    ----------
-    name : str
-        The name users type; must be new unless ``overwrite=True``, and hold no ``:``, ``,``, ``=`` or ``+``.
-    target : callable or str
-        ``function(retrieval, **options) -> ndarray (Q,)``, higher = less trustworthy, or its dotted path.
-    description : str
-        One line for tables and ``--help``.
-    requires : tuple of str
-        What the method needs: retrieval fields, options or names of :data:`NEEDS`.
-    extra : str, optional
-        The pip extra that provides its dependencies.
-    options : mapping, optional
-        The options a method spec may set, with their defaults (default: the function's keyword parameters).
-    validate : callable or str, optional
-        ``validate(**options)`` that raises ValueError for a bad option value, or its dotted path.
-    kind : {"score", "spatial", "geometric", "learned"}
-        What the method works from (queried by ``available_methods(kind=...)``).
-    default : bool
-        Evaluated when no methods are named.
-    resolve : callable or str, optional
-        ``resolve(retrieval, options) -> options`` that reads the files the options name (see
-        :class:`UncertaintyMethod`).
-    overwrite : bool
-        Replace an existing entry of that name.
+    The arguments are the attributes of :class:`UncertaintyMethod`; ``name`` must be new unless ``overwrite=True``
+    and hold no ``:``, ``,``, ``=`` or ``+``. The function (``target``) returns an ndarray of shape (Q,), higher =
+    less trustworthy.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> entry = register_method("ENT-demo", lambda retrieval, *, k=10: -retrieval.scores[:, 0], description="demo")
+    >>> entry.option_defaults(), METHODS.unregister("ENT-demo").name
+    ({'k': 10}, 'ENT-demo')
     """
     if name in METHODS and not overwrite:
         raise ValueError(f"an uncertainty method named {name!r} is already registered")
