@@ -54,6 +54,7 @@ from vpr_uncertainty.calibration.guarantee import (
     min_accepted,
     needed_message,
 )
+from vpr_uncertainty.evaluation import correct_at_n
 from vpr_uncertainty.progress import progress_bar
 
 if TYPE_CHECKING:
@@ -277,8 +278,6 @@ def calibrate(
     """
     if retrieval.positives is None:
         raise ValueError("calibration needs the ground truth of the queries (argument ground_truth)")
-    from vpr_uncertainty.evaluation import correct_at_n
-
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     answerable = np.asarray(retrieval.positives.sum(axis=1)).ravel() > 0
     if unlabelled is not None and not isinstance(unlabelled, np.ndarray):

@@ -18,7 +18,8 @@ import numpy as np
 from vpr_uncertainty.calibration.calibrator import stratified_split
 from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.gate import Gate
-from vpr_uncertainty.methods import register_method
+from vpr_uncertainty.evaluation import correct_at_n, evaluate
+from vpr_uncertainty.methods import get_method, register_method
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
@@ -235,9 +236,6 @@ def evaluate_held_out(
         Further method options (as :func:`vpr_uncertainty.evaluate`); ``query_paths`` (one per query) is cut to
         the held-out queries of each split.
     """
-    from vpr_uncertainty.evaluation import correct_at_n, evaluate
-    from vpr_uncertainty.methods import get_method
-
     if retrieval.positives is None:
         raise ValueError("the held-out evaluation needs the ground truth (argument ground_truth)")
     if not 0.0 < calibration_fraction < 1.0:
