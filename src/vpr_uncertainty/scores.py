@@ -39,10 +39,6 @@ Hard input, defined once for all of them
     * **NaN, +inf, unsorted rows, fewer than 2 columns, k < 2, α outside [0, 1], non-2-D input**: a
       ``ValueError`` (or ``TypeError``) that names the argument, what was found and what was expected.
     * **No queries** (shape (0, K)): an empty array of shape (0,).
-
-Implementation note: with sorted rows, the mean of the runners-up and the median are both fixed linear
-combinations of the columns, so RS, SD and SU are each one matrix product divided by s_1. No per-row sort or
-median is computed; the input is read twice (an order check, then the product).
 """
 
 from __future__ import annotations
@@ -136,10 +132,11 @@ def _ratio_metric(
 ) -> np.ndarray:
     """(rs_weight·RS + sd_weight·SD) for every row, computed as one weighted sum divided by s_1.
 
-    One pass checks the order of every row (block by block, in cache). One matrix product then gives, for every
-    row, the weighted sum and s_1 (weights e_1). These are finite unless the row holds ±inf (NaN was excluded
-    by the order check) or overflows, so they flag, without another pass, the rows with missing candidates
-    (-inf), +inf or overflow, which are redone one by one.
+    With sorted rows the mean of the runners-up and the median are fixed linear combinations of the columns, so no
+    per-row sort or median is needed. One pass checks the order of every row (block by block, in cache); one matrix
+    product then gives every row's weighted sum and s_1. These are finite unless the row holds ±inf or overflows,
+    so they flag, without another pass, the rows with missing candidates (-inf), +inf or overflow, which are
+    redone one by one.
     """
     k = check_k(k)
     _check_policy(on_nonpositive)

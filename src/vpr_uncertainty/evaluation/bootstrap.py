@@ -21,10 +21,8 @@ Conventions
   keeps p > 0. A difference that is exactly zero on every resample (a method against itself) gets p = 1.
 * Multiple comparisons: Holm's step-down correction (:func:`holm`).
 
-The computation is vectorised over resamples: each method's queries are sorted once by uncertainty and grouped by
-tied values; a block of resamples is a matrix of query counts (resamples × queries), reduced per tied group and
-accumulated along the sorted order, which gives every threshold's true and false positives of every resample at
-once.
+:func:`add_bootstrap` attaches all of it to an :class:`~vpr_uncertainty.evaluation.Evaluation`, with the leaders
+of each metric (:func:`leaders`).
 """
 
 from __future__ import annotations
@@ -108,6 +106,8 @@ def weighted_metrics(correct: object, uncertainty: object, weights: object) -> d
 
     With integer weights (how many times a resample draws each query) this equals the metrics of
     :mod:`vpr_uncertainty.evaluation.metrics` on the resampled arrays; with all weights 1, the metrics themselves.
+    Vectorised over resamples: the queries are sorted once and grouped by tied values, and the weights reduced per
+    group and accumulated along that order give every threshold's true and false positives of every row at once.
 
     Parameters
     ----------

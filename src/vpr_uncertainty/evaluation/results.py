@@ -1,11 +1,5 @@
-"""What :func:`vpr_uncertainty.evaluate` returns: one :class:`Evaluation` holding a :class:`MethodEvaluation` per
-uncertainty method, with ``to_dict`` (the JSON schema of ``evaluate --json`` and of ``results.json``) and its
-inverse ``from_dict``.
-
-The JSON documents hold the numbers; the arrays (the correctness of every query, every method's uncertainties)
-are stored beside them by whoever writes the document, and given back to ``from_dict``, which recomputes the
-rejection curves from them.
-"""
+"""What :func:`vpr_uncertainty.evaluate` returns (:class:`Evaluation`, a :class:`MethodEvaluation` per method), as
+JSON numbers (``to_dict``/``from_dict``; the arrays are stored beside them), a pandas table and a compact text."""
 
 from __future__ import annotations
 
