@@ -129,26 +129,10 @@ class MethodEvaluation:
         n_answerable: int,
         own_correct: np.ndarray | None = None,
     ) -> MethodEvaluation:
-        """The inverse of :meth:`to_dict`, given the arrays it leaves out.
+        """The inverse of :meth:`to_dict`, given the arrays it leaves out (see :meth:`Evaluation.from_dict`).
 
-        Parameters
-        ----------
-        name : str
-            The method's name (the key of ``Evaluation.to_dict()["methods"]``).
-        data : mapping
-            What :meth:`to_dict` returned.
-        uncertainty : ndarray of shape (Q,)
-            The method's uncertainties.
-        correct : ndarray of shape (Q,), bool
-            The evaluation's top-1 correctness.
-        n_answerable : int
-            Queries with at least one positive (the recall denominator of the curve).
-        own_correct : ndarray of shape (Q,), bool, optional
-            The method's own correctness labels, for a method that retrieves with its own embeddings.
-
-        Returns
-        -------
-        MethodEvaluation
+        ``correct`` is the evaluation's top-1 correctness, shape (Q,); ``own_correct`` the method's own labels when it
+        retrieves with its own embeddings; ``n_answerable`` the recall denominator of the rejection curve.
         """
         uncertainty = np.asarray(uncertainty)
         labels = correct if own_correct is None else np.asarray(own_correct, dtype=bool)

@@ -1,5 +1,11 @@
 """Uncertainty-method entries: what one is (:class:`UncertaintyMethod`), where they are kept (:data:`METHODS`), and
-the functions that add, find, parse and check them; the package ``__init__`` registers the built-ins."""
+the functions that add, find, parse and check them.
+
+Options a method does not take are not passed to it, so one set of options serves every method; an option no
+selected method takes is an error (:func:`check_options`). A name can carry its method's options, as a method spec
+(``"SUE:clip=one-sided,slope=300"``, :func:`parse_method_spec`); a target or hook given by dotted path
+(``"package.module:function"``) is imported when first called.
+"""
 
 from __future__ import annotations
 
@@ -163,8 +169,9 @@ class UncertaintyMethod:
         parameters of the function.
     validate : callable or str or None
         ``validate(**options)`` raises ValueError for a bad value (or its dotted path).
-    kind : {"score", "spatial", "geometric", "learned"}
-        What the method works from: the top-k scores only, database positions, the images, a trained model.
+    kind : {"score", "spatial", "calibrated", "geometric", "learned", "cascade"}
+        What the method works from: the top-k scores only, database positions, a fitted gate, the images, a trained
+        model, or a cascade of two methods; listings are ordered by kind.
     default : bool
         Evaluated when no methods are named (``evaluate``'s default list).
     resolve : callable or str or None
