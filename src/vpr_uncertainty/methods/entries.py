@@ -274,8 +274,19 @@ def describe_needs(needs: Collection[str]) -> str:
     return "; ".join(NEEDS[need][1] if need in NEEDS else need for need in needs)
 
 
+#: Listings show the methods by kind (in this order), each kind in registration order: plugins, the package's own
+#: higher layers included, register in the order their modules are imported.
+_KIND_ORDER = {"score": 0, "spatial": 1, "calibrated": 2, "geometric": 3, "learned": 4}
+
+
+class _MethodRegistry(Registry[UncertaintyMethod]):
+    def entries(self, **attributes: Any) -> list[UncertaintyMethod]:
+        """Entries with the given attributes, by kind (:data:`_KIND_ORDER`), each kind in registration order."""
+        return sorted(super().entries(**attributes), key=lambda entry: _KIND_ORDER.get(entry.kind, len(_KIND_ORDER)))
+
+
 #: The registered uncertainty methods.
-METHODS: Registry[UncertaintyMethod] = Registry("uncertainty method", label="available")
+METHODS: Registry[UncertaintyMethod] = _MethodRegistry("uncertainty method", label="available")
 
 
 def check_options(methods: Sequence[UncertaintyMethod], options: Collection[str]) -> None:
@@ -426,10 +437,6 @@ def _spec_items(spec: str) -> list[tuple[str, str]]:
     return [tuple(part.strip() for part in item.split("=", 1)) for item in spec.partition(":")[2].split(",")]
 
 
-#: Listings show the methods by kind (in this order), each kind in registration order.
-_KIND_ORDER = {"score": 0, "spatial": 1, "calibrated": 2, "geometric": 3, "learned": 4}
-
-
 def available_methods(**attributes: Any) -> list[str]:
     """Names of the registered methods by kind (score, spatial, calibrated, geometric, learned, others), each kind in
     registration order; optionally those with the given attributes.
@@ -440,8 +447,7 @@ def available_methods(**attributes: Any) -> list[str]:
     ['GV-SIFT', 'GV-DISK-LG']
     """
     load_plugins()
-    entries = sorted(METHODS.entries(**attributes), key=lambda entry: _KIND_ORDER.get(entry.kind, len(_KIND_ORDER)))
-    return [entry.name for entry in entries]
+    return METHODS.names(**attributes)
 
 
 def default_method_names(*, metric_positions: bool = False) -> list[str]:
