@@ -1,12 +1,23 @@
-"""P(correct top-1) from the training-free features: a small, regularised scikit-learn model, as plain numbers.
+"""P(correct top-1) from training-free features of the top-k scores: the features, the calibrator, and the choice
+of ranking.
+
+Features (k candidates, s_1 ≥ s_2 ≥ … ≥ s_k; descriptive numbers, the calibrator learns their signs):
+``s1``; ``gap`` = s_1 − s_2; ``ratio`` = s_2 / s_1; ``RS``, ``SD``, ``SU`` (α = 0.5); ``zscore`` =
+(s_1 − mean(s_2..s_k)) / (s_1 − s_k) (0 when the top-k ties); ``PA`` = d_1 / d_2 with d² = 2 − 2s (cosine
+similarities only, else a ValueError). The ratio features follow :mod:`vpr_uncertainty.scores` for s_1 ≤ 0
+(1 − s_1) and for missing candidates (``-inf``). :func:`row_features` gives the same numbers for one query in pure
+Python (the gate's fast path).
 
 Two models:
 
-* ``"logistic"``: L2-regularised logistic regression on standardised features
-  (:data:`~vpr_uncertainty.calibration.calibrator.DEFAULT_FEATURES`); P = σ(b + Σ w_i (f_i − μ_i) / σ_i). A fixed
-  score (SU, the margin, …) chosen by :func:`~vpr_uncertainty.calibration.fit.select_calibrator` is the same model on
-  that one feature (Platt scaling).
+* ``"logistic"``: L2-regularised logistic regression on standardised features (:data:`DEFAULT_FEATURES`);
+  P = σ(b + Σ w_i (f_i − μ_i) / σ_i). A fixed score (SU, the margin, …) is the same model on that one feature
+  (Platt scaling, :func:`platt`).
 * ``"isotonic"``: isotonic regression on SU alone (P non-increasing in SU), a step function.
+
+:func:`select_calibrator` (the doubt ``CAL``) keeps, among the fixed scores of :data:`RANKINGS` and the logistic
+model, the one with the best average precision on the labelled queries: a fixed score's is an honest estimate (no
+fitting), the model's is measured on cross-fitted confidences (:func:`cross_fitted`).
 
 A fitted model is a :class:`Calibrator`: numbers only (no scikit-learn object), so it is saved as JSON and
 evaluated without scikit-learn. Its ``confidence`` is a score whose order is that of P (the linear score z for the

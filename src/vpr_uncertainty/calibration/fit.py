@@ -1,25 +1,14 @@
-""":func:`calibrate`: labelled calibration queries in, a :class:`~vpr_uncertainty.calibration.gate.Gate` out.
+""":func:`calibrate`: labelled calibration queries in, a :class:`~vpr_uncertainty.calibration.gate.Gate` out; and
+:func:`plan_labels` and :func:`simulate_guarantee`, how many labels that takes and how often the guarantee holds.
 
-Every label is spent; nothing is held back for a second look.
-
-**P(correct)** (the doubt ``CAL``) is :func:`~vpr_uncertainty.calibration.calibrator.select_calibrator`: the best of the
-fixed scores and a cross-fitted logistic model.
-
-**A certified threshold** (with ``target_precision``; :mod:`~vpr_uncertainty.calibration.guarantee`). Each
-candidate ranking is tested at δ / R on **all** labelled queries:
-
-1. the candidate coverages come from :func:`~vpr_uncertainty.calibration.guarantee.coverage_grid` (the number of
-   labelled queries, p* and δ only) and the cuts are the quantiles of the ranking's confidence over every query
-   the caller passes (``unlabelled`` and labelled), so no label chooses a cut;
-2. a training-free ranking is tested directly; the fitted model (``"CAL"``) is cross-fitted: each labelled query
-   is accepted or not by the fold model that did not see it, at that model's own quantile cut;
-3. fixed-sequence testing with exact binomial p-values picks the loosest certified cut of each ranking, and the
-   certified rule that accepts the most correct labelled queries is kept (every certified rule holds at once with
-   probability ≥ 1 − δ, so the choice among them is free).
-
-For a training-free ranking the gate applies exactly the certified rule. For ``"CAL"`` it applies the model refitted
-on all labels at the certified coverage: the cross-fitted folds certify the procedure, not that one model, so the
-guarantee is approximate there (the simulation in ``tests/test_calibration_guarantee.py`` measures it).
+Every label is spent; nothing is held back for a second look. P(correct) (the doubt ``CAL``) is the best of the
+fixed scores and a cross-fitted logistic model (:func:`~vpr_uncertainty.calibration.calibrator.select_calibrator`).
+With a target precision every candidate ranking is certified at δ / R on all labelled queries
+(:mod:`~vpr_uncertainty.calibration.guarantee`): cuts are fixed from the scores alone, the fitted model is
+cross-fitted (each labelled query is judged by the fold model that did not see it), and the certified rule that
+accepts the most correct labelled queries is kept. For a training-free ranking the gate applies exactly that rule;
+for ``"CAL"`` it applies the model refitted on all labels at the certified coverage, so the guarantee is
+approximate there (``tests/test_calibration_guarantee.py`` measures it).
 """
 
 from __future__ import annotations
@@ -389,7 +378,14 @@ def plan_labels(
     seed: int = 0,
     progress: bool | None = None,
 ) -> LabelPlan:
-    """Estimate how many labelled queries certify ``target_precision`` at a useful recall.
+    """Estimate how many labelled queries certify ``target_precision`` at a useful recall, before labelling them.
+
+    P(correct) of every query is estimated by Platt scaling of SU on the few labels; the whole calibration
+    (:func:`calibrate_arrays`, with ``scores`` as its unlabelled pool) is then simulated on draws of n queries with
+    labels drawn from those probabilities. A draw is useful when it certifies p* and its expected recall reaches
+    ``useful_fraction`` of the best recall any SU cut could have at p* (the plug-in oracle); the answer is the
+    smallest n with a useful certificate with probability ≥ 1 − δ. A plug-in estimate, to be read as an order of
+    magnitude (33 labels or 300), not as a guarantee.
 
     Parameters
     ----------
@@ -554,8 +550,12 @@ def simulate_guarantee(
 ) -> GuaranteeSimulation:
     """Calibrate on ``n_draws`` i.i.d. draws of ``n_calibration`` queries and measure each gate on the population.
 
-    With ``unlabelled=True`` every draw also passes the whole population's scores as unlabelled queries (the
-    robot's own traversal). Draws that hold only one outcome cannot be calibrated; they are redrawn.
+    Draws are **with replacement**, so i.i.d. from the population (the assumption of the guarantee), and the
+    population precision among each gate's accepted answers is known exactly: the guarantee says the share of
+    draws below p* is at most δ. The hindsight reference is the largest recall of any SU cut with precision ≥ p* on
+    the whole population. With ``unlabelled=True`` every draw also passes the whole population's scores as
+    unlabelled queries (the robot's own traversal). Draws that hold only one outcome cannot be calibrated; they
+    are redrawn.
     """
     correct = np.asarray(correct, dtype=bool)
     answerable = np.ones(correct.size, bool) if answerable is None else np.asarray(answerable, dtype=bool)

@@ -382,8 +382,9 @@ def threshold_at_precision(
 ) -> ThresholdChoice:
     """The most lenient uncertainty threshold whose empirical precision is at least ``precision``.
 
-    Empirical, **with no guarantee** on new queries (see the module docstring); for a certified threshold use
-    :func:`vpr_uncertainty.calibrate`.
+    Empirical, **with no guarantee**: the threshold is fitted to the very queries it is measured on, so on new
+    queries the precision can be lower, the more so the fewer they are. For a threshold with a guarantee (precision
+    >= p* on new queries with probability 1 − δ) use :func:`vpr_uncertainty.calibrate`.
 
     Parameters
     ----------
