@@ -231,10 +231,6 @@ def fit_calibrator(
     model : {"logistic", "isotonic"}
     regularisation : float, default=1.0
         Inverse L2 strength C of the logistic regression (> 0).
-
-    Returns
-    -------
-    Calibrator
     """
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")

@@ -407,10 +407,6 @@ def plan_labels(
     seed : int, default=0
     progress : bool, optional
         A progress bar over the sizes (default: on a terminal).
-
-    Returns
-    -------
-    LabelPlan
     """
     correct = np.asarray(correct, dtype=bool)
     scores = np.asarray(scores, dtype=np.float64)

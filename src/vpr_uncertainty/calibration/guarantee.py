@@ -242,10 +242,6 @@ def certify_threshold(
         Risk δ.
     answerable : ndarray of shape (n,), bool, optional
         Test queries with a positive in the database (the recall denominator); default all.
-
-    Returns
-    -------
-    Certificate
     """
     _check_target(target_precision, delta)
     confidence = np.asarray(confidence, dtype=np.float64)

@@ -123,10 +123,6 @@ def evaluate(
         Further options passed to the methods that accept them; an option that no selected method takes
         (besides the inputs of :data:`~vpr_uncertainty.methods.STAGE_INPUTS`) is a ValueError. Files the
         options name (e.g. BTL's head) are read once, before the timing.
-
-    Returns
-    -------
-    Evaluation
     """
     if retrieval.positives is None:
         raise ValueError(
@@ -302,10 +298,6 @@ def single_query_retrievals(retrieval: Any, n: int) -> list[Any]:
     retrieval : Retrieval
     n : int
         How many, >= 1.
-
-    Returns
-    -------
-    list of Retrieval
     """
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")

@@ -167,10 +167,6 @@ def auc_pr(correct: object, uncertainty: object) -> float:
     uncertainty : array-like of shape (Q,)
         Higher = less trustworthy.
 
-    Returns
-    -------
-    float
-
     Examples
     --------
     >>> auc_pr([True, True, False, False], [0.1, 0.2, 0.3, 0.4])
@@ -191,10 +187,6 @@ def average_precision(correct: object, uncertainty: object) -> float:
         Whether each query's top-1 answer is correct.
     uncertainty : array-like of shape (Q,)
         Higher = less trustworthy.
-
-    Returns
-    -------
-    float
 
     Examples
     --------
@@ -265,16 +257,7 @@ def rejection_curve(correct: object, uncertainty: object, *, n_answerable: int |
 
 
 def recall_at_full_precision(curve: RejectionCurve) -> float:
-    """Largest recall reached with no wrong answer accepted (0 when the most confident answer is wrong).
-
-    Parameters
-    ----------
-    curve : RejectionCurve
-
-    Returns
-    -------
-    float
-    """
+    """Largest recall reached with no wrong answer accepted (0 when the most confident answer is wrong)."""
     perfect = curve.precision >= 1.0
     return float(curve.recall[perfect].max()) if perfect.any() else 0.0
 
@@ -287,10 +270,6 @@ def precision_at_recall(curve: RejectionCurve, recall: float) -> float | None:
     curve : RejectionCurve
     recall : float
         In (0, 1].
-
-    Returns
-    -------
-    float or None
     """
     if not 0.0 < recall <= 1.0:
         raise ValueError(f"recall must lie in (0, 1], got {recall}")
@@ -307,10 +286,6 @@ def aurc(correct: object, uncertainty: object) -> float:
         Whether each query's top-1 answer is correct.
     uncertainty : array-like of shape (Q,)
         Higher = less trustworthy; tied queries are accepted together.
-
-    Returns
-    -------
-    float
 
     Examples
     --------

@@ -237,10 +237,6 @@ class Evaluation:
         own_correct : mapping of str to ndarray of shape (Q,), optional
             The own correctness labels of the methods that retrieve with their own embeddings.
 
-        Returns
-        -------
-        Evaluation
-
         Raises
         ------
         ValueError
