@@ -69,6 +69,7 @@ __all__ = [
     "margin",
     "perceptual_aliasing",
     "ratio_spread",
+    "row_statistics",
     "similarity_distribution",
     "squared_distances_from_similarities",
     "statistical_uncertainty",
@@ -305,6 +306,39 @@ def _one_row(scores: object) -> list[float]:
     return list(scores)
 
 
+def row_statistics(values: list[float], k: int) -> tuple[float, float, float, float, float, int]:
+    """(s_1, s_2, mean of s_2..s_n, median, s_n, n) of one query's sorted similarities, pure Python.
+
+    ``values`` is truncated to ``k`` candidates and stripped of trailing ``-inf`` in place. A ValueError names
+    what is wrong: fewer than 2 finite candidates, NaN, +inf, or a row not sorted in descending order.
+    """
+    if len(values) > k:
+        del values[k:]
+    while values and values[-1] == -math.inf:
+        values.pop()
+    n = len(values)
+    if n < 2:
+        raise ValueError(f"scores needs at least 2 finite candidates, got {n}")
+    try:
+        previous = values[0]
+        if not -math.inf < previous < math.inf:
+            raise ValueError(f"scores must be finite, got {values}")
+        for value in values:
+            if not value <= previous:  # also catches NaN
+                raise ValueError(f"scores must be finite and sorted in descending order, got {values}")
+            previous = value
+        total = sum(values)
+    except TypeError:
+        raise TypeError(f"scores must be numbers, got {values}") from None
+    best = values[0]
+    if not -math.inf < total < math.inf:  # finite values whose sum overflows: the mean from scaled values
+        scale = max(abs(best), abs(values[-1]))
+        runners_up = scale * ((sum(value / scale for value in values) - best / scale) / (n - 1))
+        return best, values[1], runners_up, 0.5 * values[(n - 1) // 2] + 0.5 * values[n // 2], values[-1], n
+    median = 0.5 * (values[(n - 1) // 2] + values[n // 2])
+    return best, values[1], (total - best) / (n - 1), median, values[-1], n
+
+
 class StatisticalUncertainty:
     """SU for one query at a time, with the options checked once: the low-latency path for a running robot.
 
@@ -360,33 +394,18 @@ class StatisticalUncertainty:
         """
         if type(scores) is not list:  # a list, or a 1-D array, is the fast path of a running robot
             scores = scores.tolist() if type(scores) is np.ndarray and scores.ndim == 1 else _one_row(scores)
-        values = scores[: self._k]  # a copy: the caller's list is never changed
-        while values and values[-1] == -math.inf:
-            values.pop()
-        n = len(values)
-        if n < 2 or isinstance(values[0], (list, tuple)):
-            if n and isinstance(values[0], (list, tuple)):
-                if n == 1:
-                    return self(list(values[0]))  # [[s_1, ..., s_k]]: one query written as a (1, K) nested list
-                raise ValueError(
-                    f"scores must be one query's top-k, of shape (k,) or (1, k), got {len(scores)} rows; use "
-                    "batch() or statistical_uncertainty() for many queries"
-                )
-            raise ValueError(f"scores needs at least 2 finite candidates, got {n}")
-        previous = values[0]
-        for value in values:
-            if not value <= previous:  # also catches NaN
-                raise ValueError(f"scores must be finite and sorted in descending order, got {values}")
-            previous = value
-        best = values[0]
-        if best == math.inf:
-            raise ValueError(f"scores must be finite, got {values}")
+        if scores and isinstance(scores[0], (list, tuple)):
+            if len(scores) == 1:
+                return self(list(scores[0]))  # [[s_1, ..., s_k]]: one query written as a (1, K) nested list
+            raise ValueError(
+                f"scores must be one query's top-k, of shape (k,) or (1, k), got {len(scores)} rows; use "
+                "batch() or statistical_uncertainty() for many queries"
+            )
+        best, _, runners_up, median, _, _ = row_statistics(scores[: self._k], self._k)  # a copy: never the caller's
         if best <= 0:
             if self._raise_nonpositive:
                 raise ValueError(f"the best similarity must be > 0, got {best}")
             return float(1.0 - best)
-        median = 0.5 * (values[(n - 1) // 2] + values[n // 2])
-        runners_up = (sum(values) - best) / (n - 1)
         return float((self._alpha * runners_up + (1.0 - self._alpha) * median) / best)
 
     def batch(self, scores: object) -> np.ndarray:

@@ -54,7 +54,6 @@ __all__ = [
     "fit_model",
     "platt",
     "row_features",
-    "row_statistics",
     "select_calibrator",
     "stratified_folds",
     "stratified_split",
@@ -412,39 +411,6 @@ def _column(name: str, top: np.ndarray, finite: np.ndarray, counts: np.ndarray, 
         return np.divide(best - runners_up, spread, out=np.zeros_like(best), where=spread > 0)
 
 
-def row_statistics(values: list[float], k: int) -> tuple[float, float, float, float, float, int]:
-    """(s_1, s_2, mean of s_2..s_n, median, s_n, n) of one query's sorted similarities, pure Python.
-
-    ``values`` is truncated to ``k`` candidates and stripped of trailing ``-inf`` in place. A ValueError names
-    what is wrong: fewer than 2 finite candidates, NaN, +inf, or a row not sorted in descending order.
-    """
-    if len(values) > k:
-        del values[k:]
-    while values and values[-1] == -math.inf:
-        values.pop()
-    n = len(values)
-    if n < 2:
-        raise ValueError(f"scores needs at least 2 finite candidates, got {n}")
-    try:
-        previous = values[0]
-        if not -math.inf < previous < math.inf:
-            raise ValueError(f"scores must be finite, got {values}")
-        for value in values:
-            if not value <= previous:  # also catches NaN
-                raise ValueError(f"scores must be finite and sorted in descending order, got {values}")
-            previous = value
-        total = sum(values)
-    except TypeError:
-        raise TypeError(f"scores must be numbers, got {values}") from None
-    best = values[0]
-    if not -math.inf < total < math.inf:  # finite values whose sum overflows: the mean from scaled values
-        scale = max(abs(best), abs(values[-1]))
-        runners_up = scale * ((sum(value / scale for value in values) - best / scale) / (n - 1))
-        return best, values[1], runners_up, 0.5 * values[(n - 1) // 2] + 0.5 * values[n // 2], values[-1], n
-    median = 0.5 * (values[(n - 1) // 2] + values[n // 2])
-    return best, values[1], (total - best) / (n - 1), median, values[-1], n
-
-
 def row_features(values: Sequence[float], *, k: int = 10, features: Sequence[str] = DEFAULT_FEATURES) -> list[float]:
     """The features of one query (the same numbers as one row of :func:`feature_matrix`), in pure Python.
 
@@ -453,7 +419,7 @@ def row_features(values: Sequence[float], *, k: int = 10, features: Sequence[str
     >>> [round(value, 4) for value in row_features([0.8, 0.4, 0.2], k=3, features=("RS", "SD", "zscore"))]
     [0.375, 0.5, 0.8333]
     """
-    best, second, runners_up, median, last, _ = row_statistics(list(values), check_k(k))
+    best, second, runners_up, median, last, _ = _scores.row_statistics(list(values), check_k(k))
     positive = best > 0
     spread = best - last
     table = {

@@ -29,8 +29,8 @@ from vpr_uncertainty.calibration.calibrator import (
     aliasing_ratio,
     feature_matrix,
     row_features,
-    row_statistics,
 )
+from vpr_uncertainty.scores import row_statistics
 
 __all__ = ["FORMAT", "Gate"]
 
