@@ -3,7 +3,6 @@ geometric verification), measure it, and note where the input bends a convention
 
 from __future__ import annotations
 
-import dataclasses
 import statistics
 import tempfile
 import time
@@ -286,8 +285,6 @@ def _tied_note(methods: Iterable[Any], n_queries: int) -> str | None:
 
 #: Kinds of method whose batch-1 latency is measured (the others need images or a model per call).
 LATENCY_KINDS: frozenset[str] = frozenset({"score", "spatial", "calibrated"})
-#: Retrieval fields with one row per query.
-_PER_QUERY = ("scores", "indices", "positives", "distances", "query_names", "query_positions")
 
 
 def single_query_retrievals(retrieval: Any, n: int) -> list[Any]:
@@ -303,14 +300,7 @@ def single_query_retrievals(retrieval: Any, n: int) -> list[Any]:
         raise ValueError(f"n must be >= 1, got {n}")
     if retrieval.n_queries == 0:
         raise ValueError("the retrieval has no queries")
-    rows = []
-    for index in range(min(n, retrieval.n_queries)):
-        fields = {
-            name: getattr(retrieval, name)[index : index + 1]
-            for name in _PER_QUERY
-            if getattr(retrieval, name) is not None
-        }
-        rows.append(dataclasses.replace(retrieval, **fields))
+    rows = [retrieval.subset_queries(np.array([index])) for index in range(min(n, retrieval.n_queries))]
     return [rows[i % len(rows)] for i in range(n)]
 
 
