@@ -2,7 +2,7 @@
 
 For each retrieval: AUC-PR and AP of SU with the paper's α = 0.5, of SU with the best fixed α of the grid 0, 0.1,
 ..., 1 chosen in hindsight on that retrieval (an upper bound no fixed rule can reach without labels), of
-``SU-adaptive`` (α_q = 1 − |mean − median| / std of the runners-up, :mod:`vpr_uncertainty.adaptive`), and of the
+``SU-adaptive`` (α_q = 1 − |mean − median| / std of the runners-up, :mod:`vpr_uncertainty.scores`), and of the
 reversed rule (α_q = |mean − median| / std) as a check of the rule's direction. Prints a Markdown table.
 
     python benchmarks/adaptive_alpha.py                                   # the ten corridor matrices
@@ -19,11 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.adaptive import adaptive_alpha
 from vpr_uncertainty.evaluation import auc_pr, average_precision, correct_at_n
 from vpr_uncertainty.methods import get_method
 from vpr_uncertainty.retrieval import read_results
-from vpr_uncertainty.scores import ratio_spread, similarity_distribution
+from vpr_uncertainty.scores import adaptive_alpha, ratio_spread, similarity_distribution
 
 ALPHAS = tuple(round(0.1 * i, 1) for i in range(11))
 

@@ -174,9 +174,9 @@ def time_evaluation(folder: Path, repeats: int) -> dict[str, float]:
     import warnings
 
     from vpr_uncertainty import evaluate, load_retrieval
-    from vpr_uncertainty.methods import SCORE_ONLY_METHODS
+    from vpr_uncertainty.methods import available_methods
 
-    methods = [*SCORE_ONLY_METHODS, "SUE"]
+    methods = [*available_methods(kind="score"), "SUE"]
     results: dict[str, float] = {}
     start = time.perf_counter()
     retrieval = load_retrieval(folder / "retrieval.npz")

@@ -33,7 +33,6 @@ import numpy as np
 import torch
 
 from vpr_uncertainty.btl.protocol import PROTOCOLS, btl_protocol, train_for_protocol
-from vpr_uncertainty.calibration.heldout import subset_queries
 from vpr_uncertainty.data.attach import attach_ground_truth
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import evaluate
@@ -81,7 +80,7 @@ def run_protocol(
     n_queries = len(inputs["queries"])
     protocol = btl_protocol(name, n_queries, split_at=split_at if name == "query-split" else None)
     test = protocol.test_queries
-    retrieval = subset_queries(inputs["retrieval"], test)
+    retrieval = inputs["retrieval"].subset_queries(test)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         baseline = evaluate(retrieval, BASELINES)

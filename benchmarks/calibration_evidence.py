@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from vpr_uncertainty import calibrate
-from vpr_uncertainty.calibration.heldout import evaluate_held_out, subset_queries
-from vpr_uncertainty.calibration.simulation import simulate_guarantee
+from vpr_uncertainty.calibration import evaluate_held_out
+from vpr_uncertainty.calibration.fit import simulate_guarantee
 from vpr_uncertainty.evaluation import correct_at_n
 from vpr_uncertainty.retrieval import load_retrieval, read_results
 
@@ -87,13 +87,13 @@ def loop_closure(retrievals: dict) -> None:
     print("\n## Loop closure: calibrate on queries 0-55, gate queries 56-110 (p* = 0.9, δ = 0.1)\n")
     print("| VPR method | certified bound | accepted | precision | recall | recall of SU at hindsight p>=0.9 |")
     print("|---|---|---|---|---|---|")
-    from vpr_uncertainty.calibration.simulation import hindsight_recall
+    from vpr_uncertainty.calibration.fit import hindsight_recall
     from vpr_uncertainty.scores import statistical_uncertainty
 
     for name, retrieval in retrievals.items():
         first, second = np.arange(56), np.arange(56, retrieval.n_queries)
-        gate = calibrate(subset_queries(retrieval, first), target_precision=0.9, delta=0.1)
-        other = subset_queries(retrieval, second)
+        gate = calibrate(retrieval.subset_queries(first), target_precision=0.9, delta=0.1)
+        other = retrieval.subset_queries(second)
         correct = correct_at_n(other.indices, other.positives, 1)
         accepted = gate.accept(other.scores)
         precision = correct[accepted].mean() if accepted.any() else float("nan")

@@ -1,4 +1,4 @@
-"""SU-adaptive (:mod:`vpr_uncertainty.adaptive`): the vectorised α_q against a plain loop, its edge cases, and the
+"""SU-adaptive (:mod:`vpr_uncertainty.scores`): the vectorised α_q against a plain loop, its edge cases, and the
 registered method."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import statistics
 import numpy as np
 import pytest
 
-from vpr_uncertainty.adaptive import NO_EVIDENCE_ALPHA, adaptive_alpha, adaptive_statistical_uncertainty
 from vpr_uncertainty.methods import get_method
 from vpr_uncertainty.retrieval import Retrieval
+from vpr_uncertainty.scores import NO_EVIDENCE_ALPHA, adaptive_alpha, adaptive_statistical_uncertainty
 
 
 def _reference(row: list[float], k: int) -> tuple[float, float]:

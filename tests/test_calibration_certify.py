@@ -9,10 +9,9 @@ import pytest
 from scipy import stats
 
 from vpr_uncertainty import Gate, calibrate
-from vpr_uncertainty.calibration.features import feature_matrix
-from vpr_uncertainty.calibration.fit import calibrate_arrays
+from vpr_uncertainty.calibration.calibrator import feature_matrix
+from vpr_uncertainty.calibration.fit import calibrate_arrays, plan_labels
 from vpr_uncertainty.calibration.guarantee import coverage_grid, cuts_at_coverage
-from vpr_uncertainty.calibration.plan import plan_labels
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.evaluation import correct_at_n
 from vpr_uncertainty.retrieval import read_results
@@ -200,7 +199,7 @@ def test_probability_one_refuses_what_gate_refuses(corridor, scores):
 def test_average_precision_equals_scikit_learn_with_ties():
     from sklearn.metrics import average_precision_score
 
-    from vpr_uncertainty.calibration.rankings import average_precision
+    from vpr_uncertainty.calibration.calibrator import average_precision
 
     rng = np.random.default_rng(0)
     for _ in range(300):

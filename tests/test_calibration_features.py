@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import assert_close
-from vpr_uncertainty.calibration.features import FEATURES, feature_matrix, row_features
+from vpr_uncertainty.calibration.calibrator import FEATURES, feature_matrix, row_features
 from vpr_uncertainty.retrieval import read_results
 
 CORRIDOR = ["AMOSNet", "CALC", "denseVLAD", "NetVLAD"]

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from vpr_uncertainty.calibration.fit import simulate_guarantee
 from vpr_uncertainty.calibration.guarantee import (
     certify_threshold,
     clopper_pearson_lower,
@@ -16,7 +17,6 @@ from vpr_uncertainty.calibration.guarantee import (
     fixed_sequence,
     min_accepted,
 )
-from vpr_uncertainty.calibration.simulation import simulate_guarantee
 from vpr_uncertainty.evaluation import correct_at_n
 from vpr_uncertainty.retrieval import read_results
 

@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 import pytest
 
-from vpr_uncertainty.calibration.heldout import evaluate_held_out
+from vpr_uncertainty.calibration.quality import evaluate_held_out
 from vpr_uncertainty.methods import METHODS, register_method
 from vpr_uncertainty.retrieval import read_results
 

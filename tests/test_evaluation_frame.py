@@ -1,5 +1,5 @@
 """``Evaluation.to_frame()`` (pandas, the ``pandas`` extra) and the compact ``repr`` of Evaluation and
-MethodEvaluation (vpr_uncertainty.evaluation.frame)."""
+MethodEvaluation (vpr_uncertainty.evaluation.results)."""
 
 from __future__ import annotations
 

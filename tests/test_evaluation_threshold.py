@@ -1,5 +1,5 @@
 """``threshold_at_precision``: the most lenient uncertainty threshold with empirical precision >= the target
-(vpr_uncertainty.evaluation.threshold), checked against a brute-force search."""
+(vpr_uncertainty.evaluation.metrics), checked against a brute-force search."""
 
 from __future__ import annotations
 

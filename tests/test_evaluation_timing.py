@@ -1,4 +1,4 @@
-"""Time figures beside the batched time per query (:mod:`vpr_uncertainty.evaluation.timing`): latency at batch
+"""Time figures beside the batched time per query (:mod:`vpr_uncertainty.evaluation._evaluate`): latency at batch
 size 1, and geometric verification with a cold and a warm local-feature cache."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from scipy import sparse
 
 from vpr_uncertainty.evaluation import Evaluation, evaluate
-from vpr_uncertainty.evaluation.timing import latency_batch1, single_query_retrievals, time_geometric
+from vpr_uncertainty.evaluation._evaluate import latency_batch1, single_query_retrievals, time_geometric
 from vpr_uncertainty.methods import METHODS, available_methods, get_method, register_method
 from vpr_uncertainty.retrieval import Retrieval
 

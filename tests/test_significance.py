@@ -1,4 +1,4 @@
-"""Bootstrap intervals and paired tests attached to an evaluation (vpr_uncertainty.evaluation.significance): the
+"""Bootstrap intervals and paired tests attached to an evaluation (vpr_uncertainty.evaluation.bootstrap): the
 JSON keys and their round trip, the reference, the leaders of a column, tie counts, and the evaluate table."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from vpr_uncertainty.evaluation import (
     recall_at_full_precision,
     rejection_curve,
 )
-from vpr_uncertainty.evaluation.significance import add_bootstrap, leaders
+from vpr_uncertainty.evaluation.bootstrap import add_bootstrap, leaders
 from vpr_uncertainty.reports.tables import format_table
 from vpr_uncertainty.retrieval import Retrieval, top_k_from_similarity
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy import sparse
 
-from vpr_uncertainty.calibration.heldout import evaluate_held_out
+from vpr_uncertainty.calibration.quality import evaluate_held_out
 from vpr_uncertainty.pipeline.grid import (
     _cell_fingerprint,
     candidates_needed,

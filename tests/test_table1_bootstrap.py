@@ -14,7 +14,7 @@ import pytest
 
 from test_significance import _evaluation, _retrieval
 from vpr_uncertainty.cli import main
-from vpr_uncertainty.evaluation.significance import add_bootstrap
+from vpr_uncertainty.evaluation.bootstrap import add_bootstrap
 from vpr_uncertainty.pipeline.grid import load_config
 from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_latex, table1_markdown
 from vpr_uncertainty.reports.ties import build_ties_table, ties_markdown

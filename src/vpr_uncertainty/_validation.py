@@ -12,7 +12,6 @@ import numpy as np
 __all__ = [
     "BLOCK_ROWS",
     "as_score_array",
-    "check_alpha",
     "check_best_scores",
     "check_block",
     "check_k",
@@ -29,16 +28,6 @@ def check_k(k: object, *, name: str = "k") -> int:
     if k < 2:
         raise ValueError(f"{name} must be >= 2 (the metrics compare the best match with its runners-up), got {k}")
     return int(k)
-
-
-def check_alpha(alpha: object) -> float:
-    """Return ``alpha`` as a float after checking that it lies in [0, 1]."""
-    if isinstance(alpha, bool) or not isinstance(alpha, numbers.Real):
-        raise TypeError(f"alpha must be a real number in [0, 1], got {alpha!r} of type {type(alpha).__name__}")
-    alpha = float(alpha)
-    if not 0.0 <= alpha <= 1.0:  # also rejects NaN
-        raise ValueError(f"alpha must lie in [0, 1], got {alpha}")
-    return alpha
 
 
 #: Rows validated (and, in the metrics, computed) at once: small enough for the block to stay in cache.

@@ -37,12 +37,12 @@ from __future__ import annotations
 
 import numbers
 import warnings
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from vpr_uncertainty.retrieval import Retrieval
+from vpr_uncertainty.methods import register_method
+from vpr_uncertainty.retrieval import Retrieval
+from vpr_uncertainty.scores import squared_distances_from_similarities
 
 __all__ = [
     "CLIP_MODES",
@@ -242,8 +242,6 @@ def sue_from_retrieval(
     if retrieval.distances is not None:
         distances = retrieval.distances
     else:
-        from vpr_uncertainty.scores import squared_distances_from_similarities
-
         distances = squared_distances_from_similarities(np.asarray(retrieval.scores, dtype=np.float64), method="SUE")
     return spatial_uncertainty(
         retrieval.indices,
@@ -254,3 +252,14 @@ def sue_from_retrieval(
         clip=clip,
         max_deviation=max_deviation,
     )
+
+
+register_method(
+    "SUE",
+    sue_from_retrieval,
+    description="Spatial uncertainty: weighted spread of the top-k database positions (Zaffar et al. 2024)",
+    requires=("database_positions",),
+    options={"k": 10, "slope": DEFAULT_SLOPE, "clip": "symmetric", "max_deviation": MAX_DEVIATION},
+    validate=check_sue_options,
+    kind="spatial",
+)

@@ -1,12 +1,23 @@
-"""P(correct top-1) from the training-free features: a small, regularised scikit-learn model, as plain numbers.
+"""P(correct top-1) from training-free features of the top-k scores: the features, the calibrator, and the choice
+of ranking.
+
+Features (k candidates, s_1 ≥ s_2 ≥ … ≥ s_k; descriptive numbers, the calibrator learns their signs):
+``s1``; ``gap`` = s_1 − s_2; ``ratio`` = s_2 / s_1; ``RS``, ``SD``, ``SU`` (α = 0.5); ``zscore`` =
+(s_1 − mean(s_2..s_k)) / (s_1 − s_k) (0 when the top-k ties); ``PA`` = d_1 / d_2 with d² = 2 − 2s (cosine
+similarities only, else a ValueError). The ratio features follow :mod:`vpr_uncertainty.scores` for s_1 ≤ 0
+(1 − s_1) and for missing candidates (``-inf``). :func:`row_features` gives the same numbers for one query in pure
+Python (the gate's fast path).
 
 Two models:
 
-* ``"logistic"``: L2-regularised logistic regression on standardised features
-  (:data:`~vpr_uncertainty.calibration.features.DEFAULT_FEATURES`); P = σ(b + Σ w_i (f_i − μ_i) / σ_i). A fixed
-  score (SU, the margin, …) chosen by :func:`~vpr_uncertainty.calibration.fit.select_calibrator` is the same model on
-  that one feature (Platt scaling).
+* ``"logistic"``: L2-regularised logistic regression on standardised features (:data:`DEFAULT_FEATURES`);
+  P = σ(b + Σ w_i (f_i − μ_i) / σ_i). A fixed score (SU, the margin, …) is the same model on that one feature
+  (Platt scaling, :func:`platt`).
 * ``"isotonic"``: isotonic regression on SU alone (P non-increasing in SU), a step function.
+
+:func:`select_calibrator` (the doubt ``CAL``) keeps, among the fixed scores of :data:`RANKINGS` and the logistic
+model, the one with the best average precision on the labelled queries: a fixed score's is an honest estimate (no
+fitting), the model's is measured on cross-fitted confidences (:func:`cross_fitted`).
 
 A fitted model is a :class:`Calibrator`: numbers only (no scikit-learn object), so it is saved as JSON and
 evaluated without scikit-learn. Its ``confidence`` is a score whose order is that of P (the linear score z for the
@@ -15,14 +26,38 @@ logistic model, −SU for the isotonic one); the threshold of a gate is set on i
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.calibration.features import FEATURES
+from vpr_uncertainty import scores as _scores
+from vpr_uncertainty._validation import check_k, check_top_k_scores
 
-__all__ = ["MODELS", "Calibrator", "fit_calibrator"]
+__all__ = [
+    "DEFAULT_FEATURES",
+    "FEATURES",
+    "FOLDS",
+    "MODELS",
+    "RANKINGS",
+    "Calibrator",
+    "aliasing_ratio",
+    "average_precision",
+    "check_features",
+    "columns",
+    "cross_fitted",
+    "feature_columns",
+    "feature_matrix",
+    "fit_calibrator",
+    "fit_model",
+    "platt",
+    "row_features",
+    "select_calibrator",
+    "stratified_folds",
+    "stratified_split",
+]
 
 #: The calibrator models :func:`fit_calibrator` fits.
 MODELS: tuple[str, ...] = ("logistic", "isotonic")
@@ -187,7 +222,7 @@ def fit_calibrator(
     Parameters
     ----------
     features : ndarray of shape (Q, F)
-        From :func:`~vpr_uncertainty.calibration.features.feature_matrix` (for ``"isotonic"``: one column, SU).
+        From :func:`~vpr_uncertainty.calibration.calibrator.feature_matrix` (for ``"isotonic"``: one column, SU).
     correct : ndarray of shape (Q,), bool
         Whether each query's top-1 answer is correct; both outcomes must occur.
     feature_names : tuple of str
@@ -195,10 +230,6 @@ def fit_calibrator(
     model : {"logistic", "isotonic"}
     regularisation : float, default=1.0
         Inverse L2 strength C of the logistic regression (> 0).
-
-    Returns
-    -------
-    Calibrator
     """
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
@@ -287,3 +318,309 @@ def _objective(design: np.ndarray, target: np.ndarray, theta: np.ndarray, penalt
     z = design @ theta
     # log(1 + exp(z)) − y z, computed stably
     return float(np.sum(np.logaddexp(0.0, z) - target * z) + 0.5 * np.sum(penalty * theta**2))
+
+
+#: Every feature :func:`feature_matrix` can build, in a fixed order.
+FEATURES: tuple[str, ...] = ("s1", "gap", "ratio", "RS", "SD", "SU", "zscore", "PA")
+#: The features of the fitted calibrator: the best match, the margin, the perceptual-aliasing ratio and SU (the
+#: signals that win on some VPR method; see README "Calibration"). Without cosine similarities PA is left out.
+DEFAULT_FEATURES: tuple[str, ...] = ("s1", "gap", "PA", "SU")
+
+
+def check_features(features: Sequence[str]) -> tuple[str, ...]:
+    """``features`` as a tuple, checked: a non-empty sequence of distinct names from :data:`FEATURES`."""
+    if isinstance(features, str) or not features:
+        raise ValueError(f"features must be a non-empty list of names from {FEATURES}, got {features!r}")
+    unknown = [name for name in features if name not in FEATURES]
+    if unknown:
+        raise ValueError(f"unknown feature(s) {unknown}; valid: {', '.join(FEATURES)}")
+    if len(set(features)) != len(features):
+        raise ValueError(f"features lists a name twice: {list(features)}")
+    return tuple(features)
+
+
+def feature_matrix(scores: object, *, k: int = 10, features: Sequence[str] = DEFAULT_FEATURES) -> np.ndarray:
+    """The feature matrix of many queries, vectorised.
+
+    Parameters
+    ----------
+    scores : array-like of shape (Q, K)
+        Top-K similarities per query, higher = more similar, sorted descending along axis 1; ``-inf`` marks a
+        missing candidate at the end of a row. At least two finite candidates per row.
+    k : int, default=10
+        Candidates used (the first ``min(k, K)`` columns); >= 2.
+    features : sequence of str, default=DEFAULT_FEATURES
+        Names from :data:`FEATURES`, in the order of the columns returned.
+
+    Returns
+    -------
+    ndarray of shape (Q, F), float64
+
+    Examples
+    --------
+    >>> feature_matrix(np.array([[0.8, 0.4, 0.2]]), k=3, features=("s1", "gap", "RS", "SD", "zscore")).round(4)
+    array([[0.8   , 0.4   , 0.375 , 0.5   , 0.8333]])
+    """
+    names = check_features(features)
+    k = check_k(k)
+    array = check_top_k_scores(scores)
+    if array.shape[1] < 2:
+        raise ValueError(f"scores must have at least 2 columns, got shape {array.shape}")
+    array = array.astype(np.float64, copy=False)
+    n = min(k, array.shape[1])
+    top = array[:, :n]
+    finite = np.isfinite(top)
+    counts = finite.sum(axis=1)
+    if (counts < 2).any():
+        row = int(np.flatnonzero(counts < 2)[0])
+        raise ValueError(f"scores row {row} has {int(counts[row])} finite candidate(s); a row needs at least 2")
+    with np.errstate(over="ignore", invalid="ignore"):  # huge finite scores: overflow is refused below
+        columns = {name: _column(name, top, finite, counts, n) for name in names}
+    if not len(top):
+        return np.empty((0, len(names)))
+    matrix = np.column_stack([columns[name] for name in names])
+    if not np.isfinite(matrix).all():  # finite scores so large that a sum or ratio overflows
+        row = int(np.flatnonzero(~np.isfinite(matrix).all(axis=1))[0])
+        raise ValueError(f"scores row {row} is too large: its features overflow float64 ({top[row].tolist()})")
+    return matrix
+
+
+def _column(name: str, top: np.ndarray, finite: np.ndarray, counts: np.ndarray, n: int) -> np.ndarray:
+    """One feature column of :func:`feature_matrix`, shape (Q,)."""
+    best = top[:, 0]
+    nonpositive = best <= 0
+    if name == "s1":
+        return best
+    elif name == "gap":
+        return best - top[:, 1]
+    elif name == "ratio":
+        return np.where(nonpositive, 1 - best, top[:, 1] / np.where(nonpositive, 1, best))
+    elif name == "RS":
+        return _scores.ratio_spread(top, n)
+    elif name == "SD":
+        return _scores.similarity_distribution(top, n)
+    elif name == "SU":
+        return _scores.statistical_uncertainty(top, n)
+    elif name == "PA":
+        return _scores.perceptual_aliasing(top[:, :2], 2).astype(np.float64, copy=False)
+    else:  # zscore
+        safe = np.where(finite, top, 0.0)
+        last = safe[np.arange(len(top)), counts - 1]
+        runners_up = (safe.sum(axis=1) - best) / (counts - 1)
+        spread = best - last
+        return np.divide(best - runners_up, spread, out=np.zeros_like(best), where=spread > 0)
+
+
+def row_features(values: Sequence[float], *, k: int = 10, features: Sequence[str] = DEFAULT_FEATURES) -> list[float]:
+    """The features of one query (the same numbers as one row of :func:`feature_matrix`), in pure Python.
+
+    Examples
+    --------
+    >>> [round(value, 4) for value in row_features([0.8, 0.4, 0.2], k=3, features=("RS", "SD", "zscore"))]
+    [0.375, 0.5, 0.8333]
+    """
+    best, second, runners_up, median, last, _ = _scores.row_statistics(list(values), check_k(k))
+    positive = best > 0
+    spread = best - last
+    table = {
+        "s1": best,
+        "gap": best - second,
+        "ratio": second / best if positive else 1 - best,
+        "RS": runners_up / best if positive else 1 - best,
+        "SD": median / best if positive else 1 - best,
+        "SU": 0.5 * (runners_up / best) + 0.5 * (median / best) if positive else 1 - best,
+        "zscore": (best - runners_up) / spread if spread > 0 else 0.0,
+    }
+    names = check_features(features)
+    if "PA" in names:
+        table["PA"] = aliasing_ratio(best, second)
+    return [table[name] for name in names]
+
+
+def aliasing_ratio(best: float, second: float) -> float:
+    """PA of one query, d_1 / d_2 with d² = 2 − 2s, in pure Python (1 when both distances are 0).
+
+    A ValueError names the range when a similarity lies outside [−1, 1] (beyond rounding): the scores are then not
+    cosine similarities and the distances would be meaningless.
+    """
+    tolerance = _scores.COSINE_TOLERANCE
+    if not (-1.0 - tolerance <= second and best <= 1.0 + tolerance):
+        raise ValueError(f"feature PA needs cosine similarities in [-1, 1], got s_1 = {best:g}, s_2 = {second:g}")
+    first_squared, second_squared = max(2.0 - 2.0 * best, 0.0), max(2.0 - 2.0 * second, 0.0)
+    return math.sqrt(first_squared / second_squared) if second_squared > 0 else 1.0
+
+
+#: The training-free rankings: name → (feature, sign); confidence = sign × feature (higher = more likely correct).
+RANKINGS: dict[str, tuple[str, float]] = {
+    "SU": ("SU", -1.0),
+    "RS": ("RS", -1.0),
+    "SD": ("SD", -1.0),
+    "BM": ("s1", 1.0),
+    "margin": ("gap", 1.0),
+    "PA": ("PA", -1.0),
+}
+#: Cross-fitting folds of the fitted model.
+FOLDS = 5
+#: Every feature a candidate reads.
+_FEATURES_USED = ("s1", "gap", "RS", "SD", "SU", "PA")
+
+
+def stratified_split(correct: np.ndarray, fraction: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (first, second): ``fraction`` of each class (rounded, at least one of each when possible) first."""
+    if not 0.0 < fraction < 1.0:
+        raise ValueError(f"fraction must lie in (0, 1), got {fraction}")
+    first, second = [], []
+    for label in (True, False):
+        members = rng.permutation(np.flatnonzero(correct == label))
+        count = round(fraction * members.size)
+        if members.size >= 2:
+            count = min(max(count, 1), members.size - 1)
+        first.append(members[:count])
+        second.append(members[count:])
+    return np.sort(np.concatenate(first)), np.sort(np.concatenate(second))
+
+
+def stratified_folds(correct: np.ndarray, folds: int, rng: np.random.Generator) -> np.ndarray:
+    """The fold (0 … folds − 1) of each query, shape (Q,): each outcome dealt round-robin in a random order."""
+    assignment = np.empty(correct.size, dtype=np.int64)
+    offset = 0
+    for label in (True, False):
+        members = rng.permutation(np.flatnonzero(correct == label))
+        assignment[members] = (np.arange(members.size) + offset) % folds
+        offset += members.size
+    return assignment
+
+
+def feature_columns(scores: np.ndarray, k: int, required: Sequence[str] = ()) -> dict[str, np.ndarray]:
+    """Every feature the candidates read, by name, and the ``required`` ones; PA only for cosine similarities
+    (unless required, when its error is raised)."""
+    names = tuple(dict.fromkeys([*_FEATURES_USED, *required]))
+    try:
+        matrix = feature_matrix(scores, k=k, features=names)
+    except ValueError as error:
+        if "PA" not in str(error) or "PA" in required:
+            raise
+        names = tuple(name for name in names if name != "PA")
+        matrix = feature_matrix(scores, k=k, features=names)
+    return dict(zip(names, matrix.T, strict=True))
+
+
+def columns(features: dict[str, np.ndarray], names: Sequence[str]) -> np.ndarray:
+    return np.column_stack([features[name] for name in names])
+
+
+def fit_model(matrix: np.ndarray, correct: np.ndarray, names: tuple[str, ...]) -> Calibrator:
+    return fit_calibrator(matrix, correct, feature_names=names, model="logistic")
+
+
+def cross_fitted(
+    matrix: np.ndarray, correct: np.ndarray, names: tuple[str, ...], folds: int, seed: int
+) -> tuple[np.ndarray, list[Calibrator]] | None:
+    """The fold of each labelled query and the model of each fold (fitted without it); None when a fold's
+    training part holds one outcome only."""
+    minority = int(min(correct.sum(), (~correct).sum()))
+    n_folds = min(folds, minority)
+    if n_folds < 2:
+        return None
+    assignment = stratified_folds(correct, n_folds, np.random.default_rng([seed, 1]))
+    models = []
+    for fold in range(n_folds):
+        train = assignment != fold
+        if correct[train].all() or not correct[train].any():
+            return None
+        models.append(fit_model(matrix[train], correct[train], names))
+    return assignment, models
+
+
+def average_precision(correct: np.ndarray, confidence: np.ndarray) -> float:
+    """Average precision of ``confidence`` (Q,) as a predictor of ``correct`` (Q,): scikit-learn's definition.
+
+    AP = Σ_n (R_n − R_{n−1}) P_n over the distinct confidences, strictest first (tied queries enter together). The
+    same number as ``sklearn.metrics.average_precision_score`` (tested), without its input checks, which cost
+    milliseconds per call where a calibration makes dozens.
+
+    Examples
+    --------
+    >>> average_precision(np.array([True, False, True, True]), np.array([0.9, 0.8, 0.8, 0.1]))
+    0.8055555555555556
+    """
+    order = np.argsort(-confidence, kind="stable")
+    ranked, hits = confidence[order], np.asarray(correct, dtype=bool)[order]
+    ends = np.append(np.flatnonzero(ranked[1:] != ranked[:-1]), ranked.size - 1)  # last row of each tie group
+    true_positives = np.cumsum(hits)[ends]
+    precision = true_positives / (ends + 1)
+    recall = true_positives / max(int(hits.sum()), 1)
+    return float(np.sum(np.diff(recall, prepend=0.0) * precision))
+
+
+def platt(name: str, feature: str, sign: float, column: np.ndarray, correct: np.ndarray) -> Calibrator:
+    """P = σ(a·sign·f + b) with a > 0 fitted on all labels: a calibrator in the order of one fixed score."""
+    confidence = sign * np.asarray(column, dtype=np.float64)
+    spread = float(confidence.std()) or 1.0
+    intercept, (slope,) = fit_logistic((confidence / spread)[:, None], correct, regularisation=1.0)
+    slope = float(slope) / spread
+    if not slope > 0:  # no signal on these labels: keep the order, P ≈ the share of correct answers
+        base = float(np.clip(correct.mean(), 1e-6, 1 - 1e-6))
+        slope = 1e-6 / spread  # large enough that neighbouring float32 scores stay apart in z
+        intercept = math.log(base / (1 - base)) - slope * float(confidence.mean())
+    return Calibrator(
+        model="logistic",
+        features=(feature,),
+        mean=[0.0],
+        scale=[1.0],
+        coef=[sign * slope],
+        intercept=float(intercept),
+        regularisation=1.0,
+        ranking=name,
+    )
+
+
+def select_calibrator(
+    features: dict[str, np.ndarray],
+    correct: np.ndarray,
+    *,
+    model_features: tuple[str, ...],
+    folds: int = FOLDS,
+    seed: int = 0,
+) -> tuple[Calibrator, dict[str, float]]:
+    """The calibrator of the candidate (fixed score or cross-fitted model) with the best average precision.
+
+    Parameters
+    ----------
+    features : dict of str to ndarray of shape (Q,)
+        Feature columns of the labelled queries (SU, RS, SD, s1, gap and, for cosine similarities, PA).
+    correct : ndarray of shape (Q,), bool
+        Both outcomes must occur.
+    model_features : tuple of str
+        Features of the logistic model.
+    folds, seed : int
+        Cross-fitting of the model.
+
+    Returns
+    -------
+    calibrator : Calibrator
+        Fitted on all labels; ``calibrator.ranking`` names the winner (``"CAL"`` for the model).
+    scores : dict of str to float
+        Average precision of every candidate (the model's from cross-fitted confidences).
+    """
+    correct = np.asarray(correct, dtype=bool)
+    matrix = columns(features, model_features)
+    scores: dict[str, float] = {}
+    crossed = cross_fitted(matrix, correct, model_features, folds, seed)
+    if crossed is not None:
+        assignment, models = crossed
+        confidence = np.empty(correct.size)
+        for fold, model in enumerate(models):
+            rows = assignment == fold
+            confidence[rows] = model.confidence(matrix[rows])
+        scores["CAL"] = average_precision(correct, confidence)
+    for name, (feature, sign) in RANKINGS.items():
+        if feature in features:
+            scores[name] = average_precision(correct, sign * features[feature])
+    best = max(scores, key=lambda name: scores[name])  # the first of equals: the model, then SU
+    if best == "CAL":
+        calibrator = fit_model(matrix, correct, model_features)
+        calibrator.ranking = "CAL"
+        return calibrator, scores
+    feature, sign = RANKINGS[best]
+    return platt(best, feature, sign, features[feature], correct), scores

@@ -23,14 +23,14 @@ import numpy as np
 
 from vpr_uncertainty._validation import check_k
 from vpr_uncertainty.cache import write_text
-from vpr_uncertainty.calibration.calibrator import Calibrator
-from vpr_uncertainty.calibration.features import (
+from vpr_uncertainty.calibration.calibrator import (
     FEATURES,
+    Calibrator,
     aliasing_ratio,
     feature_matrix,
     row_features,
-    row_statistics,
 )
+from vpr_uncertainty.scores import row_statistics
 
 __all__ = ["FORMAT", "Gate"]
 

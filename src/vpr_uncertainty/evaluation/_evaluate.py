@@ -1,20 +1,19 @@
-"""Evaluate uncertainty methods on a retrieval: run each one, time it, and measure it with the metrics.
-
-:func:`evaluate` is the orchestration; the metrics are in :mod:`vpr_uncertainty.evaluation.metrics` and the
-result types in :mod:`vpr_uncertainty.evaluation.results`.
-"""
+""":func:`evaluate`: run each uncertainty method on a retrieval, time it (throughput, batch-1 latency, cold and warm
+geometric verification), measure it, and note where the input bends a convention."""
 
 from __future__ import annotations
 
 import statistics
+import tempfile
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty.evaluation._notes import FewerCandidatesWarning, candidates_note, nonpositive_note, tied_note
+from vpr_uncertainty.evaluation.bootstrap import add_bootstrap, check_bootstrap, resolve_reference
 from vpr_uncertainty.evaluation.metrics import (
     auc_pr,
     aurc,
@@ -26,11 +25,10 @@ from vpr_uncertainty.evaluation.metrics import (
     rejection_curve,
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
-from vpr_uncertainty.evaluation.significance import add_bootstrap, check_bootstrap, resolve_reference
-from vpr_uncertainty.evaluation.timing import LATENCY_KINDS, latency_batch1, time_geometric
 from vpr_uncertainty.methods import (
     DetailedUncertainty,
     OwnRetrievalUncertainty,
+    UncertaintyMethod,
     check_options,
     default_method_names,
     get_method,
@@ -39,7 +37,16 @@ from vpr_uncertainty.methods import (
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["RECALL_LEVELS", "evaluate", "time_per_query"]
+__all__ = [
+    "LATENCY_KINDS",
+    "RECALL_LEVELS",
+    "FewerCandidatesWarning",
+    "evaluate",
+    "latency_batch1",
+    "single_query_retrievals",
+    "time_geometric",
+    "time_per_query",
+]
 
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
 
@@ -99,11 +106,11 @@ def evaluate(
         Calls per method for the time per query (median; fewer when a call is slow). A geometric method's
         ``time_per_query_ms`` is its cold figure (every local feature extracted); its ``timings`` hold
         ``time_per_query_ms_cold`` and ``time_per_query_ms_warm`` (features read from the cache in
-        ``cache_dir``; absent without one), see :func:`~vpr_uncertainty.evaluation.timing.time_geometric`.
+        ``cache_dir``; absent without one), see :func:`time_geometric`.
     bootstrap : int, default=0
         Paired bootstrap resamples over queries (0: none): 95 % intervals of AUC-PR, AP and AURC, a paired test of
         each method's AUC-PR against ``reference`` (Holm-corrected), and the leaders of each metric; see
-        :func:`vpr_uncertainty.evaluation.significance.add_bootstrap`.
+        :func:`vpr_uncertainty.evaluation.bootstrap.add_bootstrap`.
     seed : int, default=0
         Seed of the bootstrap resamples.
     reference : str, optional
@@ -115,10 +122,6 @@ def evaluate(
         Further options passed to the methods that accept them; an option that no selected method takes
         (besides the inputs of :data:`~vpr_uncertainty.methods.STAGE_INPUTS`) is a ValueError. Files the
         options name (e.g. BTL's head) are read once, before the timing.
-
-    Returns
-    -------
-    Evaluation
     """
     if retrieval.positives is None:
         raise ValueError(
@@ -156,12 +159,11 @@ def evaluate(
     if not both_classes:
         evaluation.notes.append("AUC-PR and AP are undefined: every top-1 answer is correct, or none is")
         warnings.warn(evaluation.notes[-1], RuntimeWarning, stacklevel=2)
-    names = [entry.name for entry in entries]
-    shortfall = candidates_note(k, retrieval.k, names, retrieval.config.get("source"))
+    shortfall = _candidates_note(k, retrieval.k, entries, retrieval.config.get("source"))
     if shortfall:
         evaluation.notes.append(shortfall)
         warnings.warn(shortfall, FewerCandidatesWarning, stacklevel=2)
-    nonpositive = nonpositive_note(retrieval.scores, names)
+    nonpositive = _nonpositive_note(retrieval.scores, entries)
     if nonpositive:
         evaluation.notes.append(nonpositive)
     for entry in entries:
@@ -221,9 +223,174 @@ def evaluate(
             timings=timings,
             details=details,
         )
-    tied = tied_note(evaluation.methods.values(), evaluation.n_queries)
+    tied = _tied_note(evaluation.methods.values(), evaluation.n_queries)
     if tied:
         evaluation.notes.append(tied)
     if bootstrap:
         add_bootstrap(evaluation, n_resamples=bootstrap, seed=seed, reference=reference)
     return evaluation
+
+
+#: Methods that divide by the best similarity s_1 and rank s_1 <= 0 as the most uncertain.
+_RATIO_METHODS: tuple[str, ...] = ("RS", "SD", "SU")
+#: Where the s_1 <= 0 rule is written down.
+_NONPOSITIVE_RULE_DOCS = "README.md, Conventions; vpr_uncertainty.scores"
+
+
+class FewerCandidatesWarning(UserWarning):
+    """The retrieval holds fewer candidates per query than the k asked for; the methods used those it has."""
+
+
+def _is_ratio(entry: UncertaintyMethod) -> bool:
+    return (entry.base or entry.name) in _RATIO_METHODS
+
+
+def _candidates_note(k: int, available: int, entries: Sequence[UncertaintyMethod], source: object) -> str | None:
+    """A note when k exceeds the candidates per query, for the methods whose result depends on k (ratio, spatial)."""
+    using_k = [entry.name for entry in entries if _is_ratio(entry) or entry.kind == "spatial"]
+    if int(k) <= available or not using_k:
+        return None
+    where = f" ({source})" if source else ""
+    return (
+        f"k = {int(k)} was asked but the retrieval{where} holds {available} candidates per query: "
+        f"{', '.join(using_k)} used k = {available}; retrieve at least {int(k)} candidates for k = {int(k)}"
+    )
+
+
+def _nonpositive_note(scores: np.ndarray, entries: Sequence[UncertaintyMethod]) -> str | None:
+    """A note counting the queries whose best similarity s_1 <= 0, when a ratio method (RS, SD, SU) is asked."""
+    ratio = [entry.name for entry in entries if _is_ratio(entry)]
+    if not ratio or scores.shape[0] == 0 or scores.shape[1] == 0:
+        return None
+    best = np.asarray(scores)[:, 0]
+    count = int((best <= 0).sum())
+    if not count:
+        return None
+    return (
+        f"{count} of {len(best)} queries have a best similarity s_1 <= 0: {', '.join(ratio)} rank them as the most "
+        f"uncertain (uncertainty 1 - s_1 >= 1), the rule for s_1 <= 0 in {_NONPOSITIVE_RULE_DOCS}"
+    )
+
+
+def _tied_note(methods: Iterable[Any], n_queries: int) -> str | None:
+    """A note naming the methods whose uncertainty is the same for every query (``informative`` is False)."""
+    tied = [method.name for method in methods if not method.informative]
+    if not tied:
+        return None
+    return (
+        f"{', '.join(tied)}: the same uncertainty for all {n_queries} queries, so no ranking; their AUC-PR and AP "
+        "are chance level (marked uninformative) and they are never declared best"
+    )
+
+
+#: Kinds of method whose batch-1 latency is measured (the others need images or a model per call).
+LATENCY_KINDS: frozenset[str] = frozenset({"score", "spatial", "calibrated"})
+
+
+def single_query_retrievals(retrieval: Any, n: int) -> list[Any]:
+    """``n`` one-query retrievals: the first ``n`` queries (cycled when there are fewer), each a (1, K) retrieval.
+
+    Parameters
+    ----------
+    retrieval : Retrieval
+    n : int
+        How many, >= 1.
+    """
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    if retrieval.n_queries == 0:
+        raise ValueError("the retrieval has no queries")
+    rows = [retrieval.subset_queries(np.array([index])) for index in range(min(n, retrieval.n_queries))]
+    return [rows[i % len(rows)] for i in range(n)]
+
+
+def latency_batch1(call: Callable[[Any], Any], retrieval: Any, *, n_calls: int = 200, runs: int = 3) -> float:
+    """Seconds per single-query call: the median over ``runs`` runs of ``n_calls`` calls, one query each.
+
+    A latency, as a robot sees it (the paper's "0.03 ms per query" for SU), where ``time_per_query_ms`` is a
+    throughput (one call on every query, divided by their number). The one-query retrievals are built before timing.
+
+    Parameters
+    ----------
+    call : callable
+        ``call(one_query_retrieval)``, e.g. ``lambda r: get_method("SU")(r, k=10)``.
+    retrieval : Retrieval
+        The queries are taken from it (see :func:`single_query_retrievals`).
+    n_calls : int, default=200
+        Calls per run (>= 1).
+    runs : int, default=3
+        Runs (>= 3, as the paper's figure is a median over repeated runs).
+
+    Returns
+    -------
+    float
+        Seconds per call (> 0).
+    """
+    if runs < 3:
+        raise ValueError(f"runs must be >= 3 (a median over repeated runs), got {runs}")
+    queries = single_query_retrievals(retrieval, n_calls)
+    call(queries[0])  # warm-up: imports, caches
+    per_call = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        for query in queries:
+            call(query)
+        per_call.append((time.perf_counter() - start) / len(queries))
+    return max(statistics.median(per_call), 1e-12)
+
+
+def _snapshot(folder: Path | None) -> set[str]:
+    """Names of the files directly in ``folder`` (empty when it is None or missing)."""
+    if folder is None or not folder.is_dir():
+        return set()
+    return {path.name for path in folder.iterdir() if path.is_file()}
+
+
+def time_geometric(
+    call: Callable[[Mapping[str, Any]], Any], options: Mapping[str, Any], *, repeats: int = 3
+) -> tuple[Any, float, float | None]:
+    """A geometric method's result with its cold and warm time per call.
+
+    Cold: one call that extracts every local feature it needs (with a fresh temporary cache when ``cache_dir``
+    already held features); warm: the median of calls that read every feature from the cache (matching and RANSAC
+    only).
+
+    Parameters
+    ----------
+    call : callable
+        ``call(options)``: the method on every query with those options (``cache_dir`` among them, or not).
+    options : mapping
+        The method's options.
+    repeats : int, default=3
+        Warm calls at most (at least one, more while they take under half a second in all).
+
+    Returns
+    -------
+    result : the first call's result
+    cold_seconds : float
+        Seconds of a call that extracted every feature.
+    warm_seconds : float or None
+        Median seconds of the calls that read every feature from the cache; None without ``cache_dir``.
+    """
+    cache_dir = options.get("cache_dir")
+    cache_dir = None if cache_dir is None else Path(cache_dir)
+    before = _snapshot(cache_dir)
+    start = time.perf_counter()
+    result = call(options)
+    first = time.perf_counter() - start
+    if cache_dir is None:
+        return result, first, None
+    created = bool(_snapshot(cache_dir) - before)  # a new cache file: nothing of this extractor was cached
+    warm: list[float] = [] if created else [first]
+    while len(warm) < max(repeats, 1) and (not warm or sum(warm) < 0.5):
+        start = time.perf_counter()
+        call(options)
+        warm.append(time.perf_counter() - start)
+    if created:
+        cold = first
+    else:
+        with tempfile.TemporaryDirectory(prefix="vpr-uncertainty-cold-") as scratch:
+            start = time.perf_counter()
+            call({**options, "cache_dir": Path(scratch)})
+            cold = time.perf_counter() - start
+    return result, cold, statistics.median(warm)

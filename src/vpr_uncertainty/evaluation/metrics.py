@@ -22,6 +22,9 @@ Conventions
 
 from __future__ import annotations
 
+import math
+import numbers
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -32,14 +35,17 @@ from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 __all__ = [
     "RECALL_NS",
     "RejectionCurve",
+    "ThresholdChoice",
     "auc_pr",
     "aurc",
     "average_precision",
+    "check_labels",
     "correct_at_n",
     "precision_at_recall",
     "recall_at_full_precision",
     "recall_at_n",
     "rejection_curve",
+    "threshold_at_precision",
 ]
 
 #: The N of recall@N reported by :func:`vpr_uncertainty.evaluate`; the largest one sets how many candidates a
@@ -124,7 +130,8 @@ def recall_at_n(indices: object, positives: object, ns: Sequence[int] = RECALL_N
     return {int(n): float(correct_at_n(indices, positives, n)[answerable].mean()) for n in ns if n <= indices.shape[1]}
 
 
-def _check_labels(correct: object, uncertainty: object) -> tuple[np.ndarray, np.ndarray]:
+def check_labels(correct: object, uncertainty: object) -> tuple[np.ndarray, np.ndarray]:
+    """``correct`` as bool and ``uncertainty`` as float64, both of shape (Q,) with Q >= 1, finite; else ValueError."""
     correct = np.asarray(correct)
     uncertainty = np.asarray(uncertainty, dtype=np.float64)
     if correct.ndim != 1 or uncertainty.shape != correct.shape:
@@ -160,16 +167,12 @@ def auc_pr(correct: object, uncertainty: object) -> float:
     uncertainty : array-like of shape (Q,)
         Higher = less trustworthy.
 
-    Returns
-    -------
-    float
-
     Examples
     --------
     >>> auc_pr([True, True, False, False], [0.1, 0.2, 0.3, 0.4])
     1.0
     """
-    correct, uncertainty = _check_labels(correct, uncertainty)
+    correct, uncertainty = check_labels(correct, uncertainty)
     _check_both_classes(correct)
     precision, recall, _ = precision_recall_curve(correct, -uncertainty)
     return float(auc(recall, precision))
@@ -185,16 +188,12 @@ def average_precision(correct: object, uncertainty: object) -> float:
     uncertainty : array-like of shape (Q,)
         Higher = less trustworthy.
 
-    Returns
-    -------
-    float
-
     Examples
     --------
     >>> average_precision([True, False, True, False], [0.1, 0.2, 0.3, 0.4])
     0.8333333333333333
     """
-    correct, uncertainty = _check_labels(correct, uncertainty)
+    correct, uncertainty = check_labels(correct, uncertainty)
     _check_both_classes(correct)
     return float(average_precision_score(correct, -uncertainty))
 
@@ -237,7 +236,7 @@ def rejection_curve(correct: object, uncertainty: object, *, n_answerable: int |
     >>> curve.precision, curve.recall
     (array([1.        , 1.        , 0.66666667]), array([0.5, 1. , 1. ]))
     """
-    correct, uncertainty = _check_labels(correct, uncertainty)
+    correct, uncertainty = check_labels(correct, uncertainty)
     n_answerable = correct.size if n_answerable is None else int(n_answerable)
     if n_answerable <= 0 or n_answerable < correct.sum():
         raise ValueError(
@@ -258,16 +257,7 @@ def rejection_curve(correct: object, uncertainty: object, *, n_answerable: int |
 
 
 def recall_at_full_precision(curve: RejectionCurve) -> float:
-    """Largest recall reached with no wrong answer accepted (0 when the most confident answer is wrong).
-
-    Parameters
-    ----------
-    curve : RejectionCurve
-
-    Returns
-    -------
-    float
-    """
+    """Largest recall reached with no wrong answer accepted (0 when the most confident answer is wrong)."""
     perfect = curve.precision >= 1.0
     return float(curve.recall[perfect].max()) if perfect.any() else 0.0
 
@@ -280,10 +270,6 @@ def precision_at_recall(curve: RejectionCurve, recall: float) -> float | None:
     curve : RejectionCurve
     recall : float
         In (0, 1].
-
-    Returns
-    -------
-    float or None
     """
     if not 0.0 < recall <= 1.0:
         raise ValueError(f"recall must lie in (0, 1], got {recall}")
@@ -301,10 +287,6 @@ def aurc(correct: object, uncertainty: object) -> float:
     uncertainty : array-like of shape (Q,)
         Higher = less trustworthy; tied queries are accepted together.
 
-    Returns
-    -------
-    float
-
     Examples
     --------
     >>> aurc([True, False], [0.1, 0.9])  # coverage 1/2: risk 0; coverage 1: risk 1/2
@@ -314,3 +296,128 @@ def aurc(correct: object, uncertainty: object) -> float:
     risk = 1.0 - curve.precision
     coverage_gained = np.diff(curve.coverage, prepend=0.0)
     return float(np.sum(coverage_gained * risk))
+
+
+@dataclass(frozen=True)
+class ThresholdChoice:
+    """What :func:`threshold_at_precision` found: accept a query when its uncertainty is <= ``threshold``.
+
+    Attributes
+    ----------
+    threshold : float
+        The largest uncertainty value accepted; ``-inf`` when no threshold reaches the target (accept nothing).
+    target_precision : float
+        The precision asked for.
+    precision : float or None
+        Precision of the accepted queries (correct accepted / accepted); None when nothing is accepted.
+    recall : float
+        Correct accepted / answerable queries.
+    coverage : float
+        Accepted / all queries.
+    n_accepted : int
+        Number of queries accepted.
+    """
+
+    threshold: float
+    target_precision: float
+    precision: float | None
+    recall: float
+    coverage: float
+    n_accepted: int
+
+    def __str__(self) -> str:
+        if not self.reached:
+            return f"no threshold reaches precision {self.target_precision:g}: accept nothing"
+        return (
+            f"accept uncertainty <= {self.threshold:.4g}: precision {self.precision:.3f}, recall {self.recall:.3f}, "
+            f"coverage {self.coverage:.3f} ({self.n_accepted} queries)"
+        )
+
+    @property
+    def reached(self) -> bool:
+        """Whether some threshold reached the target precision on these queries."""
+        return self.n_accepted > 0
+
+    def accept(self, uncertainty: object) -> np.ndarray:
+        """Which of these uncertainties are accepted (``uncertainty <= threshold``), shape (Q,), bool."""
+        return np.asarray(uncertainty, dtype=np.float64) <= self.threshold
+
+
+def _check_precision(precision: object) -> float:
+    if isinstance(precision, bool) or not isinstance(precision, numbers.Real):
+        raise TypeError(f"precision must be a number in (0, 1], got {precision!r}")
+    value = float(precision)
+    if not 0.0 < value <= 1.0:  # also rejects NaN
+        raise ValueError(f"precision must lie in (0, 1], got {precision!r}")
+    return value
+
+
+def threshold_at_precision(
+    uncertainty: object, correct: object, precision: float, *, n_answerable: int | None = None
+) -> ThresholdChoice:
+    """The most lenient uncertainty threshold whose empirical precision is at least ``precision``.
+
+    Empirical, **with no guarantee**: the threshold is fitted to the very queries it is measured on, so on new
+    queries the precision can be lower, the more so the fewer they are. For a threshold with a guarantee (precision
+    >= p* on new queries with probability 1 − δ) use :func:`vpr_uncertainty.calibrate`.
+
+    Parameters
+    ----------
+    uncertainty : array-like of shape (Q,)
+        Uncertainty of each labelled query, higher = less trustworthy (e.g. SU); finite.
+    correct : array-like of shape (Q,), bool
+        Whether each query's top-1 answer is correct (0/1 accepted).
+    precision : float in (0, 1]
+        The target: correct accepted / accepted.
+    n_answerable : int, optional
+        Queries with at least one positive in the database (the recall denominator); by default all queries.
+
+    Returns
+    -------
+    ThresholdChoice
+        ``threshold`` (accept ``uncertainty <= threshold``; tied queries are accepted together), the precision,
+        recall and coverage it gives on these queries and how many it accepts. When no threshold reaches the
+        target (the most confident answer is already wrong), ``threshold`` is ``-inf`` (accept nothing),
+        ``precision`` is None and a ``RuntimeWarning`` says so.
+
+    Raises
+    ------
+    ValueError
+        When the shapes differ, the arrays are empty, ``correct`` is not boolean (or 0/1), ``uncertainty`` holds
+        NaN or inf or is boolean (arguments swapped?), or ``precision`` is outside (0, 1].
+
+    Examples
+    --------
+    >>> choice = threshold_at_precision([0.1, 0.2, 0.3, 0.4, 0.5], [True, True, False, True, False], 0.75)
+    >>> choice.threshold, choice.precision, choice.recall, choice.n_accepted
+    (0.4, 0.75, 0.6, 4)
+    >>> print(threshold_at_precision([0.1, 0.2, 0.3, 0.4, 0.5], [True, True, False, True, False], 1.0))
+    accept uncertainty <= 0.2: precision 1.000, recall 0.400, coverage 0.400 (2 queries)
+    """
+    target = _check_precision(precision)
+    if np.asarray(uncertainty).dtype == bool:
+        raise ValueError(
+            "uncertainty is boolean; expected one real number per query (higher = less trustworthy): were "
+            "uncertainty and correct swapped? The order is threshold_at_precision(uncertainty, correct, precision)"
+        )
+    curve = rejection_curve(correct, uncertainty, n_answerable=n_answerable)
+    reached = np.flatnonzero(curve.precision >= target)
+    n_queries = np.asarray(correct).size
+    if not reached.size:
+        warnings.warn(
+            f"no uncertainty threshold reaches precision {target:g} on these {n_queries} queries (the most "
+            f"confident answers already give {curve.precision[0]:.3g}): the threshold accepts nothing",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return ThresholdChoice(-math.inf, target, None, 0.0, 0.0, 0)
+    last = int(reached[-1])
+    threshold = float(curve.thresholds[last])
+    return ThresholdChoice(
+        threshold=threshold,
+        target_precision=target,
+        precision=float(curve.precision[last]),
+        recall=float(curve.recall[last]),
+        coverage=float(curve.coverage[last]),
+        n_accepted=int(np.count_nonzero(np.asarray(uncertainty, dtype=np.float64) <= threshold)),
+    )

@@ -1,11 +1,5 @@
-"""What :func:`vpr_uncertainty.evaluate` returns: one :class:`Evaluation` holding a :class:`MethodEvaluation` per
-uncertainty method, with ``to_dict`` (the JSON schema of ``evaluate --json`` and of ``results.json``) and its
-inverse ``from_dict``.
-
-The JSON documents hold the numbers; the arrays (the correctness of every query, every method's uncertainties)
-are stored beside them by whoever writes the document, and given back to ``from_dict``, which recomputes the
-rejection curves from them.
-"""
+"""What :func:`vpr_uncertainty.evaluate` returns (:class:`Evaluation`, a :class:`MethodEvaluation` per method), as
+JSON numbers (``to_dict``/``from_dict``; the arrays are stored beside them), a pandas table and a compact text."""
 
 from __future__ import annotations
 
@@ -15,15 +9,23 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty.evaluation.frame import evaluation_frame, evaluation_summary, method_summary
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas
 
-__all__ = ["DETAIL_KEYS", "TIMING_KEYS", "Evaluation", "MethodEvaluation"]
+__all__ = [
+    "DETAIL_KEYS",
+    "TIMING_KEYS",
+    "Evaluation",
+    "MethodEvaluation",
+    "evaluation_frame",
+    "evaluation_summary",
+    "method_row",
+    "method_summary",
+]
 
-#: Optional time figures of a method (see :mod:`vpr_uncertainty.evaluation.timing`), in ms.
+#: Optional time figures of a method (see :func:`vpr_uncertainty.evaluate`), in ms.
 TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms_warm")
 #: Numbers a method reports about its own run (:class:`~vpr_uncertainty.methods.DetailedUncertainty`), written
 #: beside its metrics and read back by :meth:`MethodEvaluation.from_dict`.
@@ -127,26 +129,10 @@ class MethodEvaluation:
         n_answerable: int,
         own_correct: np.ndarray | None = None,
     ) -> MethodEvaluation:
-        """The inverse of :meth:`to_dict`, given the arrays it leaves out.
+        """The inverse of :meth:`to_dict`, given the arrays it leaves out (see :meth:`Evaluation.from_dict`).
 
-        Parameters
-        ----------
-        name : str
-            The method's name (the key of ``Evaluation.to_dict()["methods"]``).
-        data : mapping
-            What :meth:`to_dict` returned.
-        uncertainty : ndarray of shape (Q,)
-            The method's uncertainties.
-        correct : ndarray of shape (Q,), bool
-            The evaluation's top-1 correctness.
-        n_answerable : int
-            Queries with at least one positive (the recall denominator of the curve).
-        own_correct : ndarray of shape (Q,), bool, optional
-            The method's own correctness labels, for a method that retrieves with its own embeddings.
-
-        Returns
-        -------
-        MethodEvaluation
+        ``correct`` is the evaluation's top-1 correctness, shape (Q,); ``own_correct`` the method's own labels when it
+        retrieves with its own embeddings; ``n_answerable`` the recall denominator of the rejection curve.
         """
         uncertainty = np.asarray(uncertainty)
         labels = correct if own_correct is None else np.asarray(own_correct, dtype=bool)
@@ -197,7 +183,7 @@ class Evaluation:
 
     def to_frame(self) -> pandas.DataFrame:
         """One row per method: AUC-PR, AP, AURC, recall at 100 % precision, time per query, and the bootstrap
-        intervals when computed (columns: :mod:`vpr_uncertainty.evaluation.frame`). Needs pandas (the ``pandas``
+        intervals when computed (columns: :func:`evaluation_frame`). Needs pandas (the ``pandas``
         extra).
 
         Examples
@@ -251,10 +237,6 @@ class Evaluation:
         own_correct : mapping of str to ndarray of shape (Q,), optional
             The own correctness labels of the methods that retrieve with their own embeddings.
 
-        Returns
-        -------
-        Evaluation
-
         Raises
         ------
         ValueError
@@ -296,3 +278,124 @@ class Evaluation:
             k_requested=data.get("k_requested", data.get("k")),
             bootstrap=dict(data["bootstrap"]) if data.get("bootstrap") is not None else None,
         )
+
+
+_INTERVALS = ("auc_pr", "average_precision", "aurc")
+_VS_REFERENCE = ("delta_auc_pr", "p_value_holm", "significant")
+
+
+def _import_pandas() -> Any:
+    try:
+        import pandas
+    except ImportError as error:
+        raise ImportError(
+            "Evaluation.to_frame() needs pandas, which the core install leaves out: "
+            "pip install 'vpr-uncertainty[pandas]' (or pip install pandas)"
+        ) from error
+    return pandas
+
+
+def method_row(method: MethodEvaluation) -> dict[str, Any]:
+    """The numbers of one method as a flat dict (the columns of :func:`evaluation_frame`)."""
+    row: dict[str, Any] = {
+        "auc_pr": method.auc_pr,
+        "average_precision": method.average_precision,
+        "aurc": method.aurc,
+        "recall_at_100_precision": method.recall_at_full_precision,
+        "time_per_query_ms": method.time_per_query_ms,
+        "informative": method.informative,
+        "tied_share": method.tied_share,
+    }
+    row.update({f"precision_at_recall_{level:g}": value for level, value in method.precision_at_recall.items()})
+    for metric in _INTERVALS:
+        interval = getattr(method, f"{metric}_ci")
+        if interval is not None:
+            row[f"{metric}_ci_low"], row[f"{metric}_ci_high"] = interval
+    if method.vs_reference is not None:
+        row.update({key: method.vs_reference.get(key) for key in _VS_REFERENCE})
+    if method.own_recall_at_1 is not None:
+        row["own_recall@1"] = method.own_recall_at_1
+    row.update(method.timings)
+    row.update(method.details)
+    return row
+
+
+def evaluation_frame(evaluation: Evaluation) -> pandas.DataFrame:
+    """One row per method, indexed by its name, in the order evaluated; needs pandas (the ``pandas`` extra).
+
+    Columns, named as in ``results.json``: ``auc_pr``, ``average_precision`` (NaN when every answer is correct, or
+    none is), ``aurc`` (lower is better), ``recall_at_100_precision``, ``time_per_query_ms``, ``informative``,
+    ``tied_share``, ``precision_at_recall_<level>``; with a bootstrap ``<metric>_ci_low``/``_high`` and
+    ``delta_auc_pr``, ``p_value_holm``, ``significant``; ``own_recall@1`` for a method with its own retrieval; and
+    the method's optional timings and details (a cascade's ``verified_fraction``).
+
+    Parameters
+    ----------
+    evaluation : Evaluation
+        The result of :func:`vpr_uncertainty.evaluate`.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The frame's ``attrs`` hold ``n_queries``, ``n_answerable``, ``k`` and the recall@N of the retrieval.
+
+    Raises
+    ------
+    ImportError
+        When pandas is not installed (it names the extra to install).
+    """
+    pandas = _import_pandas()
+    rows = [method_row(method) for method in evaluation.methods.values()]
+    columns: dict[str, None] = {}
+    for row in rows:
+        columns.update(dict.fromkeys(row))
+    frame = pandas.DataFrame(rows, index=pandas.Index(list(evaluation.methods), name="method"), columns=list(columns))
+    floats = [name for name in columns if name not in ("informative", "significant")]
+    frame[floats] = frame[floats].astype(float)  # None (an undefined AUC-PR) becomes NaN, not an object column
+    frame.attrs.update(
+        n_queries=evaluation.n_queries,
+        n_answerable=evaluation.n_answerable,
+        k=evaluation.k,
+        **{f"recall@{n}": value for n, value in evaluation.recall_at_n.items()},
+    )
+    return frame
+
+
+def _number(value: float | None, digits: int = 4) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def method_summary(method: MethodEvaluation) -> str:
+    """``MethodEvaluation('SU', auc_pr=0.8277, ..., n_queries=111)``: the numbers, not the arrays."""
+    parts = [
+        f"auc_pr={_number(method.auc_pr)}",
+        f"average_precision={_number(method.average_precision)}",
+        f"aurc={_number(method.aurc)}",
+        f"recall_at_100_precision={_number(method.recall_at_full_precision, 3)}",
+        f"time_per_query_ms={method.time_per_query_ms:.3g}",
+    ]
+    if method.auc_pr_ci is not None:
+        parts.append(f"auc_pr_ci=({method.auc_pr_ci[0]:.3f}, {method.auc_pr_ci[1]:.3f})")
+    if not method.informative:
+        parts.append("informative=False")
+    parts.append(f"n_queries={method.uncertainty.size}")
+    return f"MethodEvaluation({method.name!r}, {', '.join(parts)})"
+
+
+def evaluation_summary(evaluation: Evaluation) -> str:
+    """A few lines: the retrieval's size and recall@N, then one line per method (AUC-PR, AP, AURC, R@100%P, ms)."""
+    recalls = ", ".join(f"recall@{n}={value:.3f}" for n, value in evaluation.recall_at_n.items())
+    head = f"Evaluation(n_queries={evaluation.n_queries}, n_answerable={evaluation.n_answerable}, k={evaluation.k}"
+    lines = [f"{head}{', ' + recalls if recalls else ''}, methods=["]
+    width = max((len(name) for name in evaluation.methods), default=0)
+    for name, method in evaluation.methods.items():
+        interval = "" if method.auc_pr_ci is None else f" [{method.auc_pr_ci[0]:.3f}, {method.auc_pr_ci[1]:.3f}]"
+        lines.append(
+            f"  {name:<{width}}  AUC-PR {_number(method.auc_pr)}{interval}  AP {_number(method.average_precision)}  "
+            f"AURC {_number(method.aurc)}  R@100%P {_number(method.recall_at_full_precision, 3)}  "
+            f"{method.time_per_query_ms:.3g} ms/query{'' if method.informative else '  (uninformative)'}"
+        )
+    count = len(evaluation.notes)
+    notes = f", {count} note{'s' if count > 1 else ''} (.notes)" if count else ""
+    lines.append(f"]{notes})")
+    return "\n".join(lines)

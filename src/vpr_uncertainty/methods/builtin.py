@@ -1,25 +1,21 @@
-"""The built-in uncertainty methods, registered on import (by :mod:`vpr_uncertainty.methods`, which imports this).
-
-Score-only methods (RS, SD, SU, BM, L2, PA, margin) wrap :mod:`vpr_uncertainty.scores`; SUE, the geometric
-verification presets and BTL are registered by dotted path and imported when first called.
-"""
+"""The built-in score methods (RS, SD, SU, BM, L2, PA, margin), registered on import by the package ``__init__``;
+the higher layers register theirs where they are defined."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from vpr_uncertainty import scores as _scores
-from vpr_uncertainty.methods.entries import METHODS, register_method
+from vpr_uncertainty.methods.entries import register_method
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["GEOMETRIC_METHODS", "SCORE_ONLY_METHODS"]
+__all__: list[str] = []
 
 
 def _check_k_alpha(*, k: int = 10, alpha: float = 0.5) -> None:
     if k < 1:
         raise ValueError(f"k must be >= 1, got {k}")
-    if not 0.0 <= alpha <= 1.0:
-        raise ValueError(f"alpha must lie in [0, 1], got {alpha}")
+    _scores.check_alpha(alpha)
 
 
 # --- score-only methods ------------------------------------------------------------------------------------
@@ -38,9 +34,7 @@ def _statistical_uncertainty(retrieval: Retrieval, *, k: int = 10, alpha: float 
 
 
 def _adaptive_statistical_uncertainty(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
-    from vpr_uncertainty.adaptive import adaptive_statistical_uncertainty
-
-    return adaptive_statistical_uncertainty(retrieval.scores, k)
+    return _scores.adaptive_statistical_uncertainty(retrieval.scores, k)
 
 
 def _best_match(retrieval: Retrieval, *, k: int = 10) -> np.ndarray:
@@ -80,26 +74,6 @@ register_method(
     **{**_SCORE, "default": False},
 )
 register_method("margin", _margin, description="Negated margin s_2 − s_1", **{**_SCORE, "default": False})
-
-register_method(
-    "SUE",
-    "vpr_uncertainty.spatial:sue_from_retrieval",
-    description="Spatial uncertainty: weighted spread of the top-k database positions (Zaffar et al. 2024)",
-    requires=("database_positions",),
-    options={"k": 10, "slope": 350.0, "clip": "symmetric", "max_deviation": 500.0},
-    validate="vpr_uncertainty.spatial:check_sue_options",
-    kind="spatial",
-)
-
-register_method(
-    "CAL",
-    "vpr_uncertainty.calibration.method:cal_uncertainty",
-    description="1 − calibrated P(correct) of a fitted gate (calibrate; fitted per split in held-out evaluate)",
-    requires=("gate",),
-    options={"gate": ""},
-    kind="calibrated",
-    resolve="vpr_uncertainty.calibration.method:resolve_gate",
-)
 
 # --- geometric verification: −(RANSAC inliers between each query and its top-1); needs the image files ----------
 
@@ -152,7 +126,3 @@ register_method(
     kind="learned",
     resolve="vpr_uncertainty.btl.inputs:resolve_btl_inputs",
 )
-
-# Derived from the entries (for callers of the former constants): prefer available_methods(kind=...).
-SCORE_ONLY_METHODS: tuple[str, ...] = tuple(METHODS.names(kind="score"))
-GEOMETRIC_METHODS: tuple[str, ...] = tuple(METHODS.names(kind="geometric"))

@@ -1,25 +1,12 @@
-"""Cascades ``SCORE+GV`` (e.g. ``SU+GV-SIFT``, ``SU+GV-DISK-LG``): cheap doubt first, geometric verification only
-for the queries that need it.
+"""Cascades ``SCORE+GV`` (e.g. ``SU+GV-SIFT``): cheap doubt first, geometric verification only where it is needed.
 
 The score method (any registered method that is not geometric verification) ranks every query; geometric
-verification (any ``GV-*`` method) then runs only on the ``verify_fraction`` of the queries it doubts most
-(``round(verify_fraction · Q)`` queries; ties at the cut broken by query order). The two are combined into one
-uncertainty, higher = less trustworthy:
-
-- the queries left unverified keep their score uncertainty, and all of them rank as more trustworthy than every
-  verified query (they are the ones the score method is most sure of);
-- the verified queries rank among themselves by −inliers, ties kept (``max(unverified) + 1 + (gv − min gv)``).
-
-So ``verify_fraction=0`` gives exactly the score method's uncertainties and ``verify_fraction=1`` the ranking of
-geometric verification alone (its uncertainties shifted by a constant, so the same AUC-PR, AP and AURC). Why this
-combination rather than interleaving verified and unverified queries: on the ten VPR-Bench corridor matrices it
-was at least as good as the alternatives we measured (see the README's cascade section), and it needs no
-threshold on inlier counts, whose scale differs between local features.
-
-The time per query of a cascade counts the score method on every query and geometric verification only on the
-verified queries, since only those are verified. :func:`run_cascade` returns
-:class:`~vpr_uncertainty.methods.entries.DetailedUncertainty` with ``verified_fraction`` and ``verified_queries``,
-which the evaluation reports beside the method's metrics.
+verification (any ``GV-*`` method) then runs only on the ``verify_fraction`` of the queries it doubts most, and the
+two are combined by :func:`combine_cascade`. ``verify_fraction=0`` gives exactly the score method's uncertainties,
+``verify_fraction=1`` the ranking of geometric verification alone. On the ten VPR-Bench corridor matrices this
+combination was at least as good as the alternatives measured (README, cascade section), and it needs no threshold
+on inlier counts, whose scale differs between local features. A cascade's time per query counts the score method
+on every query and geometric verification on the verified ones only.
 """
 
 from __future__ import annotations
@@ -29,10 +16,23 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.methods.entries import METHODS, DetailedUncertainty, OwnRetrievalUncertainty, UncertaintyMethod
+from vpr_uncertainty.methods.entries import (
+    METHODS,
+    DetailedUncertainty,
+    OwnRetrievalUncertainty,
+    UncertaintyMethod,
+    register_composer,
+)
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["DEFAULT_VERIFY_FRACTION", "cascade_entry", "combine_cascade", "most_uncertain", "run_cascade"]
+__all__ = [
+    "DEFAULT_VERIFY_FRACTION",
+    "cascade_entry",
+    "combine_cascade",
+    "most_uncertain",
+    "run_cascade",
+    "split_cascade_name",
+]
 
 DEFAULT_VERIFY_FRACTION = 0.3
 _GEOMETRIC = "geometric"
@@ -187,3 +187,6 @@ def cascade_entry(name: str) -> UncertaintyMethod:
         bound={},
         base=None,
     )
+
+
+register_composer("+", cascade_entry)

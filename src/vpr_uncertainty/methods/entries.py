@@ -1,22 +1,23 @@
-"""Uncertainty-method entries: what one is (:class:`UncertaintyMethod`), where they are kept (:data:`METHODS`, a
-:class:`~vpr_uncertainty.plugins.Registry`), and the functions that add, find, parse and check them.
+"""Uncertainty-method entries: what one is (:class:`UncertaintyMethod`), where they are kept (:data:`METHODS`), and
+the functions that add, find, parse and check them.
 
-Import them from :mod:`vpr_uncertainty.methods`, which also registers the built-in methods
-(:mod:`vpr_uncertainty.methods.builtin`); this module registers none, so the built-ins can import it.
+Options a method does not take are not passed to it, so one set of options serves every method; an option no
+selected method takes is an error (:func:`check_options`). A name can carry its method's options, as a method spec
+(``"SUE:clip=one-sided,slope=300"``, :func:`parse_method_spec`); a target or hook given by dotted path
+(``"package.module:function"``) is imported when first called.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.method_specs import split_method_list, typed_option
-from vpr_uncertainty.methods.returns import DetailedUncertainty, OwnRetrievalUncertainty
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target
 from vpr_uncertainty.retrieval import Retrieval
 
@@ -29,12 +30,99 @@ __all__ = [
     "UncertaintyMethod",
     "available_methods",
     "check_options",
+    "default_method_names",
     "describe_needs",
     "get_method",
     "parse_method_spec",
+    "register_composer",
     "register_method",
     "split_method_list",
+    "typed_option",
 ]
+
+
+_TRUE, _FALSE = {"true", "yes", "1", "on"}, {"false", "no", "0", "off"}
+
+
+def typed_option(text: str, default: Any, where: str) -> Any:
+    """``text`` converted to the type of ``default`` (str when the default is None or a string)."""
+    try:
+        if isinstance(default, bool):
+            if text.lower() not in _TRUE | _FALSE:
+                raise ValueError
+            return text.lower() in _TRUE
+        if isinstance(default, int):
+            return int(text)
+        if isinstance(default, float):
+            value = float(text)
+            if not math.isfinite(value):
+                raise ValueError
+            return value
+    except ValueError:
+        kind = {bool: "true or false", int: "an integer", float: "a finite number"}[type(default)]
+        raise ValueError(f"{where} must be {kind}, got {text!r}") from None
+    return text
+
+
+def split_method_list(text: str) -> list[str]:
+    """Split a comma-separated list of method specs; ``option=value`` items belong to the spec before them.
+
+    Examples
+    --------
+    >>> split_method_list("SU, SUE:clip=one-sided,slope=300, BM")
+    ['SU', 'SUE:clip=one-sided,slope=300', 'BM']
+    """
+    specs: list[str] = []
+    for item in (part.strip() for part in text.split(",")):
+        if not item:
+            continue
+        if "=" in item and ":" not in item.split("=", 1)[0]:
+            if not specs or ":" not in specs[-1]:
+                raise ValueError(f"option {item!r} follows no method spec (write NAME:{item})")
+            specs[-1] += f",{item}"
+        else:
+            specs.append(item)
+    return specs
+
+
+@dataclass
+class OwnRetrievalUncertainty:
+    """What a method returns when it answers the queries with its own retrieval (e.g. BTL's mean embeddings).
+
+    The evaluation then judges correctness by the top-1 of ``retrieval``, not by the shared retrieval, and says
+    so in its notes.
+
+    Attributes
+    ----------
+    uncertainty : ndarray of shape (Q,)
+        Higher = less trustworthy.
+    retrieval : Retrieval
+        The method's own top-k for the same queries, with the same ground truth.
+    details : dict of str to JSON values
+        Reported beside the method's metrics, as for :class:`DetailedUncertainty` (e.g. BTL's
+        ``trained_on_queries``).
+    """
+
+    uncertainty: np.ndarray
+    retrieval: Retrieval
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class DetailedUncertainty:
+    """What a method returns when it also reports numbers about its run (e.g. a cascade's ``verified_fraction``).
+
+    Attributes
+    ----------
+    uncertainty : ndarray of shape (Q,)
+        Higher = less trustworthy.
+    details : dict of str to JSON values
+        Reported beside the method's metrics (``results.json``, ``evaluate --json``).
+    """
+
+    uncertainty: np.ndarray
+    details: dict[str, Any] = field(default_factory=dict)
+
 
 MethodFunction = Callable[..., "np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty"]
 
@@ -81,8 +169,9 @@ class UncertaintyMethod:
         parameters of the function.
     validate : callable or str or None
         ``validate(**options)`` raises ValueError for a bad value (or its dotted path).
-    kind : {"score", "spatial", "geometric", "learned"}
-        What the method works from: the top-k scores only, database positions, the images, a trained model.
+    kind : {"score", "spatial", "calibrated", "geometric", "learned", "cascade"}
+        What the method works from: the top-k scores only, database positions, a fitted gate, the images, a trained
+        model, or a cascade of two methods; listings are ordered by kind.
     default : bool
         Evaluated when no methods are named (``evaluate``'s default list).
     resolve : callable or str or None
@@ -185,8 +274,19 @@ def describe_needs(needs: Collection[str]) -> str:
     return "; ".join(NEEDS[need][1] if need in NEEDS else need for need in needs)
 
 
+#: Listings show the methods by kind (in this order), each kind in registration order: plugins, the package's own
+#: higher layers included, register in the order their modules are imported.
+_KIND_ORDER = {"score": 0, "spatial": 1, "calibrated": 2, "geometric": 3, "learned": 4}
+
+
+class _MethodRegistry(Registry[UncertaintyMethod]):
+    def entries(self, **attributes: Any) -> list[UncertaintyMethod]:
+        """Entries with the given attributes, by kind (:data:`_KIND_ORDER`), each kind in registration order."""
+        return sorted(super().entries(**attributes), key=lambda entry: _KIND_ORDER.get(entry.kind, len(_KIND_ORDER)))
+
+
 #: The registered uncertainty methods.
-METHODS: Registry[UncertaintyMethod] = Registry("uncertainty method", label="available")
+METHODS: Registry[UncertaintyMethod] = _MethodRegistry("uncertainty method", label="available")
 
 
 def check_options(methods: Sequence[UncertaintyMethod], options: Collection[str]) -> None:
@@ -230,31 +330,16 @@ def register_method(
 ) -> UncertaintyMethod:
     """Add a method to the registry and return its entry.
 
-    Parameters
-    ----------
-    name : str
-        The name users type; must be new unless ``overwrite=True``, and hold no ``:``, ``,``, ``=`` or ``+``.
-    target : callable or str
-        ``function(retrieval, **options) -> ndarray (Q,)``, higher = less trustworthy, or its dotted path.
-    description : str
-        One line for tables and ``--help``.
-    requires : tuple of str
-        What the method needs: retrieval fields, options or names of :data:`NEEDS`.
-    extra : str, optional
-        The pip extra that provides its dependencies.
-    options : mapping, optional
-        The options a method spec may set, with their defaults (default: the function's keyword parameters).
-    validate : callable or str, optional
-        ``validate(**options)`` that raises ValueError for a bad option value, or its dotted path.
-    kind : {"score", "spatial", "geometric", "learned"}
-        What the method works from (queried by ``available_methods(kind=...)``).
-    default : bool
-        Evaluated when no methods are named.
-    resolve : callable or str, optional
-        ``resolve(retrieval, options) -> options`` that reads the files the options name (see
-        :class:`UncertaintyMethod`).
-    overwrite : bool
-        Replace an existing entry of that name.
+    The arguments are the attributes of :class:`UncertaintyMethod`; ``name`` must be new unless ``overwrite=True``
+    and hold no ``:``, ``,``, ``=`` or ``+``. The function (``target``) returns an ndarray of shape (Q,), higher =
+    less trustworthy.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> entry = register_method("ENT-demo", lambda retrieval, *, k=10: -retrieval.scores[:, 0], description="demo")
+    >>> entry.option_defaults(), METHODS.unregister("ENT-demo").name
+    ({'k': 10}, 'ENT-demo')
     """
     if name in METHODS and not overwrite:
         raise ValueError(f"an uncertainty method named {name!r} is already registered")
@@ -330,12 +415,21 @@ def get_method(name: str) -> UncertaintyMethod:
     return dataclasses.replace(entry, name=f"{base}:{text}", bound={**entry.bound, **options}, base=base)
 
 
-def _lookup(name: str) -> UncertaintyMethod:
-    """The registered entry ``name``, or the cascade it names (``"SU+GV-SIFT"``, :mod:`.cascade`)."""
-    if "+" in name and name not in METHODS:
-        from vpr_uncertainty.methods.cascade import cascade_entry
+#: Builders of composite entries, by the separator their names hold (``"+"``: the cascades of :mod:`.cascade`).
+_COMPOSERS: dict[str, Callable[[str], UncertaintyMethod]] = {}
 
-        return cascade_entry(name)
+
+def register_composer(separator: str, compose: Callable[[str], UncertaintyMethod]) -> None:
+    """Make :func:`get_method` answer an unregistered name holding ``separator`` with ``compose(name)``."""
+    _COMPOSERS[separator] = compose
+
+
+def _lookup(name: str) -> UncertaintyMethod:
+    """The registered entry ``name``, or the composite it names (e.g. the cascade ``"SU+GV-SIFT"``)."""
+    if name not in METHODS:
+        for separator, compose in _COMPOSERS.items():
+            if separator in name:
+                return compose(name)
     return METHODS.get(name)
 
 
@@ -344,7 +438,8 @@ def _spec_items(spec: str) -> list[tuple[str, str]]:
 
 
 def available_methods(**attributes: Any) -> list[str]:
-    """Names of the registered methods in registration order, optionally those with the given attributes.
+    """Names of the registered methods by kind (score, spatial, calibrated, geometric, learned, others), each kind in
+    registration order; optionally those with the given attributes.
 
     Examples
     --------

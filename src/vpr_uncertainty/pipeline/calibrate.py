@@ -165,7 +165,7 @@ def _read_unlabelled(path: Path, file_format: str, top_k: int) -> np.ndarray:
 
 
 def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.ndarray | None) -> int:
-    from vpr_uncertainty.calibration.plan import plan_labels
+    from vpr_uncertainty.calibration.fit import plan_labels
     from vpr_uncertainty.evaluation import correct_at_n
 
     if retrieval.positives is None:

@@ -437,7 +437,7 @@ def _latency_line(evaluation: Any) -> str:
 
 
 def _held_out(args: argparse.Namespace, conf: EvaluateConf, retrieval: Any, inputs: dict[str, Any]) -> int:
-    from vpr_uncertainty.calibration.heldout import evaluate_held_out
+    from vpr_uncertainty.calibration import evaluate_held_out
 
     result = evaluate_held_out(
         retrieval,

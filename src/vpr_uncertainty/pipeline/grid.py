@@ -559,10 +559,10 @@ def held_out_evaluation(retrieval: Retrieval, config: GridConfig, **options: Any
     Returns
     -------
     dict
-        :meth:`~vpr_uncertainty.calibration.heldout.HeldOutEvaluation.to_dict`. When the splits are impossible
+        :meth:`~vpr_uncertainty.calibration.HeldOutEvaluation.to_dict`. When the splits are impossible
         (fewer than 2 correct or 2 wrong answers), every method's ``auc_pr`` is None and ``notes`` says why.
     """
-    from vpr_uncertainty.calibration.heldout import evaluate_held_out
+    from vpr_uncertainty.calibration import evaluate_held_out
 
     option = config.calibration
     if option is None:

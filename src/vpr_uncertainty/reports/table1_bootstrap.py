@@ -5,7 +5,7 @@ bootstrap follows the same averages resample by resample: each cell is resampled
 :func:`~vpr_uncertainty.evaluation.bootstrap.resample_indices` (the same seed, so the cells of one dataset share
 their resamples, and a one-dataset column has the very intervals of its cell in ``results.json``), every
 uncertainty method on the same resamples (paired). In a column, the best method is compared with each other one
-(:func:`~vpr_uncertainty.evaluation.significance.leaders`, Holm-corrected): it is marked alone when it is
+(:func:`~vpr_uncertainty.evaluation.bootstrap.leaders`, Holm-corrected): it is marked alone when it is
 significantly better than every other one, otherwise every method not significantly worse than it is marked.
 """
 
@@ -16,8 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.evaluation.bootstrap import percentile_interval
-from vpr_uncertainty.evaluation.significance import evaluation_distributions, leaders
+from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders, percentile_interval
 
 __all__ = ["column_distributions", "table_significance"]
 
