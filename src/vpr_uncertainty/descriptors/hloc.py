@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty._hdf5 import hard_links, open_dataset
+from vpr_uncertainty.cache import hard_links, open_dataset
 
 __all__ = [
     "DATABASE_PREFIXES",

@@ -36,7 +36,7 @@ import h5py
 import numpy as np
 
 from vpr_uncertainty import cache
-from vpr_uncertainty._hdf5 import open_present
+from vpr_uncertainty.cache import open_present
 from vpr_uncertainty.geometric.deferred import PendingFeatures, active_store
 from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 
