@@ -36,6 +36,7 @@ import errno
 import hashlib
 import json
 import os
+import re
 import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Mapping
@@ -64,6 +65,7 @@ __all__ = [
     "open_present",
     "payload_checksum",
     "read_if_fresh",
+    "slug",
     "stale_notice",
     "verify_checksum",
     "write_json",
@@ -295,6 +297,11 @@ def fingerprint(stage: str, config: Mapping[str, Any], inputs: Mapping[str, Any]
     document = {"protocol": PROTOCOL, "stage": stage, "config": _canonical(config), "inputs": _canonical(inputs or {})}
     text = json.dumps(document, sort_keys=True, separators=(",", ":"), allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def slug(text: str) -> str:
+    """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
 
 
 def stale_notice(path: str | Path, reason: str, action: str = "rebuilding it", *, stacklevel: int = 3) -> None:

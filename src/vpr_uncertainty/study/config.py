@@ -11,11 +11,11 @@ the cell's inputs cannot meet (positions for SUE, images for GV-*, a head and de
 from __future__ import annotations
 
 import difflib
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from vpr_uncertainty.cache import slug
 from vpr_uncertainty.methods import default_method_names, get_method, split_method_list
 from vpr_uncertainty.study.bootstrap_config import bootstrap_settings
 from vpr_uncertainty.study.config_file import read_mapping
@@ -135,11 +135,6 @@ class GridConfig:
     def method_options(self) -> dict[str, Any]:
         """Options for the uncertainty methods beyond k and α (the cascades' ``verify_fraction``)."""
         return {} if self.verify_fraction is None else {"verify_fraction": self.verify_fraction}
-
-
-def slug(text: str) -> str:
-    """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
 
 
 def _numbers(data: dict, key: str, default: Any, kind: type, problems: list[str]) -> list:
