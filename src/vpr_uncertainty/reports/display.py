@@ -106,20 +106,9 @@ def legend_outside(axis: Any, **options: Any) -> Any:
 
 
 def save_figure(figure: Any, path: str | Path, *, tight: bool = True) -> list[Path]:
-    """Write ``path`` (a ``.png`` at :data:`DPI`) and the same figure as a vector PDF beside it.
+    """Write ``path`` (a ``.png`` at :data:`DPI`) and the same figure as a PDF beside it; returns both paths.
 
-    Parameters
-    ----------
-    figure : matplotlib.figure.Figure
-    path : str or Path
-        The PNG file; the PDF gets the same name with :data:`VECTOR_SUFFIX`.
-    tight : bool, default=True
-        Crop to the drawn content (legends outside the axes included); False keeps the figure's size exactly.
-
-    Returns
-    -------
-    list of Path
-        The PNG and the PDF.
+    ``tight`` crops to the drawn content (legends outside the axes included); False keeps the figure's size.
     """
     path = Path(path)
     if path.suffix.lower() != ".png":
@@ -134,8 +123,7 @@ def save_figure(figure: Any, path: str | Path, *, tight: bool = True) -> list[Pa
     return written
 
 
-#: What the area under an end-to-end curve is (and is not); written under the curves when recall@1 is known, and in
-#: report.html.
+#: Why the area under an end-to-end curve is not the AUC-PR of the legend (written under the curves).
 AREA_NOTE = (
     "Area under a curve ≠ the AUC-PR in the legend: the AUC-PR is the area of precision against the recall of "
     "correct answers; here recall counts all answerable queries, so the x axis is shrunk by recall@1 "
@@ -177,9 +165,8 @@ class RejectionCurveDisplay:
     ax_, figure_ : matplotlib Axes and Figure
         Where the curves were drawn (after :meth:`plot`).
     lines_ : dict of str to matplotlib Line2D
-        The curve of each method. Methods whose curves coincide (the same ranking of the queries, e.g. BM and L2
-        on L2-normalised descriptors) are drawn once, labelled ``"BM = L2"``, and share that line here; every other
-        method has its own colour, dash and marker.
+        The curve of each method; methods whose curves coincide (the same ranking of the queries, e.g. BM and L2)
+        share one line, labelled ``"BM = L2"``.
 
     Examples
     --------
@@ -274,14 +261,8 @@ class RejectionCurveDisplay:
             The result of :func:`vpr_uncertainty.evaluate`.
         methods : sequence of str, optional
             The methods to draw, in this order; by default all, in the evaluation's order.
-        ax : matplotlib Axes, optional
-            Where to draw; a new figure when None.
-        title : str, optional
-        legend : bool, default=True
-
-        Returns
-        -------
-        RejectionCurveDisplay
+        ax, title, legend
+            As in :meth:`plot`.
         """
         names = list(evaluation.methods) if methods is None else list(methods)
         unknown = [name for name in names if name not in evaluation.methods]
@@ -325,10 +306,6 @@ class RejectionCurveDisplay:
             Queries with at least one positive (the recall denominator); by default all.
         ax, title, legend
             As in :meth:`plot`.
-
-        Returns
-        -------
-        RejectionCurveDisplay
         """
         curve = rejection_curve(correct, uncertainty, n_answerable=n_answerable)
         labels = np.asarray(correct).astype(bool)

@@ -81,30 +81,7 @@ FIGURE_NEEDS: dict[str, str] = {
 
 @dataclass(frozen=True)
 class ReportFigure:
-    """One registered report figure (or table).
-
-    Attributes
-    ----------
-    name : str
-        The name a configuration selects (``report = ["table1", "pr_curves"]``).
-    description : str
-        One line: what it shows. Written under the section title in ``report.html``.
-    target : callable or str
-        ``write(cells, config, out_dir, **options) -> list[Path]`` (the files written), or its dotted path
-        ``"package.module:function"`` (imported when first used).
-    title : str
-        The section title in ``report.html`` (default: the description).
-    requires : tuple of str
-        Names of :data:`FIGURE_NEEDS`; a grid that cannot meet them skips the figure (and a configuration that
-        selects it by name is an error).
-    options : dict
-        The options a spec may set, with their defaults (whose types type the values).
-    section : callable or str or None
-        ``section(cells, config, written, **options) -> str``: HTML shown above the figures in ``report.html``
-        (e.g. a table), or its dotted path.
-    extra : str or None
-        The pip extra its dependencies come from.
-    """
+    """One registered report figure (or table); its fields are the arguments of :func:`register_report_figure`."""
 
     name: str
     description: str
@@ -161,21 +138,24 @@ def register_report_figure(
     Parameters
     ----------
     name : str
-        The name a configuration selects; must be new unless ``overwrite=True``, and hold no ``:``, ``,`` or ``=``.
+        The name a configuration selects (``report = ["table1", "pr_curves"]``); new unless ``overwrite=True``, and
+        without ``:``, ``,`` or ``=``.
     target : callable or str
-        ``write(cells, config, out_dir, **options) -> list[Path]``, or its dotted path.
+        ``write(cells, config, out_dir, **options) -> list[Path]`` (the files written), or its dotted path
+        ``"package.module:function"`` (imported when first used).
     description : str
-        One line: what the figure shows.
+        One line: what it shows (written under the section title in ``report.html``).
     title : str, optional
-        Section title in ``report.html`` (default: ``description``).
+        The section title in ``report.html`` (default: ``description``).
     requires : tuple of str
-        Names of :data:`FIGURE_NEEDS`.
+        Names of :data:`FIGURE_NEEDS`; a grid that cannot meet them skips the figure (selecting it by name is then
+        an error).
     options : mapping, optional
-        The options a spec may set, with their defaults.
+        The options a spec may set, with their defaults (whose types type the values).
     section : callable or str, optional
-        ``section(cells, config, written, **options) -> str``: HTML above the figures.
+        ``section(cells, config, written, **options) -> str``: HTML above the figures (e.g. a table), or its path.
     extra : str, optional
-        The pip extra that provides its dependencies.
+        The pip extra its dependencies come from.
     overwrite : bool
         Replace an existing entry of that name.
     """

@@ -106,11 +106,7 @@ def _legend(evaluation: Evaluation, compared: int) -> str:
 
 
 def best_auc_pr(evaluation: Evaluation) -> float | None:
-    """The best AUC-PR among the informative methods, or None when fewer than two can be compared.
-
-    A method whose uncertainty is the same for every query ranks nothing: its AUC-PR is chance level and it is
-    never best. With a single informative method there is nothing to compare it with, so nothing is marked.
-    """
+    """The best AUC-PR among the informative methods not trained on the queries; None when fewer than two."""
     scored = [
         m.auc_pr
         for m in evaluation.methods.values()
@@ -133,9 +129,9 @@ def markdown_cell(text: str) -> str:
 def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str | None = None) -> str:
     """One row per uncertainty method, the best AUC-PR marked with ``*``; a header line with recall@N.
 
-    Methods whose uncertainty is constant are marked ``†`` (uninformative) and never starred; see
-    :func:`best_auc_pr`. A method evaluated on queries it was trained on is marked ``‡`` and never starred. The
-    evaluation's notes follow the table, one line each.
+    ``†``: uninformative (constant uncertainty), ``‡``: evaluated on queries it was trained on; neither is starred.
+    With a bootstrap, each metric shows its 95 % interval, the star marks the AUC-PR leaders and a column gives the
+    difference in AUC-PR to the reference method with its Holm-adjusted p-value. The evaluation's notes follow.
 
     Parameters
     ----------
@@ -184,10 +180,7 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
     else:
         widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
         lines.append(summary)
-        lines.append(
-            "  ".join(h.ljust(w) if i == 0 else h.rjust(w) for i, (h, w) in enumerate(zip(header, widths, strict=True)))
-        )
-        for row in rows:
+        for row in [header, *rows]:
             lines.append(
                 "  ".join(
                     c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True))
@@ -336,24 +329,26 @@ def build_table1(
     return table
 
 
-def _cell_text(
-    value: float | None,
-    marked: bool,
-    bold: tuple[str, str],
-    dagger: str = "",
-    interval: tuple[float, float] | None = None,
-    around: tuple[str, str] = ("", ""),
-) -> str:
-    if value is None:
-        return "–"
-    text = f"{bold[0]}{value:.3f}{bold[1]}" if marked else f"{value:.3f}{dagger}"
-    if interval is not None:
-        text += f" {around[0]}[{interval[0]:.2f}, {interval[1]:.2f}]{around[1]}"
-    return text
-
-
-def _interval(table: Table1, i: int, j: int) -> tuple[float, float] | None:
-    return None if table.intervals is None else table.intervals[i][j]
+def _rows(
+    table: Table1, bold: tuple[str, str], dagger: str, around: tuple[str, str] = ("", "")
+) -> list[tuple[str, list[str], str]]:
+    """(method, value texts, ms/query text) per row: marked values between ``bold``, ``dagger`` after an
+    uninformative value, a bootstrap interval between ``around``."""
+    marks = table.marks()
+    rows = []
+    for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
+        texts = []
+        for j, value in enumerate(row):
+            if value is None:
+                texts.append("–")
+                continue
+            text = f"{bold[0]}{value:.3f}{bold[1]}" if marks[i][j] else f"{value:.3f}{_dagger(table, i, j, dagger)}"
+            interval = None if table.intervals is None else table.intervals[i][j]
+            if interval is not None:
+                text += f" {around[0]}[{interval[0]:.2f}, {interval[1]:.2f}]{around[1]}"
+            texts.append(text)
+        rows.append((name, texts, "–" if time_ms is None else f"{time_ms:.4f}"))
+    return rows
 
 
 def marks_note(table: Table1) -> str:
@@ -386,18 +381,12 @@ def _any_uninformative(table: Table1) -> bool:
 
 def table1_markdown(table: Table1) -> str:
     """GitHub Markdown; the marked values of each column in bold, then what the marks mean."""
-    marks = table.marks()
     lines = [
         "| method | " + " | ".join(markdown_cell(c) for c in table.columns) + " | ms/query |",
         "|---|" + "---:|" * (len(table.columns) + 1),
     ]
-    for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
-        cells = [
-            _cell_text(v, marks[i][j], ("**", "**"), _dagger(table, i, j, "†"), _interval(table, i, j))
-            for j, v in enumerate(row)
-        ]
-        time_text = "–" if time_ms is None else f"{time_ms:.4f}"
-        lines.append(f"| {markdown_cell(name)} | " + " | ".join(cells) + f" | {time_text} |")
+    for name, texts, time_text in _rows(table, ("**", "**"), "†"):
+        lines.append(f"| {markdown_cell(name)} | " + " | ".join(texts) + f" | {time_text} |")
     lines += ["", marks_note(table)]
     if _any_uninformative(table):
         lines += ["", _FOOTNOTE]
@@ -424,7 +413,7 @@ def table1_csv(table: Table1) -> str:
         for j, v in enumerate(row):
             numbers.append("" if v is None else f"{v:.6f}")
             if with_ci:
-                interval = _interval(table, i, j)
+                interval = table.intervals[i][j]
                 numbers += ["", ""] if interval is None else [f"{interval[0]:.6f}", f"{interval[1]:.6f}"]
         numbers.append("" if time_ms is None else f"{time_ms:.6f}")
         sole = [c for j, c in enumerate(table.columns) if marks[i][j] and table.significant and table.significant[j]]
@@ -462,7 +451,6 @@ def table1_latex(table: Table1, *, caption: str | None = None) -> str:
     if caption is None:
         caption = f"{METRIC_NAMES[table.metric][0]} of each uncertainty method, averaged over datasets. "
         caption += marks_note(table)
-    marks = table.marks()
     header = " & ".join(["Method", *(_latex_escape(c) for c in table.columns), "ms/query"])
     lines = [
         r"\begin{table}[t]",
@@ -473,20 +461,9 @@ def table1_latex(table: Table1, *, caption: str | None = None) -> str:
         header + r" \\",
         r"\midrule",
     ]
-    for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
-        cells = [
-            _cell_text(
-                v,
-                marks[i][j],
-                (r"\textbf{", "}"),
-                _dagger(table, i, j, r"$^\dagger$"),
-                _interval(table, i, j),
-                (r"{\scriptsize ", "}"),
-            ).replace("–", "--")
-            for j, v in enumerate(row)
-        ]
-        time_text = "--" if time_ms is None else f"{time_ms:.4f}"
-        lines.append(" & ".join([_latex_escape(name), *cells, time_text]) + r" \\")
+    for name, texts, time_text in _rows(table, (r"\textbf{", "}"), r"$^\dagger$", (r"{\scriptsize ", "}")):
+        cells = [text.replace("–", "--") for text in [*texts, time_text]]
+        lines.append(" & ".join([_latex_escape(name), *cells]) + r" \\")
     lines += [r"\bottomrule", r"\end{tabular}"]
     if _any_uninformative(table):
         lines.append(r"\par\smallskip{\footnotesize $^\dagger$ uninformative: constant uncertainty (chance level).}")
@@ -496,16 +473,11 @@ def table1_latex(table: Table1, *, caption: str | None = None) -> str:
 
 def table1_html(table: Table1) -> str:
     """An HTML ``<table>``; the marked values per column in bold."""
-    marks = table.marks()
     head = "".join(f"<th>{escape(c)}</th>" for c in ["method", *table.columns, "ms/query"])
     body = []
-    for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
-        cells = "".join(
-            f"<td>{_cell_text(v, marks[i][j], ('<b>', '</b>'), _dagger(table, i, j, '†'), _interval(table, i, j))}</td>"
-            for j, v in enumerate(row)
-        )
-        time_text = "–" if time_ms is None else f"{time_ms:.4f}"
-        body.append(f"<tr><th>{escape(name)}</th>{cells}<td>{time_text}</td></tr>")
+    for name, texts, time_text in _rows(table, ("<b>", "</b>"), "†"):
+        cells = "".join(f"<td>{text}</td>" for text in [*texts, time_text])
+        body.append(f"<tr><th>{escape(name)}</th>{cells}</tr>")
     return f'<table class="table1"><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table>'
 
 
