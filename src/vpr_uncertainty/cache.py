@@ -152,10 +152,8 @@ def file_digest(path: str | Path) -> str:
 def named_files_key(values: Any) -> dict[str, str]:
     """The :func:`content_key` of every value that names an existing file (a str or path), by resolved path.
 
-    For the options of a stage (``CAL:gate=gate.json``, ``btl_head=head.pt``): whatever file an option names is
-    part of the fingerprint by its content, whichever option and method name it. Values that are not paths of
-    existing files (numbers, words such as ``one-sided``) are left out. Relative paths are taken from the working
-    folder, as the methods that open them do.
+    For a stage's options (``CAL:gate=gate.json``): a file an option names enters the fingerprint by its content.
+    Other values (numbers, words such as ``one-sided``) are left out; relative paths start at the working folder.
 
     Examples
     --------
@@ -216,10 +214,6 @@ def payload_checksum(*parts: Any) -> str:
     *parts : ndarray, str, bytes, None or row blocks
         What the artefact stores, in a fixed order: arrays (or objects with ``row_blocks()``, hashed block by block),
         text (hashed as its UTF-8 bytes) and None (an absent part).
-
-    Returns
-    -------
-    str
 
     Examples
     --------
@@ -289,10 +283,6 @@ def fingerprint(stage: str, config: Mapping[str, Any], inputs: Mapping[str, Any]
     inputs : mapping, optional
         Keys of the inputs' content: :func:`content_key` of files, :func:`array_digest` of arrays, fingerprints
         of upstream artefacts.
-
-    Returns
-    -------
-    str
     """
     document = {"protocol": PROTOCOL, "stage": stage, "config": _canonical(config), "inputs": _canonical(inputs or {})}
     text = json.dumps(document, sort_keys=True, separators=(",", ":"), allow_nan=True)

@@ -29,16 +29,13 @@ from vpr_uncertainty.methods.cascade import combine_cascade, most_uncertain, spl
 from vpr_uncertainty.reports.display import DPI, legend_outside, pyplot, save_figure
 
 __all__ = [
-    "ABLATION_SIZE",
     "CATEGORIES",
     "FRACTIONS",
     "PANEL_SIZE",
     "PROPOSED",
     "SHOWN",
     "TOP",
-    "ablation_alpha_means",
     "ablation_figsize",
-    "ablation_k_means",
     "alpha_panels",
     "best_alpha",
     "cascade_curve",
@@ -57,8 +54,6 @@ __all__ = [
 
 # --- ablations ---
 
-#: Size in inches of a figure of one panel (kept for callers of the former single-panel figures).
-ABLATION_SIZE: tuple[float, float] = (6.4, 4.0)
 #: Size in inches of one panel of the small multiples.
 PANEL_SIZE: tuple[float, float] = (2.8, 2.3)
 #: Room in inches for the title above the panels, and for each row of the legend below them.
@@ -66,30 +61,6 @@ _TITLE_HEIGHT, _LEGEND_ROW = 0.55, 0.22
 _MAX_COLUMNS = 5
 _LINE_STYLES = ("-", "--", "-.", ":")
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "*")
-
-
-def _mean_curves(curves: Sequence[dict]) -> dict:
-    values: dict = {}
-    for curve in curves:
-        for x, y in curve.items():
-            if y is not None:
-                values.setdefault(x, []).append(y)
-    return {x: float(np.mean(ys)) for x, ys in sorted(values.items())}
-
-
-def ablation_alpha_means(cells: Sequence) -> dict[str, dict[float, float]]:
-    """dataset -> {α: AUC-PR of SU averaged over VPR methods}."""
-    datasets = dict.fromkeys(c.dataset for c in cells)
-    return {d: _mean_curves([c.ablation_alpha for c in cells if c.dataset == d]) for d in datasets}
-
-
-def ablation_k_means(cells: Sequence) -> dict[str, dict[str, dict[int, float]]]:
-    """method (RS, SD) -> dataset -> {k: AUC-PR averaged over VPR methods}."""
-    datasets = dict.fromkeys(c.dataset for c in cells)
-    return {
-        name: {d: _mean_curves([c.ablation_k.get(name, {}) for c in cells if c.dataset == d]) for d in datasets}
-        for name in ("RS", "SD")
-    }
 
 
 def _defined(curve: dict) -> dict:
@@ -169,12 +140,6 @@ def ablation_figsize(n_panels: int, columns: int | None = None, legend_entries: 
     )
 
 
-def _ticker():
-    import matplotlib.ticker
-
-    return matplotlib.ticker
-
-
 def _style(index: int) -> dict:
     """Colour, line style and marker of the index-th line: distinct for up to 40 lines."""
     return {
@@ -252,6 +217,8 @@ def plot_alpha_ablation(cells: Sequence, path: str | Path) -> Path:
 
 def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
     """AUC-PR of RS and SD versus k: per dataset a panel for RS and one for SD, one line per VPR method."""
+    import matplotlib.ticker
+
     plt = pyplot()
     path = Path(path)
     panels = k_panels(cells)
@@ -271,7 +238,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
                 )
                 handles.setdefault(vpr_method, line)
             axis.set_xscale("log")
-            axis.xaxis.set_minor_locator(_ticker().NullLocator())
+            axis.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
             axis.set_xticks(ticks, [str(t) for t in ticks])
             axis.tick_params(labelsize="small")
             axis.set_xlabel("k (candidates used)", fontsize="small")
