@@ -314,21 +314,18 @@ def register_executor(
 ) -> ExecutorEntry:
     """Add an executor and return its entry.
 
-    Parameters
-    ----------
-    name : str
-        What ``--executor`` and :func:`get_executor` call it.
-    factory : callable or str
-        Builds the executor (a :class:`BaseExecutor`: ``name``, ``imap``, ``map``, ``close``) from ``options``; or
-        its dotted path ``"package.module:attribute"``, imported when first used.
-    description : str
-        One line for ``--help``.
-    options : mapping, optional
-        Every option the factory takes, with its default.
-    extra : str, optional
-        The pip extra its dependencies come from.
-    overwrite : bool
-        Replace an entry of that name.
+    ``factory(**options)`` builds the executor (a :class:`BaseExecutor`), or is its dotted path
+    ``"package.module:attribute"``, imported when first used; ``options`` are every option it takes, with their
+    defaults; ``description`` is one line for ``--help``; ``extra`` the pip extra its dependencies come from.
+
+    Examples
+    --------
+    >>> class Serial(LocalExecutor):
+    ...     name = "serial"
+    >>> _ = register_executor("serial", Serial, description="one item after another", options={"workers": None})
+    >>> get_executor("serial").map(abs, [-1])
+    [1]
+    >>> _ = EXECUTORS.unregister("serial")
     """
     entry = ExecutorEntry(name, description, factory, dict(options or {}), extra)
     return EXECUTORS.register(entry, overwrite=overwrite)
@@ -341,21 +338,10 @@ def executor_names() -> list[str]:
 
 
 def get_executor(name: str = "local", **options: Any) -> BaseExecutor:
-    """The executor called ``name``, built with ``options`` (see :func:`register_executor`).
+    """The executor called ``name`` (``"local"``, ``"ray"``: see :class:`RayExecutor`, or a plugin's), built with
+    ``options``; use it as a context manager (or call ``close``) to release a cluster it started.
 
-    Parameters
-    ----------
-    name : str
-        ``"local"`` (this process), ``"ray"`` (``address``, ``workers``, ``gpus_per_worker``, ``connect_timeout``,
-        ``start_timeout``: see :class:`RayExecutor`), or a plugin's executor.
-    **options
-        The executor's options. An option of another executor is refused unless it has that executor's default
-        value (``address=None`` with ``"local"``).
-
-    Returns
-    -------
-    BaseExecutor
-        Use as a context manager (or call ``close``) to release a cluster it started.
+    An option of another executor is refused unless it has that executor's default (``address=None`` with local).
     """
     if name not in EXECUTORS:
         load_plugins()
