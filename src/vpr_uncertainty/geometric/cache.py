@@ -92,7 +92,7 @@ def read_features(file: h5py.File | str | Path, name: str, *, verify: bool = Fal
     ``descriptors`` stored as (D, N), hloc's layout, are transposed to (N, D) (also when D == N: a square array
     is taken to be hloc's); (N, D) is read as it is. float16 is widened to float32.
     A file without ``image_size`` gets the extent of the keypoints. A soft or external link, external storage or
-    a virtual dataset on the way is refused with a ValueError (:mod:`vpr_uncertainty._hdf5`). With ``verify``,
+    a virtual dataset on the way is refused with a ValueError (:mod:`vpr_uncertainty.cache`). With ``verify``,
     features whose bytes do not match the checksum the cache stored with them raise
     :class:`~vpr_uncertainty.cache.ChecksumError` (each dataset is read once, for both).
     """
