@@ -6,11 +6,10 @@ that writes it::
 
     write(cells, config, out_dir, **options) -> list[Path]
 
-``cells`` are the grid's typed results (:class:`~vpr_uncertainty.study.Cell`, with their stored uncertainties),
-``config`` its :class:`~vpr_uncertainty.study.GridConfig`, ``out_dir`` the output folder (figures go to
-``out_dir / "figures"``). :func:`~vpr_uncertainty.study.write_reports` calls every selected figure in registration
-order and gives each a section of ``report.html``. A figure is selected by name, optionally with options as in a
-method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
+``cells`` are the grid's typed results (``Cell``, with their stored uncertainties), ``config`` its ``GridConfig``,
+``out_dir`` the output folder (figures go to ``out_dir / "figures"``). ``reproduce`` calls every selected figure in
+registration order and gives each a section of ``report.html``. A figure is selected by name, optionally with options
+as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
 
 Examples
 --------

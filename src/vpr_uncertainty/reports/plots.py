@@ -454,7 +454,7 @@ def plot_qualitative(
 
     Parameters
     ----------
-    cell : vpr_uncertainty.study.Cell
+    cell : Cell
         The cell: its images, top-k scores, indices, hits and its evaluation's uncertainties.
     path : str or Path
         The PNG to write.

@@ -271,7 +271,7 @@ def _mean(values: Sequence[float | None]) -> float | None:
 def build_table1(
     cells: Sequence, metric: str = "auc_pr", *, bootstrap: int = 0, seed: int = 0, level: float = 0.05
 ) -> Table1:
-    """Average a metric of the grid's cells (:class:`vpr_uncertainty.study.Cell`) over datasets.
+    """Average a metric of the grid's cells (``Cell``) over datasets.
 
     Each value is the metric averaged over the datasets on which it is defined; ``Mean`` averages a row over the
     VPR methods and ``ms/query`` is the row's mean time per query. With ``bootstrap``, a column's resamples follow
