@@ -23,8 +23,7 @@ import h5py
 import numpy as np
 import pytest
 
-from vpr_uncertainty.atomic_files import atomic_write, write_json
-from vpr_uncertainty.cache import CacheWarning
+from vpr_uncertainty.cache import CacheWarning, atomic_write, write_json
 from vpr_uncertainty.cli import EXIT_RUNTIME, _message, exit_status
 
 torch = pytest.importorskip("torch")

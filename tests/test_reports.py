@@ -13,10 +13,9 @@ from scipy import sparse
 
 from conftest import assert_close
 from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports, write_results
-from vpr_uncertainty.reports.heatmaps import delta_matrix
 from vpr_uncertainty.reports.html import Section, embed_png, render_report
-from vpr_uncertainty.reports.qualitative import choose_queries
-from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_latex, table1_markdown
+from vpr_uncertainty.reports.plots import choose_queries, delta_matrix
+from vpr_uncertainty.reports.tables import build_table1, table1_csv, table1_latex, table1_markdown
 from vpr_uncertainty.retrieval import Retrieval, save_retrieval
 
 
@@ -84,7 +83,7 @@ def test_table1_averages_over_datasets_and_marks_the_best(synthetic):
 
 
 def test_table1_with_missing_values():
-    from vpr_uncertainty.reports.table1 import Table1
+    from vpr_uncertainty.reports.tables import Table1
 
     table = Table1(rows=["RS", "BM"], columns=["A", "Mean"], values=[[None, None], [0.5, 0.5]], time_ms=[None, 1.0])
     assert "| RS | – | – | – |" in table1_markdown(table)
@@ -151,7 +150,7 @@ def test_special_characters_in_names_are_escaped_in_markdown_and_latex():
     """A `|` in a method name broke table1.md; `$ ^ ~` reached table1.tex unescaped (issue 20)."""
     import re
 
-    from vpr_uncertainty.reports.table1 import Table1
+    from vpr_uncertainty.reports.tables import Table1
 
     table = Table1(
         rows=["SU|GV", "x$^2$~{y}"], columns=["A|B", "Mean"], values=[[0.5, 0.5], [0.6, 0.6]], time_ms=[1.0, 1.0]

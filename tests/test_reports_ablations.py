@@ -1,4 +1,4 @@
-"""The ablation figures (:mod:`vpr_uncertainty.reports.ablations`): one panel per VPR method for α, one line per
+"""The ablation figures (:mod:`vpr_uncertainty.reports.plots`): one panel per VPR method for α, one line per
 VPR method for k, each panel's best α marked."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import pytest
 
-from vpr_uncertainty.reports import ablations
+from vpr_uncertainty.reports import plots
 
 ALPHAS = [0.0, 0.25, 0.5, 0.75, 1.0]
 
@@ -50,7 +50,7 @@ def _png_size(path: Path) -> tuple[int, int]:
 def test_alpha_figure_has_one_panel_per_vpr_method_with_its_best_alpha_starred(tmp_path, figures):
     peaks = {"APGeM": 1.0, "EigenPlaces": 0.0, "NetVLAD": 0.5}
     cells = [_cell(name, "corridor", peak) for name, peak in peaks.items()]
-    path = ablations.plot_alpha_ablation(cells, tmp_path / "alpha.png")
+    path = plots.plot_alpha_ablation(cells, tmp_path / "alpha.png")
     (figure,) = figures
     panels = [axis for axis in figure.axes if axis.get_visible()]
     assert len(panels) == len(peaks)
@@ -58,13 +58,13 @@ def test_alpha_figure_has_one_panel_per_vpr_method_with_its_best_alpha_starred(t
         assert axis.get_title().startswith(f"{name}\nbest α = {peak:g} (0.800)")
         stars = [line for line in axis.get_lines() if line.get_marker() == "*"]
         assert len(stars) == 1 and list(stars[0].get_xdata()) == [peak]
-    width, height = ablations.ablation_figsize(3, None, 1)
-    assert _png_size(path) == (round(width * ablations.DPI), round(height * ablations.DPI))
+    width, height = plots.ablation_figsize(3, None, 1)
+    assert _png_size(path) == (round(width * plots.DPI), round(height * plots.DPI))
 
 
 def test_alpha_figure_wraps_ten_methods_in_two_rows_and_draws_one_line_per_dataset(tmp_path, figures):
     cells = [_cell(f"M{i}", dataset, i / 10) for i in range(10) for dataset in ("corridor", "CALC")]
-    ablations.plot_alpha_ablation(cells, tmp_path / "alpha.png")
+    plots.plot_alpha_ablation(cells, tmp_path / "alpha.png")
     (figure,) = figures
     panels = [axis for axis in figure.axes if axis.get_visible()]
     assert len(panels) == 10
@@ -77,7 +77,7 @@ def test_alpha_figure_wraps_ten_methods_in_two_rows_and_draws_one_line_per_datas
 
 def test_k_figure_has_one_line_per_vpr_method_in_an_rs_and_an_sd_panel(tmp_path, figures):
     cells = [_cell(name, "corridor", 0.5, shift) for shift, name in enumerate(["A", "B", "C", "D"])]
-    ablations.plot_k_ablation(cells, tmp_path / "k.png")
+    plots.plot_k_ablation(cells, tmp_path / "k.png")
     (figure,) = figures
     panels = [axis for axis in figure.axes if axis.get_visible()]
     assert [axis.get_title() for axis in panels] == ["RS · corridor", "SD · corridor"]
@@ -92,13 +92,13 @@ def test_undefined_alpha_curves_are_left_out_and_ties_pick_the_smallest_alpha():
         _cell("A", "d", 0.5),
         SimpleNamespace(vpr_method="B", dataset="d", ablation_alpha={0.0: None}, ablation_k={}),
     ]
-    assert list(ablations.alpha_panels(cells)) == ["A"]
-    assert ablations.best_alpha({0.0: 0.7, 0.5: 0.7, 1.0: 0.6}) == 0.0
-    assert ablations.best_alpha({}) is None
+    assert list(plots.alpha_panels(cells)) == ["A"]
+    assert plots.best_alpha({0.0: 0.7, 0.5: 0.7, 1.0: 0.6}) == 0.0
+    assert plots.best_alpha({}) is None
 
 
 def test_k_panels_per_dataset_and_metric():
     cells = [_cell("A", "d1", 0.5), _cell("B", "d1", 0.5), _cell("A", "d2", 0.5)]
-    panels = ablations.k_panels(cells)
+    panels = plots.k_panels(cells)
     assert list(panels) == [("d1", "RS"), ("d1", "SD"), ("d2", "RS"), ("d2", "SD")]
     assert list(panels[("d1", "SD")]) == ["A", "B"]

@@ -10,7 +10,7 @@ import pytest
 from vpr_uncertainty import Retrieval, calibrate, evaluate
 from vpr_uncertainty.calibration.quality import reliability_diagram
 from vpr_uncertainty.reports import RejectionCurveDisplay, ReliabilityDisplay, plot_rejection_curves
-from vpr_uncertainty.reports.reliability import plot_reliability
+from vpr_uncertainty.reports.display import plot_reliability
 
 
 @pytest.fixture(scope="module")

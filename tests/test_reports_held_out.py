@@ -12,7 +12,7 @@ import pytest
 
 from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports
 from vpr_uncertainty.reports.figures import REPORT_FIGURES
-from vpr_uncertainty.reports.held_out import table1_cells, table1_note
+from vpr_uncertainty.reports.tables import table1_cells, table1_note
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
 

@@ -11,10 +11,18 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty import Retrieval, evaluate
-from vpr_uncertainty.reports.cascade import FRACTIONS, cascade_curve
+from vpr_uncertainty.reports.display import (
+    DPI,
+    coinciding,
+    draw_rejection_curves,
+    legend_outside,
+    method_styles,
+    pyplot,
+    save_figure,
+    write_rejection_curves,
+)
 from vpr_uncertainty.reports.html import Section, png_display_width, render_report
-from vpr_uncertainty.reports.plots import draw_rejection_curves, write_rejection_curves
-from vpr_uncertainty.reports.style import DPI, coinciding, legend_outside, method_styles, pyplot, save_figure
+from vpr_uncertainty.reports.plots import FRACTIONS, cascade_curve
 
 
 def _dpi(path: Path) -> float:

@@ -21,12 +21,8 @@ from conftest import assert_close
 from vpr_uncertainty import evaluate
 from vpr_uncertainty.pipeline import grid as reproduce_command
 from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports, write_results
-from vpr_uncertainty.reports.ablations import DPI as ABLATION_DPI
-from vpr_uncertainty.reports.ablations import ablation_figsize
-from vpr_uncertainty.reports.heatmaps import DPI as HEATMAP_DPI
-from vpr_uncertainty.reports.heatmaps import heatmap_figsize
-from vpr_uncertainty.reports.qualitative import DPI as QUALITATIVE_DPI
-from vpr_uncertainty.reports.qualitative import qualitative_figsize
+from vpr_uncertainty.reports.display import DPI
+from vpr_uncertainty.reports.plots import ablation_figsize, heatmap_figsize, qualitative_figsize
 from vpr_uncertainty.retrieval import read_results
 
 METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]
@@ -159,17 +155,17 @@ def test_figures_are_pngs_of_the_expected_size(grid):
     pngs = {name: [p for p in paths[name] if p.suffix == ".png"] for name in ("heatmaps", "ablations", "pr_curves")}
     assert [p.name for p in pngs["heatmaps"]] == ["delta_RS.png", "delta_SD.png", "delta_SU.png"]
     for path in pngs["heatmaps"]:
-        assert _png_size(path) == (round(heatmap[0] * HEATMAP_DPI), round(heatmap[1] * HEATMAP_DPI))
+        assert _png_size(path) == (round(heatmap[0] * DPI), round(heatmap[1] * DPI))
     assert [p.name for p in pngs["ablations"]] == ["ablation_alpha.png", "ablation_k.png"]
     # One α panel per VPR method (10, in two rows of five); RS and SD panels with one line per VPR method.
     for path, size in zip(pngs["ablations"], (ablation_figsize(10, None, 1), ablation_figsize(2, 2, 10)), strict=True):
-        assert _png_size(path) == (round(size[0] * ABLATION_DPI), round(size[1] * ABLATION_DPI))
+        assert _png_size(path) == (round(size[0] * DPI), round(size[1] * DPI))
     assert len(pngs["pr_curves"]) == len(cells)
     for name in ("heatmaps", "ablations", "pr_curves"):  # each PNG has its vector PDF beside it
         assert [p.with_suffix(".png") for p in paths[name] if p.suffix == ".pdf"] == pngs[name]
     (qualitative, _) = paths["qualitative"]
     size = qualitative_figsize(4)
-    assert _png_size(qualitative) == (round(size[0] * QUALITATIVE_DPI), round(size[1] * QUALITATIVE_DPI))
+    assert _png_size(qualitative) == (round(size[0] * DPI), round(size[1] * DPI))
     # Not blank: the qualitative figure shows photographs (many distinct colours).
     from matplotlib.image import imread
 

@@ -1,4 +1,4 @@
-"""Table 1 with bootstrap intervals (vpr_uncertainty.reports.table1_bootstrap): a best is marked alone only where it
+"""Table 1 with bootstrap intervals (vpr_uncertainty.reports.tables): a best is marked alone only where it
 is significantly better than every other method of its column, otherwise the tied leaders are marked together;
 the AP and AURC tables, the ties table, and the grid's bootstrap settings (config keys and reproduce flags)."""
 
@@ -16,8 +16,14 @@ from test_significance import _evaluation, _retrieval
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.evaluation.bootstrap import add_bootstrap
 from vpr_uncertainty.pipeline.grid import load_config
-from vpr_uncertainty.reports.table1 import build_table1, table1_csv, table1_latex, table1_markdown
-from vpr_uncertainty.reports.ties import build_ties_table, ties_markdown
+from vpr_uncertainty.reports.tables import (
+    build_table1,
+    build_ties_table,
+    table1_csv,
+    table1_latex,
+    table1_markdown,
+    ties_markdown,
+)
 from vpr_uncertainty.retrieval import save_retrieval
 
 

@@ -1,7 +1,4 @@
-"""Input checks shared by the metric functions.
-
-Every check raises with a message that names the argument, what was found and what was expected.
-"""
+"""Input checks of the metric functions; each message names the argument, what was found and what was expected."""
 
 from __future__ import annotations
 

@@ -1,27 +1,25 @@
-"""One cache protocol for every artefact the toolkit writes: content keys, fingerprints, atomic writes.
+"""Files the toolkit writes and trusts: content keys, fingerprints, checksums, atomic writes, checked HDF5 reads.
 
-A stage's artefact (``descriptors.h5``, ``retrieval.npz``, a grid cell, a local-feature file, ...) stores the
-:func:`fingerprint` of the stage's configuration and of the *content* of its inputs, and is reused only when the
-stored fingerprint equals the one the current run computes. Per-image stages also store each image's
-:func:`content_key`, so that a rerun recomputes exactly the images that changed.
+A stage's artefact stores the :func:`fingerprint` of the stage's configuration and of the *content* of its inputs,
+and is reused only when it equals the one the current run computes; per-image stages also store each image's
+:func:`content_key`, so that a rerun recomputes exactly the images that changed. What is hashed:
 
-- :func:`content_key` of a file: its size, its modification time in nanoseconds and a BLAKE2b hash of its bytes.
-  Files up to :data:`FULL_HASH_BYTES` (every image) are hashed whole; larger files (similarity matrices,
-  descriptor files of millions of rows) hash their first and last :data:`EDGE_BYTES` only and add their status
-  change time (``st_ctime_ns``, which every write updates and :func:`os.utime` cannot set back): a documented cheap
-  key that catches any rewrite on a filesystem that keeps the change time. :func:`file_digest` hashes every byte
-  (what ``reproduce --verify`` checks such files with).
-- :func:`array_digest` of in-memory arrays: dtype, shape and every byte.
+- :func:`content_key` of a file: size, modification time (ns) and a BLAKE2b hash of its bytes. Files up to
+  :data:`FULL_HASH_BYTES` are hashed whole; larger ones by their first and last :data:`EDGE_BYTES`, plus their
+  status change time (``st_ctime_ns``: every write updates it, :func:`os.utime` cannot set it back).
+  :func:`file_digest` hashes every byte (``reproduce --verify``).
+- :func:`array_digest` of arrays: dtype, shape and every byte.
 - :func:`fingerprint`: SHA-256 of the canonical JSON of ``{"protocol", "stage", "config", "inputs"}``.
-- :func:`payload_checksum` / :func:`verify_checksum`: ``"blake2b:"`` + :func:`array_digest` of what an artefact
-  stores (its arrays, and its text as UTF-8 bytes), written with the artefact and recomputed on read; a mismatch
-  (:class:`ChecksumError`, naming the file) means the artefact was changed after it was written, whatever its size
-  and modification time say.
-- :func:`atomic_path` / :func:`atomic_write`: write to a temporary file in the target's folder, flush and fsync
-  it, then :func:`os.replace` it over the target: an interrupted write (crash, SIGKILL, disk full) never leaves a
-  truncated artefact, only the previous one or none.
-- :func:`stale_notice`: the one-line warning (:class:`CacheWarning`) given when a cache is truncated, foreign or of
-  an older layout and is rebuilt.
+- :func:`payload_checksum`: ``"blake2b:"`` + :func:`array_digest` of what an artefact stores, verified on read
+  (:func:`verify_checksum`; a mismatch is a :class:`ChecksumError`).
+
+Writes are atomic (:func:`atomic_path`): a temporary file beside the target, fsynced, then :func:`os.replace` d over
+it, so an interrupted write leaves the previous artefact or none; a failed write raises an :class:`OSError` naming
+the target (``No space left on device: PATH``). An unusable cache is rebuilt with a one-line :class:`CacheWarning`.
+
+HDF5 inputs are opened with :func:`open_dataset` and listed with :func:`hard_links`, which refuse external storage,
+virtual datasets, external and soft links (a crafted file could otherwise feed the toolkit the bytes of a file the
+user never named, or hide an image from a listing).
 
 Examples
 --------
@@ -33,17 +31,19 @@ False
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import json
 import os
+import re
+import tempfile
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import IO, Any, TypeVar
 
 import numpy as np
-
-from vpr_uncertainty.atomic_files import atomic_path, atomic_write, write_json, write_text
 
 __all__ = [
     "EDGE_BYTES",
@@ -54,13 +54,18 @@ __all__ = [
     "array_digest",
     "atomic_path",
     "atomic_write",
+    "check_dataset",
     "content_key",
     "file_digest",
     "fingerprint",
+    "hard_links",
     "is_partly_hashed",
     "named_files_key",
+    "open_dataset",
+    "open_present",
     "payload_checksum",
     "read_if_fresh",
+    "slug",
     "stale_notice",
     "verify_checksum",
     "write_json",
@@ -89,17 +94,8 @@ class ChecksumError(ValueError):
 def content_key(path: str | Path) -> str:
     """A key that changes when the content of the file changes: ``"size:mtime_ns:blake2b"``.
 
-    Parameters
-    ----------
-    path : str or Path
-        A file (symbolic links are followed).
-
-    Returns
-    -------
-    str
-        Files up to :data:`FULL_HASH_BYTES` are hashed whole (``"size:mtime_ns:blake2b"``); larger ones by their
-        first and last :data:`EDGE_BYTES`, with their status change time (``"size:mtime_ns:ctime_ns:blake2b"``), a
-        cheap key for large result files; :func:`file_digest` hashes every byte.
+    A file larger than :data:`FULL_HASH_BYTES` gives ``"size:mtime_ns:ctime_ns:blake2b"`` of its two ends.
+    Symbolic links are followed.
 
     Examples
     --------
@@ -127,7 +123,6 @@ def content_key(path: str | Path) -> str:
 
 
 def _change_time(stat: os.stat_result) -> int:
-    """The status change time in nanoseconds (a write updates it; :func:`os.utime` cannot set it back)."""
     return stat.st_ctime_ns
 
 
@@ -157,10 +152,8 @@ def file_digest(path: str | Path) -> str:
 def named_files_key(values: Any) -> dict[str, str]:
     """The :func:`content_key` of every value that names an existing file (a str or path), by resolved path.
 
-    For the options of a stage (``CAL:gate=gate.json``, ``btl_head=head.pt``): whatever file an option names is
-    part of the fingerprint by its content, whichever option and method name it. Values that are not paths of
-    existing files (numbers, words such as ``one-sided``) are left out. Relative paths are taken from the working
-    folder, as the methods that open them do.
+    For a stage's options (``CAL:gate=gate.json``): a file an option names enters the fingerprint by its content.
+    Other values (numbers, words such as ``one-sided``) are left out; relative paths start at the working folder.
 
     Examples
     --------
@@ -221,10 +214,6 @@ def payload_checksum(*parts: Any) -> str:
     *parts : ndarray, str, bytes, None or row blocks
         What the artefact stores, in a fixed order: arrays (or objects with ``row_blocks()``, hashed block by block),
         text (hashed as its UTF-8 bytes) and None (an absent part).
-
-    Returns
-    -------
-    str
 
     Examples
     --------
@@ -294,14 +283,15 @@ def fingerprint(stage: str, config: Mapping[str, Any], inputs: Mapping[str, Any]
     inputs : mapping, optional
         Keys of the inputs' content: :func:`content_key` of files, :func:`array_digest` of arrays, fingerprints
         of upstream artefacts.
-
-    Returns
-    -------
-    str
     """
     document = {"protocol": PROTOCOL, "stage": stage, "config": _canonical(config), "inputs": _canonical(inputs or {})}
     text = json.dumps(document, sort_keys=True, separators=(",", ":"), allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def slug(text: str) -> str:
+    """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
 
 
 def stale_notice(path: str | Path, reason: str, action: str = "rebuilding it", *, stacklevel: int = 3) -> None:
@@ -351,3 +341,221 @@ def read_if_fresh(
         stale_notice(path, "written by an earlier version (no fingerprint)")
         return None
     return value if found == expected else None
+
+
+# --- atomic writes ---
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` (same suffix) to write to; renamed over ``path`` when the block succeeds.
+
+    The temporary file is fsynced before the rename; on any exception (KeyboardInterrupt included) it is removed
+    and ``path`` is left as it was. A symbolic link is followed (the file it points to is replaced); a path that
+    exists and is not a regular file (a device, a pipe) is yielded itself and written in place.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> target = Path(tempfile.mkdtemp()) / "a.txt"
+    >>> with atomic_path(target) as temporary:
+    ...     _ = temporary.write_text("whole")
+    >>> target.read_text(), [p.name for p in target.parent.iterdir()]
+    ('whole', ['a.txt'])
+    """
+    path = Path(os.path.realpath(path))  # through a symbolic link: replace the file it points to, not the link
+    if path.exists() and not path.is_file():  # a device or a pipe (/dev/stdout, /dev/full): written in place
+        try:
+            yield path
+        except OSError as error:
+            named = _naming_target(error, path, path)
+            if named is error:
+                raise
+            raise named from error
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
+    os.close(handle)
+    temporary = Path(name)
+    os.chmod(temporary, _file_mode(path))  # mkstemp makes 0600; give the file the mode open() would have
+    try:
+        yield temporary
+        with open(temporary, "rb+") as written:
+            os.fsync(written.fileno())
+        os.replace(temporary, path)
+    except OSError as error:
+        temporary.unlink(missing_ok=True)
+        named = _naming_target(error, temporary, path)
+        if named is error:
+            raise
+        raise named from error
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+    _fsync_folder(path.parent)
+
+
+#: Errors of a write that say nothing of which file: named after the file being written when they carry no name.
+_WRITE_ERRNOS = frozenset(
+    getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EFBIG", "EIO", "EROFS") if hasattr(errno, name)
+)
+
+
+def _naming_target(error: OSError, temporary: Path, path: Path) -> OSError:
+    """``error`` naming ``path`` instead of none or of its temporary file (an error naming another file, e.g. an
+    input read within the block, or without errno is returned unchanged)."""
+    if not error.errno or error.filename2 is not None:
+        return error
+    if error.filename is None:
+        if error.errno not in _WRITE_ERRNOS:
+            return error
+    elif str(error.filename) != str(temporary):
+        return error
+    return OSError(error.errno, error.strerror or os.strerror(error.errno), str(path))
+
+
+def _file_mode(path: Path) -> int:
+    """The mode of the file at ``path`` when it exists, else what the process's umask gives a new file."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+def _fsync_folder(folder: Path) -> None:
+    try:
+        descriptor = os.open(folder, os.O_RDONLY)
+    except OSError:  # e.g. Windows: folders cannot be opened
+        return
+    try:
+        os.fsync(descriptor)
+    except OSError:
+        pass
+    finally:
+        os.close(descriptor)
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | Path, mode: str = "w", **open_options: Any) -> Iterator[IO[Any]]:
+    """Open a temporary file beside ``path`` for writing; it replaces ``path`` when the block succeeds.
+
+    ``mode`` is ``"w"`` (UTF-8 by default) or ``"wb"``; ``open_options`` go to :func:`open`.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"mode must be 'w' or 'wb', got {mode!r}")
+    if mode == "w":
+        open_options.setdefault("encoding", "utf-8")
+    with atomic_path(path) as temporary, open(temporary, mode, **open_options) as handle:
+        yield handle
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically and return the path."""
+    with atomic_write(path) as handle:
+        handle.write(text)
+    return Path(path)
+
+
+def write_json(path: str | Path, document: Any) -> Path:
+    """Write ``document`` as indented JSON (one trailing newline) to ``path`` atomically and return the path."""
+    return write_text(path, json.dumps(document, indent=2, default=str) + "\n")
+
+
+# --- HDF5 inputs that hold their own data ---
+
+_REFUSED = "an input file must hold its own data; refused"
+
+
+def _refuse_link(path: str | Path, name: str, link: Any) -> None:
+    import h5py
+
+    if isinstance(link, h5py.ExternalLink):
+        raise ValueError(f"{path}: {name!r} is an HDF5 external link to {link.path!r} in {link.filename!r}; {_REFUSED}")
+    if isinstance(link, h5py.SoftLink):
+        raise ValueError(f"{path}: {name!r} is an HDF5 soft link to {link.path!r}; {_REFUSED}")
+
+
+def check_dataset(dataset: Any, path: str | Path, name: str | None = None) -> None:
+    """Raise a ValueError naming ``path`` and the dataset when its bytes do not live in the file itself
+    (external raw storage, a virtual dataset)."""
+    name = (dataset.name if name is None else name).strip("/")
+    if dataset.external:
+        files = ", ".join(sorted({str(entry[0]) for entry in dataset.external}))
+        raise ValueError(
+            f"{path}: dataset {name!r} uses HDF5 external storage (its bytes come from {files}); {_REFUSED}"
+        )
+    if dataset.is_virtual:
+        raise ValueError(
+            f"{path}: dataset {name!r} is an HDF5 virtual dataset (its bytes come from other datasets or files); "
+            f"{_REFUSED}"
+        )
+
+
+def open_dataset(group: Any, name: str, path: str | Path) -> Any:
+    """``group[name]``, checked: every link on the way a hard link, the dataset's bytes in the file itself.
+
+    ``name`` is a path below ``group`` (``"database/descriptors"``); ``path`` the file, for the messages.
+
+    Raises
+    ------
+    KeyError
+        When ``name`` is missing (as ``group[name]``).
+    ValueError
+        For a soft or external link on the way, external storage, a virtual dataset, or a group instead of a
+        dataset; the message names the file and the object.
+    """
+    import h5py
+
+    prefix = group.name.strip("/")
+    parts = [part for part in name.split("/") if part]
+    current = group
+    for depth, part in enumerate(parts):
+        link = current.get(part, getlink=True)
+        where = "/".join([*([prefix] if prefix else []), *parts[: depth + 1]])
+        if link is None:
+            raise KeyError(f"{path} has no {where!r}")
+        _refuse_link(path, where, link)
+        current = current[part]
+    if not isinstance(current, h5py.Dataset):
+        raise ValueError(f"{path}: {'/'.join([prefix, *parts]).strip('/')!r} is not a dataset")
+    check_dataset(current, path, "/".join([*([prefix] if prefix else []), *parts]))
+    return current
+
+
+def open_present(group: Any, names: tuple[str, ...], path: str | Path) -> dict[str, Any]:
+    """:func:`open_dataset` of each of ``names`` that ``group`` holds (a missing one is left out)."""
+    return {name: open_dataset(group, name, path) for name in names if name in group}
+
+
+def hard_links(group: Any, path: str | Path) -> Iterator[tuple[str, Any]]:
+    """Every object below ``group`` by its hard-link names, refusing every other kind of link.
+
+    Unlike ``visititems``, an object reachable by two names is yielded under both, and a soft or external link
+    is refused instead of being skipped (skipping it would silently leave an image out). A group is entered once
+    (a hard link back to a group already entered is yielded, not entered again). Datasets are checked with
+    :func:`check_dataset` before they are yielded.
+
+    Yields
+    ------
+    name : str
+        Relative to ``group``, "/"-joined.
+    item : h5py.Group or h5py.Dataset
+    """
+    import h5py
+
+    stack: list[tuple[str, Any]] = [("", group)]
+    entered = {group.id}
+    while stack:
+        prefix, current = stack.pop()
+        for key in current.keys():
+            name = f"{prefix}{key}"
+            _refuse_link(path, name, current.get(key, getlink=True))
+            item = current[key]
+            if isinstance(item, h5py.Dataset):
+                check_dataset(item, path, name)
+            yield name, item
+            if isinstance(item, h5py.Group) and item.id not in entered:
+                entered.add(item.id)
+                stack.append((f"{name}/", item))

@@ -1,13 +1,19 @@
-"""Where independent work items run: in this process (``local``) or as tasks on a Ray cluster (``ray``).
+"""Where independent work items run: in this process (``local``), as Ray tasks (``ray``), or an executor a plugin
+registers in :data:`EXECUTORS`.
 
-An executor has two operations: :meth:`map` applies a function to every item and returns the results in the order
-of the items; :meth:`imap` yields ``(position, result)`` pairs as they complete, for callers that write each result
-as it comes. The functions are plain module-level functions of this package (Ray pickles them by reference), and they
-write their own cached artefacts (a grid cell, a descriptor file) to paths that every worker sees: with a cluster
-of several machines the output folder must be on a shared filesystem.
+An executor's :meth:`~BaseExecutor.imap` yields ``(position, result)`` pairs as items complete, and
+:meth:`~BaseExecutor.map` returns the results in the order of the items. The functions are module-level functions
+of this package (Ray pickles them by reference) that write their own cached artefacts to paths every worker sees:
+on a cluster of several machines the output folder must be on a shared filesystem. A Ray task whose worker dies is
+retried (:data:`MAX_RETRIES`); a stopped run resumes from the caches.
 
-Ray is an extra (``pip install 'vpr-uncertainty[ray]'``) imported only when the ``ray`` executor is chosen. A task
-whose worker dies is retried by Ray (``max_retries``); a run that is stopped is resumed from the caches.
+Examples
+--------
+>>> with get_executor("local") as executor:
+...     executor.map(abs, [-2, 1])
+[2, 1]
+>>> executor_names()
+['local', 'ray']
 """
 
 from __future__ import annotations
@@ -18,29 +24,34 @@ import signal
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
 from typing import Any
+
+from vpr_uncertainty.plugins import Registry, load_plugins, load_target, merge_options
 
 __all__ = [
     "CONNECT_TIMEOUT",
     "EXECUTORS",
+    "MAX_RETRIES",
     "START_TIMEOUT",
+    "BaseExecutor",
+    "ExecutorEntry",
     "LocalExecutor",
     "RayExecutor",
+    "executor_names",
     "get_executor",
     "import_ray",
+    "register_executor",
     "start_ray",
     "wait_for_address",
 ]
 
-#: The executor names accepted by :func:`get_executor` (and by ``--executor``).
-EXECUTORS = ("local", "ray")
 #: How many times Ray reruns a task whose worker died.
 MAX_RETRIES = 3
 #: Seconds to wait for a Ray cluster at an explicit address to accept a connection (``--connect-timeout``).
 CONNECT_TIMEOUT = 30.0
-#: Seconds a Ray start-up (``ray.init``: a new local cluster, or the connection to one) may take before it is
-#: abandoned and whatever it started is shut down.
+#: Seconds a Ray start-up (``ray.init``) may take before it is abandoned and what it started is shut down.
 START_TIMEOUT = 180.0
 
 
@@ -56,7 +67,6 @@ def import_ray() -> Any:
 
 
 def _apply(function: Callable[[Any], Any], item: Any) -> Any:
-    """``function(item)``: the one remote function of :class:`RayExecutor` (``function`` may be a partial)."""
     return function(item)
 
 
@@ -68,71 +78,62 @@ def _check_workers(workers: int | None) -> int | None:
     return workers
 
 
-def _check_gpus(gpus_per_worker: float) -> float:
-    if isinstance(gpus_per_worker, bool) or not isinstance(gpus_per_worker, (int, float)) or gpus_per_worker < 0:
-        raise ValueError(f"gpus_per_worker must be a number >= 0, got {gpus_per_worker!r}")
-    return float(gpus_per_worker)
+class BaseExecutor:
+    """What every executor offers; a subclass sets :attr:`name` and implements :meth:`imap` (and :meth:`close`
+    when it holds resources)."""
 
+    name = ""
+    workers: int | None = None
 
-class LocalExecutor:
-    """Run every item in this process, one after the other (the default; what the toolkit did before executors).
-
-    Parameters
-    ----------
-    workers : int, optional
-        Ignored (accepted so that both executors take the same options).
-    """
-
-    name = "local"
-
-    def __init__(self, workers: int | None = None) -> None:
-        self.workers = _check_workers(workers)
+    def imap(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[tuple[int, Any]]:
+        """Yield ``(position, function(item))`` for every item, in completion order."""
+        raise NotImplementedError
 
     def map(
         self, function: Callable[[Any], Any], items: Iterable[Any], *, on_result: Callable[[Any], None] | None = None
     ) -> list[Any]:
-        """``[function(item) for item in items]``, calling ``on_result`` with each result as it comes.
+        """``[function(item) for item in items]``, in the order of ``items``.
 
-        Parameters
-        ----------
-        function : callable
-        items : iterable
-        on_result : callable, optional
-            Called with each result (e.g. to advance a progress bar).
-
-        Returns
-        -------
-        list
-            In the order of ``items``.
+        ``on_result`` is called with each result as it completes (e.g. to advance a progress bar). An exception
+        raised by ``function`` is raised here, as its original type.
         """
-        results = []
-        for _, result in self.imap(function, items):
-            results.append(result)
+        items = list(items)
+        results: list[Any] = [None] * len(items)
+        for position, result in self.imap(function, items):
+            results[position] = result
             if on_result is not None:
                 on_result(result)
         return results
 
-    def imap(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[tuple[int, Any]]:
-        """Yield ``(position, function(item))`` for every item, one after the other (in order here)."""
-        for position, item in enumerate(items):
-            yield position, function(item)
-
     def close(self) -> None:
-        """Nothing to release."""
+        """Release what the executor started (nothing by default)."""
 
-    def __enter__(self) -> LocalExecutor:
+    def __enter__(self) -> Any:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-class RayExecutor:
+class LocalExecutor(BaseExecutor):
+    """Run every item in this process, one after the other (the default). ``workers`` is checked and ignored."""
+
+    name = "local"
+
+    def __init__(self, workers: int | None = None) -> None:
+        self.workers = _check_workers(workers)
+
+    def imap(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[tuple[int, Any]]:
+        for position, item in enumerate(items):
+            yield position, function(item)
+
+
+class RayExecutor(BaseExecutor):
     """Run every item as a Ray task, at most ``workers`` at once, each with ``gpus_per_worker`` GPUs.
 
-    Connects to the cluster at ``address`` (``"auto"``: the one started by ``ray start`` on this machine), or,
-    without one, starts a local cluster with ``workers`` CPUs. When Ray is already initialised in this process
-    (e.g. by the caller), that cluster is used and left running by :meth:`close`.
+    Connects to the cluster at ``address`` (``"auto"``: the one ``ray start`` started on this machine), or, without
+    one, starts a local cluster with ``workers`` CPUs. When Ray is already initialised in this process, that cluster
+    is used and left running by :meth:`close`.
 
     Parameters
     ----------
@@ -143,8 +144,8 @@ class RayExecutor:
     gpus_per_worker : float, default=0
         GPUs Ray assigns to each task (fractions share one GPU).
     connect_timeout : float, default=30
-        Seconds to wait for the cluster at ``host:port`` (or ``ray://host:port``) to accept a connection before a
-        ConnectionError (Ray itself would wait for minutes on an address where nothing listens).
+        Seconds to wait for the cluster at ``host:port`` to accept a connection before a ConnectionError (Ray
+        itself would wait for minutes on an address where nothing listens).
     start_timeout : float, default=180
         Seconds ``ray.init`` may take (see :func:`start_ray`).
     """
@@ -160,7 +161,9 @@ class RayExecutor:
         start_timeout: float = START_TIMEOUT,
     ) -> None:
         self.workers = _check_workers(workers)
-        self.gpus_per_worker = _check_gpus(gpus_per_worker)
+        if isinstance(gpus_per_worker, bool) or not isinstance(gpus_per_worker, (int, float)) or gpus_per_worker < 0:
+            raise ValueError(f"gpus_per_worker must be a number >= 0, got {gpus_per_worker!r}")
+        self.gpus_per_worker = float(gpus_per_worker)
         if address is not None and (not isinstance(address, str) or not address.strip()):
             raise ValueError(f"address must be a non-empty string such as 'auto' or 'host:6379', got {address!r}")
         for option, value in (("connect_timeout", connect_timeout), ("start_timeout", start_timeout)):
@@ -181,41 +184,10 @@ class RayExecutor:
         if self.workers is None:
             self.workers = max(1, int(self.ray.cluster_resources().get("CPU", 1)))
 
-    def map(
-        self, function: Callable[[Any], Any], items: Iterable[Any], *, on_result: Callable[[Any], None] | None = None
-    ) -> list[Any]:
-        """``[function(item) for item in items]`` as Ray tasks, at most ``workers`` in flight.
-
-        A task whose worker process dies is rerun (up to :data:`MAX_RETRIES` times); an exception raised by
-        ``function`` is raised here, as the original exception type.
-
-        Parameters
-        ----------
-        function : callable
-            A module-level function or a partial of one (the workers import this package).
-        items : iterable
-        on_result : callable, optional
-            Called with each result as it completes (in completion order).
-
-        Returns
-        -------
-        list
-            In the order of ``items``.
-        """
-        items = list(items)
-        results: list[Any] = [None] * len(items)
-        for position, result in self.imap(function, items):
-            results[position] = result
-            if on_result is not None:
-                on_result(result)
-        return results
-
     def imap(self, function: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[tuple[int, Any]]:
-        """Yield ``(position, function(item))`` for every item as its task completes (completion order).
-
-        At most ``workers`` tasks are in flight, so a consumer that writes each result as it comes (a cache)
-        keeps what finished when the run stops. Retries and errors as in :meth:`map`.
-        """
+        """Yield ``(position, function(item))`` as tasks complete, at most ``workers`` in flight (a consumer that
+        writes each result as it comes keeps what finished when the run stops); a task whose worker process dies
+        is rerun up to :data:`MAX_RETRIES` times."""
         ray = self.ray
         remote = ray.remote(_apply).options(
             num_cpus=1, num_gpus=self.gpus_per_worker, max_retries=MAX_RETRIES, retry_exceptions=False
@@ -248,15 +220,6 @@ class RayExecutor:
         if self._owns_cluster and self.ray.is_initialized():
             self.ray.shutdown()
         self._owns_cluster = False
-
-    def __enter__(self) -> RayExecutor:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-Executor = LocalExecutor | RayExecutor
 
 
 def start_ray(ray: Any, options: dict[str, Any], timeout: float) -> None:
@@ -320,46 +283,90 @@ def wait_for_address(address: str, timeout: float) -> None:
             time.sleep(min(0.5, max(deadline - time.monotonic(), 0.0)))
 
 
-def get_executor(
-    name: str = "local",
+@dataclass(frozen=True)
+class ExecutorEntry:
+    """A registered executor: ``factory(**options)`` builds it; ``options`` are its options with their defaults."""
+
+    name: str
+    description: str
+    factory: Callable[..., BaseExecutor] | str = field(repr=False)
+    options: Mapping[str, Any] = field(default_factory=dict)
+    extra: str | None = None
+
+    def create(self, **options: Any) -> BaseExecutor:
+        """The executor, ``options`` merged over the defaults (an unknown option is a ValueError)."""
+        factory = load_target(self.factory, what=f"executor {self.name!r}", extra=self.extra)
+        return factory(**merge_options(self.options, options, what=f"executor {self.name!r}"))
+
+
+#: The executors ``--executor`` and :func:`get_executor` accept, by name.
+EXECUTORS: Registry[ExecutorEntry] = Registry("executor")
+
+
+def register_executor(
+    name: str,
+    factory: Callable[..., BaseExecutor] | str,
     *,
-    address: str | None = None,
-    workers: int | None = None,
-    gpus_per_worker: float = 0.0,
-    connect_timeout: float = CONNECT_TIMEOUT,
-    start_timeout: float = START_TIMEOUT,
-) -> Executor:
-    """The executor called ``name``.
+    description: str,
+    options: Mapping[str, Any] | None = None,
+    extra: str | None = None,
+    overwrite: bool = False,
+) -> ExecutorEntry:
+    """Add an executor and return its entry.
 
-    Parameters
-    ----------
-    name : {"local", "ray"}
-    address : str, optional
-        The Ray cluster's address (``ray`` only).
-    workers : int, optional
-        The most items in flight at once (``ray``; the local executor runs one at a time).
-    gpus_per_worker : float, default=0
-        GPUs per Ray task or actor (``ray`` only).
-    connect_timeout : float, default=30
-        Seconds to wait for a Ray cluster at ``address`` (``ray`` only).
-    start_timeout : float, default=180
-        Seconds Ray's start-up may take (``ray`` only).
+    ``factory(**options)`` builds the executor (a :class:`BaseExecutor`), or is its dotted path
+    ``"package.module:attribute"``, imported when first used; ``options`` are every option it takes, with their
+    defaults; ``description`` is one line for ``--help``; ``extra`` the pip extra its dependencies come from.
 
-    Returns
-    -------
-    LocalExecutor or RayExecutor
-        Use as a context manager (or call ``close``) to release a cluster it started.
+    Examples
+    --------
+    >>> class Serial(LocalExecutor):
+    ...     name = "serial"
+    >>> _ = register_executor("serial", Serial, description="one item after another", options={"workers": None})
+    >>> get_executor("serial").map(abs, [-1])
+    [1]
+    >>> _ = EXECUTORS.unregister("serial")
+    """
+    entry = ExecutorEntry(name, description, factory, dict(options or {}), extra)
+    return EXECUTORS.register(entry, overwrite=overwrite)
+
+
+def executor_names() -> list[str]:
+    """The registered executors' names (plugins loaded first)."""
+    load_plugins()
+    return EXECUTORS.names()
+
+
+def get_executor(name: str = "local", **options: Any) -> BaseExecutor:
+    """The executor called ``name`` (``"local"``, ``"ray"``: see :class:`RayExecutor`, or a plugin's), built with
+    ``options``; use it as a context manager (or call ``close``) to release a cluster it started.
+
+    An option of another executor is refused unless it has that executor's default (``address=None`` with local).
     """
     if name not in EXECUTORS:
-        raise ValueError(f"executor must be one of {', '.join(EXECUTORS)}, got {name!r}")
-    if name == "local":
-        if address is not None or _check_gpus(gpus_per_worker):
-            raise ValueError("address and gpus_per_worker apply to the ray executor only, not to 'local'")
-        return LocalExecutor(workers)
-    return RayExecutor(
-        address=address,
-        workers=workers,
-        gpus_per_worker=gpus_per_worker,
-        connect_timeout=connect_timeout,
-        start_timeout=start_timeout,
-    )
+        load_plugins()
+    if name not in EXECUTORS:
+        raise ValueError(f"executor must be one of {', '.join(EXECUTORS.names())}, got {name!r}")
+    entry = EXECUTORS.get(name)
+    owners = {key: other for other in EXECUTORS for key in other.options if key not in entry.options}
+    misplaced = [key for key in options if key in owners and options[key] != owners[key].options[key]]
+    if misplaced:
+        where = " and ".join(sorted({owners[key].name for key in misplaced}))
+        raise ValueError(f"{' and '.join(misplaced)} apply to the {where} executor only, not to {entry.name!r}")
+    return entry.create(**{key: value for key, value in options.items() if key not in owners})
+
+
+register_executor("local", LocalExecutor, description="in this process (default)", options={"workers": None})
+register_executor(
+    "ray",
+    RayExecutor,
+    description="as tasks on a Ray cluster",
+    options={
+        "address": None,
+        "workers": None,
+        "gpus_per_worker": 0.0,
+        "connect_timeout": CONNECT_TIMEOUT,
+        "start_timeout": START_TIMEOUT,
+    },
+    extra="ray",
+)

@@ -1,22 +1,13 @@
 """One plugin mechanism for every extension point: uncertainty methods, GV presets, descriptor models, dataset
-formats and named datasets.
+and results formats, executors, report figures.
 
-Plugins are modules that register entries when imported. :func:`load_plugins` imports every module of the
-entry-point group ``vpr_uncertainty.plugins`` (the package's own higher layers register their methods this way,
-as a user's package does) and the modules named on the command line (``--plugin MODULE``). A registry loads them
-when a name is not found; functions that list a registry's names call :func:`load_plugins` first.
-
-A :class:`Registry` holds declarative entries, each with at least a ``name`` (most also declare a
-``description``, what they ``requires``, the pip ``extra`` they need and their default ``options``). It gives
-
-- :meth:`Registry.get`: the entry of a name, or a ``KeyError`` that suggests the closest name and lists the
-  valid ones;
-- :meth:`Registry.names` and :meth:`Registry.entries`, optionally filtered by attributes
-  (``registry.names(kind="score")``);
-- lazy targets: :func:`load_target` imports ``"package.module:attribute"`` on first use, and a missing
-  dependency is an ``ImportError`` that names the extra to install;
-- :func:`merge_options`: options given by a user merged over an entry's defaults (LightGlue's
-  ``default_conf`` style); an unknown option name is an error that lists the valid ones.
+Plugins are modules that register entries when imported. :func:`load_plugins` imports the modules of the
+entry-point group ``vpr_uncertainty.plugins`` (the package's own higher layers register their methods this way, as a
+user's package does) and those named by ``--plugin MODULE``. A :class:`Registry` loads them when a name is not
+found; functions that list a registry's names call :func:`load_plugins` first. Entries are declarative (a ``name``;
+most also a ``description``, what they ``requires``, their pip ``extra`` and default ``options``); a target may be a
+dotted path imported on first use (:func:`load_target`), and a user's options are merged over the defaults
+(:func:`merge_options`, LightGlue's ``default_conf`` style; an unknown option is an error).
 
 Examples
 --------
@@ -26,13 +17,13 @@ Examples
 ...     name: str
 ...     warm: bool
 >>> colours = Registry("colour")
->>> _ = colours.register(Colour("red", True)); _ = colours.register(Colour("blue", False))
+>>> _ = colours.register(Colour("red", True)); _ = colours.register(Colour("purple", False))
 >>> colours.names(warm=True)
 ['red']
->>> colours.get("bleu")
+>>> colours.get("purpel")
 Traceback (most recent call last):
 ...
-KeyError: "unknown colour 'bleu'; did you mean 'blue'? valid: red, blue"
+KeyError: "unknown colour 'purpel'; did you mean 'purple'? valid: red, purple"
 >>> merge_options({"ratio": 0.8, "mutual": True}, {"ratio": 0.9}, what="matcher")
 {'ratio': 0.9, 'mutual': True}
 """

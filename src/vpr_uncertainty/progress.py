@@ -1,11 +1,5 @@
-"""Progress bars: one helper for every stage that can take more than a few seconds.
-
-Bars go to stderr. Whether they are shown is decided once per call, in this order:
-
-1. the ``enabled`` argument of the call, when it is True or False;
-2. the process-wide default set with :func:`progress_default` (the command line's ``--progress`` /
-   ``--no-progress``);
-3. whether stderr is a terminal: a log file or a pipe gets no bar unless it is asked for.
+"""Progress bars on stderr, shown when the call says so (``enabled``), else when the process default says so
+(:func:`progress_default`: ``--progress`` / ``--no-progress``), else when stderr is a terminal.
 
 Examples
 --------
@@ -71,20 +65,8 @@ def progress_bar(
 ) -> Any:
     """A tqdm bar on stderr (usable as an iterable wrapper or as a context manager with ``update``).
 
-    Parameters
-    ----------
-    iterable : iterable, optional
-        What to iterate over; None for a bar updated by hand.
-    total : int, optional
-        Number of items (default ``len(iterable)`` when it has one).
-    desc, unit : str
-        Label and unit of the bar.
-    enabled : bool, optional
-        Show the bar (True), hide it (False), or decide as :func:`progress_enabled` does (None).
-    initial : int
-        Items already done (a resumed stage).
-    leave : bool
-        Keep the finished bar on screen.
+    ``iterable`` None: a bar updated by hand. ``enabled`` None: decided by :func:`progress_enabled`. ``initial``:
+    items already done (a resumed stage). ``leave``: keep the finished bar on screen.
     """
     from tqdm import tqdm
 

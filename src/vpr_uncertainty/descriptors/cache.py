@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache as protocol
-from vpr_uncertainty._hdf5 import open_present
+from vpr_uncertainty.cache import open_present
 from vpr_uncertainty.descriptors import _checks
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SPLITS", "DescriptorCache", "cache_info", "read_descriptors"]

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty._hdf5 import hard_links, open_dataset
+from vpr_uncertainty.cache import hard_links, open_dataset
 
 __all__ = [
     "DATABASE_PREFIXES",
@@ -45,7 +45,7 @@ def _h5py():
 
 def _descriptor_datasets(handle, path: str | Path):
     """``(name, dataset)`` of every ``global_descriptor`` of an open file, refusing links and storage that reach
-    outside it (:func:`vpr_uncertainty._hdf5.hard_links`)."""
+    outside it (:func:`vpr_uncertainty.cache.hard_links`)."""
     h5py = _h5py()
     for name, item in hard_links(handle, path):
         if isinstance(item, h5py.Dataset) and name.rsplit("/", 1)[-1] == HLOC_DATASET:
@@ -64,7 +64,7 @@ def is_hloc_file(path: str | Path) -> bool:
     ------
     ValueError
         When a link or a dataset met before the first descriptor reaches outside the file (see
-        :mod:`vpr_uncertainty._hdf5`).
+        :mod:`vpr_uncertainty.cache`).
     """
     h5py = _h5py()
     try:
@@ -117,7 +117,7 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
     ValueError
         When the file holds no global descriptors, a descriptor that is not 1-D, descriptors of different sizes,
         no image of ``split`` although its names carry split prefixes, or a soft or external link, external
-        storage or a virtual dataset (:mod:`vpr_uncertainty._hdf5`: bytes from outside the file are refused).
+        storage or a virtual dataset (:mod:`vpr_uncertainty.cache`: bytes from outside the file are refused).
     """
     h5py = _h5py()
     path = Path(path)

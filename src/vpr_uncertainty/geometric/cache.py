@@ -18,7 +18,7 @@ created whole (atomically); a truncated or unreadable file is reported in one li
 
 Who writes the cache: the process that calls :func:`extract_features`, except inside
 :func:`~vpr_uncertainty.geometric.deferred.deferred_writes` (a grid cell running as an executor task, see
-:func:`vpr_uncertainty.study.run_grid`): there the caches are only read (several tasks may read one file at once),
+``reproduce``): there the caches are only read (several tasks may read one file at once),
 what is extracted is kept in memory and returned to the driver, which writes it with :func:`store_features` once no
 task is running. No task ever opens a shared cache file for writing.
 """
@@ -36,7 +36,7 @@ import h5py
 import numpy as np
 
 from vpr_uncertainty import cache
-from vpr_uncertainty._hdf5 import open_present
+from vpr_uncertainty.cache import open_present
 from vpr_uncertainty.geometric.deferred import PendingFeatures, active_store
 from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 
@@ -92,7 +92,7 @@ def read_features(file: h5py.File | str | Path, name: str, *, verify: bool = Fal
     ``descriptors`` stored as (D, N), hloc's layout, are transposed to (N, D) (also when D == N: a square array
     is taken to be hloc's); (N, D) is read as it is. float16 is widened to float32.
     A file without ``image_size`` gets the extent of the keypoints. A soft or external link, external storage or
-    a virtual dataset on the way is refused with a ValueError (:mod:`vpr_uncertainty._hdf5`). With ``verify``,
+    a virtual dataset on the way is refused with a ValueError (:mod:`vpr_uncertainty.cache`). With ``verify``,
     features whose bytes do not match the checksum the cache stored with them raise
     :class:`~vpr_uncertainty.cache.ChecksumError` (each dataset is read once, for both).
     """

@@ -122,7 +122,7 @@ def _handle(args: argparse.Namespace) -> int:
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     probability = gate.probability_correct(retrieval.scores)
     if args.plot:  # first: a plot that fails leaves an existing gate file as it was
-        from vpr_uncertainty.reports.reliability import plot_reliability
+        from vpr_uncertainty.reports.display import plot_reliability
 
         plot_reliability(reliability_diagram(probability, correct), args.plot, title="in-sample reliability")
     gate.save(args.out)

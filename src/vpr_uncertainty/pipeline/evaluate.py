@@ -470,7 +470,7 @@ def _held_out(args: argparse.Namespace, conf: EvaluateConf, retrieval: Any, inpu
         if "CAL" not in result.quality:
             raise ValueError("--plot with --calibration-fraction draws CAL's reliability diagram: add CAL to --methods")
         from vpr_uncertainty.calibration.quality import Reliability
-        from vpr_uncertainty.reports.reliability import plot_reliability
+        from vpr_uncertainty.reports.display import plot_reliability
 
         plot_reliability(Reliability(**result.quality["CAL"]["reliability"]), args.plot, title="held-out reliability")
         print(f"wrote {args.plot}")

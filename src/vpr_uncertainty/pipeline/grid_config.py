@@ -14,13 +14,11 @@ import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from vpr_uncertainty.cache import slug
 from vpr_uncertainty.methods import default_method_names, describe_needs, get_method, split_method_list
-from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, slug, unmet_figure_needs
-
-if TYPE_CHECKING:
-    pass
+from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
 
 
 def read_mapping(path: Path) -> dict[str, Any]:

@@ -258,9 +258,8 @@ def write_reports(
     """
     from html import escape
 
-    from vpr_uncertainty.reports.captions import figure_caption, settings_table
     from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
-    from vpr_uncertainty.reports.html import Section, write_report
+    from vpr_uncertainty.reports.html import Section, figure_caption, settings_table, write_report
 
     specs = figures if figures is not None else config.report
     selected = [parse_figure_spec(spec) for spec in (REPORT_FIGURES.names() if specs is None else specs)]
@@ -301,7 +300,7 @@ def _available_needs(cells: Sequence[Cell]) -> set[str]:
         available.add("ablations")
     if any("CAL" in (cell.held_out or {}).get("calibration_quality", {}) for cell in cells):
         available.add("calibration")
-    from vpr_uncertainty.reports.cascade import cascades
+    from vpr_uncertainty.reports.plots import cascades
 
     if cascades(cells):
         available.add("cascade")

@@ -366,10 +366,12 @@ def add_executor_options(
     ``--workers`` is the one name for "how many parallel workers": with Ray, the tasks or actors in flight
     (``ray_workers`` says which); locally, ``local_workers`` (e.g. :data:`DECODING_THREADS`), or refused when None.
     """
+    from vpr_uncertainty.executors import executor_names
+
     group = parser.add_argument_group("executor (where the work runs, and how many workers run it)")
     group.add_argument(
         "--executor",
-        choices=("local", "ray"),
+        choices=executor_names(),
         default="local",
         help="local: in this process (default); ray: as tasks on a Ray cluster (needs the [ray] extra)",
     )

@@ -1,42 +1,129 @@
-"""Figures as Display objects in scikit-learn's style: build from results, draw on any matplotlib axis.
+"""How report figures look and are drawn: styles, atomic saving, and Display objects in scikit-learn's style.
 
-Like :class:`sklearn.metrics.PrecisionRecallDisplay`, each class is made by a ``from_*`` class method that draws at
-once, on the ``ax`` given (a subplot of your own figure) or on a new figure, and keeps what it drew:
-
-* ``ax_``, ``figure_``: the axis and its figure;
-* ``lines_`` (a dict by method name) or ``line_``: the matplotlib artists, to restyle them afterwards.
-
-``plot(ax=None)`` draws the same data again on another axis. Nothing here saves a file or picks a matplotlib
-backend: the file writers (:func:`vpr_uncertainty.reports.plot_rejection_curves`,
-:func:`vpr_uncertainty.reports.reliability.plot_reliability`) draw with these classes and save atomically.
-
-* :class:`RejectionCurveDisplay`: end-to-end precision-recall of the VPR system as uncertain answers are rejected,
-  one curve per method (:meth:`~RejectionCurveDisplay.from_evaluation`) or from arrays
-  (:meth:`~RejectionCurveDisplay.from_predictions`).
-* :class:`ReliabilityDisplay`: the reliability diagram of a calibrated P(correct), from a
-  :class:`~vpr_uncertainty.calibration.quality.Reliability`, from predictions, or from a
-  :class:`~vpr_uncertainty.Gate` and labelled queries.
+Like :class:`sklearn.metrics.PrecisionRecallDisplay`, each Display is made by a ``from_*`` class method that draws at
+once on the ``ax`` given (or a new figure) and keeps ``ax_``, ``figure_`` and its artists (``lines_`` by method
+name, or ``line_``); ``plot(ax=None)`` draws the same data again. Displays pick no backend and save nothing; the
+file writers (:func:`plot_rejection_curves`, :func:`plot_reliability`, :func:`save_figure`) draw off-screen and
+write atomically: a 300-dpi PNG for ``report.html`` and a vector PDF beside it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty.cache import atomic_path
 from vpr_uncertainty.calibration.quality import Reliability, reliability_diagram
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
-from vpr_uncertainty.reports.style import coinciding, legend_outside, method_styles
 
 if TYPE_CHECKING:  # pragma: no cover
     from vpr_uncertainty.calibration.gate import Gate
     from vpr_uncertainty.evaluation.results import Evaluation
 
-__all__ = ["AREA_NOTE", "RejectionCurveDisplay", "ReliabilityDisplay"]
+__all__ = [
+    "AREA_NOTE",
+    "DPI",
+    "VECTOR_SUFFIX",
+    "RejectionCurveDisplay",
+    "ReliabilityDisplay",
+    "coinciding",
+    "draw_rejection_curves",
+    "legend_outside",
+    "method_styles",
+    "plot_rejection_curves",
+    "plot_reliability",
+    "pyplot",
+    "save_figure",
+    "write_rejection_curves",
+]
 
-#: What the area under an end-to-end curve is (and is not); written under the curves when recall@1 is known, and in
-#: report.html.
+#: Resolution of every PNG a report writes.
+DPI = 300
+#: The vector format written beside each PNG.
+VECTOR_SUFFIX = ".pdf"
+_COLOURS = tuple(f"C{i}" for i in range(10))
+_DASHES = ("-", "--", "-.", ":")
+_MARKERS = ("o", "s", "^", "v", "D", "P", "X")
+
+
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` with the off-screen backend."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def method_styles(names: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """``{name: {"color", "linestyle", "marker"}}``: no two of the first 140 names share all three.
+
+    Examples
+    --------
+    >>> styles = method_styles(["RS", "SD", "SU"])
+    >>> styles["SD"]
+    {'color': 'C1', 'linestyle': '--', 'marker': 's'}
+    """
+    return {
+        name: {
+            "color": _COLOURS[index % len(_COLOURS)],
+            "linestyle": _DASHES[index % len(_DASHES)],
+            "marker": _MARKERS[index % len(_MARKERS)],
+        }
+        for index, name in enumerate(names)
+    }
+
+
+def coinciding(curves: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> list[list[str]]:
+    """Groups of names whose curves (x, y) are identical, in the order of ``curves`` (singletons included).
+
+    Examples
+    --------
+    >>> x = np.array([0.0, 0.5, 1.0])
+    >>> coinciding({"BM": (x, x), "SU": (x, x**2), "L2": (x, x.copy())})
+    [['BM', 'L2'], ['SU']]
+    """
+    groups: list[list[str]] = []
+    for name, (x, y) in curves.items():
+        for group in groups:
+            gx, gy = curves[group[0]]
+            if np.shape(gx) == np.shape(x) and np.array_equal(gx, x) and np.array_equal(gy, y):
+                group.append(name)
+                break
+        else:
+            groups.append([name])
+    return groups
+
+
+def legend_outside(axis: Any, **options: Any) -> Any:
+    """A legend to the right of ``axis``, outside the data (save with :func:`save_figure`, which keeps it)."""
+    options = {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "borderaxespad": 0.0, "fontsize": "small", **options}
+    return axis.legend(**options)
+
+
+def save_figure(figure: Any, path: str | Path, *, tight: bool = True) -> list[Path]:
+    """Write ``path`` (a ``.png`` at :data:`DPI`) and the same figure as a PDF beside it; returns both paths.
+
+    ``tight`` crops to the drawn content (legends outside the axes included); False keeps the figure's size.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"save_figure writes a .png and a {VECTOR_SUFFIX} beside it, got {path}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    options = {"bbox_inches": "tight", "pad_inches": 0.05} if tight else {}
+    written = []
+    for target in (path, path.with_suffix(VECTOR_SUFFIX)):
+        with atomic_path(target) as temporary:
+            figure.savefig(temporary, dpi=DPI, format=target.suffix.lstrip("."), **options)
+        written.append(target)
+    return written
+
+
+#: Why the area under an end-to-end curve is not the AUC-PR of the legend (written under the curves).
 AREA_NOTE = (
     "Area under a curve ≠ the AUC-PR in the legend: the AUC-PR is the area of precision against the recall of "
     "correct answers; here recall counts all answerable queries, so the x axis is shrunk by recall@1 "
@@ -78,9 +165,8 @@ class RejectionCurveDisplay:
     ax_, figure_ : matplotlib Axes and Figure
         Where the curves were drawn (after :meth:`plot`).
     lines_ : dict of str to matplotlib Line2D
-        The curve of each method. Methods whose curves coincide (the same ranking of the queries, e.g. BM and L2
-        on L2-normalised descriptors) are drawn once, labelled ``"BM = L2"``, and share that line here; every other
-        method has its own colour, dash and marker.
+        The curve of each method; methods whose curves coincide (the same ranking of the queries, e.g. BM and L2)
+        share one line, labelled ``"BM = L2"``.
 
     Examples
     --------
@@ -175,14 +261,8 @@ class RejectionCurveDisplay:
             The result of :func:`vpr_uncertainty.evaluate`.
         methods : sequence of str, optional
             The methods to draw, in this order; by default all, in the evaluation's order.
-        ax : matplotlib Axes, optional
-            Where to draw; a new figure when None.
-        title : str, optional
-        legend : bool, default=True
-
-        Returns
-        -------
-        RejectionCurveDisplay
+        ax, title, legend
+            As in :meth:`plot`.
         """
         names = list(evaluation.methods) if methods is None else list(methods)
         unknown = [name for name in names if name not in evaluation.methods]
@@ -226,10 +306,6 @@ class RejectionCurveDisplay:
             Queries with at least one positive (the recall denominator); by default all.
         ax, title, legend
             As in :meth:`plot`.
-
-        Returns
-        -------
-        RejectionCurveDisplay
         """
         curve = rejection_curve(correct, uncertainty, n_answerable=n_answerable)
         labels = np.asarray(correct).astype(bool)
@@ -353,3 +429,78 @@ class ReliabilityDisplay:
         """
         probability = gate.probability_correct(scores)
         return cls.from_predictions(correct, probability, n_bins=n_bins, name="gate P(correct)", ax=ax, title=title)
+
+
+# --- file writers ---
+
+
+def draw_rejection_curves(evaluation: Evaluation, *, title: str | None = None) -> Any:
+    """The figure of :func:`plot_rejection_curves` (the caller closes it)."""
+    plt = pyplot()
+    figure, axes = plt.subplots(figsize=(6.4, 4.2))
+    RejectionCurveDisplay.from_evaluation(evaluation, ax=axes, title=title)
+    return figure
+
+
+def plot_rejection_curves(evaluation: Evaluation, path: str | Path, *, title: str | None = None) -> Path:
+    """Draw the end-to-end precision-recall curves of all methods in one figure and save it.
+
+    Each curve is the VPR system's precision and recall as the uncertainty threshold for accepting an answer is
+    relaxed; the legend gives each method's AUC-PR. To draw on your own axis: :class:`RejectionCurveDisplay`.
+
+    Parameters
+    ----------
+    evaluation : Evaluation
+        The result of :func:`vpr_uncertainty.evaluate`.
+    path : str or Path
+        Output file; the format follows its suffix (``.png`` at 300 dpi, ``.pdf``, ``.svg``).
+    title : str, optional
+        Figure title.
+    """
+    plt = pyplot()
+    path = Path(path)
+    figure = draw_rejection_curves(evaluation, title=title)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary, dpi=DPI, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+    finally:
+        plt.close(figure)
+    return path
+
+
+def write_rejection_curves(evaluation: Evaluation, path: str | Path, *, title: str | None = None) -> list[Path]:
+    """:func:`plot_rejection_curves` as a 300-dpi PNG (``path``) and a PDF beside it; returns both."""
+    plt = pyplot()
+    figure = draw_rejection_curves(evaluation, title=title)
+    try:
+        return save_figure(figure, path)
+    finally:
+        plt.close(figure)
+
+
+def plot_reliability(reliability: Reliability, path: str | Path, *, title: str | None = None) -> Path:
+    """Draw observed accuracy against mean P per bin (with the count of each bin) and save it
+    (:class:`ReliabilityDisplay` draws on your own axis).
+
+    Parameters
+    ----------
+    reliability : Reliability
+        From :func:`vpr_uncertainty.calibration.quality.reliability_diagram`.
+    path : str or Path
+        Output file; the format follows its suffix (``.png``, ``.pdf``, ``.svg``).
+    title : str, optional
+        Figure title.
+    """
+    plt = pyplot()
+    path = Path(path)
+    figure, axes = plt.subplots(figsize=(5.2, 4.8), dpi=120)
+    try:
+        ReliabilityDisplay.from_reliability(reliability, ax=axes, title=title)
+        figure.tight_layout()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as temporary:
+            figure.savefig(temporary)
+    finally:
+        plt.close(figure)
+    return path

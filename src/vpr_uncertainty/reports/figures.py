@@ -7,10 +7,9 @@ that writes it::
     write(cells, config, out_dir, **options) -> list[Path]
 
 ``cells`` are the grid's typed results (``Cell``, with their stored uncertainties), ``config`` its ``GridConfig``,
-``out_dir`` the output folder (figures go to ``out_dir / "figures"`` by convention). ``reproduce`` calls every
-selected figure in registration order and gives each a section of ``report.html`` that embeds the PNG files it
-wrote. A figure is selected by name, optionally with options as in a method spec (``"qualitative:rank_by=RS"``,
-:func:`parse_figure_spec`); the ``report`` key of a grid configuration lists the selected ones.
+``out_dir`` the output folder (figures go to ``out_dir / "figures"``). ``reproduce`` calls every selected figure in
+registration order and gives each a section of ``report.html``. A figure is selected by name, optionally with options
+as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
 
 Examples
 --------
@@ -23,14 +22,38 @@ Examples
 
 from __future__ import annotations
 
-import re
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from html import escape
 from pathlib import Path
 from typing import Any
 
+from vpr_uncertainty.cache import slug, write_text
+from vpr_uncertainty.calibration.quality import Reliability
 from vpr_uncertainty.methods import typed_option
 from vpr_uncertainty.plugins import Registry, load_target, merge_options
+from vpr_uncertainty.reports.display import VECTOR_SUFFIX, plot_reliability, write_rejection_curves
+from vpr_uncertainty.reports.plots import (
+    cascades,
+    plot_alpha_ablation,
+    plot_cascade,
+    plot_delta_heatmaps,
+    plot_k_ablation,
+    plot_qualitative,
+)
+from vpr_uncertainty.reports.tables import (
+    build_table1,
+    build_ties_table,
+    marks_note,
+    table1_cells,
+    table1_csv,
+    table1_html,
+    table1_latex,
+    table1_markdown,
+    table1_note,
+    ties_csv,
+    ties_markdown,
+)
 
 __all__ = [
     "FIGURE_NEEDS",
@@ -38,15 +61,8 @@ __all__ = [
     "ReportFigure",
     "parse_figure_spec",
     "register_report_figure",
-    "slug",
     "unmet_figure_needs",
 ]
-
-
-def slug(text: str) -> str:
-    """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
-
 
 FigureWriter = Callable[..., "list[Path]"]
 
@@ -64,30 +80,7 @@ FIGURE_NEEDS: dict[str, str] = {
 
 @dataclass(frozen=True)
 class ReportFigure:
-    """One registered report figure (or table).
-
-    Attributes
-    ----------
-    name : str
-        The name a configuration selects (``report = ["table1", "pr_curves"]``).
-    description : str
-        One line: what it shows. Written under the section title in ``report.html``.
-    target : callable or str
-        ``write(cells, config, out_dir, **options) -> list[Path]`` (the files written), or its dotted path
-        ``"package.module:function"`` (imported when first used).
-    title : str
-        The section title in ``report.html`` (default: the description).
-    requires : tuple of str
-        Names of :data:`FIGURE_NEEDS`; a grid that cannot meet them skips the figure (and a configuration that
-        selects it by name is an error).
-    options : dict
-        The options a spec may set, with their defaults (whose types type the values).
-    section : callable or str or None
-        ``section(cells, config, written, **options) -> str``: HTML shown above the figures in ``report.html``
-        (e.g. a table), or its dotted path.
-    extra : str or None
-        The pip extra its dependencies come from.
-    """
+    """One registered report figure (or table); its fields are the arguments of :func:`register_report_figure`."""
 
     name: str
     description: str
@@ -144,21 +137,24 @@ def register_report_figure(
     Parameters
     ----------
     name : str
-        The name a configuration selects; must be new unless ``overwrite=True``, and hold no ``:``, ``,`` or ``=``.
+        The name a configuration selects (``report = ["table1", "pr_curves"]``); new unless ``overwrite=True``, and
+        without ``:``, ``,`` or ``=``.
     target : callable or str
-        ``write(cells, config, out_dir, **options) -> list[Path]``, or its dotted path.
+        ``write(cells, config, out_dir, **options) -> list[Path]`` (the files written), or its dotted path
+        ``"package.module:function"`` (imported when first used).
     description : str
-        One line: what the figure shows.
+        One line: what it shows (written under the section title in ``report.html``).
     title : str, optional
-        Section title in ``report.html`` (default: ``description``).
+        The section title in ``report.html`` (default: ``description``).
     requires : tuple of str
-        Names of :data:`FIGURE_NEEDS`.
+        Names of :data:`FIGURE_NEEDS`; a grid that cannot meet them skips the figure (selecting it by name is then
+        an error).
     options : mapping, optional
-        The options a spec may set, with their defaults.
+        The options a spec may set, with their defaults (whose types type the values).
     section : callable or str, optional
-        ``section(cells, config, written, **options) -> str``: HTML above the figures.
+        ``section(cells, config, written, **options) -> str``: HTML above the figures (e.g. a table), or its path.
     extra : str, optional
-        The pip extra that provides its dependencies.
+        The pip extra its dependencies come from.
     overwrite : bool
         Replace an existing entry of that name.
     """
@@ -215,51 +211,263 @@ def unmet_figure_needs(entry: ReportFigure, available: Collection[str]) -> str |
     return f"report figure {entry.name!r} needs " + "; ".join(FIGURE_NEEDS[need] for need in missing)
 
 
-# --- the built-in figures, in the order of report.html ---------------------------------------------------------
+# --- the built-in figures ---
 
-_HERE = "vpr_uncertainty.reports.builtin:"
+
+def _with_vectors(pngs: Sequence[Path]) -> list[Path]:
+    """Each PNG followed by the vector file written beside it."""
+    paths = []
+    for png in pngs:
+        paths.append(png)
+        if png.with_suffix(VECTOR_SUFFIX).is_file():
+            paths.append(png.with_suffix(VECTOR_SUFFIX))
+    return paths
+
+
+def _table1(cells: Sequence[Any], config: Any, metric: str):
+    # With the calibration option, Table 1 (AUC-PR) holds the held-out means; AP and AURC stay on all queries.
+    chosen = table1_cells(cells) if metric == "auc_pr" else cells
+    return build_table1(chosen, metric, bootstrap=getattr(config, "bootstrap", 0), seed=getattr(config, "seed", 0))
+
+
+def _write_table1(cells: Sequence[Any], config: Any, out_dir: Path, metric: str, stem: str) -> list[Path]:
+    table = _table1(cells, config, metric)
+    note = table1_note(cells) if metric == "auc_pr" else None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex)):
+        path = out_dir / f"{stem}.{suffix}"
+        write_text(path, render(table) + (f"\n{note}\n" if note and suffix == "md" else ""))
+        paths.append(path)
+    return paths
+
+
+def write_table1(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``table1.md``, ``table1.csv`` and ``table1.tex`` (booktabs): AUC-PR, with intervals when bootstrapped."""
+    return _write_table1(cells, config, out_dir, "auc_pr", "table1")
+
+
+def write_table1_ap(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``table1_ap.{md,csv,tex}``: Table 1 of average precision."""
+    return _write_table1(cells, config, out_dir, "average_precision", "table1_ap")
+
+
+def write_table1_aurc(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``table1_aurc.{md,csv,tex}``: Table 1 of AURC (lower is better)."""
+    return _write_table1(cells, config, out_dir, "aurc", "table1_aurc")
+
+
+def _section(metric: str):
+    def section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+        table = _table1(cells, config, metric)
+        html = table1_html(table) + f'<p class="note">{escape(marks_note(table))} ms/query: mean time per query.</p>'
+        held_out = table1_note(cells) if metric == "auc_pr" else None
+        return html + (f'<p class="note">{escape(held_out)}</p>' if held_out else "")
+
+    section.__name__ = f"{metric}_section"
+    return section
+
+
+table1_section = _section("auc_pr")
+table1_ap_section = _section("average_precision")
+table1_aurc_section = _section("aurc")
+
+
+def write_ties(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``ties.md`` and ``ties.csv``: the share of tied queries and the distinct values of every method."""
+    table = build_ties_table(cells)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [out_dir / "ties.md", out_dir / "ties.csv"]
+    write_text(paths[0], ties_markdown(table))
+    write_text(paths[1], ties_csv(table))
+    return paths
+
+
+def ties_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+    """The ties table as preformatted Markdown."""
+    return f"<pre>{escape(ties_markdown(build_ties_table(cells)))}</pre>"
+
+
+def write_heatmaps(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``figures/delta_<RS|SD|SU>.png`` (and ``.pdf``): ΔAUC-PR against each baseline."""
+    return _with_vectors(plot_delta_heatmaps(cells, out_dir / "figures"))
+
+
+def write_ablations(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``figures/ablation_alpha.png`` and ``figures/ablation_k.png`` (and ``.pdf``), for the ablations the cells
+    hold."""
+    paths = []
+    if any(cell.ablation_alpha for cell in cells):
+        paths.append(plot_alpha_ablation(cells, out_dir / "figures" / "ablation_alpha.png"))
+    if any(curve for cell in cells for curve in cell.ablation_k.values()):
+        paths.append(plot_k_ablation(cells, out_dir / "figures" / "ablation_k.png"))
+    return _with_vectors(paths)
+
+
+def write_pr_curves(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``figures/pr/<vpr method>__<dataset>.png`` (and ``.pdf``) for every cell."""
+    return [
+        path
+        for cell in cells
+        for path in write_rejection_curves(
+            cell.evaluation,
+            out_dir / "figures" / "pr" / f"{slug(cell.vpr_method)}__{slug(cell.dataset)}.png",
+            title=f"{cell.vpr_method} on {cell.dataset} ({cell.evaluation.n_queries} queries)",
+        )
+    ]
+
+
+def pr_curves_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+    """The note under the PR curves: what their axes and their area are."""
+    return (
+        '<p class="note">x: recall = correct answers accepted / answerable queries; y: precision = correct '
+        "answers / accepted answers, as the most uncertain answers are rejected. The area under a curve is not "
+        "the AUC-PR of the legend (which is over the correct answers only): the x axis is shrunk by recall@1. "
+        "Methods that rank the queries identically share one line (e.g. “BM = L2”).</p>"
+    )
+
+
+def write_cascade(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``figures/cascade__<SCORE>_<GV>.png`` (and ``.pdf``): AUC-PR against the fraction verified."""
+    return plot_cascade(cells, out_dir / "figures")
+
+
+def cascade_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+    """Each cascade's measured fraction verified, AUC-PR and time per query beside its two methods, as a table."""
+    rows = []
+    for name, score, gv in cascades(cells):
+        for cell in cells:
+            methods = cell.evaluation.methods
+            if not {name, score, gv} <= set(methods):
+                continue
+            values = [methods[m] for m in (score, gv, name)]
+            auc = ["n/a" if m.auc_pr is None else f"{m.auc_pr:.3f}" for m in values]
+            rows.append(
+                f"<tr><td>{escape(cell.vpr_method)} on {escape(cell.dataset)}</td><td>{escape(name)}</td>"
+                f"<td>{methods[name].details.get('verified_fraction', float('nan')):.2f}</td>"
+                + "".join(f"<td>{a}</td>" for a in auc)
+                + f"<td>{values[1].time_per_query_ms:.3g}</td><td>{values[2].time_per_query_ms:.3g}</td></tr>"
+            )
+    if not rows:
+        return ""
+    head = (
+        "<tr><th>cell</th><th>cascade</th><th>verified</th><th>AUC-PR score alone</th><th>AUC-PR GV alone</th>"
+        "<th>AUC-PR cascade</th><th>ms/query GV</th><th>ms/query cascade</th></tr>"
+    )
+    return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
+
+
+def write_qualitative(cells: Sequence[Any], config: Any, out_dir: Path, *, rank_by: str = "SU") -> list[Path]:
+    """``figures/qualitative__<vpr method>__<dataset>.png`` for the cells of ``config.qualitative`` (default: the
+    first cell with images); queries chosen by the uncertainties of ``rank_by``."""
+    chosen = [c for c in cells if c.query_paths and (config.qualitative is None or c.vpr_method in config.qualitative)]
+    if config.qualitative is None:
+        chosen = chosen[:1]
+    paths = []
+    for cell in chosen:
+        path = out_dir / "figures" / f"qualitative__{slug(cell.vpr_method)}__{slug(cell.dataset)}.png"
+        written = plot_qualitative(cell, path, rank_by=rank_by, alpha=config.alpha)
+        if written is not None:
+            paths.append(written)
+    return _with_vectors(paths)
+
+
+def _quality(cell: Any) -> dict[str, Any] | None:
+    return (cell.held_out or {}).get("calibration_quality", {}).get("CAL")
+
+
+def write_reliability(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+    """``figures/reliability/<vpr method>__<dataset>.png``: CAL's held-out reliability diagram of each cell."""
+    paths = []
+    for cell in cells:
+        quality = _quality(cell)
+        if quality is None:
+            continue
+        title = f"{cell.vpr_method} on {cell.dataset}: ECE {quality['ece']:.3f}, Brier {quality['brier']:.3f}"
+        path = out_dir / "figures" / "reliability" / f"{slug(cell.vpr_method)}__{slug(cell.dataset)}.png"
+        paths.append(plot_reliability(Reliability(**quality["reliability"]), path, title=title))
+    return paths
+
+
+def _mean_std(mean: float | None, std: float | None) -> str:
+    if mean is None:
+        return "–"
+    return f"{mean:.3f}" if std is None else f"{mean:.3f} ± {std:.3f}"
+
+
+def reliability_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+    """An HTML table: per cell, CAL's held-out AUC-PR, ECE and Brier (mean ± std over the splits) and the split."""
+    head = "".join(
+        f"<th>{name}</th>"
+        for name in ("VPR method", "dataset", "AUC-PR of CAL", "ECE", "Brier", "calibration / held-out queries")
+    )
+    rows = []
+    for cell in cells:
+        quality = _quality(cell)
+        if quality is None:
+            continue
+        cal = cell.held_out["methods"].get("CAL", {})
+        split = cell.held_out["calibration"]
+        values = [
+            _mean_std(cal.get("auc_pr"), cal.get("auc_pr_std")),
+            _mean_std(quality["ece"], quality.get("ece_std")),
+            _mean_std(quality["brier"], quality.get("brier_std")),
+            f"{split.get('n_calibration', '–')} / {split.get('n_held_out', '–')}",
+        ]
+        rows.append(
+            f"<tr><th>{escape(cell.vpr_method)}</th><td>{escape(cell.dataset)}</td>"
+            + "".join(f"<td>{value}</td>" for value in values)
+            + "</tr>"
+        )
+    note = (
+        '<p class="note">Mean ± standard deviation over the random splits; each diagram pools the held-out '
+        "predictions of all splits, with the number of queries in each bin.</p>"
+    )
+    return f'<table class="reliability"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>' + note
+
+
 register_report_figure(
     "table1",
-    _HERE + "write_table1",
+    write_table1,
     title="Table 1: AUC-PR averaged over datasets",
     description="AUC-PR of each uncertainty method for each VPR method, averaged over datasets (md, csv, tex)",
     requires=("evaluation",),
-    section=_HERE + "table1_section",
+    section=table1_section,
 )
 register_report_figure(
     "heatmaps",
-    _HERE + "write_heatmaps",
+    write_heatmaps,
     title="ΔAUC-PR of RS, SD and SU against each baseline",
     description="AUC-PR of RS, SD and SU minus that of each baseline, per VPR method and dataset",
     requires=("evaluation",),
 )
 register_report_figure(
     "ablations",
-    _HERE + "write_ablations",
+    write_ablations,
     title="Ablations",
     description="mean AUC-PR of SU for each α, and of RS and SD for each k",
     requires=("ablations",),
 )
 register_report_figure(
     "pr_curves",
-    _HERE + "write_pr_curves",
+    write_pr_curves,
     title="End-to-end precision-recall with rejection",
     description="precision against recall when the most uncertain answers are rejected, one figure per cell",
     requires=("evaluation",),
-    section=_HERE + "pr_curves_section",
+    section=pr_curves_section,
 )
 register_report_figure(
     "cascade",
-    _HERE + "write_cascade",
+    write_cascade,
     title="Cascade: geometric verification of the most uncertain queries only",
     description="AUC-PR of each cascade SCORE+GV against the fraction of queries verified (0: SCORE alone, 1: GV "
     "on every query); grey: one VPR method, blue: their mean, red: the cascade as run",
     requires=("evaluation", "uncertainties", "cascade"),
-    section=_HERE + "cascade_section",
+    section=cascade_section,
 )
 register_report_figure(
     "qualitative",
-    _HERE + "write_qualitative",
+    write_qualitative,
     title="Qualitative examples",
     description="confident/uncertain × correct/wrong queries with their top-4 answers and RS/SD/SU "
     "(cells of config.qualitative, default: the first cell with images)",
@@ -268,34 +476,34 @@ register_report_figure(
 )
 register_report_figure(
     "table1_ap",
-    _HERE + "write_table1_ap",
+    write_table1_ap,
     title="Table 1 by average precision",
     description="average precision (step-wise area, no interpolation between tied groups), as Table 1 (md, csv, tex)",
     requires=("evaluation",),
-    section=_HERE + "table1_ap_section",
+    section=table1_ap_section,
 )
 register_report_figure(
     "table1_aurc",
-    _HERE + "write_table1_aurc",
+    write_table1_aurc,
     title="Table 1 by AURC (lower is better)",
     description="area under the risk-coverage curve, as Table 1 (md, csv, tex)",
     requires=("evaluation",),
-    section=_HERE + "table1_aurc_section",
+    section=table1_aurc_section,
 )
 register_report_figure(
     "ties",
-    _HERE + "write_ties",
+    write_ties,
     title="Tied uncertainties",
     description="share of queries tied with another and distinct uncertainty values of each method (md, csv)",
     requires=("uncertainties",),
-    section=_HERE + "ties_section",
+    section=ties_section,
 )
 register_report_figure(
     "reliability",
-    "vpr_uncertainty.reports.held_out:write_reliability",
+    write_reliability,
     title="Calibration of CAL on held-out queries",
     description="reliability diagram of CAL (held-out predictions of all splits, count per bin), ECE and Brier, "
     "per cell",
     requires=("calibration",),
-    section="vpr_uncertainty.reports.held_out:reliability_section",
+    section=reliability_section,
 )

@@ -1,17 +1,51 @@
-"""Evaluation results as text tables (plain for the terminal, or Markdown).
+"""Evaluation results as tables: one evaluation (:func:`format_table`, plain text or Markdown), Table 1 of a grid
+(:func:`build_table1`: a metric per uncertainty method and VPR method, averaged over datasets, in Markdown, CSV,
+LaTeX and HTML), and the ties table (:func:`build_ties_table`).
 
-Without a bootstrap the best AUC-PR is starred. With one (``Evaluation.bootstrap``), each metric shows its 95 %
-interval in brackets, the star marks the leaders of AUC-PR (the best alone when it is significantly better than
-every other method; otherwise every method not significantly worse than it) and a column gives the difference in
-AUC-PR to the reference method with its Holm-adjusted p-value. ``values`` and ``tied`` count the distinct
-uncertainty values and the share of queries that share theirs with another query.
+The best value of a column is marked (starred, or bold). With a bootstrap, each value shows its 95 % interval and
+the marks follow the paired tests: the best alone where it is significantly better than every other method,
+otherwise every method not significantly worse than it (tied leaders, Holm-corrected). A method whose uncertainty is
+the same for every query ranks nothing (chance-level AUC-PR): it is marked ``†`` and never best.
 """
 
 from __future__ import annotations
 
-from vpr_uncertainty.evaluation import Evaluation
+import csv
+import io
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from html import escape
+from typing import Any
 
-__all__ = ["best_auc_pr", "format_table", "markdown_cell"]
+import numpy as np
+
+from vpr_uncertainty.evaluation import Evaluation
+from vpr_uncertainty.evaluation.bootstrap import percentile_interval
+from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders
+
+__all__ = [
+    "METRIC_NAMES",
+    "HeldOutCell",
+    "Table1",
+    "TiesTable",
+    "best_auc_pr",
+    "build_table1",
+    "build_ties_table",
+    "column_distributions",
+    "format_table",
+    "markdown_cell",
+    "marks_note",
+    "table1_cells",
+    "table1_csv",
+    "table1_html",
+    "table1_latex",
+    "table1_markdown",
+    "table1_note",
+    "table_significance",
+    "ties_csv",
+    "ties_markdown",
+]
 
 _COLUMNS = (
     ("method", "{}"),
@@ -72,11 +106,7 @@ def _legend(evaluation: Evaluation, compared: int) -> str:
 
 
 def best_auc_pr(evaluation: Evaluation) -> float | None:
-    """The best AUC-PR among the informative methods, or None when fewer than two can be compared.
-
-    A method whose uncertainty is the same for every query ranks nothing: its AUC-PR is chance level and it is
-    never best. With a single informative method there is nothing to compare it with, so nothing is marked.
-    """
+    """The best AUC-PR among the informative methods not trained on the queries; None when fewer than two."""
     scored = [
         m.auc_pr
         for m in evaluation.methods.values()
@@ -99,9 +129,9 @@ def markdown_cell(text: str) -> str:
 def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str | None = None) -> str:
     """One row per uncertainty method, the best AUC-PR marked with ``*``; a header line with recall@N.
 
-    Methods whose uncertainty is constant are marked ``†`` (uninformative) and never starred; see
-    :func:`best_auc_pr`. A method evaluated on queries it was trained on is marked ``‡`` and never starred. The
-    evaluation's notes follow the table, one line each.
+    ``†``: uninformative (constant uncertainty), ``‡``: evaluated on queries it was trained on; neither is starred.
+    With a bootstrap, each metric shows its 95 % interval, the star marks the AUC-PR leaders and a column gives the
+    difference in AUC-PR to the reference method with its Holm-adjusted p-value. The evaluation's notes follow.
 
     Parameters
     ----------
@@ -150,10 +180,7 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
     else:
         widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
         lines.append(summary)
-        lines.append(
-            "  ".join(h.ljust(w) if i == 0 else h.rjust(w) for i, (h, w) in enumerate(zip(header, widths, strict=True)))
-        )
-        for row in rows:
+        for row in [header, *rows]:
             lines.append(
                 "  ".join(
                     c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True))
@@ -175,3 +202,467 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
     for note in evaluation.notes:
         lines.append(f"note: {note}")
     return "\n".join(lines)
+
+
+# --- Table 1 of a grid ---
+
+#: The metrics a Table 1 can hold: display name and whether higher is better.
+METRIC_NAMES: dict[str, tuple[str, bool]] = {
+    "auc_pr": ("AUC-PR", True),
+    "average_precision": ("AP", True),
+    "aurc": ("AURC", False),
+}
+
+
+@dataclass
+class Table1:
+    """rows: uncertainty methods; columns: VPR methods followed by ``Mean``; values[i][j] may be None.
+
+    ``informative[i][j]`` is False for a cell whose every underlying result had a constant uncertainty (None:
+    every cell is informative).
+    """
+
+    rows: list[str]
+    columns: list[str]
+    values: list[list[float | None]]
+    time_ms: list[float | None]
+    informative: list[list[bool]] | None = None
+    metric: str = "auc_pr"
+    higher_is_better: bool = True
+    intervals: list[list[tuple[float, float] | None]] | None = None
+    leaders: list[list[bool]] | None = None
+    significant: list[bool] | None = None
+    bootstrap: dict[str, Any] | None = None
+
+    def is_informative(self, i: int, j: int) -> bool:
+        return self.informative is None or self.informative[i][j]
+
+    def best(self) -> list[float | None]:
+        """The best informative value of each column (None where fewer than two informative values compete)."""
+        best = []
+        for j in range(len(self.columns)):
+            column = [row[j] for i, row in enumerate(self.values) if row[j] is not None and self.is_informative(i, j)]
+            best.append((max if self.higher_is_better else min)(column) if len(column) >= 2 else None)
+        return best
+
+    def marks(self) -> list[list[bool]]:
+        """Per cell, whether it is marked: a bootstrap leader, or (no bootstrap) equal to the column's best."""
+        if self.leaders is not None:
+            return [list(row) for row in self.leaders]
+        return [
+            [
+                v is not None and b is not None and bool(np.isclose(v, b, rtol=0, atol=5e-7))
+                for v, b in zip(r, bs, strict=True)
+            ]
+            for r, bs in zip(self.values, self.cell_best(), strict=True)
+        ]
+
+    def cell_best(self) -> list[list[float | None]]:
+        """Per cell: the column's best value where the cell is informative, else None (never marked)."""
+        best = self.best()
+        return [[b if self.is_informative(i, j) else None for j, b in enumerate(best)] for i in range(len(self.values))]
+
+
+def _mean(values: Sequence[float | None]) -> float | None:
+    kept = [v for v in values if v is not None]
+    return float(np.mean(kept)) if kept else None
+
+
+def build_table1(
+    cells: Sequence, metric: str = "auc_pr", *, bootstrap: int = 0, seed: int = 0, level: float = 0.05
+) -> Table1:
+    """Average a metric of the grid's cells (``Cell``) over datasets.
+
+    Each value is the metric averaged over the datasets on which it is defined; ``Mean`` averages a row over the
+    VPR methods and ``ms/query`` is the row's mean time per query. With ``bootstrap``, a column's resamples follow
+    the same averages, each cell resampled over its queries with the same seed (paired across methods).
+
+    Parameters
+    ----------
+    cells : sequence of Cell
+        The grid's results.
+    metric : {"auc_pr", "average_precision", "aurc"}
+        The metric of the table.
+    bootstrap : int, default=0
+        Paired bootstrap resamples for the intervals and the significance marks (0: none, the best value marked).
+    seed : int, default=0
+        Seed of the resamples.
+    level : float, default=0.05
+        Family-wise level of the tests of each column.
+    """
+    if metric not in METRIC_NAMES:
+        raise ValueError(f"metric must be one of {', '.join(METRIC_NAMES)}, got {metric!r}")
+    vpr_methods = list(dict.fromkeys(cell.vpr_method for cell in cells))
+    methods = list(dict.fromkeys(name for cell in cells for name in cell.evaluation.methods))
+    values, times, informative = [], [], []
+    for method in methods:
+        row = []
+        row_times = []
+        row_informative = []
+        for vpr in vpr_methods:
+            found = [
+                c.evaluation.methods[method] for c in cells if c.vpr_method == vpr and method in c.evaluation.methods
+            ]
+            row.append(_mean([getattr(m, metric) for m in found]))
+            row_times += [m.time_per_query_ms for m in found]
+            row_informative.append(
+                any(getattr(m, "informative", True) for m in found if getattr(m, metric) is not None)
+            )
+        row.append(_mean(row[: len(vpr_methods)]))
+        row_informative.append(any(row_informative))
+        values.append(row)
+        times.append(_mean(row_times))
+        informative.append(row_informative)
+    table = Table1(
+        rows=methods,
+        columns=[*vpr_methods, "Mean"],
+        values=values,
+        time_ms=times,
+        informative=informative,
+        metric=metric,
+        higher_is_better=METRIC_NAMES[metric][1],
+    )
+    if bootstrap and cells:
+        distributions = column_distributions(cells, table.columns, bootstrap, seed)
+        table_significance(table, distributions[metric], level)
+        table.bootstrap = {"resamples": int(bootstrap), "seed": int(seed), "level": level}
+    return table
+
+
+def _rows(
+    table: Table1, bold: tuple[str, str], dagger: str, around: tuple[str, str] = ("", "")
+) -> list[tuple[str, list[str], str]]:
+    """(method, value texts, ms/query text) per row: marked values between ``bold``, ``dagger`` after an
+    uninformative value, a bootstrap interval between ``around``."""
+    marks = table.marks()
+    rows = []
+    for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
+        texts = []
+        for j, value in enumerate(row):
+            if value is None:
+                texts.append("–")
+                continue
+            text = f"{bold[0]}{value:.3f}{bold[1]}" if marks[i][j] else f"{value:.3f}{_dagger(table, i, j, dagger)}"
+            interval = None if table.intervals is None else table.intervals[i][j]
+            if interval is not None:
+                text += f" {around[0]}[{interval[0]:.2f}, {interval[1]:.2f}]{around[1]}"
+            texts.append(text)
+        rows.append((name, texts, "–" if time_ms is None else f"{time_ms:.4f}"))
+    return rows
+
+
+def marks_note(table: Table1) -> str:
+    """What the marks mean: the best value, or (bootstrap) significant best vs tied leaders."""
+    direction = "highest" if table.higher_is_better else "lowest"
+    if table.bootstrap is None:
+        return f"Bold: the best ({direction}) value of each column; no significance test (bootstrap = 0)."
+    return (
+        f"Bold alone: the best ({direction}) of its column and significantly better than every other method; "
+        "several in bold: tied leaders, none significantly worse than the best (paired bootstrap over queries, "
+        f"{table.bootstrap['resamples']} resamples, seed {table.bootstrap['seed']}, Holm-corrected at "
+        f"{table.bootstrap['level']:g}). [low, high]: 95 % percentile interval."
+    )
+
+
+def _dagger(table: Table1, i: int, j: int, mark: str) -> str:
+    return "" if table.is_informative(i, j) else mark
+
+
+_FOOTNOTE = "† uninformative: the same uncertainty for every query on every dataset (AUC-PR at chance level)."
+
+
+def _any_uninformative(table: Table1) -> bool:
+    return any(
+        not table.is_informative(i, j) and table.values[i][j] is not None
+        for i in range(len(table.rows))
+        for j in range(len(table.columns))
+    )
+
+
+def table1_markdown(table: Table1) -> str:
+    """GitHub Markdown; the marked values of each column in bold, then what the marks mean."""
+    lines = [
+        "| method | " + " | ".join(markdown_cell(c) for c in table.columns) + " | ms/query |",
+        "|---|" + "---:|" * (len(table.columns) + 1),
+    ]
+    for name, texts, time_text in _rows(table, ("**", "**"), "†"):
+        lines.append(f"| {markdown_cell(name)} | " + " | ".join(texts) + f" | {time_text} |")
+    lines += ["", marks_note(table)]
+    if _any_uninformative(table):
+        lines += ["", _FOOTNOTE]
+    return "\n".join(lines) + "\n"
+
+
+def table1_csv(table: Table1) -> str:
+    """CSV with numeric cells (empty where undefined) and ``best_for``: the columns where the row is marked.
+
+    An uninformative cell keeps its number but never appears in ``best_for``. With a bootstrap, each column ``C``
+    is followed by ``C_ci_low`` and ``C_ci_high``, and ``significant_best_for`` lists the columns where the row is
+    the best alone, significantly better than every other method.
+    """
+    marks = table.marks()
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    with_ci = table.intervals is not None
+    columns = [part for c in table.columns for part in ((c, f"{c}_ci_low", f"{c}_ci_high") if with_ci else (c,))]
+    extra = ["significant_best_for"] if with_ci else []
+    writer.writerow(["method", *columns, "time_per_query_ms", "best_for", *extra])
+    for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
+        best_for = [column for j, column in enumerate(table.columns) if marks[i][j]]
+        numbers = []
+        for j, v in enumerate(row):
+            numbers.append("" if v is None else f"{v:.6f}")
+            if with_ci:
+                interval = table.intervals[i][j]
+                numbers += ["", ""] if interval is None else [f"{interval[0]:.6f}", f"{interval[1]:.6f}"]
+        numbers.append("" if time_ms is None else f"{time_ms:.6f}")
+        sole = [c for j, c in enumerate(table.columns) if marks[i][j] and table.significant and table.significant[j]]
+        writer.writerow([name, *numbers, ";".join(best_for), *([";".join(sole)] if with_ci else [])])
+    return buffer.getvalue()
+
+
+_LATEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+}
+
+
+def _latex_escape(text: str) -> str:
+    """``text`` with LaTeX's ten special characters escaped, in one pass (so no escape is escaped again).
+
+    Examples
+    --------
+    >>> print(_latex_escape("SU$^2$ ~ {50%} & A_b"))
+    SU\\$\\textasciicircum{}2\\$ \\textasciitilde{} \\{50\\%\\} \\& A\\_b
+    """
+    return re.sub(r"[\\&%$#_{}~^]", lambda match: _LATEX_SPECIAL[match.group()], text)
+
+
+def table1_latex(table: Table1, *, caption: str | None = None) -> str:
+    """A booktabs ``table`` environment (needs ``\\usepackage{booktabs}``); the marked values per column in bold."""
+    if caption is None:
+        caption = f"{METRIC_NAMES[table.metric][0]} of each uncertainty method, averaged over datasets. "
+        caption += marks_note(table)
+    header = " & ".join(["Method", *(_latex_escape(c) for c in table.columns), "ms/query"])
+    lines = [
+        r"\begin{table}[t]",
+        r"\centering",
+        rf"\caption{{{_latex_escape(caption)}}}",
+        r"\begin{tabular}{l" + "r" * (len(table.columns) + 1) + "}",
+        r"\toprule",
+        header + r" \\",
+        r"\midrule",
+    ]
+    for name, texts, time_text in _rows(table, (r"\textbf{", "}"), r"$^\dagger$", (r"{\scriptsize ", "}")):
+        cells = [text.replace("–", "--") for text in [*texts, time_text]]
+        lines.append(" & ".join([_latex_escape(name), *cells]) + r" \\")
+    lines += [r"\bottomrule", r"\end{tabular}"]
+    if _any_uninformative(table):
+        lines.append(r"\par\smallskip{\footnotesize $^\dagger$ uninformative: constant uncertainty (chance level).}")
+    lines.append(r"\end{table}")
+    return "\n".join(lines) + "\n"
+
+
+def table1_html(table: Table1) -> str:
+    """An HTML ``<table>``; the marked values per column in bold."""
+    head = "".join(f"<th>{escape(c)}</th>" for c in ["method", *table.columns, "ms/query"])
+    body = []
+    for name, texts, time_text in _rows(table, ("<b>", "</b>"), "†"):
+        cells = "".join(f"<td>{text}</td>" for text in [*texts, time_text])
+        body.append(f"<tr><th>{escape(name)}</th>{cells}</tr>")
+    return f'<table class="table1"><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table>'
+
+
+def column_distributions(
+    cells: Sequence[Any], columns: Sequence[str], n_resamples: int, seed: int
+) -> dict[str, dict[tuple[str, str], np.ndarray]]:
+    """``metric -> (method, column) -> (B,)``: each column's average over its cells (``Mean``: over the columns),
+    per resample; a resample skipped in one cell (one class only) is skipped in the averages that include it."""
+    per_cell = [(cell, evaluation_distributions(cell.evaluation, n_resamples, seed)) for cell in cells]
+    result: dict[str, dict[tuple[str, str], np.ndarray]] = {}
+    for metric in per_cell[0][1] if per_cell else ():
+        by_key: dict[tuple[str, str], np.ndarray] = {}
+        methods = list(dict.fromkeys(name for cell in cells for name in cell.evaluation.methods))
+        for method in methods:
+            for column in columns[:-1]:
+                found = [
+                    distributions[metric][method]
+                    for cell, distributions in per_cell
+                    if cell.vpr_method == column
+                    and getattr(cell.evaluation.methods.get(method), metric, None) is not None
+                ]
+                if found:
+                    by_key[method, column] = np.mean(found, axis=0)
+            row = [by_key[method, column] for column in columns[:-1] if (method, column) in by_key]
+            if row:
+                by_key[method, columns[-1]] = np.mean(row, axis=0)
+        result[metric] = by_key
+    return result
+
+
+def table_significance(table: Any, distributions: dict[tuple[str, str], np.ndarray], level: float = 0.05) -> None:
+    """Set ``table.intervals`` (95 % percentile) and ``table.leaders`` / ``table.significant`` in place.
+
+    Only informative cells with a value compete in a column; fewer than two: nothing is marked.
+    """
+    intervals, marked = [], []
+    for method in table.rows:
+        intervals.append(
+            [
+                percentile_interval(distributions[method, column]) if (method, column) in distributions else None
+                for column in table.columns
+            ]
+        )
+        marked.append([False] * len(table.columns))
+    significant = []
+    for j, column in enumerate(table.columns):
+        values = {
+            method: table.values[i][j]
+            for i, method in enumerate(table.rows)
+            if table.values[i][j] is not None and table.is_informative(i, j) and (method, column) in distributions
+        }
+        names, alone = leaders(
+            {method: distributions[method, column] for method in values},
+            values,
+            higher_is_better=table.higher_is_better,
+            level=level,
+        )
+        for name in names:
+            marked[table.rows.index(name)][j] = True
+        significant.append(alone)
+    table.intervals, table.leaders, table.significant = intervals, marked, significant
+
+
+# --- ties ---
+
+
+@dataclass
+class TiesTable:
+    """rows: uncertainty methods; columns: VPR methods; ``tied_share``/``distinct`` may hold None (no cell)."""
+
+    rows: list[str]
+    columns: list[str]
+    tied_share: list[list[float | None]]
+    distinct: list[list[float | None]]
+    n_queries: list[float | None]
+
+
+def build_ties_table(cells: Sequence) -> TiesTable:
+    """Average each method's tied share and distinct values over the datasets of each VPR method."""
+    columns = list(dict.fromkeys(cell.vpr_method for cell in cells))
+    rows = list(dict.fromkeys(name for cell in cells for name in cell.evaluation.methods))
+    shares, distinct = [], []
+    for method in rows:
+        found = [
+            [c.evaluation.methods[method] for c in cells if c.vpr_method == vpr and method in c.evaluation.methods]
+            for vpr in columns
+        ]
+        shares.append([float(np.mean([m.tied_share for m in f])) if f else None for f in found])
+        distinct.append([float(np.mean([m.n_distinct for m in f])) if f else None for f in found])
+    n_queries = [float(np.mean([c.evaluation.n_queries for c in cells if c.vpr_method == vpr])) for vpr in columns]
+    return TiesTable(rows=rows, columns=columns, tied_share=shares, distinct=distinct, n_queries=n_queries)
+
+
+def ties_markdown(table: TiesTable) -> str:
+    """GitHub Markdown: ``97 % (8)`` = 97 % of the queries tied, 8 distinct values."""
+    lines = ["| method | " + " | ".join(table.columns) + " |", "|---|" + "---:|" * len(table.columns)]
+    for name, shares, distinct in zip(table.rows, table.tied_share, table.distinct, strict=True):
+        cells = ["–" if s is None else f"{s:.0%} ({d:.0f})" for s, d in zip(shares, distinct, strict=True)]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    queries = ", ".join(f"{n:.0f}" for n in dict.fromkeys(q for q in table.n_queries if q is not None))
+    lines += [
+        "",
+        f"Share of queries whose uncertainty equals another query's (distinct values in brackets; {queries} queries "
+        "per cell). The trapezoid AUC-PR interpolates linearly between tied groups: compare it with AP and AURC for "
+        "methods with few distinct values.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def ties_csv(table: TiesTable) -> str:
+    """CSV: ``C_tied_share`` and ``C_distinct_values`` for each VPR method ``C`` (empty where undefined)."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["method", *(f"{c}_{part}" for c in table.columns for part in ("tied_share", "distinct_values"))])
+    for name, shares, distinct in zip(table.rows, table.tied_share, table.distinct, strict=True):
+        values = []
+        for share, count in zip(shares, distinct, strict=True):
+            values += ["", ""] if share is None else [f"{share:.6f}", f"{count:g}"]
+        writer.writerow([name, *values])
+    return buffer.getvalue()
+
+
+# --- Table 1 from held-out means (the grid's calibration option) ---
+
+
+@dataclass
+class HeldOutMethod:
+    """One method's held-out numbers in the shape Table 1 reads (``auc_pr``, ``time_per_query_ms``, ...)."""
+
+    name: str
+    auc_pr: float | None
+    auc_pr_std: float | None
+    time_per_query_ms: float | None
+    informative: bool = True
+
+
+@dataclass
+class HeldOutEvaluationView:
+    """The ``methods`` of a cell's held-out evaluation, by name."""
+
+    methods: dict[str, HeldOutMethod] = field(default_factory=dict)
+
+
+@dataclass
+class HeldOutCell:
+    """A cell as Table 1 sees it with the calibration option: its names and its held-out numbers."""
+
+    vpr_method: str
+    dataset: str
+    evaluation: HeldOutEvaluationView
+
+
+def _held_out_cell(cell: Any) -> HeldOutCell:
+    methods = {}
+    for name, numbers in cell.held_out["methods"].items():
+        full = cell.evaluation.methods.get(name)
+        methods[name] = HeldOutMethod(
+            name=name,
+            auc_pr=numbers.get("auc_pr"),
+            auc_pr_std=numbers.get("auc_pr_std"),
+            time_per_query_ms=numbers.get("time_per_query_ms"),
+            informative=True if full is None else full.informative,
+        )
+    return HeldOutCell(cell.vpr_method, cell.dataset, HeldOutEvaluationView(methods))
+
+
+def table1_cells(cells: Sequence[Any]) -> list[Any]:
+    """The cells Table 1 is built from: ``cells`` themselves, or a :class:`HeldOutCell` of each when they hold a
+    held-out evaluation (the calibration option: CAL has no number on all queries, its gate is fitted per split)."""
+    if not any(cell.held_out is not None for cell in cells):
+        return list(cells)
+    missing = [f"{cell.vpr_method} / {cell.dataset}" for cell in cells if cell.held_out is None]
+    if missing:
+        raise ValueError(f"cells without a held-out evaluation among cells with one: {', '.join(missing)}")
+    return [_held_out_cell(cell) for cell in cells]
+
+
+def table1_note(cells: Sequence[Any]) -> str | None:
+    """One sentence saying that Table 1 holds held-out means, with the option's values; None without it."""
+    found = next((cell.held_out for cell in cells if cell.held_out is not None), None)
+    if found is None:
+        return None
+    option = found["calibration"]
+    return (
+        f"AUC-PR on held-out queries: mean over {option['repeats']} random splits (seed {option['seed']}), each "
+        f"fitting CAL on {option['fraction']:.0%} of the queries; every method is measured on the same held-out "
+        "queries (standard deviations in results.json)."
+    )
