@@ -180,7 +180,7 @@ def write_hloc_descriptors(
                     group.create_dataset("image_size", data=np.asarray(image_sizes[row], dtype=np.int64))
             handle.flush()
         except (OSError, RuntimeError) as error:  # disk full, I/O error: an OSError naming this file
-            from vpr_uncertainty.descriptors._checks import write_error
+            from vpr_uncertainty.descriptors.cache import write_error
 
             raise write_error(path, error, "hloc global features") from error
     return path

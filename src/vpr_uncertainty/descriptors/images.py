@@ -53,6 +53,7 @@ __all__ = [
     "load_image",
     "printable",
     "read_image_size",
+    "require_torch",
     "to_model_input",
 ]
 
@@ -65,6 +66,20 @@ DEFAULT_MAX_SIDE = 640
 #: Shortest side, in pixels, the registered models accept (EfficientNet-Lite0 fails below 32: it downsamples 32
 #: times). Models given as a callable or a TorchScript file accept any size unless their preprocessing says so.
 DEFAULT_MIN_SIDE = 32
+
+
+TORCH_EXTRA_HINT = "pip install 'vpr-uncertainty[torch]'"
+
+
+def require_torch(what: str = "descriptor extraction") -> Any:
+    """Import and return :mod:`torch`, or raise an ImportError that names the extra to install."""
+    try:
+        import torch
+    except ImportError as error:
+        raise ImportError(
+            f"{what} needs PyTorch, which is not installed; install it with {TORCH_EXTRA_HINT}"
+        ) from error
+    return torch
 
 
 def printable(text: str | Path) -> str:
@@ -366,8 +381,6 @@ def load_image(path: str | Path, preprocessing: Preprocessing, *, name: str | No
 
 def to_model_input(images: Sequence[np.ndarray], preprocessing: Preprocessing, device: Any) -> Any:
     """Stack equally sized ``uint8`` (H, W, 3) arrays into a normalised float tensor (B, 3, H, W) on ``device``."""
-    from vpr_uncertainty.descriptors._torch import require_torch
-
     torch = require_torch()
     batch = torch.from_numpy(np.stack(images)).to(device)
     batch = batch.permute(0, 3, 1, 2).float().div_(255.0)
