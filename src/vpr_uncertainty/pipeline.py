@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation
-from vpr_uncertainty.methods import GEOMETRIC_METHODS, default_method_names, describe_needs, get_method
+from vpr_uncertainty.methods import available_methods, default_method_names, describe_needs, get_method
 from vpr_uncertainty.retrieval import Retrieval
 from vpr_uncertainty.stages import (
     DescriptorsConfig,
@@ -203,9 +203,10 @@ def _load_and_check(config: RunConfig, methods: list[str] | None) -> Any:
         raise ValueError(f"retrieval_k ({config.retrieval_k}) must be >= k ({config.k})")
     for name in methods or []:
         get_method(name)  # unknown names fail before any work
-    if config.rerank is not None and get_method(config.rerank).name not in GEOMETRIC_METHODS:
+    if config.rerank is not None and get_method(config.rerank).kind != "geometric":
         raise ValueError(
-            f"rerank needs a geometric verification method ({', '.join(GEOMETRIC_METHODS)}), got {config.rerank!r}"
+            f"rerank needs a geometric verification method ({', '.join(available_methods(kind='geometric'))}), "
+            f"got {config.rerank!r}"
         )
     if isinstance(config.dataset, (str, Path)):
         dataset = load_dataset(config.dataset, root=config.root, split=config.split, radius=config.radius)

@@ -1,15 +1,10 @@
-"""Local features of one image, the working resolution, and the base class of the extractors.
+"""Local features of one image, the working resolution, the extractor base class, and OpenCV SIFT.
 
-Coordinates follow hloc: ``keypoints`` are ``(x, y)`` pixels of the *original* image, pixel centres at integers,
-whatever resolution the extractor ran at. Matching and RANSAC run at the *working resolution*: the image scaled so
-that its longer side is at most ``max_side`` (never enlarged). :meth:`LocalFeatures.at_working_resolution` maps the
-keypoints there, so one RANSAC threshold in pixels means the same for every image size and for features read from
-another tool's HDF5 file.
-
-``DEFAULT_MAX_SIDE = 640``: the standard VPR benchmarks (Pittsburgh, Tokyo 24/7 after the usual resize, MSLS,
-Nordland) store 640×480 images or smaller, so their images are used as they are, while the few large ones
-(e.g. Tokyo 24/7 queries at up to 4032 px) are brought down to the resolution the global descriptors saw. On
-CPU it keeps DISK and LightGlue within about a second per pair.
+Keypoints are ``(x, y)`` pixels of the *original* image (hloc's convention), whatever resolution the extractor ran
+at. Matching and RANSAC run at the *working resolution*: the image scaled so that its longer side is at most
+``max_side`` (never enlarged; :data:`DEFAULT_MAX_SIDE` = 640, the size of the standard VPR benchmarks' images),
+so one RANSAC threshold in pixels means the same for every image size and for features from another tool.
+Importing this module imports neither torch nor OpenCV.
 """
 
 from __future__ import annotations
@@ -25,16 +20,58 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.geometric._torch import torch_threads
-
 __all__ = [
     "DEFAULT_MAX_SIDE",
     "Extractor",
     "LocalFeatures",
+    "SIFTExtractor",
     "default_workers",
+    "images_to_tensor",
     "load_image",
+    "torch_device",
+    "torch_threads",
     "working_scale",
 ]
+
+
+def torch_device(device: str | None) -> Any:
+    """A torch device from ``"cpu"``/``"cuda"``/``"cuda:1"`` (None = cpu), with a clear error without CUDA."""
+    import torch
+
+    device = "cpu" if device is None else str(device)
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"device={device!r} was requested but torch sees no CUDA device; use device='cpu'")
+    try:
+        return torch.device(device)
+    except RuntimeError as error:
+        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}") from error
+
+
+@contextlib.contextmanager
+def torch_threads(workers: int | None) -> Iterator[None]:
+    """Run torch's CPU operators on ``workers`` threads inside the block, then restore the previous setting."""
+    import torch
+
+    if workers is None:
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(max(1, int(workers)))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def images_to_tensor(images: list[np.ndarray], device: Any) -> Any:
+    """A float32 (B, C, H, W) tensor in [0, 1] on ``device`` from equal-sized uint8 images ((H, W) or (H, W, C))."""
+    import torch
+
+    array = np.stack(images)
+    if array.ndim == 3:
+        array = array[..., None]
+    return torch.from_numpy(array).permute(0, 3, 1, 2).to(device=device, dtype=torch.float32).div_(255.0)
+
 
 DEFAULT_MAX_SIDE = 640
 
@@ -257,3 +294,68 @@ class Extractor(ABC):
         results = self._extract_batch([item[0] for _, item in pending])
         for (position, item), result in zip(pending, results, strict=True):
             yield position, finish(item, result)
+
+
+class SIFTExtractor(Extractor):
+    """OpenCV's SIFT detector and descriptor on the grayscale image.
+
+    Parameters
+    ----------
+    max_keypoints : int
+        The strongest keypoints kept per image (OpenCV's ``nfeatures``).
+    root_sift : bool
+        Map descriptors to RootSIFT (L1-normalise, square root), which matches better under Euclidean distance.
+    contrast_threshold : float
+        OpenCV's ``contrastThreshold`` (its default, 0.04).
+    max_side, device, batch_size
+        See :class:`~vpr_uncertainty.geometric.local_features.Extractor`.
+    """
+
+    name = "sift"
+    grayscale = True
+    thread_parallel = True
+
+    def __init__(
+        self,
+        *,
+        max_keypoints: int = 4096,
+        root_sift: bool = False,
+        contrast_threshold: float = 0.04,
+        max_side: int = DEFAULT_MAX_SIDE,
+        device: str = "cpu",
+        batch_size: int = 1,
+    ) -> None:
+        super().__init__(max_side=max_side, device=device, batch_size=batch_size)
+        import cv2
+
+        self.max_keypoints = int(max_keypoints)
+        self.root_sift = bool(root_sift)
+        self.contrast_threshold = float(contrast_threshold)
+        self._cv2 = cv2
+
+    def config(self) -> dict[str, Any]:
+        return {
+            **super().config(),
+            "max_keypoints": self.max_keypoints,
+            "root_sift": self.root_sift,
+            "contrast_threshold": self.contrast_threshold,
+            "opencv": self._cv2.__version__,
+        }
+
+    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        # one detector per call: cv2.SIFT objects are not documented as thread-safe
+        sift = self._cv2.SIFT_create(nfeatures=self.max_keypoints, contrastThreshold=self.contrast_threshold)
+        results = []
+        for image in images:
+            keypoints, descriptors = sift.detectAndCompute(image, None)
+            if descriptors is None or not keypoints:
+                results.append((np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), np.zeros(0, np.float32)))
+                continue
+            points = np.array([keypoint.pt for keypoint in keypoints], np.float32)
+            scores = np.array([keypoint.response for keypoint in keypoints], np.float32)
+            descriptors = descriptors.astype(np.float32)
+            if self.root_sift:
+                descriptors /= np.maximum(descriptors.sum(axis=1, keepdims=True), 1e-8)
+                descriptors = np.sqrt(descriptors)
+            results.append((points, descriptors, scores))
+        return results

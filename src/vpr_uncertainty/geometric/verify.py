@@ -1,36 +1,28 @@
-"""Geometric verification: local features + matching + RANSAC -> inlier counts; the GV-* uncertainty methods.
+"""Geometric verification: local features + matching + RANSAC -> inlier counts, and re-ranking by inliers.
 
-Uncertainty = −(number of RANSAC inliers between a query and its top-1 database image): higher = less
-trustworthy, as for every method of the toolkit. A query without a top-1 candidate (index -1) gets 0 inliers.
-
-Pipeline of one call
---------------------
-1. The images that appear in a pair are extracted once each (database images shared by several queries
-   included), read from the HDF5 cache in ``cache_dir`` when they are there (see
-   :mod:`vpr_uncertainty.geometric.cache`). Images are shrunk to ``max_side`` (default 640, see
-   :mod:`vpr_uncertainty.geometric.local_features`).
-2. Pairs are matched in ``workers`` threads at once (numpy and torch release the GIL; a torch matcher then
-   runs on one torch thread per pair); on CUDA, torch matchers take the pairs one after another.
-3. RANSAC (USAC/MAGSAC++, :mod:`vpr_uncertainty.geometric.ransac`) in ``workers`` threads.
-
-Presets (the method names) are the entries of :data:`~vpr_uncertainty.geometric.presets.GV_PRESETS`
-(``GV-SIFT``, ``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG``, ``GV-SP-LG``); ``GV-H5`` verifies precomputed local
-features in an hloc HDF5 file with mutual NN ratio matching. RANSAC: homography MAGSAC++, 3 px.
+One call extracts each image of the pairs once (read from the cache in ``cache_dir`` when there), matches the
+pairs in ``workers`` threads (one torch thread each; on CUDA, torch matchers take the pairs one after another) and
+counts RANSAC inliers in ``workers`` threads. With an executor (``GeometricVerifier(executor=...)``, e.g. Ray),
+the missing images are extracted and the pairs verified in chunks as tasks; the driver caches the features and
+the results come back in order, equal to a local run's.
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from vpr_uncertainty.geometric.cache import ExtractionStats, extract_features, image_names, read_features
+from vpr_uncertainty.evaluation import recall_at_n
+from vpr_uncertainty.geometric.cache import ExtractionStats, chunk_size, extract_features, image_names, read_features
 from vpr_uncertainty.geometric.local_features import (
     DEFAULT_MAX_SIDE,
     Extractor,
@@ -40,18 +32,63 @@ from vpr_uncertainty.geometric.local_features import (
     single_blas_thread,
     single_torch_thread,
 )
-from vpr_uncertainty.geometric.matching import Matcher
-from vpr_uncertainty.geometric.presets import GV_PRESETS, PRESETS, build_components
-from vpr_uncertainty.geometric.ransac import MIN_MATCHES, count_inliers
+from vpr_uncertainty.geometric.matching import MIN_MATCHES, Matcher, count_inliers
+from vpr_uncertainty.geometric.presets import GV_PRESETS, build_components
 from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
-    "PRESETS",
     "GeometricVerifier",
+    "Reranking",
     "VerificationResult",
+    "rerank",
+    "rerank_by_inliers",
+    "verify_on_executor",
     "verify_retrieval",
 ]
+
+
+def _verify_chunk(item: tuple[list[tuple[str, str]], dict[str, Any]], verifier: Any) -> tuple[list[int], list[int]]:
+    """(matches, inliers) of one chunk of pairs, with the features of the images it names."""
+    pairs, features = item
+    matches, inliers, _, _ = verifier._match_and_count(features, pairs)
+    return matches, inliers
+
+
+def verify_on_executor(
+    verifier: Any, features: dict[str, Any], pairs: list[tuple[str, str]]
+) -> tuple[list[int], list[int], float, float]:
+    """Matches and inliers of every pair, computed in chunks on ``verifier.executor``.
+
+    Parameters
+    ----------
+    verifier : GeometricVerifier
+    features : dict
+        Local features by image name (every name of ``pairs``).
+    pairs : list of (str, str)
+
+    Returns
+    -------
+    matches, inliers : list of int
+        In the order of ``pairs``.
+    matching_seconds, ransac_seconds : float
+        The wall-clock time of the whole distributed step, and 0 (matching and RANSAC run together in each task).
+    """
+    executor = verifier.executor
+    size = chunk_size(len(pairs), executor)
+    chunks = []
+    for start in range(0, len(pairs), size):
+        chunk = pairs[start : start + size]
+        names = dict.fromkeys(name for pair in chunk for name in pair)
+        chunks.append((chunk, {name: features[name] for name in names}))
+    light = copy.copy(verifier)  # what a task needs: matcher and RANSAC settings; no extractor, no executor
+    light.extractor, light.executor, light.workers = None, None, 1
+    start = time.perf_counter()
+    results = executor.map(partial(_verify_chunk, verifier=light), chunks)
+    seconds = time.perf_counter() - start
+    matches = [count for chunk_matches, _ in results for count in chunk_matches]
+    inliers = [count for _, chunk_inliers in results for count in chunk_inliers]
+    return matches, inliers, seconds, 0.0
 
 
 @dataclass
@@ -85,7 +122,7 @@ class GeometricVerifier:
         None when the features come from a file (``features_path``).
     matcher : Matcher
     model : {"homography", "fundamental"}
-        Model fitted by RANSAC (see :mod:`vpr_uncertainty.geometric.ransac` for the choice of the defaults).
+        Model fitted by RANSAC (see :mod:`vpr_uncertainty.geometric.matching` for the choice of the defaults).
     ransac_threshold : float
         Pixels at the working resolution.
     max_side : int
@@ -100,7 +137,7 @@ class GeometricVerifier:
         Seed of RANSAC's sampler.
     executor : LocalExecutor or RayExecutor, optional
         Where the local features are extracted and the pairs matched and verified: in this process (default), or
-        in chunks as Ray tasks (:mod:`vpr_uncertainty.geometric.distributed`); the features are cached once per
+        in chunks as Ray tasks (:func:`verify_on_executor`); the features are cached once per
         image by this process either way.
 
     Examples
@@ -210,8 +247,6 @@ class GeometricVerifier:
         else:
             features, stats = self._features([], needed)
         if self.executor is not None and self.executor.name != "local" and len(pairs) > 1:
-            from vpr_uncertainty.geometric.distributed import verify_on_executor
-
             all_matches, inliers, matching, ransac = verify_on_executor(self, features, list(pairs))
         else:
             all_matches, inliers, matching, ransac = self._match_and_count(features, list(pairs))
@@ -347,3 +382,97 @@ def verify_retrieval(
     result.inliers = result.inliers.reshape(retrieval.n_queries, k)
     result.matches = result.matches.reshape(retrieval.n_queries, k)
     return result
+
+
+def rerank_by_inliers(indices: object, inliers: object) -> np.ndarray:
+    """Sort the first ``k`` candidates of each query by inliers, descending; the rest keep their order.
+
+    Parameters
+    ----------
+    indices : array-like of shape (Q, K), int
+        Database indices, best first; -1 marks a missing candidate (it stays behind the real ones).
+    inliers : array-like of shape (Q, k), k <= K
+        Inliers of the first k candidates. Ties keep the global ranking's order (stable sort).
+
+    Returns
+    -------
+    ndarray of shape (Q, K), int64
+    """
+    indices = np.asarray(indices, dtype=np.int64)
+    inliers = np.asarray(inliers)
+    if indices.ndim != 2 or inliers.ndim != 2 or inliers.shape[0] != indices.shape[0]:
+        raise ValueError(f"indices (Q, K) and inliers (Q, k) expected, got {indices.shape} and {inliers.shape}")
+    k = inliers.shape[1]
+    if k > indices.shape[1]:
+        raise ValueError(f"inliers cover {k} candidates but indices hold only {indices.shape[1]}")
+    key = np.where(indices[:, :k] >= 0, -inliers.astype(np.float64), np.inf)
+    order = np.argsort(key, axis=1, kind="stable")
+    result = indices.copy()
+    result[:, :k] = np.take_along_axis(indices[:, :k], order, axis=1)
+    return result
+
+
+@dataclass
+class Reranking:
+    """Result of :func:`rerank`.
+
+    Attributes
+    ----------
+    indices : ndarray of shape (Q, K)
+        The re-ranked candidates (the first ``top_k`` sorted by inliers, the rest as before).
+    inliers : ndarray of shape (Q, top_k)
+        Inliers of the original first ``top_k`` candidates, in the original order.
+    verification : VerificationResult
+        Timings and match counts (``inliers``/``matches`` of shape (Q, top_k)).
+    recall : dict
+        ``{"global": {N: recall}, "reranked": {N: recall}}`` when the retrieval has positives, else empty.
+    """
+
+    indices: np.ndarray
+    inliers: np.ndarray
+    verification: VerificationResult
+    recall: dict[str, dict[int, float]]
+
+    @property
+    def uncertainty(self) -> np.ndarray:
+        """−inliers of the new top-1, shape (Q,): the GV uncertainty of the re-ranked answer."""
+        return -np.max(self.inliers, axis=1, initial=0).astype(np.float64)
+
+
+def rerank(
+    retrieval: Retrieval,
+    method: str | GeometricVerifier = "GV-SIFT",
+    *,
+    top_k: int = 10,
+    query_paths: Sequence[str | Path] | None = None,
+    database_paths: Sequence[str | Path] | None = None,
+    ns: Sequence[int] = (1, 5, 10, 20),
+    **options: Any,
+) -> Reranking:
+    """Verify each query against its first ``top_k`` candidates and re-rank them by inliers.
+
+    Parameters
+    ----------
+    retrieval : Retrieval
+    method : str or GeometricVerifier
+        A preset name (``"GV-SIFT"``, ``"GV-DISK-LG"``, ...) or a configured verifier.
+    top_k : int
+        Candidates verified per query (capped at the retrieval's K).
+    query_paths, database_paths : sequence of path
+        Image files indexed like the retrieval.
+    ns : sequence of int
+        N of the recall@N reported for the global and the re-ranked lists.
+    **options
+        Options of :meth:`GeometricVerifier.from_preset` and :class:`GeometricVerifier` (``cache_dir``,
+        ``max_side``, ``workers``, ``device``, ``seed``, ...), used when ``method`` is a name.
+    """
+    verifier = method if isinstance(method, GeometricVerifier) else GeometricVerifier.from_preset(method, **options)
+    result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths, top_k=top_k)
+    indices = rerank_by_inliers(retrieval.indices, result.inliers)
+    recall: dict[str, dict[int, float]] = {}
+    if retrieval.positives is not None:
+        recall = {
+            "global": recall_at_n(retrieval.indices, retrieval.positives, ns),
+            "reranked": recall_at_n(indices, retrieval.positives, ns),
+        }
+    return Reranking(indices=indices, inliers=result.inliers, verification=result, recall=recall)

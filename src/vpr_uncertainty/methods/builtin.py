@@ -101,58 +101,6 @@ register_method(
     resolve="vpr_uncertainty.calibration.method:resolve_gate",
 )
 
-# --- geometric verification: −(RANSAC inliers between each query and its top-1); needs the image files ----------
-
-_GV = "vpr_uncertainty.geometric.gv_methods:"
-_IMAGES = {"requires": ("images",), "kind": "geometric"}
-register_method(
-    "GV-SIFT",
-    _GV + "gv_sift",
-    description="−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++",
-    extra="opencv",
-    **_IMAGES,
-)
-register_method(
-    "GV-DISK-LG",
-    _GV + "gv_disk_lightglue",
-    description="−RANSAC inliers: DISK + LightGlue",
-    extra="gv",
-    **_IMAGES,
-)
-register_method("GV-XFEAT", _GV + "gv_xfeat", description="−RANSAC inliers: XFeat + LighterGlue", extra="gv", **_IMAGES)
-register_method(
-    "GV-SP-SG",
-    _GV + "gv_superpoint_superglue",
-    description="−RANSAC inliers: SuperPoint + SuperGlue",
-    extra="gv",
-    **_IMAGES,
-)
-register_method(
-    "GV-SP-LG",
-    _GV + "gv_superpoint_lightglue",
-    description="−RANSAC inliers: SuperPoint + LightGlue",
-    extra="gv",
-    **_IMAGES,
-)
-register_method(
-    "GV-H5",
-    _GV + "gv_h5",
-    description="−RANSAC inliers from precomputed local features (hloc HDF5)",
-    extra="opencv",
-    requires=("local_features",),
-    kind="geometric",
-)
-
-register_method(
-    "BTL",
-    "vpr_uncertainty.btl.method:btl_uncertainty",
-    description="Bayesian triplet loss: query variance of a trained head, with its own retrieval (Warburg et al. 2021)",
-    extra="torch",
-    requires=("btl_head", "descriptors"),
-    kind="learned",
-    resolve="vpr_uncertainty.btl.inputs:resolve_btl_inputs",
-)
-
 # Derived from the entries (for callers of the former constants): prefer available_methods(kind=...).
 SCORE_ONLY_METHODS: tuple[str, ...] = tuple(METHODS.names(kind="score"))
 GEOMETRIC_METHODS: tuple[str, ...] = tuple(METHODS.names(kind="geometric"))

@@ -1,8 +1,8 @@
-"""The GV-* uncertainty methods: −(RANSAC inliers between each query and its top-1), shape (Q,).
+"""The GV-* uncertainty methods, registered on import: −(RANSAC inliers between each query and its top-1), (Q,).
 
-Higher = less trustworthy, as for every method of the toolkit; a query without a top-1 candidate (index -1)
-gets 0 inliers. ``GV-SIFT``, ``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG`` and ``GV-SP-LG`` run the presets of
-:mod:`vpr_uncertainty.geometric.presets`; ``GV-H5`` verifies precomputed local features (hloc HDF5).
+Higher = less trustworthy; a query without a top-1 candidate (index -1) gets 0 inliers. ``GV-SIFT``,
+``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG`` and ``GV-SP-LG`` run the presets of
+:mod:`~vpr_uncertainty.geometric.presets`; ``GV-H5`` verifies precomputed local features (hloc HDF5).
 """
 
 from __future__ import annotations
@@ -19,16 +19,10 @@ from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE
 from vpr_uncertainty.geometric.matching import NearestNeighborMatcher
 from vpr_uncertainty.geometric.presets import H5_MODULES, require_modules
 from vpr_uncertainty.geometric.verify import GeometricVerifier, verify_retrieval
+from vpr_uncertainty.methods import register_method
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = [
-    "gv_disk_lightglue",
-    "gv_h5",
-    "gv_sift",
-    "gv_superpoint_lightglue",
-    "gv_superpoint_superglue",
-    "gv_xfeat",
-]
+__all__ = ["gv_disk_lightglue", "gv_h5", "gv_sift", "gv_superpoint_lightglue", "gv_superpoint_superglue", "gv_xfeat"]
 
 
 def _check_paths(
@@ -107,9 +101,17 @@ def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
 
 
 gv_sift = _preset_method("GV-SIFT", "gv_sift")
+
+
 gv_disk_lightglue = _preset_method("GV-DISK-LG", "gv_disk_lightglue")
+
+
 gv_xfeat = _preset_method("GV-XFEAT", "gv_xfeat")
+
+
 gv_superpoint_superglue = _preset_method("GV-SP-SG", "gv_superpoint_superglue")
+
+
 gv_superpoint_lightglue = _preset_method("GV-SP-LG", "gv_superpoint_lightglue")
 
 
@@ -157,3 +159,21 @@ def gv_h5(
     )
     result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
     return -result.inliers[:, 0].astype(np.float64)
+
+
+for _name, _function, _description, _extra in (
+    ("GV-SIFT", gv_sift, "−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++", "opencv"),
+    ("GV-DISK-LG", gv_disk_lightglue, "−RANSAC inliers: DISK + LightGlue", "gv"),
+    ("GV-XFEAT", gv_xfeat, "−RANSAC inliers: XFeat + LighterGlue", "gv"),
+    ("GV-SP-SG", gv_superpoint_superglue, "−RANSAC inliers: SuperPoint + SuperGlue", "gv"),
+    ("GV-SP-LG", gv_superpoint_lightglue, "−RANSAC inliers: SuperPoint + LightGlue", "gv"),
+):
+    register_method(_name, _function, description=_description, extra=_extra, requires=("images",), kind="geometric")
+register_method(
+    "GV-H5",
+    gv_h5,
+    description="−RANSAC inliers from precomputed local features (hloc HDF5)",
+    extra="opencv",
+    requires=("local_features",),
+    kind="geometric",
+)
