@@ -1,4 +1,4 @@
-"""Extraction as Ray Data batch inference (descriptors/distributed.py via ``stages.descriptors.extract``).
+"""Extraction as Ray Data batch inference (descriptors/extract.py via ``stages.descriptors.extract``).
 
 One local Ray cluster (2 CPUs) for the module. Real images: 12 database and 12 query images of the corridor, with
 the offline default model; the reference is the local executor on the same images.

@@ -30,9 +30,9 @@ _EXPORTS = {
     "btl_uncertainty": "method",
     "read_training_inputs": "method",
     "resolve_btl_inputs": "method",
-    "BTLProtocol": "protocol",
-    "btl_protocol": "protocol",
-    "train_for_protocol": "protocol",
+    "BTLProtocol": "method",
+    "btl_protocol": "method",
+    "train_for_protocol": "method",
 }
 __all__ = sorted(_EXPORTS)
 

