@@ -39,21 +39,6 @@ from vpr_uncertainty.btl.training import resolve_device, train_btl_head
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = [
-    "PROTOCOLS",
-    "BTLProtocol",
-    "btl_protocol",
-    "btl_retrieval",
-    "btl_uncertainty",
-    "database_frame_positives",
-    "read_btl_descriptors",
-    "read_btl_head",
-    "read_training_inputs",
-    "resolve_btl_inputs",
-    "train_for_protocol",
-    "trained_on",
-]
-
 
 def read_btl_head(value: object, *, device: str = "cpu") -> BTLHead:
     """A loaded head from ``value`` (a head file written by ``train-btl``, or a :class:`BTLHead`), on ``device``."""

@@ -85,26 +85,6 @@ from torch.nn import functional
 
 from vpr_uncertainty.cache import atomic_path
 
-__all__ = [
-    "DEFAULT_KL_WEIGHT",
-    "DEFAULT_MARGIN",
-    "DEFAULT_MAX_EMBEDDING_DIM",
-    "DEFAULT_PRIOR_VARIANCE",
-    "HEAD_FORMAT",
-    "HEAD_FORMAT_VERSION",
-    "BTLHead",
-    "BayesianTripletLoss",
-    "TripletLossTerms",
-    "bayesian_triplet_loss",
-    "embed",
-    "kl_to_isotropic_prior",
-    "load_btl_head",
-    "row_digests",
-    "save_btl_head",
-    "triplet_distance_moments",
-    "triplet_probability",
-]
-
 #: Weight λ of the KL term (the reference implementation's default ``kl_scale_factor``).
 DEFAULT_KL_WEIGHT = 1e-6
 

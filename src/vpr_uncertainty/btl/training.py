@@ -35,16 +35,6 @@ from vpr_uncertainty.btl.model import (
 )
 from vpr_uncertainty.cache import atomic_path, write_text
 
-__all__ = [
-    "BTLTrainingConfig",
-    "TrainingHistory",
-    "Triplets",
-    "mine_triplets",
-    "resolve_device",
-    "save_training_curve",
-    "train_btl_head",
-]
-
 
 @dataclass(frozen=True)
 class Triplets:

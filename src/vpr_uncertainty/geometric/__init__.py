@@ -12,20 +12,18 @@ from vpr_uncertainty.geometric.local_features import (
     load_image,
     match_nearest_neighbors,
 )
-from vpr_uncertainty.geometric.methods import (
-    gv_disk_lightglue,
-    gv_h5,
-    gv_sift,
-    gv_superpoint_lightglue,
-    gv_superpoint_superglue,
-    gv_xfeat,
-)
 from vpr_uncertainty.geometric.verify import (
     GV_PRESETS,
     GeometricVerifier,
     GVPreset,
     Reranking,
     VerificationResult,
+    gv_disk_lightglue,
+    gv_h5,
+    gv_sift,
+    gv_superpoint_lightglue,
+    gv_superpoint_superglue,
+    gv_xfeat,
     preset_names,
     register_preset,
     rerank,

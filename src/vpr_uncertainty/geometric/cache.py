@@ -40,35 +40,11 @@ from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 if TYPE_CHECKING:
     import h5py
 
-__all__ = [
-    "CACHE_FORMAT_VERSION",
-    "ExtractionStats",
-    "PendingFeatures",
-    "active_store",
-    "cache_path",
-    "deferred_writes",
-    "deferring_writes",
-    "extract_features",
-    "image_names",
-    "read_features",
-    "store_features",
-    "write_features",
-]
-
 
 @dataclass
 class PendingFeatures:
-    """Local features extracted inside :func:`deferred_writes` for one cache file, for the driver to write.
-
-    Attributes
-    ----------
-    path : Path
-        The cache file (:func:`~vpr_uncertainty.geometric.cache.cache_path`).
-    config : str
-        The extractor's configuration (JSON), stored in the file when the driver creates it.
-    features : dict of str to (LocalFeatures, str)
-        Image name -> its features and the :func:`~vpr_uncertainty.cache.content_key` of its file when extracted.
-    """
+    """Local features extracted inside :func:`deferred_writes` for one cache file (``path``, with the extractor's
+    JSON ``config``), for the driver to write: image name -> (features, content key of its file when extracted)."""
 
     path: Path
     config: str
@@ -86,16 +62,9 @@ def active_store() -> dict[Path, PendingFeatures] | None:
 
 @contextmanager
 def deferred_writes() -> Iterator[list[PendingFeatures]]:
-    """Within the context, :func:`~vpr_uncertainty.geometric.cache.extract_features` reads the caches, never writes.
-
-    What it extracts is kept in memory (and reused by later calls in the context); the list the context yields is
-    filled with it on exit, for the driver to write with :func:`~vpr_uncertainty.geometric.cache.store_features`.
-
-    Yields
-    ------
-    list of PendingFeatures
-        Empty inside the context; one entry per cache file that got new features, on exit.
-    """
+    """Within the context, :func:`extract_features` reads the caches and never writes them: what it extracts is
+    kept in memory (reused by later calls) and, on exit, fills the yielded list (one :class:`PendingFeatures` per
+    cache file that got new features) for the driver's :func:`store_features`."""
     global _store  # one store per process: a task runs alone in its worker
     previous, _store = _store, {}
     pending: list[PendingFeatures] = []
@@ -107,21 +76,8 @@ def deferred_writes() -> Iterator[list[PendingFeatures]]:
 
 
 def deferring_writes(function: Callable[[Any], Any], item: Any) -> tuple[Any, list[PendingFeatures]]:
-    """``function(item)`` inside :func:`deferred_writes`, with the local features it extracted (an executor task).
-
-    Parameters
-    ----------
-    function : callable
-        A module-level function or a partial of one.
-    item : object
-
-    Returns
-    -------
-    result : object
-        ``function(item)``.
-    pending : list of PendingFeatures
-        The local features it extracted, for :func:`~vpr_uncertainty.geometric.cache.store_features` in the driver.
-    """
+    """``(function(item), pending)``: ``function`` (module-level, or a partial of one) run inside
+    :func:`deferred_writes`, with the local features it extracted for the driver's :func:`store_features`."""
     with deferred_writes() as pending:
         result = function(item)
     return result, pending
@@ -332,22 +288,13 @@ def _read_only(path: Path, config: str) -> h5py.File | None:
 
 
 def store_features(pending: Iterable[Iterable[PendingFeatures]]) -> int:
-    """Write the local features that tasks extracted (:mod:`~vpr_uncertainty.geometric.cache`) to their caches.
+    """Write what the tasks returned (``pending``: one list of :class:`PendingFeatures` per task) to the caches;
+    return the number of images written.
 
     Called by the driver once no task is running: it is the one writer of the files. An image extracted by several
-    tasks is written once; one already in the file with the same content key is kept. A missing, unreadable or
-    foreign file is created (or rebuilt, with the one-line notice) first; a file that cannot be written (locked by
-    another run, disk full) is reported in one line (:class:`~vpr_uncertainty.cache.CacheWarning`) and left as is.
-
-    Parameters
-    ----------
-    pending : iterable of iterable of PendingFeatures
-        What each task returned.
-
-    Returns
-    -------
-    int
-        Images written.
+    tasks is written once; one already stored with the same content key is kept. A missing, unreadable or foreign
+    file is created (or rebuilt, with the one-line notice) first; a file that cannot be written (locked, disk full)
+    is reported in one line (:class:`~vpr_uncertainty.cache.CacheWarning`) and left as is.
     """
     import h5py
 
@@ -419,10 +366,8 @@ def extract_features(
     workers : int, optional
         Threads that read images (and run OpenCV extractors).
     executor : LocalExecutor or RayExecutor, optional
-        With Ray, the images to extract are sent in chunks to Ray tasks
-        (:func:`extract_on_executor`); this process still reads and writes the
-        cache, each chunk as it comes back. Inside
-        :func:`~vpr_uncertainty.geometric.cache.deferred_writes` the cache is read, never written.
+        With Ray, the images to extract go in chunks to Ray tasks; this process still writes the cache, each chunk
+        as it comes back (inside :func:`deferred_writes` the cache is read, never written).
 
     Returns
     -------

@@ -30,21 +30,6 @@ from vpr_uncertainty.geometric.local_features import (
     torch_device,
 )
 
-__all__ = [
-    "OFFICIAL_WEIGHTS",
-    "WEIGHTS_ENV",
-    "DISKExtractor",
-    "LightGlueMatcher",
-    "WeightsUnavailableError",
-    "XFeatExtractor",
-    "build_lightglue",
-    "load_disk",
-    "load_official_state_dict",
-    "load_xfeat",
-    "package_file",
-    "state_dict_fingerprint",
-]
-
 WEIGHTS_ENV = "VPR_UNCERTAINTY_WEIGHTS"
 
 

@@ -33,24 +33,6 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
-__all__ = [
-    "DEFAULT_MAX_SIDE",
-    "MIN_MATCHES",
-    "Extractor",
-    "LocalFeatures",
-    "Matcher",
-    "NearestNeighborMatcher",
-    "SIFTExtractor",
-    "count_inliers",
-    "default_workers",
-    "images_to_tensor",
-    "load_image",
-    "match_nearest_neighbors",
-    "torch_device",
-    "torch_threads",
-    "working_scale",
-]
-
 
 def torch_device(device: str | None) -> Any:
     """A torch device from ``"cpu"``/``"cuda"``/``"cuda:1"`` (None = cpu), with a clear error without CUDA."""

@@ -30,16 +30,6 @@ from vpr_uncertainty.geometric.local_features import (
     torch_device,
 )
 
-__all__ = [
-    "SuperGlueMatcher",
-    "SuperPointExtractor",
-    "load_superglue",
-    "load_superpoint",
-    "load_superpoint_lightglue",
-    "networks",
-    "superpoint_lightglue_matcher",
-]
-
 _modules: dict[str, Any] = {}
 
 

@@ -1,4 +1,4 @@
-"""Geometric verification: local features + matching + RANSAC -> inlier counts, presets, re-ranking by inliers.
+"""Geometric verification: inlier counts of image pairs, presets, re-ranking, and the GV-* uncertainty methods.
 
 One call extracts each image of the pairs once (read from the cache in ``cache_dir`` when there), matches the
 pairs in ``workers`` threads (one torch thread each; on CUDA, torch matchers take the pairs one after another) and
@@ -9,6 +9,11 @@ the results come back in order, equal to a local run's.
 A preset (:class:`GVPreset`, registered in :data:`GV_PRESETS`) names an extractor and a matcher as lazy dotted
 targets with their options, merged over :data:`DEFAULT_OPTIONS` like LightGlue's ``default_conf`` (given options
 over the preset's; unknown names are errors). :meth:`GeometricVerifier.from_preset` builds a verifier from one.
+
+The GV-* methods (registered on import) return −(RANSAC inliers between each query and its top-1), shape (Q,),
+higher = less trustworthy; a query without a top-1 candidate (index -1) gets 0 inliers. ``GV-SIFT``,
+``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG`` and ``GV-SP-LG`` run the presets of the same names; ``GV-H5`` verifies
+precomputed local features (hloc HDF5).
 """
 
 from __future__ import annotations
@@ -16,8 +21,9 @@ from __future__ import annotations
 import contextlib
 import copy
 import importlib.util
+import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
@@ -26,6 +32,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from vpr_uncertainty.data.image_folders import check_image_counts
 from vpr_uncertainty.evaluation import recall_at_n
 from vpr_uncertainty.geometric.cache import ExtractionStats, chunk_size, extract_features, image_names, read_features
 from vpr_uncertainty.geometric.local_features import (
@@ -34,32 +41,17 @@ from vpr_uncertainty.geometric.local_features import (
     Extractor,
     LocalFeatures,
     Matcher,
+    NearestNeighborMatcher,
     check_max_side,
     count_inliers,
     default_workers,
     single_blas_thread,
     single_torch_thread,
 )
+from vpr_uncertainty.methods import register_method
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target, merge_options
 from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval import Retrieval
-
-__all__ = [
-    "DEFAULT_OPTIONS",
-    "GV_PRESETS",
-    "GVPreset",
-    "GeometricVerifier",
-    "Reranking",
-    "VerificationResult",
-    "build_components",
-    "preset_names",
-    "register_preset",
-    "require_modules",
-    "rerank",
-    "rerank_by_inliers",
-    "verify_on_executor",
-    "verify_retrieval",
-]
 
 #: Options every preset has: those of its extractor and of its matcher.
 DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {"extractor": {}, "matcher": {}}
@@ -233,22 +225,8 @@ def _verify_chunk(item: tuple[list[tuple[str, str]], dict[str, Any]], verifier: 
 def verify_on_executor(
     verifier: Any, features: dict[str, Any], pairs: list[tuple[str, str]]
 ) -> tuple[list[int], list[int], float, float]:
-    """Matches and inliers of every pair, computed in chunks on ``verifier.executor``.
-
-    Parameters
-    ----------
-    verifier : GeometricVerifier
-    features : dict
-        Local features by image name (every name of ``pairs``).
-    pairs : list of (str, str)
-
-    Returns
-    -------
-    matches, inliers : list of int
-        In the order of ``pairs``.
-    matching_seconds, ransac_seconds : float
-        The wall-clock time of the whole distributed step, and 0 (matching and RANSAC run together in each task).
-    """
+    """``(matches, inliers, seconds, 0.0)`` of every pair (in order), computed in chunks on ``verifier.executor``
+    from ``features`` (by image name); matching and RANSAC run together in each task, so all time is matching."""
     executor = verifier.executor
     size = chunk_size(len(pairs), executor)
     chunks = []
@@ -311,9 +289,8 @@ class GeometricVerifier:
     seed : int
         Seed of RANSAC's sampler.
     executor : LocalExecutor or RayExecutor, optional
-        Where the local features are extracted and the pairs matched and verified: in this process (default), or
-        in chunks as Ray tasks (:func:`verify_on_executor`); the features are cached once per
-        image by this process either way.
+        Where features are extracted and pairs verified: this process (default), or in chunks as Ray tasks; the
+        features are cached once per image by this process either way.
 
     Examples
     --------
@@ -651,3 +628,159 @@ def rerank(
             "reranked": recall_at_n(indices, retrieval.positives, ns),
         }
     return Reranking(indices=indices, inliers=result.inliers, verification=result, recall=recall)
+
+
+def _check_paths(
+    retrieval: Retrieval,
+    query_paths: Sequence[str | Path] | None,
+    database_paths: Sequence[str | Path] | None,
+    method: str,
+) -> None:
+    if query_paths is None or database_paths is None:
+        raise ValueError(
+            f"{method} verifies images: it needs the query and database image files "
+            "(options query_paths=..., database_paths=..., indexed like the retrieval)"
+        )
+    check_image_counts(
+        retrieval,
+        len(query_paths),
+        len(database_paths),
+        queries=f"{method}: query_paths{_folder_of(query_paths)}",
+        database=f"{method}: database_paths{_folder_of(database_paths)}",
+    )
+
+
+def _folder_of(paths: Sequence[str | Path]) -> str:
+    """`` (under FOLDER)``: the deepest folder holding every path, for messages; empty when there is none."""
+    try:
+        folder = os.path.commonpath([os.path.dirname(os.fspath(path)) for path in paths])
+    except (TypeError, ValueError):  # no paths, or absolute and relative paths mixed
+        return ""
+    return f" (under {folder})" if folder else ""
+
+
+def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
+    """The uncertainty-method function of the GV preset ``name``, called ``function_name``."""
+
+    def method(
+        retrieval: Retrieval,
+        *,
+        query_paths: Sequence[str | Path] | None = None,
+        database_paths: Sequence[str | Path] | None = None,
+        cache_dir: str | Path | None = None,
+        max_side: int = DEFAULT_MAX_SIDE,
+        workers: int | None = None,
+        device: str = "cpu",
+        seed: int = 0,
+        superpoint_weights: str | Path | None = None,
+        matcher_weights: str | Path | None = None,
+        executor: Any = None,
+    ) -> np.ndarray:
+        _check_paths(retrieval, query_paths, database_paths, name)
+        verifier = GeometricVerifier.from_preset(
+            name,
+            max_side=max_side,
+            device=device,
+            cache_dir=cache_dir,
+            workers=workers,
+            seed=seed,
+            superpoint_weights=superpoint_weights,
+            matcher_weights=matcher_weights,
+            executor=executor,
+        )
+        result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
+        return -result.inliers[:, 0].astype(np.float64)
+
+    method.__name__ = method.__qualname__ = function_name
+    method.__doc__ = f"""{name}: −(RANSAC inliers between each query and its top-1), shape (Q,); higher = doubt more.
+
+    Options: ``query_paths``, ``database_paths`` (image files indexed like the retrieval; required),
+    ``cache_dir`` (HDF5 feature caches; none by default), ``max_side`` (working resolution, default
+    {DEFAULT_MAX_SIDE}), ``workers`` (threads; default the CPU cores up to 8), ``device`` ("cpu" or "cuda"),
+    ``seed`` (RANSAC), ``superpoint_weights`` / ``matcher_weights`` (local weight files, GV-SP-* only),
+    ``executor`` (where the pairs are matched and verified: a
+    :func:`~vpr_uncertainty.executors.get_executor` executor; default this process; the local features are
+    extracted and cached once per image in this process either way; the inliers are the same).
+    """
+    return method
+
+
+gv_sift = _preset_method("GV-SIFT", "gv_sift")
+
+
+gv_disk_lightglue = _preset_method("GV-DISK-LG", "gv_disk_lightglue")
+
+
+gv_xfeat = _preset_method("GV-XFEAT", "gv_xfeat")
+
+
+gv_superpoint_superglue = _preset_method("GV-SP-SG", "gv_superpoint_superglue")
+
+
+gv_superpoint_lightglue = _preset_method("GV-SP-LG", "gv_superpoint_lightglue")
+
+
+def gv_h5(
+    retrieval: Retrieval,
+    *,
+    features_path: str | Path | None = None,
+    query_paths: Sequence[str | Path] | None = None,
+    database_paths: Sequence[str | Path] | None = None,
+    ratio: float | None = 0.8,
+    mutual: bool = True,
+    model: Literal["homography", "fundamental"] = "homography",
+    ransac_threshold: float = 3.0,
+    max_side: int = DEFAULT_MAX_SIDE,
+    workers: int | None = None,
+    seed: int = 0,
+    executor: Any = None,
+) -> np.ndarray:
+    """GV-H5: −inliers of the top-1 from precomputed local features in an hloc-layout HDF5 file.
+
+    Any local feature (DELF, R2D2, ALIKED, hloc's SuperPoint, ...) extracted by another tool is verified with
+    mutual nearest-neighbour matching, Lowe's ratio test (``ratio``, None to skip) and USAC/MAGSAC++.
+
+    Images are looked up by name: their path relative to the deepest folder holding all ``query_paths`` and
+    ``database_paths`` (hloc's naming, e.g. ``query/0001.jpg``), else their file name; without paths, by the
+    retrieval's ``query_names`` and ``database_names``. Keypoints are in original-image pixels (hloc) and
+    ``ransac_threshold`` is in pixels at ``max_side``, as for the other GV methods. ``executor``: where the
+    pairs are matched and verified (as for the other GV methods).
+    """
+    if features_path is None:
+        raise ValueError("GV-H5 needs features_path: an HDF5 file of local features in hloc's layout")
+    if query_paths is not None or database_paths is not None:
+        _check_paths(retrieval, query_paths, database_paths, "GV-H5")
+    require_modules("uncertainty method 'GV-H5'", H5_MODULES)
+    verifier = GeometricVerifier(
+        None,
+        NearestNeighborMatcher(ratio=ratio, mutual=mutual),
+        model=model,
+        ransac_threshold=ransac_threshold,
+        max_side=max_side,
+        features_path=features_path,
+        workers=workers,
+        seed=seed,
+        executor=executor,
+    )
+    result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
+    return -result.inliers[:, 0].astype(np.float64)
+
+
+for _name, _function, _description, _extra in (
+    ("GV-SIFT", gv_sift, "−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++", "opencv"),
+    ("GV-DISK-LG", gv_disk_lightglue, "−RANSAC inliers: DISK + LightGlue", "gv"),
+    ("GV-XFEAT", gv_xfeat, "−RANSAC inliers: XFeat + LighterGlue", "gv"),
+    ("GV-SP-SG", gv_superpoint_superglue, "−RANSAC inliers: SuperPoint + SuperGlue", "gv"),
+    ("GV-SP-LG", gv_superpoint_lightglue, "−RANSAC inliers: SuperPoint + LightGlue", "gv"),
+):
+    register_method(_name, _function, description=_description, extra=_extra, requires=("images",), kind="geometric")
+
+
+register_method(
+    "GV-H5",
+    gv_h5,
+    description="−RANSAC inliers from precomputed local features (hloc HDF5)",
+    extra="opencv",
+    requires=("local_features",),
+    kind="geometric",
+)

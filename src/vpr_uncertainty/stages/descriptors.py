@@ -154,7 +154,7 @@ def extract(
             device=conf.device,
             half=conf.half,
             on_error=conf.on_error,
-            num_workers=conf.num_workers,
+            workers=conf.num_workers,
             overwrite=conf.overwrite and split == next(s for s in _SPLITS if s in images),
             progress=conf.progress,
             failed=failed,
