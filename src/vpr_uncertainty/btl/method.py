@@ -37,7 +37,7 @@ from scipy import sparse
 from vpr_uncertainty.btl.model import BTLHead, embed, load_btl_head, row_digests
 from vpr_uncertainty.btl.training import resolve_device, train_btl_head
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
-from vpr_uncertainty.retrieval import Retrieval
+from vpr_uncertainty.retrieval import Retrieval, search_descriptors
 
 
 def read_btl_head(value: object, *, device: str = "cpu") -> BTLHead:
@@ -263,20 +263,6 @@ def _descriptors(value: object, split: str, expected: int | None) -> np.ndarray:
     return array
 
 
-def _search(database: np.ndarray, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact cosine top-k of unit-norm embeddings (Faiss when available)."""
-    try:
-        from vpr_uncertainty.retrieval import search_descriptors
-    except ImportError:  # pragma: no cover - older retrieval module: plain numpy
-        from vpr_uncertainty.retrieval import top_k_from_similarity
-
-        scores, indices = top_k_from_similarity(queries @ database.T, k)
-        from vpr_uncertainty.scores import squared_distances_from_similarities
-
-        return scores, indices, squared_distances_from_similarities(scores, check=False)
-    return search_descriptors(database, queries, k, progress=False)
-
-
 def btl_retrieval(
     retrieval: Retrieval,
     *,
@@ -307,7 +293,7 @@ def btl_retrieval(
     query_means, query_variances = embed(head, queries)
     database_means, _ = embed(head, database)
     k = min(retrieval.k, len(database))
-    scores, indices, distances = _search(database_means, query_means, k)
+    scores, indices, distances = search_descriptors(database_means, query_means, k, progress=False)
     config: dict[str, Any] = {
         "source": "btl",
         "metric": "cosine",

@@ -88,14 +88,11 @@ from vpr_uncertainty.cache import atomic_path
 #: Weight λ of the KL term (the reference implementation's default ``kl_scale_factor``).
 DEFAULT_KL_WEIGHT = 1e-6
 
-
 #: Threshold m of P(τ < m) (the reference implementation's default).
 DEFAULT_MARGIN = 0.0
 
-
 #: Variance s² of the prior N(0, s² I): a unit Gaussian.
 DEFAULT_PRIOR_VARIANCE = 1.0
-
 
 _TINY = 1e-12
 
@@ -306,9 +303,7 @@ class BayesianTripletLoss(nn.Module):
 
 HEAD_FORMAT = "vpr-uncertainty btl-head"
 
-
 HEAD_FORMAT_VERSION = 1
-
 
 #: Default embedding dimension: min(input_dim, this).
 DEFAULT_MAX_EMBEDDING_DIM = 2048

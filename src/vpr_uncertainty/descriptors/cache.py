@@ -178,22 +178,16 @@ def describe_change(stored: str, current: str) -> str:
 
 FORMAT = "vpr-uncertainty descriptors"
 
-
 FORMAT_VERSION = 2
-
 
 #: Name of the stage in the fingerprint.
 STAGE = "descriptors"
 
-
 SPLITS = ("database", "queries")
-
 
 _DATASETS = ("names", "descriptors", "keys")
 
-
 DTYPES = ("float32", "float16")
-
 
 _CHUNK_ROWS = 256
 

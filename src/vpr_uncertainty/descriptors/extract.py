@@ -35,7 +35,6 @@ from vpr_uncertainty.progress import progress_bar
 
 ON_ERROR = ("fail", "skip")
 
-
 _Item = tuple[int, str, Path]
 
 
@@ -347,7 +346,6 @@ def extract_descriptors(
 
 #: How many times Ray reruns a batch whose worker process died (on a restarted actor).
 TASK_RETRIES = MAX_RETRIES
-
 
 _NO_DESCRIPTOR = np.empty(0, dtype=np.float32)
 

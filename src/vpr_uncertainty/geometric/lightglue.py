@@ -32,9 +32,7 @@ from vpr_uncertainty.geometric.local_features import (
 
 WEIGHTS_ENV = "VPR_UNCERTAINTY_WEIGHTS"
 
-
 _MAGICLEAP = "https://github.com/magicleap/SuperGluePretrainedNetwork/raw/master/models/weights/"
-
 
 #: key -> (file name, official URL, option of the GV methods that takes a local path)
 OFFICIAL_WEIGHTS: dict[str, tuple[str, str, str]] = {

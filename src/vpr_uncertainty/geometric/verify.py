@@ -56,9 +56,7 @@ from vpr_uncertainty.retrieval import Retrieval
 #: Options every preset has: those of its extractor and of its matcher.
 DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {"extractor": {}, "matcher": {}}
 
-
 _OPENCV = (("cv2", "opencv"),)
-
 
 _LEARNED = (("cv2", "gv"), ("torch", "gv"), ("kornia", "gv"))
 
@@ -155,9 +153,7 @@ def build_components(
 
 _G = "vpr_uncertainty.geometric."
 
-
 _ON_DEVICE = ("max_side", "device", "batch_size")
-
 
 for _preset in (
     GVPreset(
@@ -707,15 +703,11 @@ def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
 
 gv_sift = _preset_method("GV-SIFT", "gv_sift")
 
-
 gv_disk_lightglue = _preset_method("GV-DISK-LG", "gv_disk_lightglue")
-
 
 gv_xfeat = _preset_method("GV-XFEAT", "gv_xfeat")
 
-
 gv_superpoint_superglue = _preset_method("GV-SP-SG", "gv_superpoint_superglue")
-
 
 gv_superpoint_lightglue = _preset_method("GV-SP-LG", "gv_superpoint_lightglue")
 
