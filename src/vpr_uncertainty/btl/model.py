@@ -24,8 +24,9 @@ Head file (``torch.save`` of a dict of tensors and plain values, read back with 
     state_dict      the module's parameters
     metadata        JSON-compatible: training settings, history summary, descriptor source (optional)
 
-Every image is an isotropic Gaussian in R^E: a mean μ (E,) and one scalar variance σ² (per dimension). For an
-anchor a ~ N(μa, σa² I), a positive p ~ N(μp, σp² I) and a negative n ~ N(μn, σn² I), independent, let
+**The loss.** Every image is an isotropic Gaussian in R^E: a mean μ (E,) and one scalar variance σ² (per
+dimension). For an anchor a ~ N(μa, σa² I), a positive p ~ N(μp, σp² I) and a negative n ~ N(μn, σn² I),
+independent, let
 
     τ = ‖a − p‖² − ‖a − n‖² = Σ_d τ_d,     τ_d = p_d² − n_d² − 2 a_d (p_d − n_d).
 

@@ -199,12 +199,10 @@ class BTLTrainingConfig:
             or self.embedding_dim < 1
         ):
             raise ValueError(f"embedding_dim must be a positive integer or None, got {self.embedding_dim!r}")
-        for name in ("hidden_dim", "n_negatives", "max_positives", "epochs", "batch_size"):
+        for name in ("hidden_dim", "n_negatives", "max_positives", "epochs", "batch_size", "patience"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if isinstance(self.patience, bool) or not isinstance(self.patience, (int, np.integer)) or self.patience < 1:
-            raise ValueError(f"patience must be a positive integer, got {self.patience!r}")
         if not 0.0 < self.val_fraction < 1.0:
             raise ValueError(
                 f"val_fraction must lie in (0, 1): early stopping needs a validation split, got {self.val_fraction}"
