@@ -89,7 +89,7 @@ def main() -> None:
             synchronize()
 
         def end_to_end(batch_size=batch_size) -> None:
-            extract_descriptors(model, paths, names, batch_size=batch_size, num_workers=args.workers, progress=False)
+            extract_descriptors(model, paths, names, batch_size=batch_size, workers=args.workers, progress=False)
 
         model_s = median_seconds(forward, args.repeats, args.warmup)
         total_s = median_seconds(end_to_end, args.repeats, args.warmup)

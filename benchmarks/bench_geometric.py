@@ -30,7 +30,7 @@ import numpy as np
 
 from vpr_uncertainty import Retrieval, evaluate, read_results
 from vpr_uncertainty.geometric import DEFAULT_MAX_SIDE, GeometricVerifier
-from vpr_uncertainty.geometric.weights import WeightsUnavailableError
+from vpr_uncertainty.geometric.lightglue import WeightsUnavailableError
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -5,7 +5,7 @@ database image in NetVLAD's precomputed similarity matrix, on copies enlarged to
 default, the size of most VPR benchmarks' images). Each row times two calls: cold, with an empty feature cache (the
 local features of every image are extracted, then the pairs matched and RANSAC run), and warm, with every feature
 read from the cache. With ``--executor ray`` both steps run as Ray tasks in chunks, one thread each
-(geometric/distributed.py); this process reads and writes the cache.
+(geometric/cache.py and verify.py); this process reads and writes the cache.
 
 Rows: ``local`` with the verifier's threads (``--local-threads``, default 1 and the toolkit's default); ``ray N`` on a
 local cluster of N CPUs, with ``ray.init`` and the first call (worker processes starting and importing the package)

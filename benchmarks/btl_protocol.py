@@ -4,7 +4,7 @@
 
 Descriptors: the offline model ``efficientnet-lite0-gem`` (default preprocessing), extracted by the descriptor
 stage into ``--work``/descriptors.h5 (reused on the next run when images and model are unchanged). Retrieval: exact
-cosine top-10. Protocols (:mod:`vpr_uncertainty.btl.protocol`):
+cosine top-10. Protocols (:mod:`vpr_uncertainty.btl.method`):
 
 * ``database``: the head is trained on the 111 database images as anchors (positives: database images within
   ±``--frame-tolerance`` frames, the tolerance of the corridor's ground truth; hard negatives: the most similar of
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vpr_uncertainty.btl.protocol import PROTOCOLS, btl_protocol, train_for_protocol
+from vpr_uncertainty.btl.method import PROTOCOLS, btl_protocol, train_for_protocol
 from vpr_uncertainty.data.attach import attach_ground_truth
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import evaluate

@@ -2,7 +2,7 @@
 
 What it counts (from the toolkit's own registries, not typed in): the database and query images of the six
 datasets (``vpr_uncertainty.data.named_datasets``), the nine methods and their descriptor sizes
-(``vpr_uncertainty.descriptors.hub.HUB_MODELS``). What it measures, in this run, on this machine:
+(``vpr_uncertainty.descriptors.models.HUB_MODELS``). What it measures, in this run, on this machine:
 
 * extraction, seconds per image: the offline default model (EfficientNet-Lite0) through ``extract_descriptors`` on
   640-pixel-wide copies of corridor images (the size of most of the datasets' images), batch 16, median of repeats;
@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_geometric import resized_copies
 from vpr_uncertainty.data.named_datasets import get_named_dataset
 from vpr_uncertainty.descriptors import DEFAULT_MODEL, extract_descriptors, load_model
-from vpr_uncertainty.descriptors.hub import HUB_MODELS
+from vpr_uncertainty.descriptors.models import HUB_MODELS
 
 #: The six datasets of the paper, by their names in the named-dataset registry.
 PAPER_DATASETS = ("pitts250k", "st_lucia", "nordland", "amstertime", "eynsham", "tokyo247")

@@ -169,8 +169,7 @@ def test_row9_hloc_external_and_soft_links_are_refused(tmp_path, capsys):
 
 def test_row9_own_descriptor_cache_refuses_external_storage(tmp_path):
     """A descriptors.h5 of ours, its rows replaced by external storage and its checksum recomputed to match."""
-    from vpr_uncertainty.descriptors._checks import split_checksum
-    from vpr_uncertainty.descriptors.cache import DescriptorCache, read_descriptors
+    from vpr_uncertainty.descriptors.cache import DescriptorCache, read_descriptors, split_checksum
     from vpr_uncertainty.retrieval import open_descriptors
 
     path = tmp_path / "descriptors.h5"

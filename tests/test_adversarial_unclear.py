@@ -30,7 +30,7 @@ torch = pytest.importorskip("torch")
 Image = pytest.importorskip("PIL.Image")
 
 from vpr_uncertainty.descriptors import Preprocessing, cache_info, extract_descriptors, read_descriptors  # noqa: E402
-from vpr_uncertainty.descriptors._checks import split_checksum  # noqa: E402
+from vpr_uncertainty.descriptors.cache import split_checksum  # noqa: E402
 from vpr_uncertainty.descriptors.models import from_callable  # noqa: E402
 from vpr_uncertainty.retrieval.descriptor_rows import open_descriptors  # noqa: E402
 

@@ -30,7 +30,7 @@ from vpr_uncertainty.btl import (  # noqa: E402
     triplet_distance_moments,
     triplet_probability,
 )
-from vpr_uncertainty.btl.inputs import resolve_btl_inputs  # noqa: E402
+from vpr_uncertainty.btl.method import resolve_btl_inputs  # noqa: E402
 from vpr_uncertainty.data import positives_within_radius  # noqa: E402
 from vpr_uncertainty.evaluation import evaluate  # noqa: E402
 from vpr_uncertainty.methods import OwnRetrievalUncertainty, get_method  # noqa: E402

@@ -27,7 +27,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("efficientnet_lite_pytorch")
 
 from vpr_uncertainty.btl import btl_retrieval, load_btl_head, save_btl_head, train_btl_head  # noqa: E402
-from vpr_uncertainty.btl.inputs import resolve_btl_inputs  # noqa: E402
+from vpr_uncertainty.btl.method import resolve_btl_inputs  # noqa: E402
 from vpr_uncertainty.data.attach import attach_ground_truth  # noqa: E402
 from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth  # noqa: E402
 from vpr_uncertainty.descriptors import extract_descriptors, load_model  # noqa: E402

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vpr_uncertainty.btl.protocol import (
+from vpr_uncertainty.btl.method import (
     PROTOCOLS,
     BTLProtocol,
     btl_protocol,

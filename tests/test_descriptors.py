@@ -112,7 +112,7 @@ def test_resume_after_interruption_does_not_recompute(images, tmp_path):
     path = tmp_path / "d.h5"
     network, model = counting(fail_after=2)
     with pytest.raises(RuntimeError, match="simulated interruption"):
-        extract_descriptors(model, paths, names, path, "database", batch_size=3, num_workers=0, progress=False)
+        extract_descriptors(model, paths, names, path, "database", batch_size=3, workers=0, progress=False)
     assert network.images == 6  # two batches written before the failure
     with pytest.warns(UserWarning, match="incomplete"):
         partial_names, _ = read_descriptors(path, "database")
@@ -481,7 +481,7 @@ def test_decode_threads_keep_order(images):
     paths, names = images
     for workers in (0, 1, 3):
         kept, descriptors = extract_descriptors(
-            counting()[1], paths, names, batch_size=3, num_workers=workers, progress=False
+            counting()[1], paths, names, batch_size=3, workers=workers, progress=False
         )
         assert list(kept) == names
         if workers == 0:

@@ -1,4 +1,4 @@
-"""Extraction as Ray Data batch inference (descriptors/distributed.py via ``stages.descriptors.extract``).
+"""Extraction as Ray Data batch inference (descriptors/extract.py via ``stages.descriptors.extract``).
 
 One local Ray cluster (2 CPUs) for the module. Real images: 12 database and 12 query images of the corridor, with
 the offline default model; the reference is the local executor on the same images.
@@ -177,7 +177,7 @@ def test_an_unusable_image_fails_as_locally(ray_executor, unusable, tmp_path):
 
 def test_a_batch_that_always_kills_its_worker_stops_the_run(ray_executor, images, tmp_path, monkeypatch):
     """A batch that kills every worker it reaches is retried TASK_RETRIES times, then the run stops with an error."""
-    from vpr_uncertainty.descriptors import distributed
+    from vpr_uncertainty.descriptors import extract as distributed
 
     monkeypatch.setattr(distributed, "TASK_RETRIES", 1)
     paths, names = images["database"]
@@ -197,7 +197,7 @@ def test_a_batch_that_always_kills_its_worker_stops_the_run(ray_executor, images
 def test_missing_ray_data_names_the_extra(monkeypatch):
     import sys
 
-    from vpr_uncertainty.descriptors import distributed
+    from vpr_uncertainty.descriptors import extract as distributed
 
     monkeypatch.setitem(sys.modules, "ray.data", None)
     with pytest.raises(ImportError, match=r"needs Ray Data: pip install 'vpr-uncertainty\[ray\]'"):

@@ -17,7 +17,7 @@ from vpr_uncertainty.descriptors import (  # noqa: E402
     get_model_spec,
     load_model,
 )
-from vpr_uncertainty.descriptors.hub import HUB_MODELS, torchscript_cache_path  # noqa: E402
+from vpr_uncertainty.descriptors.models import HUB_MODELS, torchscript_cache_path  # noqa: E402
 
 IMAGENET = ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225))
 

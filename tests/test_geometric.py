@@ -174,7 +174,7 @@ def test_hloc_layout_round_trip(tmp_path: Path) -> None:
 
 
 def test_cache_is_reused_and_invalidated(scene: dict[str, list[Path]], tmp_path: Path) -> None:
-    from vpr_uncertainty.geometric.sift import SIFTExtractor
+    from vpr_uncertainty.geometric.local_features import SIFTExtractor
 
     paths = scene["query"] + scene["database"]
     extractor = SIFTExtractor(max_side=320)
@@ -199,7 +199,7 @@ def test_cache_is_reused_and_invalidated(scene: dict[str, list[Path]], tmp_path:
 
 
 def test_a_corrupt_cache_file_is_extracted_again(scene: dict[str, list[Path]], tmp_path: Path) -> None:
-    from vpr_uncertainty.geometric.sift import SIFTExtractor
+    from vpr_uncertainty.geometric.local_features import SIFTExtractor
 
     extractor = SIFTExtractor(max_side=160)
     cache_path(tmp_path, extractor).write_bytes(b"not hdf5: a run killed while writing")
@@ -212,7 +212,7 @@ def test_a_corrupt_cache_file_is_extracted_again(scene: dict[str, list[Path]], t
 
 def test_features_changed_on_disk_are_extracted_again(scene: dict[str, list[Path]], tmp_path: Path) -> None:
     """One keypoint of a cached image edited in place (the file's size kept) was used silently (issue 20 row 1)."""
-    from vpr_uncertainty.geometric.sift import SIFTExtractor
+    from vpr_uncertainty.geometric.local_features import SIFTExtractor
 
     extractor = SIFTExtractor(max_side=160)
     first, _ = extract_features(scene["query"], extractor, cache_dir=tmp_path, workers=1)
@@ -232,9 +232,8 @@ def test_deferred_writes_read_the_cache_and_leave_the_writing_to_the_driver(
 ) -> None:
     """Inside ``deferred_writes`` (a grid cell run as a Ray task) the cache is read and never written; the features
     come back to the caller, whose ``store_features`` writes them: the same file a direct extraction writes."""
-    from vpr_uncertainty.geometric.cache import store_features
-    from vpr_uncertainty.geometric.deferred import deferred_writes
-    from vpr_uncertainty.geometric.sift import SIFTExtractor
+    from vpr_uncertainty.geometric.cache import deferred_writes, store_features
+    from vpr_uncertainty.geometric.local_features import SIFTExtractor
 
     paths = scene["query"] + scene["database"]
     extractor = SIFTExtractor(max_side=320)
@@ -299,7 +298,7 @@ def test_gv_methods_say_they_need_images() -> None:
 
 def test_gv_h5_verifies_features_written_by_another_tool(scene: dict[str, list[Path]], tmp_path: Path) -> None:
     """Features stored in hloc's layout (as hloc.extract_features writes them) give the same inliers as GV-SIFT."""
-    from vpr_uncertainty.geometric.sift import SIFTExtractor
+    from vpr_uncertainty.geometric.local_features import SIFTExtractor
 
     paths = scene["query"] + scene["database"]
     names = image_names(paths)

@@ -1,4 +1,4 @@
-"""Geometric verification on Ray: local features and pairs as tasks in chunks (geometric/distributed.py).
+"""Geometric verification on Ray: local features and pairs as tasks in chunks (geometric/cache.py and verify.py).
 
 One local Ray cluster (2 CPUs) for the module. Real images: GV-SIFT on 8 corridor queries against 3 database
 images each; the reference is the same verifier in this process.

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from vpr_uncertainty.geometric import GV_PRESETS, GeometricVerifier, GVPreset, register_preset
-from vpr_uncertainty.geometric.matching import NearestNeighborMatcher
+from vpr_uncertainty.geometric.local_features import NearestNeighborMatcher
 
 
 def test_presets_are_declared_entries():
@@ -33,7 +33,7 @@ def test_a_new_preset_is_one_registration():
         "GV-TEST",
         "a test extractor + mutual NN",
         extractor=f"{__name__}:_Extractor",
-        matcher="vpr_uncertainty.geometric.matching:NearestNeighborMatcher",
+        matcher="vpr_uncertainty.geometric.local_features:NearestNeighborMatcher",
         options={"extractor": {"scale": 2.0}, "matcher": {"ratio": None}},
         modules=(),
     )

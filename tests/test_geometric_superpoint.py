@@ -14,7 +14,7 @@ pytest.importorskip("kornia")
 cv2 = pytest.importorskip("cv2")
 
 from vpr_uncertainty import Retrieval, get_method  # noqa: E402
-from vpr_uncertainty.geometric.weights import (  # noqa: E402
+from vpr_uncertainty.geometric.lightglue import (  # noqa: E402
     WEIGHTS_ENV,
     WeightsUnavailableError,
     load_official_state_dict,

@@ -21,7 +21,7 @@ ray = pytest.importorskip("ray")
 from vpr_uncertainty import read_results  # noqa: E402
 from vpr_uncertainty.evaluation import correct_at_n, evaluate  # noqa: E402
 from vpr_uncertainty.executors import get_executor  # noqa: E402
-from vpr_uncertainty.geometric import distributed  # noqa: E402
+from vpr_uncertainty.geometric import verify as distributed  # noqa: E402
 
 pytestmark = [pytest.mark.realdata, pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")]
 
@@ -47,7 +47,7 @@ def corridor(corridor_dir: Path, corridor_matches_dir: Path) -> SimpleNamespace:
 
 @pytest.fixture
 def ray_calls(monkeypatch):
-    """How many times the pairs were sent to the executor (geometric/distributed.py)."""
+    """How many times the pairs were sent to the executor (geometric/verify.py)."""
     calls = []
     original = distributed.verify_on_executor
 

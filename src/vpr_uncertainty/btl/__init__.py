@@ -1,58 +1,54 @@
-"""Bayesian triplet loss (BTL) baseline: a learned uncertainty head on frozen global descriptors (``[torch]`` extra).
+"""Bayesian triplet loss (BTL) baseline (Warburg et al., ICCV 2021): a learned uncertainty head on frozen global
+descriptors (``[torch]`` extra). Importing the package registers the ``BTL`` method and imports no torch; the
+names below load their module on first use."""
 
-Warburg et al., "Bayesian Triplet Loss: Uncertainty Quantification in Image Retrieval", ICCV 2021. Each image is
-an isotropic Gaussian embedding (L2-normalised mean, one scalar variance); the head is trained with the
-Bayesian triplet loss on triplets mined from the training positives and hard negatives; the variance of a
-query is its uncertainty (higher = less trustworthy), and BTL answers with its own retrieval.
+from importlib import import_module
+from typing import Any
 
-Typical use::
+from vpr_uncertainty.methods import register_method
 
-    from vpr_uncertainty.btl import train_btl_head, save_btl_head
-    head, history = train_btl_head(database_descriptors, positives, query_descriptors=query_descriptors)
-    save_btl_head(head, "head.pt")
-    evaluate(retrieval, ["BTL", "SU"], btl_head="head.pt",
-             query_descriptors=query_descriptors, database_descriptors=database_descriptors)
+_EXPORTS = {
+    "DEFAULT_KL_WEIGHT": "model",
+    "DEFAULT_MARGIN": "model",
+    "DEFAULT_PRIOR_VARIANCE": "model",
+    "BTLHead": "model",
+    "BayesianTripletLoss": "model",
+    "bayesian_triplet_loss": "model",
+    "embed": "model",
+    "kl_to_isotropic_prior": "model",
+    "load_btl_head": "model",
+    "save_btl_head": "model",
+    "triplet_distance_moments": "model",
+    "triplet_probability": "model",
+    "BTLTrainingConfig": "training",
+    "TrainingHistory": "training",
+    "Triplets": "training",
+    "mine_triplets": "training",
+    "save_training_curve": "training",
+    "train_btl_head": "training",
+    "btl_retrieval": "method",
+    "btl_uncertainty": "method",
+    "read_training_inputs": "method",
+    "resolve_btl_inputs": "method",
+    "BTLProtocol": "method",
+    "btl_protocol": "method",
+    "train_for_protocol": "method",
+}
+__all__ = sorted(_EXPORTS)
 
-Modules: :mod:`~vpr_uncertainty.btl.loss` (the loss and its derivation), :mod:`~.model` (the head and its
-file), :mod:`~.mining` (triplets), :mod:`~.training` (training loop, early stopping, curve),
-:mod:`~.method` (the registered ``BTL`` method), :mod:`~.protocol` (evaluation protocols with no training query
-among the test queries).
-"""
 
-from vpr_uncertainty.btl.loss import (
-    DEFAULT_KL_WEIGHT,
-    DEFAULT_MARGIN,
-    DEFAULT_PRIOR_VARIANCE,
-    BayesianTripletLoss,
-    bayesian_triplet_loss,
-    kl_to_isotropic_prior,
-    triplet_distance_moments,
-    triplet_probability,
+def __getattr__(name: str) -> Any:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+
+
+register_method(
+    "BTL",
+    "vpr_uncertainty.btl.method:btl_uncertainty",
+    description="Bayesian triplet loss: query variance of a trained head, with its own retrieval (Warburg et al. 2021)",
+    extra="torch",
+    requires=("btl_head", "descriptors"),
+    kind="learned",
+    resolve="vpr_uncertainty.btl.method:resolve_btl_inputs",
 )
-from vpr_uncertainty.btl.method import btl_retrieval, btl_uncertainty
-from vpr_uncertainty.btl.mining import Triplets, mine_triplets
-from vpr_uncertainty.btl.model import BTLHead, embed, load_btl_head, save_btl_head
-from vpr_uncertainty.btl.training import BTLTrainingConfig, TrainingHistory, save_training_curve, train_btl_head
-
-__all__ = [
-    "DEFAULT_KL_WEIGHT",
-    "DEFAULT_MARGIN",
-    "DEFAULT_PRIOR_VARIANCE",
-    "BTLHead",
-    "BTLTrainingConfig",
-    "BayesianTripletLoss",
-    "TrainingHistory",
-    "Triplets",
-    "bayesian_triplet_loss",
-    "btl_retrieval",
-    "btl_uncertainty",
-    "embed",
-    "kl_to_isotropic_prior",
-    "load_btl_head",
-    "mine_triplets",
-    "save_btl_head",
-    "save_training_curve",
-    "train_btl_head",
-    "triplet_distance_moments",
-    "triplet_probability",
-]

@@ -1,40 +1,231 @@
-"""The ``BTL`` uncertainty method: the predicted variance of each query under a trained BTL head.
+"""The ``BTL`` uncertainty method (registered by :mod:`vpr_uncertainty.btl`), the readers of what it needs, and
+evaluation protocols in which no query is both a training anchor and a test query.
 
-As in the published evaluation, BTL answers with its own retrieval: queries and database are embedded with the
-head's means and searched by cosine similarity, so its correctness labels come from its own top-1 (returned as
-:class:`~vpr_uncertainty.methods.OwnRetrievalUncertainty`; the evaluation says so). Options (passed through
-:func:`vpr_uncertainty.evaluate` or ``get_method("BTL")(retrieval, ...)``):
+BTL's uncertainty is the predicted variance of each query under a trained head. As in the published evaluation,
+BTL answers with its own retrieval (cosine search of the head's means), returned as
+:class:`~vpr_uncertainty.methods.OwnRetrievalUncertainty`, so its correctness labels come from its own top-1.
+Options: ``btl_head`` (a loaded :class:`~vpr_uncertainty.btl.model.BTLHead`), ``query_descriptors`` and
+``database_descriptors`` ((Q, dim) and (D, dim), in the retrieval's order), ``device``, and
+``allow_train_queries`` (evaluating a head on queries it was trained on is an error unless true; then
+``details["trained_on_queries"]`` says how many and every table marks the method).
 
-``btl_head``
-    A loaded :class:`BTLHead`.
-``query_descriptors``, ``database_descriptors``
-    The frozen descriptors the head was trained on, (Q, dim) and (D, dim) arrays in the retrieval's query and
-    database order.
-``device``
-    Where the head runs (``"cpu"``, ``"cuda"``).
-``allow_train_queries``
-    A head file records the descriptors of its training anchors (:func:`~vpr_uncertainty.btl.training.
-    row_digests`). Evaluating it on queries it was trained on inflates its figures, so that is an error unless
-    this is true; then ``details["trained_on_queries"]`` says how many, and every table marks the method.
+:func:`btl_uncertainty` reads no file: the method's ``resolve`` hook, :func:`resolve_btl_inputs`, first reads a
+head file path and ``.npy`` / descriptor-cache ``.h5`` paths (checking the cache's image names).
 
-The functions here read no file: through :func:`vpr_uncertainty.evaluate` or ``get_method("BTL")``, the
-method's ``resolve`` hook (:func:`vpr_uncertainty.btl.inputs.resolve_btl_inputs`) first reads a head file
-path and ``.npy`` / descriptor-cache ``.h5`` paths (checking the cache's image names against the retrieval's).
+Protocols, for a sequence dataset whose query and database traverses are aligned frame by frame (query i shows
+the place of database image i, as in VPR-Bench's corridor):
+
+``database``
+    The head is trained on the database alone: every database image is an anchor, its positives are the other
+    database images at most ``frame_tolerance`` frames away, its hard negatives the most similar of the rest.
+    Every query is a test query; none is seen in training.
+``query-split``
+    The queries are cut at ``split_at`` into two contiguous parts of the traversal: the head is trained on queries
+    ``0 .. split_at - 1`` (positives from the query ground truth) and tested on queries ``split_at .. Q - 1``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import sparse
 
-from vpr_uncertainty.btl.model import BTLHead, embed, row_digests
-from vpr_uncertainty.btl.training import resolve_device
+from vpr_uncertainty.btl.model import BTLHead, embed, load_btl_head, row_digests
+from vpr_uncertainty.btl.training import resolve_device, train_btl_head
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
-from vpr_uncertainty.retrieval import Retrieval
+from vpr_uncertainty.retrieval import Retrieval, search_descriptors
 
-__all__ = ["btl_retrieval", "btl_uncertainty", "trained_on"]
+
+def read_btl_head(value: object, *, device: str = "cpu") -> BTLHead:
+    """A loaded head from ``value`` (a head file written by ``train-btl``, or a :class:`BTLHead`), on ``device``."""
+    if value is None or isinstance(value, BTLHead):
+        return value  # type: ignore[return-value]  # the method says what is missing
+    if not isinstance(value, (str, Path)):
+        raise TypeError(f"btl_head must be the path of a head file or a BTLHead, got {type(value).__name__}")
+    path = Path(value)
+    if not path.is_file():
+        raise FileNotFoundError(f"BTL head file not found: {path} (train one with `vpr-uncertainty train-btl`)")
+    head = load_btl_head(path, device=resolve_device(device))
+    head.source_path = str(path)  # recorded in the config of BTL's own retrieval
+    return head
+
+
+def read_btl_descriptors(value: object, split: str, names: object = None) -> object:
+    """Descriptors of ``split`` (``"queries"`` or ``"database"``) from a ``.npy`` or descriptor-cache ``.h5`` path.
+
+    Arrays (and None) are returned as they are. The image names of a cache are checked against ``names`` (the
+    retrieval's) when both are known.
+    """
+    if not isinstance(value, (str, Path)):
+        return value
+    from vpr_uncertainty.retrieval import load_descriptors
+
+    option = "query_descriptors" if split == "queries" else "database_descriptors"
+    file_names, array = load_descriptors(value, split)
+    if file_names is not None and names is not None and list(file_names) != [str(name) for name in names]:
+        raise ValueError(f"{option}: the image names in the descriptor file differ from the retrieval's {split} names")
+    return array
+
+
+def resolve_btl_inputs(retrieval: Retrieval, options: Mapping[str, Any]) -> dict[str, Any]:
+    """``options`` with ``btl_head`` loaded and ``query_descriptors`` / ``database_descriptors`` read from files."""
+    resolved = dict(options)
+    device = str(resolved.get("device") or "cpu")
+    resolved["btl_head"] = read_btl_head(resolved.get("btl_head"), device=device)
+    resolved["query_descriptors"] = read_btl_descriptors(
+        resolved.get("query_descriptors"), "queries", retrieval.query_names
+    )
+    resolved["database_descriptors"] = read_btl_descriptors(
+        resolved.get("database_descriptors"), "database", retrieval.database_names
+    )
+    return resolved
+
+
+def _load_positions(path: Path, name: str) -> np.ndarray:
+    if not path.is_file():
+        raise FileNotFoundError(f"{name} file not found: {path}")
+    try:
+        array = np.load(path, allow_pickle=False)
+    except ValueError as error:
+        raise ValueError(f"{path}: {name} must be a numeric .npy array: {error}") from None
+    if array.ndim not in (1, 2) or not np.issubdtype(array.dtype, np.number):
+        raise ValueError(f"{path}: {name} must be a numeric array of shape (n, 2) or (n,), got {array.shape}")
+    return array
+
+
+def _h5_has_queries(path: Path) -> bool:
+    from vpr_uncertainty.descriptors.cache import cache_info
+
+    return bool(cache_info(path).get("queries", {}).get("count", 0))
+
+
+def read_training_inputs(
+    *,
+    descriptors: str | Path | None = None,
+    query_descriptors: str | Path | None = None,
+    positions: str | Path | None = None,
+    query_positions: str | Path | None = None,
+    positives: str | Path | None = None,
+    run: str | Path | None = None,
+    radius: float = 25.0,
+) -> dict[str, Any]:
+    """Descriptors and positives for :func:`~vpr_uncertainty.btl.train_btl_head`, read from files.
+
+    Parameters
+    ----------
+    descriptors : path, optional
+        Database descriptors: ``.npy`` (D x dim) or the HDF5 descriptor cache (its queries are used too).
+    query_descriptors : path, optional
+        Query descriptors (``.npy`` or ``.h5``).
+    positions, query_positions : path, optional
+        ``.npy`` positions of the database and queries (ground truth within ``radius``).
+    positives : path, optional
+        Explicit positives instead of positions (any format of :func:`~vpr_uncertainty.data.load_ground_truth`).
+    run : path, optional
+        A run folder holding ``descriptors.h5`` and ``retrieval.npz`` (instead of the other files).
+    radius : float
+        Positive radius, in the unit of the positions.
+
+    Returns
+    -------
+    dict
+        ``database``, ``queries`` (or None: the database trains on itself), ``positives`` and ``source``
+        (JSON-compatible description for the head file).
+    """
+    run = None if run is None else Path(run)
+    descriptors = None if descriptors is None else Path(descriptors)
+    from vpr_uncertainty.data import load_ground_truth, positives_within_radius
+    from vpr_uncertainty.retrieval import load_descriptors, load_retrieval
+
+    if run is not None:
+        exclusive = {
+            "descriptors": descriptors,
+            "query_descriptors": query_descriptors,
+            "positions": positions,
+            "query_positions": query_positions,
+            "positives": positives,
+        }
+        given = [f"argument {name}" for name, value in exclusive.items() if value is not None]
+        if given:
+            raise ValueError(
+                f"a run folder (argument run) gives descriptors.h5 and retrieval.npz; do not combine it with "
+                f"{', '.join(given)}"
+            )
+        if not run.is_dir():
+            raise FileNotFoundError(f"run directory not found: {run}")
+        descriptors = run / "descriptors.h5"
+        retrieval_path = run / "retrieval.npz"
+        if not descriptors.is_file() or not retrieval_path.is_file():
+            raise FileNotFoundError(f"{run} must hold descriptors.h5 and retrieval.npz (from extract + retrieve)")
+    elif descriptors is None:
+        raise ValueError(
+            "give the training data: descriptors (argument descriptors, with argument positions or argument "
+            "positives) or a run folder (argument run)"
+        )
+    else:
+        retrieval_path = None
+
+    database_names, database = load_descriptors(descriptors, "database")
+    query_path = query_descriptors
+    if query_path is None and descriptors.suffix.lower() in (".h5", ".hdf5") and _h5_has_queries(descriptors):
+        query_path = descriptors
+    query_names, queries = load_descriptors(query_path, "queries") if query_path is not None else (None, None)
+    source: dict[str, Any] = {"descriptors": str(descriptors), "query_descriptors": str(query_path or "")}
+
+    ground_truth = None
+    if retrieval_path is not None:
+        retrieval = load_retrieval(retrieval_path)
+        if retrieval.positives is None:
+            raise ValueError(f"{retrieval_path} holds no ground truth (positives); retrieve with positions")
+        if queries is None:
+            raise ValueError(f"{descriptors} holds no query descriptors")
+        for split, names, stored in (
+            ("query", query_names, retrieval.query_names),
+            ("database", database_names, retrieval.database_names),
+        ):
+            if names is not None and stored is not None and list(names) != [str(name) for name in stored]:
+                raise ValueError(f"the {split} names of {descriptors} and {retrieval_path} differ")
+        ground_truth = retrieval.positives
+        source["positives"] = str(retrieval_path)
+    elif positives is not None:
+        ground_truth = load_ground_truth(positives, n_database=len(database))
+        if queries is None or ground_truth.shape[0] != len(queries):
+            if ground_truth.shape[0] != len(database):
+                expected = f"{len(queries)} (queries) or {len(database)}" if queries is not None else f"{len(database)}"
+                raise ValueError(
+                    f"{positives} has positives for {ground_truth.shape[0]} images; expected {expected} (database)"
+                )
+            queries = None  # database × database ground truth: the database trains on itself
+        source["positives"] = str(positives)
+    elif positions is not None:
+        database_positions = _load_positions(Path(positions), "database positions (argument positions)")
+        if len(database_positions) != len(database):
+            raise ValueError(
+                f"the database positions (argument positions) have {len(database_positions)} rows but there are "
+                f"{len(database)} images"
+            )
+        if query_positions is not None and queries is not None:
+            query_array = _load_positions(Path(query_positions), "query positions (argument query_positions)")
+            if len(query_array) != len(queries):
+                raise ValueError(
+                    f"the query positions (argument query_positions) have {len(query_array)} rows but there are "
+                    f"{len(queries)} queries"
+                )
+            ground_truth = positives_within_radius(query_array, database_positions, radius)
+        else:
+            queries = None  # no query ground truth: the database trains on itself
+            ground_truth = positives_within_radius(database_positions, database_positions, radius)
+        source.update(positions=str(positions), radius=radius)
+    else:
+        raise ValueError("give the ground truth: positions (argument positions, with a radius) or argument positives")
+    if queries is None:
+        source["query_descriptors"] = ""
+    source["anchors"] = "queries" if queries is not None else "database"
+    return {"database": database, "queries": queries, "positives": ground_truth, "source": source}
 
 
 def _head(value: object, device: str) -> BTLHead:
@@ -46,7 +237,7 @@ def _head(value: object, device: str) -> BTLHead:
     if not isinstance(value, BTLHead):
         raise TypeError(
             f"btl_head must be a loaded BTLHead here, got {type(value).__name__} (read a head file with "
-            "vpr_uncertainty.btl.inputs.resolve_btl_inputs or load_btl_head)"
+            "vpr_uncertainty.btl.method.resolve_btl_inputs or load_btl_head)"
         )
     return value.to(resolve_device(device)).eval()
 
@@ -62,7 +253,7 @@ def _descriptors(value: object, split: str, expected: int | None) -> np.ndarray:
     if isinstance(value, (str, Path)):
         raise TypeError(
             f"{option} must be an array here, got the path {value} (read it with "
-            "vpr_uncertainty.btl.inputs.resolve_btl_inputs)"
+            "vpr_uncertainty.btl.method.resolve_btl_inputs)"
         )
     array = np.asarray(value, dtype=np.float32)
     if array.ndim != 2:
@@ -70,20 +261,6 @@ def _descriptors(value: object, split: str, expected: int | None) -> np.ndarray:
     if expected is not None and len(array) != expected:
         raise ValueError(f"{option} has {len(array)} rows but the retrieval has {expected} {split}")
     return array
-
-
-def _search(database: np.ndarray, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Exact cosine top-k of unit-norm embeddings (Faiss when available)."""
-    try:
-        from vpr_uncertainty.retrieval import search_descriptors
-    except ImportError:  # pragma: no cover - older retrieval module: plain numpy
-        from vpr_uncertainty.retrieval import top_k_from_similarity
-
-        scores, indices = top_k_from_similarity(queries @ database.T, k)
-        from vpr_uncertainty.scores import squared_distances_from_similarities
-
-        return scores, indices, squared_distances_from_similarities(scores, check=False)
-    return search_descriptors(database, queries, k, progress=False)
 
 
 def btl_retrieval(
@@ -116,7 +293,7 @@ def btl_retrieval(
     query_means, query_variances = embed(head, queries)
     database_means, _ = embed(head, database)
     k = min(retrieval.k, len(database))
-    scores, indices, distances = _search(database_means, query_means, k)
+    scores, indices, distances = search_descriptors(database_means, query_means, k, progress=False)
     config: dict[str, Any] = {
         "source": "btl",
         "metric": "cosine",
@@ -188,3 +365,167 @@ def btl_uncertainty(
     if seen:
         details["trained_on_queries"] = seen
     return OwnRetrievalUncertainty(uncertainty=variance.astype(np.float64), retrieval=own, details=details)
+
+
+#: The protocols :func:`btl_protocol` builds.
+PROTOCOLS = ("database", "query-split")
+
+
+@dataclass(frozen=True)
+class BTLProtocol:
+    """Which images train the head and which queries test it.
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`PROTOCOLS`.
+    anchors : {"database", "queries"}
+        What the training anchors are.
+    train_queries : ndarray of int64
+        Queries used as training anchors (training and early-stopping validation); empty when ``anchors`` is
+        ``"database"``.
+    test_queries : ndarray of int64
+        Queries the head is evaluated on; disjoint from ``train_queries``.
+    description : str
+        One line for a report.
+    """
+
+    name: str
+    anchors: str
+    train_queries: np.ndarray
+    test_queries: np.ndarray
+    description: str
+
+
+def _count(value: object, name: str, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def btl_protocol(name: str, n_queries: int, *, split_at: int | None = None) -> BTLProtocol:
+    """The training and test queries of protocol ``name``.
+
+    Parameters
+    ----------
+    name : {"database", "query-split"}
+    n_queries : int
+        Number of queries of the dataset (at least 2).
+    split_at : int, optional
+        ``query-split`` only: the first test query; queries before it train the head. Default: ``n_queries // 2``.
+        Must leave at least 2 training queries (one for early stopping) and 1 test query.
+
+    Returns
+    -------
+    BTLProtocol
+
+    Examples
+    --------
+    >>> protocol = btl_protocol("query-split", 6, split_at=4)
+    >>> protocol.train_queries.tolist(), protocol.test_queries.tolist()
+    ([0, 1, 2, 3], [4, 5])
+    >>> btl_protocol("database", 3).train_queries.size
+    0
+    """
+    n_queries = _count(n_queries, "n_queries", 2)
+    if name == "database":
+        if split_at is not None:
+            raise ValueError(
+                "split_at applies to the 'query-split' protocol only; the 'database' one tests every query"
+            )
+        return BTLProtocol(
+            name=name,
+            anchors="database",
+            train_queries=np.empty(0, dtype=np.int64),
+            test_queries=np.arange(n_queries, dtype=np.int64),
+            description=f"trained on the database images as anchors, tested on all {n_queries} queries",
+        )
+    if name == "query-split":
+        split_at = n_queries // 2 if split_at is None else _count(split_at, "split_at", 2)
+        if split_at > n_queries - 1:
+            raise ValueError(
+                f"split_at must leave at least one test query: got {split_at} with {n_queries} queries "
+                f"(expected 2 <= split_at <= {n_queries - 1})"
+            )
+        return BTLProtocol(
+            name=name,
+            anchors="queries",
+            train_queries=np.arange(split_at, dtype=np.int64),
+            test_queries=np.arange(split_at, n_queries, dtype=np.int64),
+            description=(
+                f"trained on queries 0..{split_at - 1} as anchors, tested on queries {split_at}..{n_queries - 1}"
+            ),
+        )
+    raise ValueError(f"unknown BTL protocol {name!r}; expected one of {', '.join(PROTOCOLS)}")
+
+
+def database_frame_positives(n_database: int, frame_tolerance: int | float) -> sparse.csr_array:
+    """Positives of each database image among the database: the images at most ``frame_tolerance`` frames away.
+
+    Row i includes i itself; training with database anchors ignores that entry.
+
+    Examples
+    --------
+    >>> database_frame_positives(4, 1).toarray().astype(int)
+    array([[1, 1, 0, 0],
+           [1, 1, 1, 0],
+           [0, 1, 1, 1],
+           [0, 0, 1, 1]])
+    """
+    from vpr_uncertainty.data import positives_within_frames
+
+    frames = np.arange(_count(n_database, "n_database", 2))
+    return positives_within_frames(frames, frames, tolerance=frame_tolerance)
+
+
+def train_for_protocol(
+    protocol: BTLProtocol,
+    query_descriptors: object,
+    database_descriptors: object,
+    positives: object,
+    *,
+    frame_tolerance: int | float = 2,
+    **settings: Any,
+) -> tuple[Any, Any]:
+    """Train a BTL head as ``protocol`` says, touching no test query.
+
+    Parameters
+    ----------
+    protocol : BTLProtocol
+    query_descriptors : array-like of shape (Q, dim)
+        All queries; only ``protocol.train_queries`` are used.
+    database_descriptors : array-like of shape (D, dim)
+    positives : sparse or dense bool matrix of shape (Q, D)
+        The query ground truth; only the rows of ``protocol.train_queries`` are used.
+    frame_tolerance : int or float, default 2
+        ``database`` protocol: the frame distance of database positives.
+    **settings
+        Passed to :func:`~vpr_uncertainty.btl.train_btl_head` (``seed``, ``epochs``, ``progress``, ...).
+
+    Returns
+    -------
+    head, history
+        As :func:`~vpr_uncertainty.btl.train_btl_head` returns them.
+    """
+    if not isinstance(protocol, BTLProtocol):
+        raise TypeError(f"protocol must be a BTLProtocol (see btl_protocol), got {type(protocol).__name__}")
+    overlap = np.intersect1d(protocol.train_queries, protocol.test_queries)
+    if overlap.size:
+        raise ValueError(
+            f"protocol {protocol.name!r} trains on {overlap.size} of its test queries (first: {int(overlap[0])}); "
+            "training and test queries must be disjoint"
+        )
+    queries = np.asarray(query_descriptors, dtype=np.float32)
+    database = np.asarray(database_descriptors, dtype=np.float32)
+    ground_truth = sparse.csr_array(positives, dtype=bool)
+    if queries.ndim != 2 or ground_truth.shape != (len(queries), len(database)):
+        raise ValueError(
+            f"positives must have shape (n_queries, n_database) = ({len(queries)}, {len(database)}), "
+            f"got {ground_truth.shape}"
+        )
+    if protocol.anchors == "database":
+        return train_btl_head(database, database_frame_positives(len(database), frame_tolerance), **settings)
+    rows = protocol.train_queries
+    if rows.size and rows.max() >= len(queries):
+        raise ValueError(f"protocol {protocol.name!r} trains on query {int(rows.max())} but there are {len(queries)}")
+    return train_btl_head(database, ground_truth[rows], query_descriptors=queries[rows], **settings)

@@ -1,20 +1,15 @@
 """Training the BTL head on frozen descriptors: triplet mining, early stopping, the training curve.
 
-Data: the descriptors of the anchors (the training queries) and of the database, and the positives of each
-anchor (within 25 m of its position, or explicit lists such as VPR-Bench's frame-tolerance ground truth). When
-only one set of images is given (a training database with positions), every image is an anchor and its
-positives are the other images within the radius.
+Anchors are the training queries (or, with one set of images, every image of a training database with positions);
+their positives come from the ground truth (within 25 m, or explicit lists). Deterministic for a ``seed`` on CPU:
 
-Procedure (deterministic for a given ``seed`` on CPU):
-
-1. The anchors with at least one positive are split at random into training and validation anchors
-   (``val_fraction``, 20 % by default).
-2. Triplets are mined once for each split (:func:`~vpr_uncertainty.btl.mining.mine_triplets`): the most
-   similar positives × the hardest negatives (nearest non-positives in descriptor space).
-3. Adam(W) on the Bayesian triplet loss, shuffled mini-batches of triplets; after every epoch the loss of the
-   validation triplets (in eval mode, same loss with its KL term). Epoch 0 is the untrained head.
-4. Early stopping: training stops when the validation loss has not improved for ``patience`` epochs, and the
-   head of the best epoch is returned.
+1. Anchors with at least one positive are split at random into training and validation anchors (``val_fraction``).
+2. Triplets are mined once per split (:func:`mine_triplets`), before training: each anchor's ``max_positives``
+   most similar positives × its ``n_negatives`` hardest negatives (most similar non-positives), by the cosine of
+   the frozen descriptors; anchors without a positive or a negative give none.
+3. AdamW on the Bayesian triplet loss over shuffled mini-batches; after every epoch the validation loss (epoch 0
+   is the untrained head).
+4. Early stopping after ``patience`` epochs without improvement; the best epoch's head is returned.
 """
 
 from __future__ import annotations
@@ -30,23 +25,146 @@ import numpy as np
 import torch
 from scipy import sparse
 
-from vpr_uncertainty.btl.loss import (
+from vpr_uncertainty.btl.model import (
     DEFAULT_KL_WEIGHT,
     DEFAULT_MARGIN,
     DEFAULT_PRIOR_VARIANCE,
+    BTLHead,
     bayesian_triplet_loss,
+    row_digests,
 )
-from vpr_uncertainty.btl.mining import Triplets, mine_triplets
-from vpr_uncertainty.btl.model import BTLHead, row_digests
 from vpr_uncertainty.cache import atomic_path, write_text
 
-__all__ = [
-    "BTLTrainingConfig",
-    "TrainingHistory",
-    "resolve_device",
-    "save_training_curve",
-    "train_btl_head",
-]
+
+@dataclass(frozen=True)
+class Triplets:
+    """Index triplets: ``anchor`` indexes the anchor descriptors, ``positive`` and ``negative`` the database.
+
+    Attributes
+    ----------
+    anchor, positive, negative : ndarray of shape (T,), int64
+    """
+
+    anchor: np.ndarray
+    positive: np.ndarray
+    negative: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.anchor.size)
+
+    @property
+    def n_anchors(self) -> int:
+        """Number of distinct anchors with at least one triplet."""
+        return int(np.unique(self.anchor).size)
+
+
+def _unit_rows(values: object, name: str) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float32)
+    if array.ndim != 2:
+        raise ValueError(f"{name} must be 2-D (n_images, dimension), got shape {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name} contain NaN or inf")
+    norms = np.linalg.norm(array, axis=1, keepdims=True)
+    if (norms == 0).any():
+        raise ValueError(f"{name} row {int(np.flatnonzero(norms[:, 0] == 0)[0])} is all zeros")
+    return array / norms
+
+
+def mine_triplets(
+    anchor_descriptors: object,
+    database_descriptors: object,
+    positives: object,
+    *,
+    anchors: object = None,
+    n_negatives: int = 10,
+    max_positives: int = 10,
+    same_set: bool = False,
+    block_size: int = 1024,
+) -> Triplets:
+    """Triplets of (anchor, positive, hard negative) indices.
+
+    Parameters
+    ----------
+    anchor_descriptors : array-like of shape (Q, dim)
+        Descriptors of the anchors (queries).
+    database_descriptors : array-like of shape (D, dim)
+        Descriptors of the images positives and negatives are taken from.
+    positives : sparse or dense bool matrix of shape (Q, D)
+        Ground truth of each anchor.
+    anchors : array-like of int, optional
+        Rows of ``anchor_descriptors`` to mine for (e.g. the training split); default all.
+    n_negatives : int, default 10
+        Hard negatives per anchor: its most similar non-positive database images.
+    max_positives : int, default 10
+        Positives per anchor: its most similar positives.
+    same_set : bool, default False
+        The anchors are the database images themselves (Q == D, row i is database image i): an image is never
+        its own positive or negative.
+    block_size : int, default 1024
+        Anchors whose similarities are computed at once (bounds memory to block_size × D floats).
+
+    Returns
+    -------
+    Triplets
+        Ordered by anchor, then positive (most similar first), then negative (most similar first).
+
+    Examples
+    --------
+    >>> database = np.array([[1.0, 0.0], [0.0, 1.0], [0.7, 0.7], [-1.0, 0.0]])
+    >>> query = np.array([[0.9, 0.1]])
+    >>> t = mine_triplets(query, database, np.array([[True, False, False, False]]), n_negatives=2)
+    >>> t.anchor.tolist(), t.positive.tolist(), t.negative.tolist()
+    ([0, 0], [0, 0], [2, 1])
+    """
+    queries = _unit_rows(anchor_descriptors, "anchor descriptors")
+    database = _unit_rows(database_descriptors, "database descriptors")
+    if queries.shape[1] != database.shape[1]:
+        raise ValueError(
+            f"anchor and database descriptors must have the same dimension, got {queries.shape[1]} and "
+            f"{database.shape[1]}"
+        )
+    positives = sparse.csr_array(positives, dtype=bool)
+    if positives.shape != (len(queries), len(database)):
+        raise ValueError(
+            f"positives must have shape ({len(queries)}, {len(database)}) (anchors × database), got {positives.shape}"
+        )
+    if same_set and len(queries) != len(database):
+        raise ValueError("same_set=True needs the anchors to be the database images (as many rows)")
+    for name, value in (("n_negatives", n_negatives), ("max_positives", max_positives), ("block_size", block_size)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    rows = np.arange(len(queries)) if anchors is None else np.asarray(anchors, dtype=np.int64).ravel()
+    if rows.size and (rows.min() < 0 or rows.max() >= len(queries)):
+        raise ValueError(f"anchors must index the {len(queries)} anchor descriptors")
+
+    parts: tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]] = ([], [], [])
+    for start in range(0, rows.size, block_size):
+        block = rows[start : start + block_size]
+        similarity = queries[block] @ database.T  # (B, D)
+        for row, anchor in zip(similarity, block, strict=True):
+            own = positives.indices[positives.indptr[anchor] : positives.indptr[anchor + 1]]
+            if same_set:
+                own = own[own != anchor]
+            if own.size == 0:
+                continue
+            positive = own[np.lexsort((own, -row[own]))[:max_positives]]
+            candidates = row.copy()
+            candidates[own] = -np.inf
+            if same_set:
+                candidates[anchor] = -np.inf
+            available = int(np.isfinite(candidates).sum())
+            count = min(n_negatives, available)
+            if count == 0:
+                continue
+            nearest = np.argpartition(-candidates, count - 1)[:count]
+            negative = nearest[np.lexsort((nearest, -candidates[nearest]))]
+            parts[0].append(np.full(positive.size * negative.size, anchor, dtype=np.int64))
+            parts[1].append(np.repeat(positive, negative.size).astype(np.int64))
+            parts[2].append(np.tile(negative, positive.size).astype(np.int64))
+    if not parts[0]:
+        empty = np.empty(0, dtype=np.int64)
+        return Triplets(empty, empty.copy(), empty.copy())
+    return Triplets(*(np.concatenate(part) for part in parts))
 
 
 @dataclass
@@ -81,12 +199,10 @@ class BTLTrainingConfig:
             or self.embedding_dim < 1
         ):
             raise ValueError(f"embedding_dim must be a positive integer or None, got {self.embedding_dim!r}")
-        for name in ("hidden_dim", "n_negatives", "max_positives", "epochs", "batch_size"):
+        for name in ("hidden_dim", "n_negatives", "max_positives", "epochs", "batch_size", "patience"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if isinstance(self.patience, bool) or not isinstance(self.patience, (int, np.integer)) or self.patience < 1:
-            raise ValueError(f"patience must be a positive integer, got {self.patience!r}")
         if not 0.0 < self.val_fraction < 1.0:
             raise ValueError(
                 f"val_fraction must lie in (0, 1): early stopping needs a validation split, got {self.val_fraction}"

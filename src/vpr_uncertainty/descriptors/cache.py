@@ -1,38 +1,31 @@
 """HDF5 descriptor cache: one row per image, resumable per image, following :mod:`vpr_uncertainty.cache`.
 
-Layout (format version 2), read by :func:`read_descriptors`::
+Layout (format version 2)::
 
-    /                   attrs: format = "vpr-uncertainty descriptors", format_version = 2,
-                               config (JSON: model name, weights identity, preprocessing, storage dtype),
-                               fingerprint (:func:`vpr_uncertainty.cache.fingerprint` of the stage and config),
-                               model (name), dtype ("float32" or "float16")
-    /database           attrs: complete (bool), failed (JSON list of {"name", "path", "error"} of skipped images),
-                               checksum (once complete: see :mod:`vpr_uncertainty.descriptors._checks`)
-        names           (N,) variable-length UTF-8 strings, unique once complete
-        descriptors     (N, D) float32 or float16, L2-normalised rows, row i belongs to names[i]
-        keys            (N,) :func:`vpr_uncertainty.cache.content_key` of the image file row i was computed from
+    /                   attrs: format = "vpr-uncertainty descriptors", format_version = 2, config (JSON: model,
+                               weights identity, preprocessing, dtype), fingerprint, model, dtype
+    /database           attrs: complete (bool), failed (JSON list of {"name", "path", "error"}),
+                               checksum (once complete)
+        names           (N,) UTF-8 strings, unique once complete
+        descriptors     (N, D) float32 or float16, L2-normalised, row i belongs to names[i]
+        keys            (N,) content key of the image file row i was computed from
     /queries            same as /database
 
-Rows are appended and flushed batch by batch, so a killed extraction loses at most the batch in flight. A rerun
-computes exactly the images whose name is missing or whose content key differs (an image replaced on disk,
-another dataset with the same names) and keeps the others. When extraction of a split completes, its rows are put
-in the order of the requested image list (skipped images left out, the newest row of a recomputed name kept) and
-``complete`` is set. A file of another fingerprint (another model or preprocessing), of version 1 (no content
-keys), empty or truncated, or whose complete split no longer matches its payload checksum (a row, name or key
-changed on disk, whatever the file's size and time) is rebuilt from scratch with a one-line
-:class:`~vpr_uncertainty.cache.CacheWarning`; :func:`read_descriptors` verifies the checksum too and raises
-:class:`~vpr_uncertainty.cache.ChecksumError` naming the file. A complete split without a checksum (written before
-checksums) is sealed by the next run that resumes it. A file that is not one of ours is never overwritten.
-Rows holding NaN or infinite values (an unsealed split, a model that once produced them) are recomputed by the next
-extraction with a one-line notice; :func:`read_descriptors` refuses them (ValueError naming the file and image).
-``overwrite`` never replaces a file another process holds open for writing (its HDF5 lock): ValueError naming it.
-Version 1 files are still read by :func:`read_descriptors`.
+The checksum is :func:`vpr_uncertainty.cache.payload_checksum` of names, descriptors as stored, keys and
+``failed``, hashed one block of rows at a time. Rows are appended and flushed batch by batch; a rerun computes only
+the images whose name is missing or whose content key differs. A file of another fingerprint, of version 1, empty,
+truncated or failing its checksum is rebuilt with a one-line :class:`~vpr_uncertainty.cache.CacheWarning`; a file
+that is not ours is never overwritten, nor one another process holds open for writing. Rows holding NaN or
+infinite values are recomputed by the next extraction and refused by the readers.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
+import os
+import re
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -42,18 +35,163 @@ import numpy as np
 
 from vpr_uncertainty import cache as protocol
 from vpr_uncertainty.cache import open_present
-from vpr_uncertainty.descriptors import _checks
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "SPLITS", "DescriptorCache", "cache_info", "read_descriptors"]
+_HASH_BLOCK_BYTES = 1 << 24
+
+
+class _StoredRows:
+    """The first ``count`` rows of an HDF5 dataset, read one block at a time."""
+
+    def __init__(self, dataset: Any, count: int) -> None:
+        self.dataset = dataset
+        self.shape = (count, *dataset.shape[1:])
+        self.dtype = dataset.dtype
+
+    def row_blocks(self) -> Iterator[np.ndarray]:
+        row_bytes = max(1, int(np.prod(self.shape[1:], dtype=np.int64)) * self.dtype.itemsize)
+        step = max(1, _HASH_BLOCK_BYTES // row_bytes)
+        for start in range(0, self.shape[0], step):
+            yield self.dataset[start : min(start + step, self.shape[0])]
+
+
+def _parts(group: Any, count: int, descriptors: Any = None) -> tuple[Any, ...]:
+    names = np.asarray(group["names"].asstr()[:count], dtype=str) if "names" in group else None
+    keys = np.asarray(group["keys"].asstr()[:count], dtype=str) if "keys" in group else None
+    if descriptors is None and "descriptors" in group:
+        descriptors = _StoredRows(group["descriptors"], count)
+    return names, descriptors, keys, str(group.attrs.get("failed", "[]"))
+
+
+def split_checksum(group: Any, count: int) -> str:
+    """The payload checksum of the first ``count`` rows of a split (an ``h5py`` group), read from the file."""
+    return protocol.payload_checksum(*_parts(group, count))
+
+
+def verify_split(path: Path, group: Any, split: str, count: int, descriptors: np.ndarray | None = None) -> None:
+    """Raise :class:`~vpr_uncertainty.cache.ChecksumError` naming ``path`` when a complete split that holds a
+    checksum no longer matches it (``descriptors``: its rows as stored, when already read)."""
+    stored = group.attrs.get("checksum")
+    if not group.attrs.get("complete", False) or stored is None:
+        return  # being written (rows appended), or sealed by the next run that completes it
+    protocol.verify_checksum(path, stored, *_parts(group, count, descriptors), what=f"the {split!r} descriptors")
+
+
+def non_finite_rows(group: Any, count: int) -> np.ndarray:
+    """Indices of the first ``count`` rows of a split whose descriptors hold NaN or infinite values (block by block)."""
+    if count == 0 or "descriptors" not in group:
+        return np.empty(0, dtype=np.int64)
+    found, start = [], 0
+    for block in _StoredRows(group["descriptors"], count).row_blocks():
+        found.append(start + np.flatnonzero(~np.isfinite(block).all(axis=1)))
+        start += len(block)
+    return np.concatenate(found)
+
+
+def blank_non_finite(path: Path, group: Any, split: str, names: Any, keys: Any) -> list[str]:
+    """``keys`` with the key of every row holding NaN or infinite values blanked (the extraction recomputes those
+    images), with a one-line :class:`~vpr_uncertainty.cache.CacheWarning` naming ``path``."""
+    keys = list(keys)
+    bad = non_finite_rows(group, len(keys))
+    if bad.size:
+        protocol.stale_notice(
+            path,
+            f"{bad.size} {split!r} row(s) hold NaN or infinite values (first: image {str(names[int(bad[0])])!r})",
+            "recomputing them",
+            stacklevel=5,
+        )
+        for row in bad:
+            keys[int(row)] = ""
+    return keys
+
+
+def check_finite(path: Path | str, split: str, descriptors: np.ndarray, names: Any, first_row: int = 0) -> None:
+    """Raise ValueError naming ``path`` when rows ``first_row`` … of ``split`` hold NaN or infinite values (checked
+    one block of rows at a time: no temporary the size of ``descriptors``)."""
+    row_bytes = max(1, int(np.prod(descriptors.shape[1:], dtype=np.int64)) * descriptors.dtype.itemsize)
+    step = max(1, _HASH_BLOCK_BYTES // row_bytes)
+    found = [np.zeros(0, dtype=np.int64)]
+    for start in range(0, len(descriptors), step):
+        found.append(start + np.flatnonzero(~np.isfinite(descriptors[start : start + step]).all(axis=1)))
+    bad = np.concatenate(found)
+    if bad.size:
+        row = int(bad[0])
+        name = f" (image {str(names[first_row + row])!r})" if names is not None else ""
+        raise ValueError(
+            f"{path}: the {split!r} descriptors hold NaN or infinite values ({bad.size} row(s), first row "
+            f"{first_row + row}{name}); rebuild the file (vpr-uncertainty extract, or run, recomputes those rows)"
+        )
+
+
+def in_use_error(path: Path) -> ValueError:
+    """The error for a descriptor cache another process holds open for writing (its HDF5 file lock)."""
+    return ValueError(
+        f"{path} is open for writing in another process (HDF5 file lock); wait for it to finish or choose another path"
+    )
+
+
+def refuse_if_in_use(path: Path, h5py: Any) -> None:
+    """Raise :func:`in_use_error` when another process holds ``path`` open for writing; anything else (a file
+    HDF5 cannot open, readers holding shared locks) is left for the caller to replace."""
+    try:
+        handle = h5py.File(path, "r")
+    except OSError as error:
+        if is_lock_error(error):
+            raise in_use_error(path) from error
+        return
+    handle.close()
+
+
+def is_lock_error(error: OSError) -> bool:
+    """Whether HDF5 refused to open the file because another process holds its lock (not "sblock" of truncation)."""
+    text = str(error).lower()
+    return "unable to lock file" in text or getattr(error, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK)
+
+
+def first_line(error: BaseException) -> str:
+    return (str(error).strip().splitlines() or [type(error).__name__])[0]
+
+
+def write_error(path: Path, error: BaseException, what: str = "the descriptor cache") -> OSError:
+    """An OSError naming ``path`` with the errno of a failed HDF5 write (h5py puts it in the text of a RuntimeError)."""
+    number = getattr(error, "errno", None)
+    if not number:
+        found = re.search(r"errno = (\d+)", str(error))
+        number = int(found.group(1)) if found else errno.EIO
+    return OSError(number, f"{os.strerror(number)} (writing {what})", str(path))
+
+
+def looks_like_hdf5(path: Path) -> bool:
+    """Whether the file starts with the HDF5 signature (or with a part of it: a file cut within its first bytes)."""
+    with open(path, "rb") as handle:
+        head = handle.read(8)
+    return bool(head) and b"\x89HDF\r\n\x1a\n".startswith(head)
+
+
+def describe_change(stored: str, current: str) -> str:
+    try:
+        old, new = json.loads(stored or "{}"), json.loads(current)
+    except json.JSONDecodeError:
+        return "unreadable fingerprint"
+    changed = sorted(key for key in set(old) | set(new) if old.get(key) != new.get(key))
+    return "changed: " + ", ".join(changed) if changed else "fingerprint differs"
+
 
 FORMAT = "vpr-uncertainty descriptors"
+
 FORMAT_VERSION = 2
+
 #: Name of the stage in the fingerprint.
 STAGE = "descriptors"
+
 SPLITS = ("database", "queries")
+
 _DATASETS = ("names", "descriptors", "keys")
+
 DTYPES = ("float32", "float16")
+
 _CHUNK_ROWS = 256
+
+
 # No raw-data chunk cache in the writer: each batch goes to disk when written, so a failed write (disk full)
 # raises there, as an OSError, instead of leaving a dirty chunk that HDF5 cannot flush on close and that crashes
 # the interpreter at exit (HDF5 2.0 / h5py 3.16: segmentation fault).
@@ -64,12 +202,6 @@ def _check_split(split: str) -> str:
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
     return split
-
-
-def _import_h5py() -> Any:
-    import h5py
-
-    return h5py
 
 
 def _valid_length(group: Any) -> int:
@@ -83,8 +215,10 @@ def _valid_length(group: Any) -> int:
 def split_layout(path: Path, split: str, *, stacklevel: int = 2) -> tuple[np.ndarray, int, int]:
     """``(names, rows, dimension)`` of one split of a descriptor cache, checked: the file's format, the split
     present, and a warning (at ``stacklevel`` above the caller) when its extraction did not complete."""
+    import h5py
+
     try:
-        handle = _import_h5py().File(path, "r")
+        handle = h5py.File(path, "r")
     except OSError as error:
         raise ValueError(f"{path} is not a readable HDF5 descriptor file: {error}") from error
     with handle:
@@ -130,14 +264,16 @@ def read_descriptors(
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"descriptor file not found: {path}")
+    import h5py
+
     stored_names, count, _ = split_layout(path, split, stacklevel=3)
     if count == 0:
         return stored_names, np.empty((0, 0), dtype=np.float32)
-    with _import_h5py().File(path, "r") as handle:
+    with h5py.File(path, "r") as handle:
         stored = np.asarray(handle[split]["descriptors"][:count])
         if verify:
-            _checks.verify_split(path, handle[split], split, count, stored)
-    _checks.check_finite(path, split, stored, stored_names)  # a checksum proves the bytes, not that they are numbers
+            verify_split(path, handle[split], split, count, stored)
+    check_finite(path, split, stored, stored_names)  # a checksum proves the bytes, not that they are numbers
     descriptors = stored.astype(np.float32, copy=False)
     if names is None:
         return stored_names, descriptors
@@ -152,7 +288,8 @@ def read_descriptors(
 
 def cache_info(path: str | Path) -> dict[str, Any]:
     """Summary of a descriptor file: fingerprint, dtype, and per split the row count, size D, completeness."""
-    h5py = _import_h5py()
+    import h5py
+
     with h5py.File(path, "r") as handle:
         version = int(handle.attrs.get("format_version", 0))
         config = handle.attrs.get("config" if version >= 2 else "fingerprint", "{}")
@@ -222,10 +359,11 @@ class DescriptorCache:
         self.close()
 
     def open(self) -> None:
-        h5py = _import_h5py()
+        import h5py
+
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if self.overwrite and self.path.exists():
-            _checks.refuse_if_in_use(self.path, h5py)  # never replaced while another process writes it
+            refuse_if_in_use(self.path, h5py)  # never replaced while another process writes it
         if self.path.exists() and not self.overwrite:
             reason = self._stale_reason(h5py)
             if reason is None:
@@ -259,21 +397,21 @@ class DescriptorCache:
                     return f"written by an earlier version (format version {version}, without per-image content keys)"
                 stored, stored_config = handle.attrs.get("fingerprint", ""), handle.attrs.get("config", "")
         except OSError as error:
-            if _checks.is_lock_error(error):
-                raise _checks.in_use_error(self.path) from error
+            if is_lock_error(error):
+                raise in_use_error(self.path) from error
             if self.path.stat().st_size == 0:
                 return "empty file (0 bytes)"
-            if _checks.looks_like_hdf5(self.path):
-                return f"truncated or damaged HDF5 file ({_checks.first_line(error)})"
+            if looks_like_hdf5(self.path):
+                return f"truncated or damaged HDF5 file ({first_line(error)})"
             raise ValueError(f"{self.path} exists and is not an HDF5 file; choose another path or delete it") from error
         if stored != self.fingerprint:
-            return f"made by another model or preprocessing ({_checks.describe_change(stored_config, self.config)})"
+            return f"made by another model or preprocessing ({describe_change(stored_config, self.config)})"
         try:
             with h5py.File(self.path, "r") as handle:
                 open_present(handle, tuple(f"{split}/{key}" for split in SPLITS for key in _DATASETS), self.path)
                 for split in self.verify:
                     if split in handle:
-                        _checks.verify_split(self.path, handle[split], split, _valid_length(handle[split]))
+                        verify_split(self.path, handle[split], split, _valid_length(handle[split]))
         except protocol.ChecksumError as error:
             return f"corrupted ({str(error).removeprefix(f'{self.path}: ')})"
         return None
@@ -290,7 +428,7 @@ class DescriptorCache:
         try:
             yield
         except (OSError, RuntimeError) as error:
-            raise _checks.write_error(self.path, error) from error
+            raise write_error(self.path, error) from error
 
     def names(self, split: str) -> list[str]:
         """Names already stored for ``split`` (a name recomputed after its image changed appears twice)."""
@@ -307,7 +445,7 @@ class DescriptorCache:
             return {}
         names = group["names"].asstr()[:count]
         keys = group["keys"].asstr()[:count] if "keys" in group else [""] * count
-        keys = _checks.blank_non_finite(self.path, group, split, names, keys)  # rows holding NaN are recomputed
+        keys = blank_non_finite(self.path, group, split, names, keys)  # rows holding NaN are recomputed
         return dict(zip(names, keys, strict=True))
 
     def append(self, split: str, names: Sequence[str], descriptors: np.ndarray, keys: Sequence[str]) -> None:
@@ -345,7 +483,8 @@ class DescriptorCache:
             self._handle.flush()
 
     def _create(self, group: Any, dim: int) -> None:
-        h5py = _import_h5py()
+        import h5py
+
         for key in ("names", "descriptors", "keys"):
             if key in group:
                 del group[key]
@@ -391,6 +530,6 @@ class DescriptorCache:
                             del group[key]
         with self._writing():
             group.attrs["failed"] = failed_text
-            group.attrs["checksum"] = _checks.split_checksum(group, _valid_length(group))
+            group.attrs["checksum"] = split_checksum(group, _valid_length(group))
             group.attrs["complete"] = True
             self._handle.flush()

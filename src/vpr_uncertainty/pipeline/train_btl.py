@@ -113,7 +113,7 @@ def _handle(args: argparse.Namespace) -> int:
         import torch
 
         torch.set_num_threads(args.threads)
-    from vpr_uncertainty.btl.inputs import read_training_inputs
+    from vpr_uncertainty.btl.method import read_training_inputs
 
     flags = {name: "--" + name.replace("_", "-") for name in _INPUTS}
     flags.update(positions="--database-positions", positives="--gt")

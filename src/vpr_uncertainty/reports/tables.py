@@ -21,8 +21,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation
-from vpr_uncertainty.evaluation.bootstrap import percentile_interval
-from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders
+from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders, percentile_interval
 
 __all__ = [
     "METRIC_NAMES",

