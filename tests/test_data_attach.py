@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import sparse
 
-from vpr_uncertainty.data.attach import attach_ground_truth, ground_truth_fields
+from vpr_uncertainty.data.dataset import attach_ground_truth, ground_truth_fields
 from vpr_uncertainty.retrieval import retrieve
 
 pytest.importorskip("faiss")

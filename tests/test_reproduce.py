@@ -20,13 +20,13 @@ from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 from conftest import assert_close
 from vpr_uncertainty import evaluate
 from vpr_uncertainty.commands import reproduce as reproduce_command
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.reports.ablations import DPI as ABLATION_DPI
 from vpr_uncertainty.reports.ablations import ablation_figsize
 from vpr_uncertainty.reports.heatmaps import DPI as HEATMAP_DPI
 from vpr_uncertainty.reports.heatmaps import heatmap_figsize
 from vpr_uncertainty.reports.qualitative import DPI as QUALITATIVE_DPI
 from vpr_uncertainty.reports.qualitative import qualitative_figsize
-from vpr_uncertainty.retrieval import read_results
 from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 
 METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]

@@ -141,7 +141,7 @@ def test_sue_on_real_pittsburgh_positions(data_dir):
     from sklearn.metrics import roc_auc_score
 
     from vpr_uncertainty import evaluate
-    from vpr_uncertainty.data.attach import attach_ground_truth
+    from vpr_uncertainty.data.dataset import attach_ground_truth
     from vpr_uncertainty.retrieval import retrieve
 
     poses = np.load(data_dir / "poses" / "pitts30k_test.npz")

@@ -7,7 +7,7 @@ import pytest
 from scipy import sparse
 
 from test_data_attach import toy_problem
-from vpr_uncertainty.data.attach import attach_ground_truth
+from vpr_uncertainty.data.dataset import attach_ground_truth
 from vpr_uncertainty.retrieval import Retrieval, load_retrieval, retrieve, save_retrieval
 
 pytest.importorskip("faiss")

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty import read_results, top_k_from_similarity
-from vpr_uncertainty.retrieval import Retrieval, load_descriptors, save_retrieval
+from vpr_uncertainty.data import load_descriptors
+from vpr_uncertainty.retrieval import Retrieval, save_retrieval
 
 
 def reference_top_k(similarity, k):

@@ -9,16 +9,19 @@ import pytest
 from conftest import assert_close
 from vpr_uncertainty import cache as cache_protocol
 from vpr_uncertainty import cli
+from vpr_uncertainty.data import load_descriptors, open_descriptors
 from vpr_uncertainty.retrieval import (
     DescriptorRows,
-    _streaming,
-    descriptor_rows,
-    load_descriptors,
     load_retrieval,
-    open_descriptors,
     retrieve,
     search_descriptors,
     top_k_from_similarity,
+)
+from vpr_uncertainty.retrieval import (
+    blocks as descriptor_rows,
+)
+from vpr_uncertainty.retrieval import (
+    search as _streaming,
 )
 
 faiss = pytest.importorskip("faiss")
@@ -336,7 +339,7 @@ def test_open_descriptors_errors_match_load_descriptors(tmp_path):
 
 def test_a_vpr_methods_evaluation_log_folder_streams_its_database(tmp_path, spy_blocks, monkeypatch):
     from test_retrieval_vpr_methods_evaluation import _log_folder
-    from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_vpr_methods_evaluation
+    from vpr_uncertainty.data.results import read_vpr_methods_evaluation
 
     reads, searches = spy_blocks
     folder = _log_folder(tmp_path)

@@ -15,7 +15,8 @@ import pytest
 from scipy import sparse
 
 from vpr_uncertainty.calibration.heldout import evaluate_held_out
-from vpr_uncertainty.retrieval import MATRIX_TOP_K, Retrieval, read_results
+from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
+from vpr_uncertainty.retrieval import Retrieval
 from vpr_uncertainty.study import load_config, run_grid, write_reports, write_results
 from vpr_uncertainty.study.heldout import fitted_per_split, full_query_methods, held_out_evaluation
 from vpr_uncertainty.study.runner import _cell_fingerprint, candidates_needed
@@ -98,7 +99,7 @@ def test_cal_row_equals_evaluate_held_out_for_the_same_seed(tmp_path, corridor_d
     retrieval = read_results(
         corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy",
         ground_truth=corridor_dir / "ground_truth_new.npy",
-        top_k=max(MATRIX_TOP_K, candidates_needed(config)),
+        top_k=max(DEFAULT_TOP_K, candidates_needed(config)),
     )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

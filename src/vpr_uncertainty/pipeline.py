@@ -224,7 +224,7 @@ def _load_and_check(config: RunConfig, methods: list[str] | None) -> Any:
     if unmet:  # every unmet need at once
         raise ValueError("; ".join(unmet))
     if dataset.unlisted:
-        from vpr_uncertainty.data.folder import ImageListingError, describe_unlisted
+        from vpr_uncertainty.data.images import ImageListingError, describe_unlisted
 
         if config.on_error == "fail":
             raise ImageListingError(dataset.root or config.dataset, dataset.unlisted)
@@ -238,7 +238,7 @@ def _load_and_check(config: RunConfig, methods: list[str] | None) -> Any:
 
 def _ground_truth(dataset: Any, descriptors: Any) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
     """The ground-truth fields of the images that have descriptors, and their indices in the dataset."""
-    from vpr_uncertainty.data.attach import ground_truth_fields
+    from vpr_uncertainty.data.dataset import ground_truth_fields
 
     fields = dataset.retrieval_fields()
     kept_database = _positions_of(dataset.database_names, descriptors.names["database"])

@@ -69,9 +69,9 @@ def read_inputs(args: argparse.Namespace, *, top_k: int) -> tuple[Any, list[str]
     notes : list of str
         What was derived (ground truth of a log folder, predictions checked).
     """
+    from vpr_uncertainty.data import read_results
+    from vpr_uncertainty.data.results import read_vpr_methods_evaluation
     from vpr_uncertainty.methods import default_method_names
-    from vpr_uncertainty.retrieval import read_results
-    from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_vpr_methods_evaluation
 
     notes: list[str] = []
     log_paths: tuple[Any, Any] = (None, None)
@@ -102,7 +102,7 @@ def read_inputs(args: argparse.Namespace, *, top_k: int) -> tuple[Any, list[str]
     options: dict[str, Any] = {}
     if verifying:
         if given:
-            from vpr_uncertainty.data.image_folders import retrieval_image_paths
+            from vpr_uncertainty.data.images import retrieval_image_paths
 
             query_paths, database_paths = retrieval_image_paths(retrieval, **folders)
         elif log_paths[0] is not None:

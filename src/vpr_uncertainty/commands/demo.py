@@ -36,7 +36,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _handle(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.download import ensure_corridor
+    from vpr_uncertainty.data.named_datasets import ensure_corridor
     from vpr_uncertainty.pipeline import RunConfig, run
 
     if not 0.0 <= args.alpha <= 1.0:

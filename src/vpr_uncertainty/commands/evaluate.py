@@ -18,10 +18,10 @@ from vpr_uncertainty.commands._arguments import (
 from vpr_uncertainty.commands._bootstrap import add_bootstrap_options
 from vpr_uncertainty.commands._evaluate_inputs import add_input_options, read_inputs
 from vpr_uncertainty.commands._executor import add_executor_options, executor_from_args, executor_options
+from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats
 from vpr_uncertainty.evaluation import evaluate
 from vpr_uncertainty.methods import available_methods, default_method_names, get_method, split_method_list
 from vpr_uncertainty.reports import format_table, plot_rejection_curves
-from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K
 
 __all__ = ["METHOD_SPEC_HELP", "add_parser", "method_list"]
 
@@ -84,7 +84,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         ".txt with one line of positive indices per query, or .npz; required unless SCORES holds it",
     )
     parser.add_argument(
-        "--format", choices=INPUT_FORMATS, default="auto", help="how to read SCORES (default: from its name)"
+        "--format", choices=input_formats(), default="auto", help="how to read SCORES (default: from its name)"
     )
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query for RS/SD/SU (default 10)")
     parser.add_argument("--alpha", type=float, default=0.5, help="weight of RS in SU, in [0, 1] (default 0.5)")
@@ -145,8 +145,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def _run_evaluate(args: argparse.Namespace) -> int:
     if not 0.0 <= args.alpha <= 1.0:
         raise ValueError(f"--alpha must lie in [0, 1], got {args.alpha}")
-    # A full matrix gives as many candidates as k asks (and at least MATRIX_TOP_K, enough for recall@20).
-    top_k = max(MATRIX_TOP_K, args.k)
+    # A full matrix gives as many candidates as k asks (and at least DEFAULT_TOP_K, enough for recall@20).
+    top_k = max(DEFAULT_TOP_K, args.k)
     options = {}
     if args.btl_head is not None:
         options["btl_head"] = args.btl_head

@@ -34,7 +34,7 @@ SPLIT_FOLDERS = (("ref", "query"), ("database", "queries"))
 
 
 def _scan(folder: Path, root: Path, unlisted: list[dict[str, str]]) -> tuple[list[Path], list[str]]:
-    from vpr_uncertainty.data.folder import ImageListingError, list_images
+    from vpr_uncertainty.data.images import ImageListingError, list_images
 
     found: list[dict[str, str]] = []
     paths = list_images(folder, problems=found)
@@ -62,7 +62,7 @@ def _checked(
     unlisted: list[dict[str, str]] | None,
     folder: Path,
 ) -> dict[str, tuple[list[Path], list[str]]] | None:
-    from vpr_uncertainty.data.folder import ImageListingError
+    from vpr_uncertainty.data.images import ImageListingError
 
     if found and unlisted is None:
         raise ImageListingError(folder, found)
@@ -189,7 +189,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run_extract(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.folder import describe_unlisted
+    from vpr_uncertainty.data.images import describe_unlisted
     from vpr_uncertainty.stages.descriptors import DescriptorsConfig, extract
 
     executor_options(args)  # bad executor options fail before any work

@@ -104,9 +104,9 @@ def _load_positions(path: Path | None, expected: int, what: str):
 
 
 def _run_retrieve(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.attach import ground_truth_fields
+    from vpr_uncertainty.data import load_descriptors, open_descriptors
+    from vpr_uncertainty.data.dataset import ground_truth_fields
     from vpr_uncertainty.evaluation import recall_at_n
-    from vpr_uncertainty.retrieval import load_descriptors, open_descriptors
     from vpr_uncertainty.stages.retrieval import RetrievalConfig, search
 
     if args.out.suffix.lower() != ".npz":

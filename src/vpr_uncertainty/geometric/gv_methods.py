@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from vpr_uncertainty.data.image_folders import check_image_counts
+from vpr_uncertainty.data.images import check_image_counts
 from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE
 from vpr_uncertainty.geometric.matching import NearestNeighborMatcher
 from vpr_uncertainty.geometric.presets import H5_MODULES, require_modules

@@ -46,8 +46,7 @@ import numpy as np
 from scipy import sparse
 
 from vpr_uncertainty.cache import ChecksumError, atomic_write, payload_checksum
-from vpr_uncertainty.retrieval._checks import check_distinct, check_indices, check_integers, check_scores
-from vpr_uncertainty.retrieval.result import Retrieval
+from vpr_uncertainty.retrieval.result import Retrieval, check_distinct, check_indices, check_integers, check_scores
 
 __all__ = ["FORMAT_VERSION", "load_retrieval", "save_retrieval"]
 

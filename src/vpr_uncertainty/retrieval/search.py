@@ -1,31 +1,4 @@
-"""Descriptor search with Faiss: the top-k database images of every query, by cosine similarity.
-
-Descriptors are float32 arrays of shape (N, D). They are L2-normalised and compared by inner product, so the
-scores are cosine similarities in [-1, 1] and the squared L2 distances beside them are d² = 2 − 2s (clipped at 0,
-by :func:`vpr_uncertainty.scores.squared_distances_from_similarities`, the one place this conversion is made).
-Exact search (``index="Flat"``) by default; any Faiss index-factory string (``"IVF4096,PQ64"``, ``"HNSW32"``, ...)
-builds an approximate index, trained on the database. Queries are searched in batches, so the memory used beyond
-the descriptors themselves stays bounded; exact search can also stream the database from disk one block of rows
-at a time (``database_block``; :mod:`~vpr_uncertainty.retrieval._streaming`), with the same result, for databases
-larger than memory. Defined behaviour on hard input:
-
-* **Ties and duplicate descriptors**: candidates with equal scores are ordered by lower database index, and when
-  a tie straddles the k-th place, the lower indices are kept, exactly as
-  :func:`~vpr_uncertainty.retrieval.readers.top_k_from_similarity` does. (Faiss alone orders them arbitrarily;
-  the search asks for one candidate more than k to detect such a tie and searches that query again with a larger
-  k to settle it.)
-* **k larger than the database** (or an approximate index that finds fewer than k candidates): the result still
-  has k columns; the missing candidates have index ``-1``, score ``-inf`` and distance ``+inf``, at the end of
-  the row. The uncertainty methods score such a row on the candidates it has.
-  (:func:`~vpr_uncertainty.retrieval.readers.top_k_from_similarity` instead returns min(k, D) columns.)
-* **Normalisation**: rows whose squared norm is already within 1e-5 of 1 are used as they are; other rows are
-  divided by their norm, on a copy unless ``copy=False``. NaN, infinite values and all-zero rows (which have no
-  direction) are rejected with the row named.
-
-:func:`search_descriptors` returns arrays; :func:`retrieve` wraps them in a
-:class:`~vpr_uncertainty.retrieval.result.Retrieval` with the search settings in its ``config``. Ground truth,
-names and positions are attached afterwards, by :func:`vpr_uncertainty.data.attach.attach_ground_truth`.
-"""
+"""Descriptor search with Faiss: the top-k database images of every query, by cosine similarity."""
 
 from __future__ import annotations
 
@@ -33,25 +6,23 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.retrieval._faiss import GPU_MAX_K, Searcher, faiss_gpu_available, import_faiss
-from vpr_uncertainty.retrieval.descriptor_rows import DescriptorRows, default_block_rows
+from vpr_uncertainty.retrieval.blocks import DescriptorRows, default_block_rows
 from vpr_uncertainty.retrieval.result import Retrieval
 from vpr_uncertainty.scores import squared_distances_from_similarities
 
-__all__ = [
-    "DEFAULT_BATCH_SIZE",
-    "DEVICES",
-    "GPU_MAX_K",
-    "faiss_gpu_available",
-    "retrieve",
-    "search_descriptors",
-]
+# --- from retrieval/search.py ---
 
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
+
+
 #: Squared norms within this distance of 1 count as already L2-normalised (float32 rounding is ~1e-6).
 UNIT_NORM_TOLERANCE = 1e-5
+
+
 #: Queries searched at once by default (Faiss's own query block for exact search).
 DEFAULT_BATCH_SIZE = 4096
+
+
 #: Work (queries × database × dimension) above which the progress bar appears on a terminal.
 _PROGRESS_WORK = 5e10
 
@@ -255,8 +226,6 @@ def search_descriptors(
     faiss = import_faiss()
     block = _database_block(database, database_block, index, device)
     if block is not None:
-        from vpr_uncertainty.retrieval._streaming import as_rows
-
         database = as_rows(database)
         database_owned = False
     else:
@@ -283,8 +252,6 @@ def search_descriptors(
     if progress is None and float(n_queries) * n_database * database.shape[1] < _PROGRESS_WORK:
         progress = bool(progress_requested())  # a short search gets no bar unless bars were asked for
     if block is not None:
-        from vpr_uncertainty.retrieval._streaming import search_blocks
-
         scores[:, :kept], indices[:, :kept] = search_blocks(
             database, queries, k, block=block, batch_size=batch_size, faiss=faiss, progress=progress
         )
@@ -390,3 +357,231 @@ def retrieve(
     settings["dimension"] = dimension
     settings.update(config or {})
     return Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
+
+
+# --- from retrieval/_streaming.py ---
+
+
+def as_rows(database: object) -> DescriptorRows:
+    """A DescriptorRows of the database: itself, or a checked numeric 2-D array (a memmap read block by block)."""
+    if isinstance(database, DescriptorRows):
+        rows = database
+    else:
+        rows = DescriptorRows.from_array(_checked_array(database, "database"), source="database")
+    if rows.shape[1] == 0:
+        raise ValueError("database has dimension 0; descriptors need at least one component")
+    return rows
+
+
+def database_norms(rows: DescriptorRows, block: int, faiss: Any) -> np.ndarray:
+    """Squared norms (float32) of every row, read block by block; bad rows raise as in the in-memory search."""
+    squared = np.empty(len(rows), dtype=np.float32)
+    for start in range(0, len(rows), block):
+        data = rows.read(start, start + block)
+        part = squared[start : start + len(data)]
+        faiss.fvec_norms_L2sqr(faiss.swig_ptr(part), faiss.swig_ptr(data), data.shape[1], len(data))
+        _check_norms(part, data, "database", first_row=start)
+        del data  # before the next block is read: one block in memory at a time
+    _check_nonzero(squared, "database")
+    return squared
+
+
+def _merge(
+    scores: np.ndarray, indices: np.ndarray, new_scores: np.ndarray, new_indices: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The first ``scores.shape[1]`` of two candidate lists by score descending, then database index ascending."""
+    kept = scores.shape[1]
+    both_scores = np.concatenate([scores, new_scores], axis=1)
+    both_indices = np.concatenate([indices, new_indices], axis=1)
+    missing = both_indices < 0
+    order = np.lexsort((np.where(missing, np.iinfo(np.int64).max, both_indices), -both_scores), axis=1)[:, :kept]
+    return np.take_along_axis(both_scores, order, axis=1), np.take_along_axis(both_indices, order, axis=1)
+
+
+def _block_top_k(searcher: Searcher, batch: np.ndarray, kept: int, n_block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Exact top-``min(kept, n_block)`` of one block for a batch of queries, ties to the lower index."""
+    depth = min(kept + 1, n_block)  # one more than kept reveals a tie across the kept-th place
+    scores, indices = _ordered(*searcher.search(batch, depth))
+    if depth > kept:
+        tied = np.flatnonzero((indices[:, kept] >= 0) & (scores[:, kept - 1] == scores[:, kept]))
+        if tied.size:
+            settled_scores, settled_indices = _settle_ties(searcher, batch[tied], kept, n_block)
+            scores[tied, :kept] = settled_scores
+            indices[tied, :kept] = settled_indices
+    width = min(kept, n_block)
+    return scores[:, :width], indices[:, :width]
+
+
+def search_blocks(
+    rows: DescriptorRows,
+    queries: np.ndarray,
+    k: int,
+    *,
+    block: int,
+    batch_size: int,
+    faiss: Any,
+    progress: bool | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact top-k (cosine) of each query among the database rows, reading ``block`` rows at a time.
+
+    Parameters
+    ----------
+    rows : DescriptorRows of shape (D, dim), D ≥ 1
+    queries : ndarray of shape (Q, dim), float32, L2-normalised
+    k : int
+    block : int
+        Database rows read, normalised and searched at once.
+    batch_size : int
+        Queries searched at once against each block.
+    faiss : module
+    progress : bool, optional
+
+    Returns
+    -------
+    scores : ndarray of shape (Q, min(k, D)), float32
+        Sorted descending, ties ordered by lower database index.
+    indices : ndarray of shape (Q, min(k, D)), int64
+    """
+    from vpr_uncertainty.progress import progress_bar
+
+    n_database = len(rows)
+    squared = database_norms(rows, block, faiss)
+    normalise = bool(np.abs(squared - 1).max() > UNIT_NORM_TOLERANCE)
+    del squared
+    kept = min(k, n_database)
+    scores = np.full((len(queries), kept), -np.inf, dtype=np.float32)
+    indices = np.full((len(queries), kept), -1, dtype=np.int64)
+    with progress_bar(total=n_database, desc="retrieval", unit="descriptor", enabled=progress) as bar:
+        for start in range(0, n_database, block):
+            data = rows.read(start, start + block)
+            if normalise:
+                faiss.normalize_L2(data)
+            searcher = Searcher(data, "Flat", "cpu", None, faiss)
+            for first in range(0, len(queries), batch_size):
+                batch = queries[first : first + batch_size]
+                block_scores, block_indices = _block_top_k(searcher, batch, kept, len(data))
+                block_indices = np.where(block_indices >= 0, block_indices + start, -1)  # database numbering
+                stop = first + len(batch)
+                scores[first:stop], indices[first:stop] = _merge(
+                    scores[first:stop], indices[first:stop], block_scores, block_indices
+                )
+            bar.update(len(data))
+            del data, searcher
+    return scores, indices
+
+
+# --- from retrieval/_faiss.py ---
+
+#: Largest k that GPU Faiss can return.
+GPU_MAX_K = 2048
+
+
+def faiss_gpu_available() -> bool:
+    """Whether the installed Faiss has GPU support and sees at least one GPU."""
+    try:
+        faiss = import_faiss()
+    except ImportError:
+        return False
+    return hasattr(faiss, "StandardGpuResources") and faiss.get_num_gpus() > 0
+
+
+def import_faiss() -> Any:
+    try:
+        import faiss
+    except ImportError as error:
+        raise ImportError(
+            "descriptor retrieval needs Faiss; install it with: pip install faiss-cpu (or faiss-gpu to search on a "
+            "CUDA device)"
+        ) from error
+    return faiss
+
+
+class Searcher:
+    """``search(queries, k) -> (scores, indices)`` over one database, exact or through a Faiss index."""
+
+    def __init__(
+        self,
+        database: np.ndarray,
+        index: str,
+        device: str,
+        search_params: str | None,
+        faiss: Any,
+        *,
+        progress: bool | None = None,
+    ) -> None:
+        self.database = database
+        self.faiss = faiss
+        self.max_k = GPU_MAX_K if device == "cuda" else None
+        self.index = None
+        self._resources = None
+        exact = index.replace(" ", "").lower() == "flat"
+        if device == "cpu" and exact:
+            if search_params:
+                raise ValueError(f"search_params {search_params!r} need an approximate index; exact search has none")
+            return  # faiss.knn_inner_product on the array itself: no copy of the database into an index
+        if device == "cuda":
+            if not hasattr(faiss, "StandardGpuResources") or faiss.get_num_gpus() < 1:
+                if hasattr(faiss, "StandardGpuResources"):
+                    reason = "has GPU support but sees no GPU"
+                else:
+                    reason = "is built without GPU support"
+                raise ValueError(
+                    f"device='cuda' needs GPU Faiss and a visible GPU, but this Faiss ({faiss.__version__}) {reason}; "
+                    "install faiss-gpu and check CUDA_VISIBLE_DEVICES, or use device='cpu'"
+                )
+        dimension = database.shape[1]
+        try:
+            built = faiss.index_factory(dimension, index, faiss.METRIC_INNER_PRODUCT)
+        except RuntimeError as error:
+            raise ValueError(f"invalid Faiss index-factory string {index!r}: {faiss_message(error)}") from None
+        if device == "cuda":
+            self._resources = faiss.StandardGpuResources()
+            try:
+                built = faiss.index_cpu_to_gpu(self._resources, 0, built)
+            except RuntimeError as error:
+                raise ValueError(f"Faiss index {index!r} cannot run on the GPU: {faiss_message(error)}") from None
+        from vpr_uncertainty.progress import progress_status
+
+        try:
+            if not built.is_trained:  # IVF/PQ training can take minutes: say so while it runs
+                with progress_status(f"train Faiss {index} on {len(database):,} vectors", enabled=progress):
+                    built.train(database)
+            built.add(database)
+        except RuntimeError as error:
+            raise ValueError(f"cannot build the Faiss index {index!r}: {faiss_message(error)}") from None
+        if search_params:
+            space = faiss.GpuParameterSpace() if device == "cuda" else faiss.ParameterSpace()
+            try:
+                space.set_index_parameters(built, search_params)
+            except RuntimeError as error:
+                raise ValueError(
+                    f"invalid search_params {search_params!r} for index {index!r}: {faiss_message(error)}"
+                ) from None
+        self.index = built
+
+    def search(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        scores = np.empty((len(queries), k), dtype=np.float32)
+        indices = np.empty((len(queries), k), dtype=np.int64)
+        if len(queries) == 0:
+            return scores, indices
+        faiss = self.faiss
+        if self.index is None:
+            faiss.knn_inner_product(
+                faiss.swig_ptr(queries),
+                faiss.swig_ptr(self.database),
+                self.database.shape[1],
+                len(queries),
+                len(self.database),
+                k,
+                faiss.swig_ptr(scores),
+                faiss.swig_ptr(indices),
+            )
+        else:
+            self.index.search(queries, k, D=scores, I=indices)
+        return scores, indices
+
+
+def faiss_message(error: BaseException) -> str:
+    """The useful last part of a Faiss C++ error message."""
+    text = str(error).strip()
+    return text.rsplit(": ", 1)[-1] if ": " in text else text

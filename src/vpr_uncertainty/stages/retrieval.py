@@ -122,7 +122,7 @@ def search(
     -------
     RetrievalResult
     """
-    from vpr_uncertainty.data.attach import attach_ground_truth
+    from vpr_uncertainty.data.dataset import attach_ground_truth
     from vpr_uncertainty.retrieval import load_retrieval, retrieve, save_retrieval
 
     path = Path(path)

@@ -70,13 +70,13 @@ def _load_cell_input(
     """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None); the
     pipeline's stage times are added to ``seconds`` (as ``pipeline_<stage>``)."""
     if entry.model is None:
-        from vpr_uncertainty.retrieval import MATRIX_TOP_K, read_results
+        from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
 
         retrieval = read_results(
             entry.scores,
             ground_truth=entry.ground_truth,
             file_format=entry.file_format,
-            top_k=max(MATRIX_TOP_K, candidates_needed(config)),
+            top_k=max(DEFAULT_TOP_K, candidates_needed(config)),
         )
         return retrieval, None, None
     from vpr_uncertainty.pipeline import RunConfig, run
