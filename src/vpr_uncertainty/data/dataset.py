@@ -16,11 +16,7 @@ from scipy.spatial import cKDTree
 
 from vpr_uncertainty.retrieval.result import Retrieval
 
-# --- from data/dataset.py ---
-
 PositionKind = Literal["metres", "frames", "placeholder"]
-
-
 #: The values of :attr:`Dataset.position_kind` (besides None: no positions).
 POSITION_KINDS: tuple[str, ...] = ("metres", "frames", "placeholder")
 
@@ -61,25 +57,12 @@ def line_coordinate(positions: np.ndarray) -> np.ndarray | None:
 
 
 def detect_position_kind(*positions: np.ndarray | None) -> PositionKind | None:
-    """Guess whether positions are metres, sequence frame indices or placeholder ids.
+    """Guess whether positions (of one dataset, judged together) are metres, sequence frame indices or placeholder ids.
 
-    Camera positions of a real 2-D dataset never all lie exactly on one axis-aligned line or on the diagonal
-    x == y; benchmarks that have no positions fake them that way. Such positions are ``"frames"`` when the
-    coordinate along the line takes consecutive integer values (frame indices), ``"placeholder"`` otherwise.
-    At least three distinct positions are needed to tell; fewer are taken as metres.
-
-    A genuine 1-D metric track stored as (distance, 0) is classified ``"placeholder"``; pass
-    ``position_kind="metres"`` to the reader to say otherwise.
-
-    Parameters
-    ----------
-    *positions : ndarray of shape (N_i, 2) or None
-        Position arrays of the same dataset (typically database and queries), judged together.
-
-    Returns
-    -------
-    {"metres", "frames", "placeholder"} or None
-        None when no positions are given.
+    Real 2-D camera positions never all lie on one axis-aligned line or on the diagonal x == y; benchmarks without
+    positions fake them that way: ``"frames"`` when the coordinate along the line takes consecutive integers,
+    ``"placeholder"`` otherwise. Fewer than three distinct positions count as metres; None when none are given. A real
+    1-D track stored as (distance, 0) comes out ``"placeholder"``: pass ``position_kind="metres"`` to the reader.
 
     Examples
     --------
@@ -127,35 +110,27 @@ class Dataset:
     Attributes
     ----------
     name : str
-        Short name, e.g. ``"st_lucia"`` or the folder name.
     root : Path or None
-        Folder the image names are relative to (the split folder holding ``database/`` and ``queries/``, the
-        VPR-Bench dataset folder, the folder of a CSV), or None.
+        Folder the image names are relative to (the split folder, the VPR-Bench folder, the folder of a table).
     positives : scipy.sparse.csr_array of shape (Q, D), bool
         Row q holds True at the database images that show the place of query q.
     database_paths, query_paths : list of Path (length D and Q), or None
-        Image files, in index order. None when only positions are known (a ``.npz`` of positions).
-    database_positions : ndarray of shape (D, 2), float64, or None
-    query_positions : ndarray of shape (Q, 2), float64, or None
-        Positions; in metres when ``position_kind == "metres"`` (see the module docstring).
+        Image files in index order; None for a positions-only dataset.
+    database_positions, query_positions : ndarray of shape (D, 2) and (Q, 2), float64, or None
     positive_radius : float or None
-        Threshold the positives were computed with, in the unit of the positions (metres, or frames when
-        ``position_kind == "frames"``). None for explicit ground truth.
+        Threshold of the positives, in the unit of the positions; None for explicit ground truth.
     position_kind : {"metres", "frames", "placeholder"} or None
-        What the positions are; None when there are none.
-    database_names, query_names : list of str (length D and Q), or None
-        Image names, unique within the dataset: POSIX paths relative to ``root``. Derived from the paths when
-        not given. They key descriptor caches and are stored in retrieval files.
-    split : str or None
-        Split of the benchmark (``"test"``, ``"val"``, ...), when it has splits.
-    source_format : str or None
-        Reader that produced the dataset: ``"folder"``, ``"vprbench"``, ``"table"`` or ``"poses"``.
+        Metres (UTM or any metric frame); frame indices of a sequence (Nordland); or ids laid out on a line that only
+        encode which images match (AmsterTime). Detected when not given (:func:`detect_position_kind`); a metric
+        method (SUE) must not take the last two for metres: :meth:`metric_positions` warns.
+    database_names, query_names : list of str, or None
+        Unique POSIX paths relative to ``root`` (derived from the paths when not given); they key descriptor caches.
+    split, source_format : str or None
+        The benchmark's split; the reader (``"folder"``, ``"vprbench"``, ``"table"``, ``"poses"``).
     info : dict
-        Anything else worth keeping (UTM zone, original file, notes); JSON-serialisable.
+        Anything else worth keeping (UTM zone, original file); JSON-serialisable.
     unlisted : list of dict
-        What could not be listed when the images were discovered, ``{"path": ..., "error": ...}`` per folder
-        that cannot be read or broken link without an image suffix: images under them are missing from the
-        dataset. The extraction stage reports them (``on_error="skip"``) or refuses to go on (``"fail"``).
+        ``{"path": ..., "error": ...}`` of each folder or broken link that could not be listed: images may be missing.
     """
 
     name: str
@@ -248,27 +223,9 @@ class Dataset:
         )
 
     def metric_positions(self, *, purpose: str = "a metric-space method") -> tuple[np.ndarray, np.ndarray]:
-        """Database and query positions for a method that works in metres, e.g. SUE.
+        """Database (D, 2) and query (Q, 2) positions for a method in metres (``purpose``, e.g. ``"SUE"``).
 
-        Parameters
-        ----------
-        purpose : str
-            Who asks, for the messages (e.g. ``"SUE"``).
-
-        Returns
-        -------
-        database_positions : ndarray of shape (D, 2)
-        query_positions : ndarray of shape (Q, 2)
-
-        Raises
-        ------
-        ValueError
-            When the dataset has no positions.
-
-        Warns
-        -----
-        PlaceholderPositionsWarning
-            When the positions are frame indices or placeholder ids: distances between them are not metres.
+        Raises ValueError when the dataset has none; warns :class:`PlaceholderPositionsWarning` when not metres.
         """
         if self.database_positions is None or self.query_positions is None:
             raise ValueError(
@@ -286,15 +243,7 @@ class Dataset:
 
     # -- summaries -----------------------------------------------------------------------------------------
     def retrieval_fields(self) -> dict[str, Any]:
-        """The fields of a :class:`~vpr_uncertainty.retrieval.Retrieval` that come from the dataset.
-
-        Returns
-        -------
-        dict
-            ``positives``, ``query_names`` and ``database_names`` (ndarray of str or None),
-            ``query_positions`` and ``database_positions`` (or None) and ``config`` (a dict with the dataset
-            name, split, positive radius and position kind).
-        """
+        """The fields of a :class:`~vpr_uncertainty.retrieval.Retrieval` that come from the dataset."""
         return {
             "positives": self.positives,
             "query_names": None if self.query_names is None else np.asarray(self.query_names, dtype=str),
@@ -328,8 +277,6 @@ class Dataset:
             f"queries_without_positives={self.queries_without_positives.size})"
         )
 
-
-# --- from data/positives.py ---
 
 #: Default positive radius in metres.
 DEFAULT_RADIUS = 25.0
@@ -413,23 +360,7 @@ def positives_within_radius(
 def positives_within_frames(
     query_frames: object, database_frames: object, tolerance: int | float = 10
 ) -> sparse.csr_array:
-    """Positives of each query of a sequence dataset: the database frames at most ``tolerance`` frames away.
-
-    This is the ground truth of Nordland and other datasets whose query and database traverses are aligned
-    frame by frame (frame i of the query traverse shows the place of frame i of the database traverse).
-
-    Parameters
-    ----------
-    query_frames : array-like of shape (Q,)
-        Frame index of each query.
-    database_frames : array-like of shape (D,)
-        Frame index of each database image.
-    tolerance : int or float, default 10
-        Largest frame difference of a positive, inclusive.
-
-    Returns
-    -------
-    scipy.sparse.csr_array of shape (Q, D), dtype bool
+    """Positives of a sequence dataset: the database frames at most ``tolerance`` frames from each query (inclusive).
 
     Examples
     --------
@@ -444,9 +375,6 @@ def positives_within_frames(
             raise ValueError(f"{name} must be 1-D (one frame index per image), got shape {array.shape}")
     tolerance = _check_radius(tolerance, "tolerance")
     return positives_within_radius(queries, database, radius=tolerance)
-
-
-# --- from data/geo.py ---
 
 
 def _import_utm():
@@ -464,26 +392,11 @@ def latlon_to_utm(
     zone_number: int | None = None,
     northern: bool | None = None,
 ) -> tuple[np.ndarray, int, bool]:
-    """Project WGS84 latitude/longitude to UTM easting/northing in metres, all in one zone.
+    """Project WGS84 latitude/longitude (N,) to UTM easting/northing (N, 2) in metres, all in one zone.
 
-    Parameters
-    ----------
-    latitude, longitude : array-like of shape (N,)
-        Degrees; latitude in [-80, 84], longitude in [-180, 180].
-    zone_number : int, optional
-        UTM zone (1-60) to project into; by default the zone of the median point.
-    northern : bool, optional
-        Hemisphere of the projection; by default that of the median latitude. Points of the other hemisphere
-        get negative (southern zone) or > 10,000 km (northern zone) northings, which keeps distances right.
-
-    Returns
-    -------
-    positions : ndarray of shape (N, 2), float64
-        Easting and northing in metres.
-    zone_number : int
-        The zone used.
-    northern : bool
-        The hemisphere used.
+    Converting each point in its own 6° zone would put two images on either side of a boundary hundreds of km apart;
+    one zone (by default that of the median point, and its hemisphere) keeps distances right at a dataset's scale.
+    Returns the positions, the zone number and whether the zone is northern.
 
     Examples
     --------
@@ -518,8 +431,6 @@ def latlon_to_utm(
     return positions, int(zone_number), bool(northern)
 
 
-# --- from data/attach.py ---
-
 #: The fields of a Retrieval that come from the dataset.
 FIELDS = ("positives", "query_names", "database_names", "query_positions", "database_positions")
 
@@ -552,38 +463,29 @@ def ground_truth_fields(
     query_names: object = None,
     position_kind: str | None = None,
 ) -> dict[str, Any]:
-    """The ground-truth fields of a retrieval of ``n_queries`` queries against ``n_database`` database images.
+    """The ground-truth fields of a retrieval of ``n_queries`` queries against ``n_database`` (or None) images.
 
     Parameters
     ----------
     n_queries : int
     n_database : int or None
-        Number of database images; None when unknown (the lengths are then only checked against each other,
-        when the fields are attached).
     positives : sparse or dense bool matrix of shape (Q, D), optional
         Explicit ground truth; used instead of the radius search.
     database_positions, query_positions : array-like of shape (D, 2) and (Q, 2), optional
-        Camera positions (e.g. UTM easting, northing in metres); (N,) arrays are read as (N, 1). With both and no
-        explicit positives, the positives are the database images within ``radius`` of each query (inclusive).
+        (N,) arrays are read as (N, 1). With both and no positives, the positives are the database images within
+        ``radius`` of each query (inclusive).
     radius : float, default=25.0
         Positive radius, in the unit of the positions.
     database_names, query_names : sequence of str, optional
-        Image names.
     position_kind : {"metres", "frames", "placeholder"}, optional
-        What the positions are (see :mod:`vpr_uncertainty.retrieval.result`); detected from two-column positions
-        when not given.
+        Detected from two-column positions when not given.
 
     Returns
     -------
     dict
-        ``positives`` (csr_array or None), ``query_names``, ``database_names``, ``query_positions``,
-        ``database_positions`` (arrays or None) and ``config`` (``radius`` when the positives come from the
-        positions, ``position_kind`` when known).
-
-    Raises
-    ------
-    ValueError
-        When a field has the wrong number of rows or ``position_kind`` is unknown, naming the field.
+        ``positives``, ``query_names``, ``database_names``, ``query_positions``, ``database_positions`` (or None)
+        and ``config`` (``radius`` when the positives come from the positions, ``position_kind`` when known).
+        A field of the wrong length raises a ValueError naming it.
     """
     if position_kind is not None and position_kind not in POSITION_KINDS:
         raise ValueError(f"position_kind must be one of {POSITION_KINDS} or None, got {position_kind!r}")
@@ -619,28 +521,22 @@ def ground_truth_fields(
 def attach_ground_truth(retrieval: Retrieval, fields: Mapping[str, Any] | None = None, /, **options: Any) -> Retrieval:
     """A copy of ``retrieval`` with the ground truth, names and positions of its dataset.
 
-    Parameters
-    ----------
-    retrieval : Retrieval
-        Typically the result of :func:`vpr_uncertainty.retrieval.retrieve`.
-    fields : mapping, optional
-        Fields made by :func:`ground_truth_fields` or :meth:`vpr_uncertainty.data.Dataset.retrieval_fields`.
-    **options
-        Or, instead of ``fields``, the keyword arguments of :func:`ground_truth_fields`; the numbers of queries and
-        database images are those of ``retrieval`` (``config["n_database"]`` as written by ``retrieve``).
+    ``fields`` come from :func:`ground_truth_fields` or :meth:`Dataset.retrieval_fields`; or give the keyword options
+    of :func:`ground_truth_fields` instead (sized by the retrieval, ``config["n_database"]`` as ``retrieve`` writes
+    it). Each field given replaces the retrieval's; ``config`` entries are merged over its own, dropping ``radius``
+    and ``position_kind`` when the positives or positions are replaced.
 
-    Returns
-    -------
-    Retrieval
-        The same candidates; each field given (not None) replaces the retrieval's, the others are kept. The
-        ``config`` entries of ``fields`` are merged over the retrieval's; ``radius`` and ``position_kind`` left
-        from earlier ground truth are dropped when the positives or positions are replaced.
-
-    Raises
-    ------
-    ValueError
-        When a field does not fit the retrieval (see :func:`ground_truth_fields` and
-        :class:`~vpr_uncertainty.retrieval.Retrieval`).
+    Examples
+    --------
+    >>> from vpr_uncertainty.retrieval import retrieve
+    >>> database = np.eye(3, dtype=np.float32)
+    >>> result = attach_ground_truth(
+    ...     retrieve(database, database[[2, 0]], k=2),
+    ...     database_positions=[[0, 0], [50, 0], [100, 0]], query_positions=[[95, 0], [10, 0]], position_kind="metres",
+    ... )
+    >>> result.positives.toarray()
+    array([[False, False,  True],
+           [ True, False, False]])
     """
     if fields is not None and options:
         raise TypeError("attach_ground_truth takes fields or keyword options, not both")

@@ -31,12 +31,10 @@ from vpr_uncertainty.data.images import (
 )
 from vpr_uncertainty.plugins import Registry, load_target
 
-# --- from data/formats.py ---
-
 
 @dataclass(frozen=True)
 class DatasetFormat:
-    """One dataset format.
+    """One dataset format of :data:`DATASET_FORMAT_REGISTRY`.
 
     Attributes
     ----------
@@ -50,7 +48,7 @@ class DatasetFormat:
     detect : callable or None
         ``detect(folder) -> bool`` of a folder format.
     provides : tuple of str
-        What the format provides the stages (images, positions or explicit positives).
+        What the format gives the stages (``"images"``, ``"positions"``, ``"positives"``).
     extra : str or None
         The pip extra its reader needs.
     """
@@ -84,14 +82,9 @@ def has_split(folder: Path) -> bool:
 
 
 def detect_format(path: str | Path) -> str:
-    """The name of the format of a dataset path (e.g. ``"folder"``, ``"vprbench"``, ``"table"``, ``"poses"``).
+    """The name of the registered format of a dataset path (file formats by suffix, folder formats by ``detect``).
 
-    Raises
-    ------
-    FileNotFoundError
-        When the path does not exist.
-    ValueError
-        When it is none of the registered layouts (the message lists what each expects).
+    Raises FileNotFoundError for a missing path, ValueError when no format matches (listing what each expects).
     """
     path = Path(path)
     if not path.exists():
@@ -130,25 +123,21 @@ def _is_downloader_folder(path: Path) -> bool:
 
 
 def read_poses(path: Path, *, radius: float | None, name: str | None, position_kind: PositionKind | None, **_: Any):
-
     return load_poses_dataset(path, radius=radius, name=name, position_kind=position_kind)
 
 
 def read_table(path: Path, *, queries: Any, radius: float | None, name: str | None, position_kind: Any, **_: Any):
-
     radius = DEFAULT_RADIUS if radius is None else radius
     return load_table_dataset(path, queries=queries, radius=radius, name=name, position_kind=position_kind)
 
 
 def read_vprbench(path: Path, *, radius: float | None, name: str | None, **_: Any) -> Dataset:
-
     if radius is not None:
         raise ValueError(f"{path} is a VPR-Bench dataset with explicit ground truth: radius does not apply")
     return load_vprbench_dataset(path, name=name)
 
 
 def read_folder(path: Path, *, split: str | None, radius: float | None, name: str | None, position_kind: Any, **_: Any):
-
     split = split or "test"
     radius = DEFAULT_RADIUS if radius is None else radius
     return load_folder_dataset(
@@ -156,15 +145,12 @@ def read_folder(path: Path, *, split: str | None, radius: float | None, name: st
     )
 
 
-_HERE = "vpr_uncertainty.data.formats:"
-
-
 register_format(
     DatasetFormat(
         "poses",
         "positions of database and queries (utmQ, utmDb, posDistThr), as in the published .npz files",
         ".npz (utmQ, utmDb, posDistThr)",
-        _HERE + "read_poses",
+        read_poses,
         suffixes=(".npz",),
         provides=("positions",),
     )
@@ -176,7 +162,7 @@ register_format(
         "table",
         "a CSV/TSV table of image paths with positions (and an optional second table of queries)",
         ".csv/.tsv (image paths with positions)",
-        _HERE + "read_table",
+        read_table,
         suffixes=(".csv", ".tsv", ".txt"),
         provides=("images", "positions"),
     )
@@ -188,7 +174,7 @@ register_format(
         "vprbench",
         "a VPR-Bench folder: query/, ref/ and ground_truth_new.npy (explicit positives)",
         "query/, ref/ and ground_truth_new.npy (VPR-Bench)",
-        _HERE + "read_vprbench",
+        read_vprbench,
         detect=is_vprbench_folder,
         provides=("images", "positives"),
     )
@@ -200,30 +186,22 @@ register_format(
         "folder",
         "a VPR-datasets-downloader folder: images/<split>/database/ and queries/, positions in the image names",
         "images/<split>/database/ and queries/ (VPR-datasets-downloader)",
-        _HERE + "read_folder",
+        read_folder,
         detect=_is_downloader_folder,
         provides=("images", "positions"),
     )
 )
 
 
-# --- from data/table.py ---
-
 _PATH_COLUMNS = ("path", "image", "image_path", "file", "filename", "name")
-
-
 _ROLE_COLUMNS = ("role", "set", "split", "type")
 
 
 _METRIC_COLUMNS = (("x", "y"), ("easting", "northing"), ("utm_east", "utm_north"))
-
-
 _LAT_COLUMNS = ("lat", "latitude")
 
 
 _LON_COLUMNS = ("lon", "lng", "long", "longitude")
-
-
 _DATABASE_ROLES = frozenset({"database", "db", "reference", "ref", "map", "gallery"})
 
 
@@ -251,32 +229,9 @@ def _column(header: dict[str, int], names: tuple[str, ...]) -> int | None:
 def read_image_table(
     path: str | Path, *, root: str | Path | None = None, delimiter: str | None = None
 ) -> tuple[list[Path], np.ndarray, str, list[str] | None]:
-    """Read one table of images and positions.
+    """Read one table of images and positions: (paths, positions (N, 2), "metres" or "latlon", roles or None).
 
-    Parameters
-    ----------
-    path : str or Path
-        The ``.csv`` / ``.tsv`` (or ``.txt``, delimiter guessed from the header) file.
-    root : str or Path, optional
-        Folder relative image paths are relative to; by default the folder of the table.
-    delimiter : str, optional
-        Column separator; by default tab for ``.tsv``, comma for ``.csv``.
-
-    Returns
-    -------
-    paths : list of Path, length N
-        Image paths as written, joined to ``root`` when relative.
-    positions : ndarray of shape (N, 2), float64
-        Metres (as written, or projected from latitude/longitude).
-    unit : {"metres", "latlon"}
-        What the table held.
-    roles : list of {"database", "query"}, or None
-        The set of each image, when the table has a role column.
-
-    Raises
-    ------
-    ValueError
-        Naming the file and line of the first bad row, or the columns that are missing.
+    Errors name the file and line of the first bad row, or the columns that are missing.
     """
     path = Path(path)
     if not path.is_file():
@@ -353,29 +308,14 @@ def load_table_dataset(
     delimiter: str | None = None,
     position_kind: PositionKind | None = None,
 ) -> Dataset:
-    """Read a dataset from a CSV/TSV of image paths and positions (see the module docstring for the columns).
+    """Read a dataset from a CSV/TSV table: one row per image, its path and its position.
 
-    Parameters
-    ----------
-    path : str or Path
-        The table of all images with a role column, or of the database images when ``queries`` is given.
-    queries : str or Path, optional
-        A second table with the query images.
-    radius : float, default 25.0
-        Positive radius in metres (inclusive).
-    root : str or Path, optional
-        Folder that relative image paths and the image names are relative to; by default the table's folder.
-    name : str, optional
-        Dataset name; by default the table's file name without suffix.
-    delimiter : str, optional
-        Column separator; by default from the suffix.
-    position_kind : {"metres", "frames", "placeholder"}, optional
-        What the positions are; detected by default.
-
-    Returns
-    -------
-    Dataset
-        In table order (database rows, then query rows, each in the order they appear).
+    The header names the columns (case-insensitive): the image path (``path``, ``image``, ``image_path``, ``file``,
+    ``filename`` or ``name``; relative to ``root``, by default the table's folder); the position in metres (``x``/``y``,
+    ``easting``/``northing``, ``utm_east``/``utm_north``) or in degrees (``lat``/``lon``, projected to UTM in one zone);
+    and, unless the queries come in a second table ``queries``, the set (``role``, ``set``, ``split`` or ``type``:
+    ``database``/``db``/``reference``/``ref``/``map``/``gallery`` or ``query``/``queries``). Positives lie within
+    ``radius`` metres; ``delimiter`` is by default from the suffix.
 
     Examples
     --------
@@ -433,9 +373,6 @@ def load_table_dataset(
     )
 
 
-# --- from data/poses.py ---
-
-
 def load_poses_dataset(
     path: str | Path,
     *,
@@ -443,25 +380,12 @@ def load_poses_dataset(
     name: str | None = None,
     position_kind: PositionKind | None = None,
 ) -> Dataset:
-    """Read query and database positions from an ``.npz`` with ``utmQ``, ``utmDb`` and ``posDistThr``.
+    """Read positions from an ``.npz`` with ``utmQ`` (Q, 2), ``utmDb`` (D, 2) and ``posDistThr`` (Patch-NetVLAD).
 
-    Parameters
-    ----------
-    path : str or Path
-        The ``.npz`` file.
-    radius : float, optional
-        Positive threshold; by default ``posDistThr`` from the file (25 m when absent). In frames when the
-        positions are frame indices.
-    name : str, optional
-        Dataset name; by default the file name without suffix.
-    position_kind : {"metres", "frames", "placeholder"}, optional
-        What the positions are; detected by default. ``"frames"`` computes positives by frame difference along
-        the line the positions lie on; any other kind by Euclidean distance.
-
-    Returns
-    -------
-    Dataset
-        Positions-only (``database_paths`` and ``query_paths`` are None).
+    The dataset has positions and positives but no images. ``radius`` defaults to ``posDistThr`` (25 when absent).
+    Frame positions (Nordland stores frame i as (i, i) with ``posDistThr = 10``) take as positives the frames at most
+    ``radius`` apart (±10, VPR-datasets-downloader's convention); ``position_kind="metres"`` applies it as a Euclidean
+    radius instead (Patch-NetVLAD's ±7 frames).
     """
     path = Path(path)
     if not path.is_file():
@@ -504,39 +428,13 @@ def load_poses_dataset(
     )
 
 
-# --- from data/_vb_ds.py ---
-
-
 def load_vprbench_dataset(root: str | Path, *, name: str | None = None, n_database: int | None = None) -> Dataset:
-    """Read a VPR-Bench image dataset: ``query/``, ``ref/`` and ``ground_truth_new.npy``.
+    """Read a VPR-Bench image dataset: ``query/``, ``ref/`` and ``ground_truth_new.npy`` (explicit positives).
 
-    The ground truth is an explicit list of positives per query (no positions): see
-    :func:`load_vprbench_ground_truth`.
-
-    Parameters
-    ----------
-    root : str or Path
-        The dataset folder, e.g. ``VPR-Bench/datasets/corridor``.
-    name : str, optional
-        Dataset name; by default the folder name.
-    n_database : int, optional
-        The number of reference images the ground truth is about. By default the largest positive index + 1: the
-        ground truth's own count, which ``ref/`` must match (give it only for a dataset whose last reference
-        images are no query's positive).
-
-    Returns
-    -------
-    Dataset
-        Database = ``ref/`` images, queries = ``query/`` images, each sorted by name, hidden files (``.*``) left
-        out; names relative to ``root`` (``ref/0000000.jpg``); no positions.
-
-    Raises
-    ------
-    FileNotFoundError
-        When a folder or the ground truth is missing.
-    ValueError
-        When the number of images in ``query/`` or ``ref/`` differs from the ground truth's (the message names the
-        folder and both counts): one stray or missing image would shift every index after it.
+    Images are sorted by name, hidden files left out, names relative to ``root``. ``n_database`` defaults to the
+    ground truth's own count (largest positive + 1), which ``ref/`` must match: give it only when the last reference
+    images are no query's positive. Raises FileNotFoundError for a missing folder or ground truth, ValueError when an
+    image count differs from the ground truth's (one stray image would shift every index after it).
     """
 
     root = Path(root)

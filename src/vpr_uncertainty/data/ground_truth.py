@@ -17,11 +17,7 @@ from scipy import sparse
 
 from vpr_uncertainty.retrieval.result import check_n_database, is_index, positives_from_lists, positives_from_mask
 
-# --- from data/ground_truth.py ---
-
 _INTEGER_FIELD = re.compile(r"[+-]?[0-9]+")
-
-
 #: What VPR-Bench's ``ground_truth_new.npy`` holds, for error messages.
 VPRBENCH_GROUND_TRUTH = (
     "VPR-Bench ground truth (an object array of rows [query index, list of positive database indices])"
@@ -161,7 +157,6 @@ def _from_npz(path: Path, n_database: int | None) -> sparse.csr_array:
 
 
 def _from_npy(path: Path, n_database: int | None) -> sparse.csr_array:
-
     array = read_npy(
         path, what="ground truth (a boolean mask or VPR-Bench's object array of positives)", allow_objects=True
     )
@@ -224,9 +219,6 @@ def load_ground_truth(
     return positives
 
 
-# --- from data/_vb_gt.py ---
-
-
 def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = None) -> sparse.csr_array:
     """Read VPR-Bench's ``ground_truth_new.npy``: rows of [query index, list of positive database indices].
 
@@ -252,11 +244,7 @@ def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = Non
     return positives_from_vprbench_rows(rows, path, n_database=n_database)
 
 
-# --- from data/npy.py ---
-
 _MAGIC = b"\x93NUMPY"
-
-
 _ZIP_MAGIC = b"PK"
 
 
@@ -386,11 +374,7 @@ def _read_object_array(handle, path: Path, shape: tuple[int, ...]) -> np.ndarray
     return array
 
 
-# --- from data/legacy_pickle.py ---
-
 _MULTIARRAY_MODULES = ("numpy.core.multiarray", "numpy._core.multiarray")
-
-
 _BUILTIN_MODULES = ("builtins", "__builtin__")
 
 

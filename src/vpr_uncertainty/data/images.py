@@ -14,8 +14,6 @@ import numpy as np
 from vpr_uncertainty.data.dataset import DEFAULT_RADIUS, Dataset, PositionKind, latlon_to_utm, positives_within_radius
 from vpr_uncertainty.retrieval.result import Retrieval
 
-# --- from data/listing.py ---
-
 #: File extensions read as images (case-insensitive).
 IMAGE_EXTENSIONS: frozenset[str] = frozenset(
     {".jpg", ".jpeg", ".png", ".ppm", ".pgm", ".bmp", ".tif", ".tiff", ".webp"}
@@ -34,13 +32,7 @@ def is_hidden(name: str) -> bool:
 
 
 class ImageListingError(ValueError):
-    """A folder of images could not be listed completely; the message names what could not be read.
-
-    Attributes
-    ----------
-    problems : list of dict
-        ``{"path": ..., "error": ...}`` for every folder or link that could not be listed.
-    """
+    """A folder of images could not be listed completely; ``problems`` holds ``{"path": ..., "error": ...}`` of each."""
 
     def __init__(self, folder: str | Path, problems: list[dict[str, str]]) -> None:
         self.problems = list(problems)
@@ -69,17 +61,15 @@ def _link_error(path: Path) -> str:
 def scan_images(folder: str | Path) -> tuple[list[Path], list[dict[str, str]]]:
     """Image files under ``folder`` (recursively, following links to folders) and what could not be listed.
 
-    Parameters
-    ----------
-    folder : str or Path
+    Hidden entries (``.*``) are neither listed nor entered, as :func:`glob.glob` skips them (a stray ``._0001.jpg``
+    would shift every index of a ground truth given by index). A file with an image suffix is listed even as a broken
+    link (extraction reports it; the other indices stay right); links back to a folder being listed are not followed.
 
     Returns
     -------
     paths : list of Path
-        Files whose suffix is in :data:`IMAGE_EXTENSIONS` (case-insensitive) and that are not hidden (nor under a
-        hidden folder), sorted by their POSIX path relative to ``folder``; broken or looping links with such a
-        suffix included (they fail when read, naming the reason). File names that are not valid UTF-8 are kept
-        as Python decodes them (surrogate escapes).
+        Files with a suffix of :data:`IMAGE_EXTENSIONS` (case-insensitive), sorted by POSIX path relative to
+        ``folder``; names that are not valid UTF-8 are kept as Python decodes them.
     problems : list of dict
         ``{"path": ..., "error": ...}`` for each sub-folder that cannot be read and each broken link without an
         image suffix; images under them may be missing.
@@ -119,14 +109,10 @@ def scan_images(folder: str | Path) -> tuple[list[Path], list[dict[str, str]]]:
 
 
 def list_images(folder: str | Path, *, problems: list[dict[str, str]] | None = None) -> list[Path]:
-    """Image files under ``folder`` (recursively), sorted by their POSIX path relative to it.
+    """Image files under ``folder`` (recursively; see :func:`scan_images`), sorted by POSIX path relative to it.
 
-    Parameters
-    ----------
-    folder : str or Path
-    problems : list, optional
-        Receives the listing problems of :func:`scan_images` (folders that cannot be read, broken links). By
-        default a problem raises :class:`ImageListingError`: a silently incomplete list would shift indices.
+    A listing problem raises :class:`ImageListingError` (a silently incomplete list would shift indices), unless a
+    ``problems`` list is given to receive them.
     """
     paths, found = scan_images(folder)
     if found and problems is None:
@@ -136,18 +122,12 @@ def list_images(folder: str | Path, *, problems: list[dict[str, str]] | None = N
     return paths
 
 
-# --- from data/folder.py ---
-
 #: Accepted names of the database and query folders, in order of preference.
 DATABASE_FOLDERS: tuple[str, ...] = ("database", "gallery")
-
-
 QUERY_FOLDERS: tuple[str, ...] = ("queries", "query")
 
 
 _NAME_FORMAT = "@UTM_east@UTM_north@UTM_zone@UTM_letter@latitude@longitude@...@.jpg"
-
-
 _ZONE_LETTERS = frozenset("CDEFGHJKLMNPQRSTUVWX")
 
 
@@ -157,21 +137,10 @@ class MalformedImageNameError(ValueError):
 
 @dataclass(frozen=True)
 class ImageName:
-    """The fields of an image name in the VPR-datasets-downloader convention.
+    """The fields of an image name ``@UTM_east@UTM_north@UTM_zone@UTM_letter@latitude@longitude@...@.jpg``.
 
-    Attributes
-    ----------
-    utm_east, utm_north : float
-        UTM easting and northing in metres (dummy values for some datasets).
-    utm_zone : int or None
-        UTM zone number 1-60, when given.
-    utm_letter : str or None
-        UTM latitude band letter, when given.
-    latitude, longitude : float or None
-        WGS84 degrees, when given.
-    fields : tuple of str
-        All ``@``-separated fields after the leading ``@`` (pano_id, tile_num, heading, ... follow the six
-        above; their meaning depends on the dataset).
+    ``utm_east`` and ``utm_north`` are metres (dummy values for some datasets); zone (1-60), letter, latitude and
+    longitude (WGS84 degrees) are None when empty; ``fields`` holds every ``@``-separated field.
     """
 
     utm_east: float
@@ -198,21 +167,9 @@ def _number(text: str, what: str, path: str | Path) -> float:
 
 
 def parse_image_name(path: str | Path) -> ImageName:
-    """Read the position fields of an image name ``@UTM_east@UTM_north@UTM_zone@UTM_letter@lat@lon@...@.jpg``.
+    """Read the position fields of an image name (only the file name is parsed; the path goes in error messages).
 
-    Parameters
-    ----------
-    path : str or Path
-        The image path or file name; only the file name is parsed, the path is used in error messages.
-
-    Returns
-    -------
-    ImageName
-
-    Raises
-    ------
-    MalformedImageNameError
-        (a ValueError) naming the file and what is wrong with it.
+    Raises :class:`MalformedImageNameError` (a ValueError) naming the file and what is wrong with it.
 
     Examples
     --------
@@ -261,19 +218,9 @@ def _pick(folder: Path, candidates: tuple[str, ...]) -> Path | None:
 
 
 def find_split_folder(root: str | Path, split: str = "test") -> Path:
-    """The folder holding ``database/`` and ``queries/``, from a dataset folder, its ``images/`` or the split.
+    """The folder holding ``database/`` and ``queries/``: ``root``, ``root/split`` or ``root/images/split``.
 
-    Parameters
-    ----------
-    root : str or Path
-        ``<dataset>``, ``<dataset>/images`` or ``<dataset>/images/<split>``.
-    split : str
-        Split to use when ``root`` is not the split folder itself.
-
-    Raises
-    ------
-    FileNotFoundError
-        Listing the folders that were looked for.
+    Raises FileNotFoundError listing the folders looked in.
     """
     root = Path(root)
     candidates = [root, root / split, root / "images" / split]
@@ -324,7 +271,12 @@ def load_folder_dataset(
     name: str | None = None,
     position_kind: PositionKind | None = None,
 ) -> Dataset:
-    """Read a dataset in the VPR-datasets-downloader folder format.
+    """Read a dataset in VPR-datasets-downloader's folder format: ``<dataset>/images/<split>/{database,queries}/``.
+
+    Images are listed recursively and sorted by path (the order of the other tools that read this format); their
+    names carry the position (``@UTM_east@UTM_north@...@.jpg``); names with several UTM zones are re-projected from
+    latitude/longitude into one. A sub-folder that cannot be read is kept in :attr:`Dataset.unlisted` (the extraction
+    stage reports or refuses it).
 
     Parameters
     ----------
@@ -337,14 +289,12 @@ def load_folder_dataset(
     name : str, optional
         Dataset name; by default the folder name above ``images/``.
     position_kind : {"metres", "frames", "placeholder"}, optional
-        What the coordinates in the names are; detected by default
-        (:func:`~vpr_uncertainty.data.dataset.detect_position_kind`).
+        What the coordinates in the names are; detected by default.
 
     Returns
     -------
     Dataset
-        Names relative to the split folder (``database/...``, ``queries/...``), positions (D, 2) and (Q, 2) as in
-        the file names, positives within ``radius``.
+        Names relative to the split folder (``database/...``, ``queries/...``).
 
     Raises
     ------
@@ -352,12 +302,6 @@ def load_folder_dataset(
         When no split folder is found, or a folder has no image.
     MalformedImageNameError
         Naming the first file whose name does not carry a position.
-
-    Notes
-    -----
-    A sub-folder that cannot be read does not stop the reading (positions come from the names, so the other
-    images keep their meaning); it is recorded in :attr:`Dataset.unlisted`, which the extraction stage reports
-    (``on_error="skip"``) or refuses (``on_error="fail"``).
     """
     split_folder = find_split_folder(root, split)
     database_folder = _pick(split_folder, DATABASE_FOLDERS)
@@ -393,21 +337,12 @@ def load_folder_dataset(
     )
 
 
-# --- from data/image_folders.py ---
-
 #: (queries folder, database folder) pairs a dataset folder may have: VPR-Bench, then the downloader's layout.
 IMAGE_SPLIT_FOLDERS: tuple[tuple[str, str], ...] = (("query", "ref"), ("queries", "database"))
 
 
 def find_split_folders(folder: str | Path, *, argument: str = "images") -> tuple[Path, Path]:
-    """The (queries, database) image folders of a dataset folder.
-
-    Raises
-    ------
-    FileNotFoundError
-        When ``folder`` is missing or has none of the layouts of :data:`IMAGE_SPLIT_FOLDERS` (the message names
-        ``argument``).
-    """
+    """The (queries, database) image folders of a dataset: ``query/``, ``ref/`` or ``queries/``, ``database/``."""
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"image folder not found: {folder} (argument {argument})")
@@ -427,28 +362,11 @@ def check_image_counts(
     database: str,
     arguments: tuple[str, str] | None = None,
 ) -> None:
-    """Refuse image lists that cannot be the retrieval's images: query i and database image j must be images i, j.
+    """Refuse image lists that cannot be the retrieval's images: query i and database image j must be images i and j.
 
-    One image too many or too few would make a method that looks at images (``GV-*``) verify a query against
-    the wrong picture, silently. ``evaluate --images``, ``reproduce`` (a config's ``images``) and the ``GV-*``
-    methods all check their images here.
-
-    Parameters
-    ----------
-    retrieval : Retrieval
-    n_query_images, n_database_images : int
-        How many query and database images were found.
-    queries, database : str
-        What holds them, for the message (e.g. the folder ``"corridor/ref"``).
-    arguments : (str, str), optional
-        The arguments that named the query and the database images, for the message (``("images", "images")``).
-
-    Raises
-    ------
-    ValueError
-        When there are not exactly ``retrieval.n_queries`` query images, or not exactly ``retrieval.n_database``
-        database images (at least the largest candidate index + 1 when the retrieval does not know its database
-        size); the message gives both counts.
+    One image too many or too few would make a method that looks at images (``GV-*``) verify a query against the
+    wrong picture. ``queries`` and ``database`` name what holds the images, ``arguments`` the arguments that named
+    them, for the message.
 
     Examples
     --------
@@ -476,7 +394,6 @@ def check_image_counts(
 
 
 def _listed(folder: Path, argument: str) -> list[Path]:
-
     paths = list_images(folder)
     if not paths:
         raise FileNotFoundError(f"no images in {folder} (argument {argument})")
@@ -500,25 +417,10 @@ def retrieval_image_paths(
 ) -> tuple[list[Path], list[Path]]:
     """Query and database image files indexed like ``retrieval`` (query i, database index j).
 
-    Parameters
-    ----------
-    retrieval : Retrieval
-    images : str or Path, optional
-        A dataset folder with ``query/`` and ``ref/`` or ``queries/`` and ``database/`` subfolders.
-    query_images, database_images : str or Path, optional
-        The two image folders, instead of ``images`` (both together).
-
-    Returns
-    -------
-    query_paths, database_paths : list of Path
-
-    Raises
-    ------
-    ValueError
-        When both ways are given, only one of the two folders, or when the number of images does not match the
-        retrieval (the message gives both counts).
-    FileNotFoundError
-        When a folder is missing or holds no images.
+    Give a dataset folder ``images`` (``query/`` and ``ref/``, or ``queries/`` and ``database/``, each listed
+    recursively and sorted by path) or both ``query_images`` and ``database_images``. Names the retrieval holds are
+    looked up first, so an order that differs from the sorted one cannot go unnoticed. Raises ValueError when the
+    image counts differ from the retrieval's (naming both), FileNotFoundError when a folder is missing or empty.
     """
     if images is not None and (query_images is not None or database_images is not None):
         raise ValueError(

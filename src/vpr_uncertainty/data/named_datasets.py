@@ -30,8 +30,6 @@ from vpr_uncertainty.plugins import Registry
 
 #: The pinned commit of the VPR-Bench repository the corridor files are fetched from.
 CORRIDOR_COMMIT = "1f78cf83661886840ba4ef9ac3d66a01db2f1458"
-
-
 #: Base address of the corridor files at that commit: each file is ``CORRIDOR_URL/<relative path>`` (a folder
 #: address itself is not downloadable; the relative paths are the keys of ``corridor_sha256.json``).
 CORRIDOR_URL = f"https://raw.githubusercontent.com/MubarizZaffar/VPR-Bench/{CORRIDOR_COMMIT}/datasets/corridor"
@@ -122,8 +120,6 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
         ) from error
     return folder
 
-
-# --- from data/named_datasets.py ---
 
 #: Environment variable naming the data root.
 DATA_ROOT_VARIABLE = "VPR_UNCERTAINTY_DATA"

@@ -357,12 +357,8 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     return names, np.ascontiguousarray(array, dtype=np.float32)
 
 
-# --- from retrieval/vpr_methods_evaluation.py ---
-
 #: The descriptor files of ``--save_descriptors``: (queries, database).
 LOG_FILES: tuple[str, str] = ("queries_descriptors.npy", "database_descriptors.npy")
-
-
 _ARGUMENTS = re.compile(r"Arguments: (Namespace\(.*\))\s*$")
 
 
@@ -583,11 +579,7 @@ def read_vpr_methods_evaluation(
     return VprMethodsEvaluationLog(retrieval, arguments, query_paths, database_paths, notes)
 
 
-# --- from data/_open_desc.py ---
-
-
 def _open_npy(path: Path) -> DescriptorRows:
-
     array = read_npy(path, what="a descriptor array of shape (n_images, dimension)", mmap=True)
     if array.dtype.kind not in "biuf":
         raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
@@ -692,8 +684,6 @@ def open_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
         return np.asarray(names, dtype=str), DescriptorRows.from_array(np.asarray(array), source=str(path))
     return _open_cache(path, split)
 
-
-# --- from data/_vb_sim.py ---
 
 _MATCHES = (
     "VPR-Bench precomputed matches (an object array of 6 items: query indices, top-1 indices, top-1 scores, "

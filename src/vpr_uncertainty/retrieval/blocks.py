@@ -8,8 +8,6 @@ from typing import Any
 
 import numpy as np
 
-# --- from retrieval/descriptor_rows.py ---
-
 #: Bytes of float32 descriptors per block when no block size is given (64 MiB: 65,536 rows of dimension 256).
 DEFAULT_BLOCK_BYTES = 1 << 26
 
@@ -36,13 +34,6 @@ class DescriptorRows:
         (N, dim).
     source : str
         What the rows are, for messages (usually the file).
-
-    Attributes
-    ----------
-    shape : tuple of int
-    dtype : numpy.dtype
-        Always float32: the dtype of the blocks returned by :meth:`read`.
-    source : str
     """
 
     ndim = 2
@@ -96,23 +87,12 @@ class DescriptorRows:
         return array if dtype is None else array.astype(dtype, copy=False)
 
 
-# --- from retrieval/_top_k.py ---
-
 #: Matrix values per block (rows × columns) when the caller gives no block size: 4 M values, ~50 MB of work memory.
 BLOCK_VALUES = 1 << 22
 
 
 class MappedRows:
-    """Row blocks of a C-ordered :class:`numpy.memmap`, each mapped on its own and unmapped when dropped.
-
-    Pages of one long-lived mapping stay resident once read, so a pass over a whole memmap ends with the file in
-    the process's resident memory; mapping each block separately keeps it at one block.
-
-    Parameters
-    ----------
-    matrix : numpy.memmap
-        A 2-D, C-ordered memmap (as :func:`vpr_uncertainty.data.npy.read_npy` returns with ``mmap=True``).
-    """
+    """Row blocks of a C-ordered 2-D :class:`numpy.memmap`, each mapped on its own: read pages do not stay resident."""
 
     def __init__(self, matrix: np.memmap) -> None:
         if matrix.ndim != 2 or not matrix.flags.c_contiguous or matrix.filename is None:
@@ -172,24 +152,11 @@ def top_k_blocks(
     block_rows: int | None = None,
     check_block: Callable[[np.ndarray, int], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The k largest values of each row of a 2-D numeric matrix, with their column indices, block by block.
+    """The k largest values of each row of a (Q, D) numeric matrix and their columns, ``block_rows`` rows at a time.
 
-    Parameters
-    ----------
-    matrix : ndarray, memmap or MappedRows of shape (Q, D), D ≥ 1
-        Integers or floats, already checked for shape and dtype by the caller.
-    k : int
-        Positive; ``min(k, D)`` are returned.
-    block_rows : int, optional
-        Rows read at once; by default as many as hold about :data:`BLOCK_VALUES` values.
-    check_block : callable, optional
-        Called as ``check_block(block, first_row)`` on every block (converted to float) before it is used; it
-        raises for values the caller rejects (NaN, +inf), naming the row ``first_row + i``.
-
-    Returns
-    -------
-    scores : ndarray of shape (Q, min(k, D)), float32 (float64 for float64 or wide integer input)
-    indices : ndarray of shape (Q, min(k, D)), int64; -1 where the score is -inf (no candidate)
+    ``check_block(block, first_row)`` is called on every block (as float) and raises for values the caller rejects.
+    Returns scores (Q, min(k, D)), float32 (float64 for float64 or wide integer input), and indices, int64, ``-1``
+    where the score is ``-inf``; ties go to the lower column.
     """
     if block_rows is not None and (isinstance(block_rows, bool) or int(block_rows) < 1):
         raise ValueError(f"block_rows must be a positive integer, got {block_rows!r}")
@@ -208,9 +175,6 @@ def top_k_blocks(
         indices[start : start + len(block)] = candidates
     indices[scores == -np.inf] = -1  # -inf = no candidate: the retrieval convention pairs it with index -1
     return scores, indices
-
-
-# --- from retrieval/_tks.py ---
 
 
 def top_k_from_similarity(

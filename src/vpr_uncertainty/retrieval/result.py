@@ -11,30 +11,26 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
-# --- from retrieval/result.py ---
 
-
-@dataclass
+@dataclass(repr=False)
 class Retrieval:
     """Top-k retrieval of Q queries against a database of D images.
 
     Attributes
     ----------
     scores : ndarray of shape (Q, K), float
-        Similarities, higher = more similar, sorted descending; ``-inf`` marks a missing candidate.
+        Similarities, higher = more similar, sorted descending; ``-inf`` marks a missing candidate (at the row's end).
     indices : ndarray of shape (Q, K), int64
         Database index of each candidate; ``-1`` marks a missing candidate.
     positives : scipy.sparse.csr_array of shape (Q, D), bool, optional
-        Ground truth: the database images that are correct answers for each query. Given as a list of positive
-        database indices per query (``[[0, 4], [], [7]]``), a boolean (Q, D) mask or a sparse matrix; stored as a
-        boolean ``csr_array``. From lists, D is the size that ``database_names`` or ``database_positions`` give,
-        else the smallest that holds every positive and retrieved index (see
-        :func:`vpr_uncertainty.positives_from_lists` to fix D yourself).
+        Ground truth: the correct database images of each query. Given as lists of indices per query
+        (``[[0, 4], [], [7]]``), a boolean (Q, D) mask or a sparse matrix. From lists, D is what ``database_names`` or
+        ``database_positions`` give, else the smallest that holds every index (:func:`positives_from_lists` fixes D).
     distances : ndarray of shape (Q, K), optional
-        Squared L2 distances of the candidates, ascending.
+        Squared L2 distances of the candidates, ascending; ``+inf`` where missing.
     query_names, database_names : ndarray of str, optional
     query_positions, database_positions : ndarray of shape (Q, 2) and (D, 2), optional
-        Positions in metres (e.g. UTM easting, northing).
+        Positions, in metres unless ``config["position_kind"]`` is ``"frames"`` or ``"placeholder"``.
     config : dict
         What produced this retrieval (method, dataset, k, ...), stored with the file.
     """
@@ -50,7 +46,7 @@ class Retrieval:
     config: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        """Check every field (see :mod:`vpr_uncertainty.retrieval._checks`); a ValueError names the field."""
+        """Check every field; a ValueError names the field."""
         check_retrieval_fields(self)
 
     @property
@@ -89,8 +85,14 @@ class Retrieval:
         """Number of candidates stored per query."""
         return self.scores.shape[1]
 
+    def __repr__(self) -> str:
+        optional = ("positives", "distances", "query_names", "database_names", "query_positions", "database_positions")
+        given = [name for name in optional if getattr(self, name) is not None]
+        return (
+            f"Retrieval(n_queries={self.n_queries}, k={self.k}, n_database={self.n_database}, "
+            f"scores={self.scores.dtype}, fields={given}, config={sorted(self.config)})"
+        )
 
-# --- from retrieval/_checks.py ---
 
 _INT64_MAX = np.iinfo(np.int64).max
 
@@ -167,18 +169,7 @@ def check_indices(indices: object, scores: np.ndarray) -> np.ndarray:
 
 
 def check_distinct(indices: np.ndarray, names: dict[str, object]) -> None:
-    """Refuse a database image listed twice among one query's candidates, and a name given to two images.
-
-    A repeated candidate counts one image twice in recall@N and in the score-shape methods; a repeated name
-    makes a lookup by name (images, local features) pick one of two images. The file reader checks both.
-
-    Parameters
-    ----------
-    indices : ndarray of shape (Q, K), int64
-        ``-1`` (a missing candidate) may repeat.
-    names : dict
-        Field name -> 1-D array of names, or None.
-    """
+    """Refuse a database image twice among one query's candidates (``-1`` may repeat), and a name given twice."""
     if indices.ndim == 2 and indices.shape[1] > 1:
         ordered = np.sort(indices, axis=1)
         repeated = (ordered[:, 1:] == ordered[:, :-1]) & (ordered[:, 1:] >= 0)
@@ -265,13 +256,7 @@ def _known_database_size(retrieval: Any) -> int | None:
 
 
 def check_retrieval_fields(retrieval: Any) -> None:
-    """Check every field of a Retrieval (see the module docstring); converts arrays in place (indices to int64).
-
-    Raises
-    ------
-    ValueError
-        Naming the field and the problem.
-    """
+    """Check every field of a Retrieval, converting in place (indices to int64); a ValueError names the field."""
     retrieval.scores = check_scores(retrieval.scores)
     retrieval.indices = check_indices(retrieval.indices, retrieval.scores)
     n_queries = retrieval.scores.shape[0]
@@ -318,8 +303,6 @@ def check_retrieval_fields(retrieval: Any) -> None:
         )
 
 
-# --- from retrieval/_positives.py ---
-
 _EXPECTED = (
     "a list of positive database indices per query (e.g. [[0, 4], [], [7]]), a boolean (n_queries, n_database) "
     "mask or a scipy sparse matrix"
@@ -350,25 +333,9 @@ def _from_sparse(value: object) -> sparse.csr_array:
 
 
 def coerce_positives(value: object, *, n_database: int | None, indices: np.ndarray) -> sparse.csr_array:
-    """``positives`` in any accepted form (see the module docstring) as a boolean ``csr_array``.
+    """``positives`` as lists per query, a boolean (Q, D) mask or a sparse matrix, as a boolean ``csr_array``.
 
-    Parameters
-    ----------
-    value : list of lists of int, array-like of bool of shape (Q, D), or scipy sparse matrix
-        The ground truth.
-    n_database : int, optional
-        The database size when the retrieval knows it (its names or positions); sizes the matrix built from lists.
-    indices : ndarray of shape (Q, K), int64
-        The retrieved database indices (``-1`` for none): lists without a known database size cover them too.
-
-    Returns
-    -------
-    scipy.sparse.csr_array of shape (Q, D), dtype bool
-
-    Raises
-    ------
-    ValueError
-        Naming ``positives``, the query and the value at fault.
+    Lists without a known ``n_database`` cover every positive and every retrieved index (``indices``).
     """
     if sparse.issparse(value):
         return _from_sparse(value)
@@ -395,9 +362,6 @@ def coerce_positives(value: object, *, n_database: int | None, indices: np.ndarr
         n_database = largest + 1
         lists = sparse.csr_array((lists.data, lists.indices, lists.indptr), shape=(lists.shape[0], n_database))
     return lists
-
-
-# --- from retrieval/_gt.py ---
 
 
 def is_index(value: object) -> bool:

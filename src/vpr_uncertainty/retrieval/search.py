@@ -10,19 +10,11 @@ from vpr_uncertainty.retrieval.blocks import DescriptorRows, default_block_rows
 from vpr_uncertainty.retrieval.result import Retrieval
 from vpr_uncertainty.scores import squared_distances_from_similarities
 
-# --- from retrieval/search.py ---
-
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
-
-
 #: Squared norms within this distance of 1 count as already L2-normalised (float32 rounding is ~1e-6).
 UNIT_NORM_TOLERANCE = 1e-5
-
-
 #: Queries searched at once by default (Faiss's own query block for exact search).
 DEFAULT_BATCH_SIZE = 4096
-
-
 #: Work (queries × database × dimension) above which the progress bar appears on a terminal.
 _PROGRESS_WORK = 5e10
 
@@ -160,13 +152,11 @@ def search_descriptors(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Top-k cosine similarities of each query among the database descriptors, with Faiss.
 
-    Exact search can stream the database: read, normalise and search it one block of ``database_block`` rows at a
-    time (:mod:`vpr_uncertainty.retrieval._streaming`), so that it never needs to fit in memory, with the same
-    result (indices equal, scores equal up to float32 rounding). It streams when ``database_block`` is given, and
-    by default when the database is on disk (a :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows`
-    from :func:`~vpr_uncertainty.retrieval.descriptor_rows.open_descriptors`, or a :class:`numpy.memmap`) and
-    larger than one default block (64 MiB of float32 rows). Approximate indexes and ``device="cuda"`` hold the
-    whole database in their index: a database on disk is read into memory for them, as before.
+    Descriptors are L2-normalised (rows within 1e-5 of unit norm are used as they are; NaN, infinite and all-zero rows
+    are rejected, naming the row) and compared by inner product. Ties are ordered by lower database index, also across
+    the k-th place (Faiss alone orders them arbitrarily: a tied query is searched again deeper). Exact search streams
+    the database one block of rows at a time, with the same result, when ``database_block`` is given, and by default
+    for a database on disk (:class:`DescriptorRows`, :class:`numpy.memmap`) larger than one 64 MiB block.
 
     Parameters
     ----------
@@ -180,8 +170,7 @@ def search_descriptors(
         Faiss index-factory string: ``"Flat"`` for exact search, or an approximate index such as
         ``"IVF4096,PQ64"`` or ``"HNSW32"``, built with the inner-product metric and trained on the database.
     device : {"cpu", "cuda"}, default="cpu"
-        ``"cuda"`` runs the index on GPU 0 with GPU Faiss (k < 2048; a tie that extends beyond 2048 candidates
-        is cut where Faiss cuts it); a ``ValueError`` says so when Faiss has no GPU, with no fallback to the CPU.
+        ``"cuda"``: GPU 0 with GPU Faiss (k < 2048); a ``ValueError`` when Faiss has no GPU (no fallback to the CPU).
     batch_size : int, default=4096
         Queries searched at once; bounds the memory of the intermediate results.
     search_params : str, optional
@@ -192,9 +181,8 @@ def search_descriptors(
     progress : bool, optional
         Show a progress bar; by default shown on a terminal for long searches.
     database_block : int, optional
-        Stream the database in blocks of this many rows (exact search on the CPU only: with an approximate index
-        or ``device="cuda"`` it is an error). Peak memory is then the queries, the (Q × k) result and one block;
-        the database is read twice (its norms, then the search). By default: see above.
+        Stream the database in blocks of this many rows (exact search on the CPU only). Peak memory is then the
+        queries, the (Q × k) result and one block; the database is read twice (its norms, then the search).
 
     Returns
     -------
@@ -258,20 +246,11 @@ def search_descriptors(
         return scores, indices, squared_distances_from_similarities(scores, check=False)
     database = _normalised(database, "database", owned=database_owned, copy=copy)
     searcher = Searcher(database, index, device, search_params, faiss, progress=progress)
-    depth = min(k + 1, n_database)  # one more than k reveals a tie across the k-th place
     with progress_bar(total=n_queries, desc="retrieval", unit="query", enabled=progress) as bar:
         for start in range(0, n_queries, batch_size):
             batch = queries[start : start + batch_size]
             stop = start + len(batch)
-            batch_scores, batch_indices = _ordered(*searcher.search(batch, depth))
-            if depth > k:
-                tied = np.flatnonzero((batch_indices[:, k] >= 0) & (batch_scores[:, k - 1] == batch_scores[:, k]))
-                if tied.size:
-                    settled_scores, settled_indices = _settle_ties(searcher, batch[tied], k, n_database)
-                    batch_scores[tied, :k] = settled_scores
-                    batch_indices[tied, :k] = settled_indices
-            scores[start:stop, :kept] = batch_scores[:, :kept]
-            indices[start:stop, :kept] = batch_indices[:, :kept]
+            scores[start:stop, :kept], indices[start:stop, :kept] = _block_top_k(searcher, batch, k, n_database)
             bar.update(len(batch))
     missing = indices < 0
     scores[missing] = -np.inf
@@ -296,21 +275,18 @@ def retrieve(
 ) -> Retrieval:
     """Search the database descriptors for every query and return the result as a :class:`Retrieval`.
 
-    The result has no ground truth, names or positions: attach them with
-    :func:`vpr_uncertainty.data.attach.attach_ground_truth`.
+    The result has no ground truth, names or positions: :func:`vpr_uncertainty.data.attach_ground_truth` adds them.
 
     Parameters
     ----------
     database, queries : array-like of shape (D, dim) and (Q, dim)
-        Descriptors (see :func:`search_descriptors`); the database may be a
-        :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows` or a memmap, searched block by block.
+        Descriptors (see :func:`search_descriptors`).
     k : int, default=10
         Candidates kept per query.
     index, device, batch_size, search_params, copy, progress, database_block
         Options of :func:`search_descriptors`.
     config : dict, optional
-        Extra JSON-serialisable entries for ``Retrieval.config`` (e.g. the dataset and descriptor names); they
-        take precedence over the search settings of the same name.
+        Extra JSON-serialisable entries for ``Retrieval.config``; they take precedence over the search settings.
 
     Returns
     -------
@@ -359,9 +335,6 @@ def retrieve(
     return Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
 
 
-# --- from retrieval/_streaming.py ---
-
-
 def as_rows(database: object) -> DescriptorRows:
     """A DescriptorRows of the database: itself, or a checked numeric 2-D array (a memmap read block by block)."""
     if isinstance(database, DescriptorRows):
@@ -399,7 +372,7 @@ def _merge(
 
 
 def _block_top_k(searcher: Searcher, batch: np.ndarray, kept: int, n_block: int) -> tuple[np.ndarray, np.ndarray]:
-    """Exact top-``min(kept, n_block)`` of one block for a batch of queries, ties to the lower index."""
+    """Exact top-``min(kept, n_block)`` of a batch of queries in one searcher, ties to the lower index."""
     depth = min(kept + 1, n_block)  # one more than kept reveals a tie across the kept-th place
     scores, indices = _ordered(*searcher.search(batch, depth))
     if depth > kept:
@@ -422,25 +395,10 @@ def search_blocks(
     faiss: Any,
     progress: bool | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Exact top-k (cosine) of each query among the database rows, reading ``block`` rows at a time.
+    """Exact top-min(k, D) (cosine, ties to the lower index) of L2-normalised queries, reading ``block`` rows at once.
 
-    Parameters
-    ----------
-    rows : DescriptorRows of shape (D, dim), D ≥ 1
-    queries : ndarray of shape (Q, dim), float32, L2-normalised
-    k : int
-    block : int
-        Database rows read, normalised and searched at once.
-    batch_size : int
-        Queries searched at once against each block.
-    faiss : module
-    progress : bool, optional
-
-    Returns
-    -------
-    scores : ndarray of shape (Q, min(k, D)), float32
-        Sorted descending, ties ordered by lower database index.
-    indices : ndarray of shape (Q, min(k, D)), int64
+    Each block's top-k is made exact under the order (score descending, index ascending) and merged into the running
+    top-k: the result equals the in-memory search in indices, and in scores up to float32 rounding.
     """
     from vpr_uncertainty.progress import progress_bar
 
@@ -469,8 +427,6 @@ def search_blocks(
             del data, searcher
     return scores, indices
 
-
-# --- from retrieval/_faiss.py ---
 
 #: Largest k that GPU Faiss can return.
 GPU_MAX_K = 2048
