@@ -25,21 +25,9 @@ VPRBENCH_GROUND_TRUTH = (
 
 
 def positives_from_vprbench_rows(rows: np.ndarray, path: str | Path, *, n_database: int | None) -> sparse.csr_array:
-    """Positives from VPR-Bench's ground-truth rows [query index, positives], validated; errors name ``path``.
+    """Positives from VPR-Bench's rows [query index, positive indices (list, array or int)]; errors name ``path``.
 
-    Parameters
-    ----------
-    rows : ndarray of shape (Q, 2), dtype object
-        Row i = [query index, list (or array, or single int) of positive database indices]; the query indices
-        are a permutation of 0..Q-1.
-    path : str or Path
-        The file the rows come from, for error messages.
-    n_database : int, optional
-        Number of database images; by default the largest positive index + 1.
-
-    Returns
-    -------
-    scipy.sparse.csr_array of shape (Q, D), dtype bool
+    The query indices must be a permutation of 0..Q-1; ``n_database`` defaults to the largest positive index + 1.
     """
     if not isinstance(rows, np.ndarray) or rows.dtype != object or rows.ndim != 2 or rows.shape[1] != 2:
         found = f"a {rows.dtype} array of shape {rows.shape}" if isinstance(rows, np.ndarray) else type(rows).__name__
@@ -168,14 +156,19 @@ def _from_npy(path: Path, n_database: int | None) -> sparse.csr_array:
 def load_ground_truth(
     path: str | Path, *, n_queries: int | None = None, n_database: int | None = None
 ) -> sparse.csr_array:
-    """Read ground truth from a file in any supported format (see the module docstring).
+    """Read ground truth, one row of positive database indices per query, from a file in any supported format.
+
+    * ``.npy``: a boolean (Q × D) mask (0/1 numbers accepted), or VPR-Bench's ``ground_truth_new.npy`` (an object
+      array read without running code from the file);
+    * ``.npz``: ``positives_indptr``, ``positives_indices`` (and ``n_database``), the layout of retrieval files;
+    * ``.json``: a list of lists of indices (or ``{"positives": ...}``);
+    * ``.txt`` / ``.csv`` / ``.tsv``: one line of whitespace- or comma-separated indices per query.
 
     Parameters
     ----------
     path : str or Path
-        The file.
     n_queries, n_database : int, optional
-        Expected shape. Required to size the matrix exactly for list formats; checked against the file.
+        Expected shape: sizes the matrix of list formats, checked against the others.
 
     Returns
     -------
@@ -186,9 +179,8 @@ def load_ground_truth(
     FileNotFoundError
         When the file does not exist.
     ValueError
-        When the file cannot be read, holds something other than integer database indices in range (or a 0/1
-        mask), or does not match the expected shape; the message names the file, and the query and value when
-        one is at fault.
+        Naming the file (and the query and value at fault) when it cannot be read, holds anything but integer
+        database indices in range (or a 0/1 mask), or does not match the expected shape.
     """
     path = Path(path)
     if not path.is_file():
@@ -220,24 +212,9 @@ def load_ground_truth(
 
 
 def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = None) -> sparse.csr_array:
-    """Read VPR-Bench's ``ground_truth_new.npy``: rows of [query index, list of positive database indices].
+    """Read VPR-Bench's ``ground_truth_new.npy`` (rows of [query index, positives]) as a (Q, D) boolean csr_array.
 
-    Parameters
-    ----------
-    path : str or Path
-        The ``.npy`` file.
-    n_database : int, optional
-        Number of database images; by default the largest positive index + 1.
-
-    Returns
-    -------
-    scipy.sparse.csr_array of shape (Q, D), dtype bool
-
-    Raises
-    ------
-    ValueError
-        When the file is not such an object array, holds anything but integer indices in range, or its pickled
-        payload names a global other than NumPy array reconstruction (nothing from the file is run).
+    Nothing from the file runs (see :func:`restricted_unpickle`); ``n_database`` defaults to the largest positive + 1.
     """
     path = Path(path)
     rows = read_npy(path, what=VPRBENCH_GROUND_TRUTH, allow_objects=True)
@@ -261,34 +238,13 @@ def _describe(head: bytes) -> str:
 
 
 def read_npy(path: str | Path, *, what: str, allow_objects: bool = False, mmap: bool = False) -> np.ndarray:
-    """Read one array from a ``.npy`` file.
+    """Read one array from a ``.npy`` file, with one clear error for every way it can be wrong, never running its code.
 
-    Parameters
-    ----------
-    path : str or Path
-        The file.
-    what : str
-        What the caller expects the file to hold, for error messages (e.g. "a similarity matrix").
-    allow_objects : bool
-        Accept object arrays (read with the restricted unpickler); by default they are an error.
-    mmap : bool
-        Return a read-only :class:`numpy.memmap` of a numeric array instead of reading its data, after the same
-        checks (object arrays and empty arrays are read whole).
-
-    Returns
-    -------
-    ndarray
-        The array, of the shape and dtype in the header.
-
-    Raises
-    ------
-    FileNotFoundError
-        When the file does not exist.
-    ValueError
-        When the file is empty, truncated, not a ``.npy`` file, an object array (unless allowed) or holds pickled
-        data other than arrays, numbers, strings and builtin containers.
-    MemoryError
-        When the process cannot map (or read) the whole file: its address-space limit is below its size.
+    The magic bytes, header and data length are checked first, so an empty, truncated or foreign file gives a
+    ``ValueError`` naming the file and ``what`` was expected. Object arrays are refused unless ``allow_objects``;
+    then they are read by :func:`restricted_unpickle`. ``mmap`` returns a read-only :class:`numpy.memmap` of a
+    numeric array (empty and object arrays are read whole). A file that cannot be mapped or read for lack of memory
+    or address space (``ulimit -v``) raises a :class:`MemoryError` naming it and its size.
     """
     path = Path(path)
     if not path.is_file():
@@ -335,12 +291,7 @@ def read_npy(path: str | Path, *, what: str, allow_objects: bool = False, mmap: 
 
 
 def _read_data(handle, path: Path, what: str, *, mmap: bool) -> np.ndarray:
-    """The array of the open file ``handle`` (at its start), memory-mapped whole when ``mmap``.
-
-    Mapping needs address space for the whole file (and reading needs memory for it): when the process cannot get
-    it (``ulimit -v`` below the file's size, or memory exhausted), a :class:`MemoryError` names the file, its size
-    and what to do, instead of ``[Errno 12] Cannot allocate memory`` alone.
-    """
+    """The array of the open file ``handle`` (at its start), memory-mapped when ``mmap``; MemoryError names the file."""
     try:
         if mmap:
             return npy_format.open_memmap(path, mode="r")
@@ -578,27 +529,13 @@ class _Builder:
 
 
 def restricted_unpickle(handle: IO[bytes], path: str | Path) -> object:
-    """Read one pickle from ``handle`` allowing only NumPy arrays, numbers, strings and builtin containers.
+    """Read one pickle allowing only NumPy arrays, numbers, strings and builtin containers (VPR-Bench's object arrays).
 
-    Parameters
-    ----------
-    handle : binary file object
-        Positioned at the start of the pickle (for a ``.npy`` file: right after the header).
-    path : str or Path
-        The file's name, for error messages.
-
-    Returns
-    -------
-    object
-        What ``pickle.load(handle, encoding="latin1")`` would return for such data (NumPy arrays rebuilt,
-        Python 2 strings decoded as latin-1).
-
-    Raises
-    ------
-    UnsafePickleError
-        When the pickle names any other global (the file's code never runs).
-    ValueError
-        When the pickle is truncated or malformed.
+    Plain ``pickle.load`` runs whatever callable a file names. Here the only globals resolved are NumPy's array, dtype
+    and scalar reconstruction and the builtins ``set``, ``frozenset`` and ``complex``, and even those are stand-ins
+    that record their arguments; arrays are then rebuilt with ``np.frombuffer`` (plain dtypes only) or element by
+    element (object arrays). Anything else raises :class:`UnsafePickleError` (a ValueError naming the file and the
+    global); a truncated or malformed pickle a ValueError. The result equals ``pickle.load(handle, encoding="latin1")``.
     """
     path = Path(path)
     try:

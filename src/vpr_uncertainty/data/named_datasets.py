@@ -36,8 +36,7 @@ CORRIDOR_URL = f"https://raw.githubusercontent.com/MubarizZaffar/VPR-Bench/{CORR
 
 
 def corridor_archive_url() -> str:
-    """The downloadable archive of the VPR-Bench repository at the pinned commit (the corridor is its
-    ``datasets/corridor`` folder)."""
+    """The archive of the VPR-Bench repository at the pinned commit (the corridor is its ``datasets/corridor``)."""
     return f"https://github.com/MubarizZaffar/VPR-Bench/archive/{CORRIDOR_COMMIT}.zip"
 
 
@@ -70,22 +69,11 @@ def verify_corridor(folder: str | Path) -> list[str]:
 
 
 def ensure_corridor(root: str | Path | None = None, *, download: bool = True, timeout: float = 20.0) -> Path:
-    """Return the corridor folder under ``root/vprbench/corridor``, downloading missing files if allowed.
+    """The VPR-Bench corridor folder (the demo's data) ``root/vprbench/corridor``, fetching missing files if allowed.
 
-    Parameters
-    ----------
-    root : str or Path, optional
-        The data root; by default :func:`default_data_root`.
-    download : bool
-        Fetch missing or corrupt files from :data:`CORRIDOR_URL`.
-    timeout : float
-        Seconds to wait for each file.
-
-    Raises
-    ------
-    FileNotFoundError
-        When files are missing and cannot be downloaded (offline, or ``download=False``); the message says which
-        files and where to put them.
+    ``root`` defaults to :func:`default_data_root`. With ``download``, missing or corrupt files are fetched from
+    :data:`CORRIDOR_URL` (``timeout`` seconds each), checked against ``corridor_sha256.json`` and only then moved into
+    place. Raises FileNotFoundError, saying which files and where to put them, when they cannot be had.
     """
     folder = Path(root or default_data_root()) / "vprbench" / "corridor"
     missing = verify_corridor(folder) if folder.is_dir() else list(corridor_files())
@@ -127,42 +115,27 @@ DATA_ROOT_VARIABLE = "VPR_UNCERTAINTY_DATA"
 
 @dataclass(frozen=True)
 class NamedDataset:
-    """A benchmark dataset of the paper: where it is expected and how its positives are defined.
+    """A benchmark dataset (a record of ``named_datasets.json``): where it is expected, how its positives are made.
 
     Attributes
     ----------
-    name : str
-        Name to type (``load_dataset("st_lucia")``).
-    title : str
-        Usual name in papers.
-    folder : str
-        Folder under the data root.
-    split : str
-        Split read by default.
+    name, title : str
+        The name to type (``load_dataset("st_lucia")``) and the usual name in papers; ``aliases`` other spellings.
+    folder, split, path : str
+        Folder under the data root, the default split, and the split folder when not ``<folder>/images/<split>``.
     radius : float
-        Positive radius in metres, on the coordinates of the image names.
-    threshold : str
-        The positive threshold in words.
+        Positive radius in metres on the coordinates of the image names (``threshold``: the same in words).
     position_kind : {"metres", "frames", "placeholder"}
         What the coordinates in the image names are.
     n_database, n_queries : int
-        Image counts of the split in the standard version (a different count gives a warning).
-    source : str
-        Where to get the data and how to format it.
-    citation : str
-        Paper to cite.
-    aliases : tuple of str
-        Other accepted spellings.
-    frame_tolerance : int or None
-        Sequence datasets: positives are the frames at most this many frames away.
-    frame_spacing : float or None
-        Metres between consecutive frames in the downloader's dummy coordinates (Nordland), to recover frame
-        indices from them.
+        Image counts of the standard split (another count gives a warning).
+    source, citation : str
+        Where to get the data and how to format it; the paper to cite.
+    frame_tolerance, frame_spacing : int and float, or None
+        Sequence datasets: positives are the frames at most ``frame_tolerance`` apart; ``frame_spacing`` metres
+        between frames in the downloader's dummy coordinates (Nordland) recovers the frame indices.
     layout : {"downloader", "vprbench"}
-        The folder layout: VPR-datasets-downloader's (``<split folder>/database/`` and ``queries/``, positions in
-        the names) or VPR-Bench's (``query/``, ``ref/`` and ``ground_truth_new.npy``).
-    path : str or None
-        The split folder relative to the data root, when it is not ``<folder>/images/<split>``.
+        VPR-datasets-downloader's folders (positions in the names) or VPR-Bench's (``query/``, ``ref/``, positives).
     """
 
     name: str
@@ -281,12 +254,7 @@ def _missing_message(entry: NamedDataset, root: Path | None, split: str) -> str:
 
 
 def _frames_from_dummy(dataset: Dataset, entry: NamedDataset, tolerance: float) -> Dataset:
-    """Nordland as exported by the downloader: recover frame indices from the dummy coordinates.
-
-    The downloader puts frame k at (0, k · 25/10.5 m), rounded to 0.1 m, so that 25 m means ±10 frames. Frame
-    indices make the positives exact and the positions honest (``position_kind="frames"``). Positions that do not
-    follow that layout are left as they are.
-    """
+    """Nordland as the downloader exports it (frame k at (0, k · 25/10.5 m)): frame indices and exact positives."""
     assert entry.frame_spacing is not None
     assert dataset.database_positions is not None and dataset.query_positions is not None
     both = np.concatenate([dataset.database_positions, dataset.query_positions])

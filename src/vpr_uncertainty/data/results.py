@@ -222,31 +222,12 @@ def _open_similarity(path: str | Path, file_format: str, *, mmap: bool) -> np.nd
 
 
 def load_similarity_matrix(path: str | Path, *, file_format: str = "auto") -> np.ndarray:
-    """Read a full (queries × database) similarity matrix from ``.npy`` (plain or VPR-Bench legacy).
+    """Read a whole (queries × database) similarity matrix, higher = more similar, from ``.npy`` (plain or VPR-Bench's).
 
-    The whole matrix is read into memory; :func:`read_results` instead memory-maps a plain ``.npy`` matrix and
-    keeps only the top-k of each block of queries.
-
-    Parameters
-    ----------
-    path : str or Path
-        The ``.npy`` file.
-    file_format : {"auto", "matrix", "vprbench"}
-        "matrix": a numeric array; "vprbench": VPR-Bench's precomputed matches; "auto": whichever the file is
-        (VPR-Bench's object arrays are read without running code from the file).
-
-    Returns
-    -------
-    ndarray of shape (Q, D), Q, D ≥ 1
-        Integers or floats; no NaN or +inf (-inf marks a database image that is no candidate for a query).
-
-    Raises
-    ------
-    FileNotFoundError
-        When the file does not exist.
-    ValueError
-        When the file is empty, truncated, not a ``.npy`` file, not of the requested format, or holds a
-        non-numeric, non-2-D or empty array, NaN or +inf; the message names the file (and the query).
+    ``file_format``: ``"matrix"``, ``"vprbench"`` or ``"auto"`` (whichever the file is; VPR-Bench's object arrays are
+    read without running code from the file). Returns a (Q, D) integer or float array, Q, D ≥ 1, without NaN or
+    +inf (``-inf`` marks a database image that is no candidate). Raises FileNotFoundError for a missing file and
+    ValueError naming the file (and the query) for an empty, truncated, foreign or malformed one.
     """
     path = Path(path)
     matrix = _open_similarity(path, file_format, mmap=False)
@@ -257,29 +238,12 @@ def load_similarity_matrix(path: str | Path, *, file_format: str = "auto") -> np
 def read_similarity_top_k(
     path: str | Path, top_k: int, *, file_format: str = "auto", block_rows: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
-    """The top-k of every query of a similarity matrix file, read memory-mapped one block of queries at a time.
+    """The top-k of every query of a similarity matrix file, memory-mapped and read one block of queries at a time.
 
-    Peak memory is the (Q × k) result plus one block (about 4 M values by default), not a multiple of the
-    matrix; the values are checked block by block with the same errors as :func:`load_similarity_matrix`.
-    VPR-Bench's legacy files are read whole.
-
-    Parameters
-    ----------
-    path : str or Path
-        The ``.npy`` file.
-    top_k : int
-        Candidates kept per query (all of them when the database is smaller).
-    file_format : {"auto", "matrix", "vprbench"}
-        As in :func:`load_similarity_matrix`.
-    block_rows : int, optional
-        Queries read at once.
-
-    Returns
-    -------
-    scores, indices : ndarray of shape (Q, min(top_k, D))
-        As :func:`top_k_from_similarity` returns them (ties to the lower index, -inf with index -1).
-    shape : tuple of int
-        (Q, D) of the matrix.
+    Peak memory is the (Q × k) result plus one block (``block_rows`` queries, by default about 4 M values); values are
+    checked block by block with the errors of :func:`load_similarity_matrix`; VPR-Bench's legacy files are read whole.
+    Returns scores and indices of shape (Q, min(top_k, D)) as :func:`~vpr_uncertainty.retrieval.top_k_from_similarity`
+    does, and the matrix's shape (Q, D).
     """
     path = Path(path)
     matrix = _open_similarity(path, file_format, mmap=True)
@@ -296,65 +260,6 @@ def read_similarity_top_k(
     return scores, indices, shape
 
 
-def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.ndarray | None, np.ndarray]:
-    """Read descriptors from a ``.npy`` array (N × dim) or from the HDF5 descriptor cache.
-
-    A dispatcher on the suffix: ``.npy`` files are read by :func:`vpr_uncertainty.data.npy.read_npy` (which never
-    runs code from the file), descriptor caches by :func:`vpr_uncertainty.descriptors.cache.read_descriptors`.
-
-    Parameters
-    ----------
-    path : str or Path
-        ``.npy`` file holding one descriptor per row, a descriptor cache ``.h5`` / ``.hdf5`` written by the
-        feature extraction, or hloc's global features (:mod:`vpr_uncertainty.descriptors.hloc`).
-    split : {"database", "queries"}, optional
-        Which images to read from a descriptor cache; required for ``.h5``, ignored for ``.npy``. An hloc file
-        whose names carry no split prefix (``query/``, ``db/``, ...) is read whole.
-
-    Returns
-    -------
-    names : ndarray of str of shape (N,), or None
-        Image names (from a cache; None for ``.npy``).
-    descriptors : ndarray of shape (N, dim), float32
-        A new array owned by the caller (it may be normalised in place).
-
-    Raises
-    ------
-    FileNotFoundError
-        When ``path`` is not a file.
-    ValueError
-        For another suffix, a ``.h5`` without a valid ``split``, an unreadable file or an array that is not 2-D.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"descriptor file not found: {path}")
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        array, names = read_npy(path, what="a descriptor array of shape (n_images, dimension)"), None
-        if array.dtype.kind not in "biuf":
-            raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
-    elif suffix in (".h5", ".hdf5"):
-        if split not in DESCRIPTOR_SPLITS:
-            raise ValueError(f"reading the descriptor cache {path} needs split in {DESCRIPTOR_SPLITS}, got {split!r}")
-        from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
-        from vpr_uncertainty.descriptors.hloc import is_hloc_file, read_hloc_descriptors
-
-        if is_hloc_file(path):  # hloc's global features: one group per image with a global_descriptor
-            names, array = read_hloc_descriptors(path, split)
-        else:
-            names, array = read_descriptors(path, split)
-        names = None if names is None else np.asarray(names, dtype=str)
-    else:
-        raise ValueError(
-            f"unsupported descriptor file {path}: expected one of {', '.join(DESCRIPTOR_SUFFIXES)} "
-            "(a .npy array of shape (N, dim) or the HDF5 descriptor cache)"
-        )
-    array = np.asarray(array)
-    if array.ndim != 2:
-        raise ValueError(f"{path}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
-    if names is not None and len(names) != len(array):
-        raise ValueError(f"{path}: {len(names)} names but {len(array)} descriptors")
-    return names, np.ascontiguousarray(array, dtype=np.float32)
 
 
 #: The descriptor files of ``--save_descriptors``: (queries, database).
@@ -364,17 +269,8 @@ _ARGUMENTS = re.compile(r"Arguments: (Namespace\(.*\))\s*$")
 
 @dataclass
 class VprMethodsEvaluationLog:
-    """A log folder read by :func:`read_vpr_methods_evaluation`.
-
-    Attributes
-    ----------
-    retrieval : Retrieval
-    arguments : dict
-        The arguments of the run, from ``info.log`` (empty when there is none).
-    query_paths, database_paths : list of Path, optional
-        The image files, when the folders named in ``info.log`` exist.
-    notes : list of str
-        How the ground truth was obtained and what was checked.
+    """A log folder read by :func:`read_vpr_methods_evaluation`: the retrieval, the run's ``arguments`` (from
+    ``info.log``), the image files when the folders named there exist, and ``notes`` on how the ground truth was had.
     """
 
     retrieval: Retrieval
@@ -401,7 +297,7 @@ def _literal(node: ast.AST) -> Any:
 
 
 def read_arguments(log: str | Path) -> dict[str, Any]:
-    """The arguments of a VPR-methods-evaluation run from its ``info.log`` (empty when not found)."""
+    """The arguments of a VPR-methods-evaluation run from the ``Arguments: Namespace(...)`` line of its ``info.log``."""
     path = Path(log)
     if not path.is_file():
         return {}
@@ -419,10 +315,7 @@ def read_arguments(log: str | Path) -> dict[str, Any]:
 
 
 def _jpg_images(folder: Path) -> list[Path]:
-    """Its image list: every ``*.jpg`` under ``folder``, recursively, sorted by path (``sorted(glob(...))``).
-
-    Hidden files and folders (names starting with ``.``) are left out, as :func:`glob.glob` leaves them out.
-    """
+    """That tool's image list: every ``*.jpg`` under ``folder``, recursively, sorted by path, hidden ones left out."""
 
     found = (path for path in folder.glob("**/*.jpg") if not any(map(is_hidden, path.relative_to(folder).parts)))
     return sorted(found, key=lambda path: str(path))
@@ -493,24 +386,23 @@ def read_vpr_methods_evaluation(
     radius: float | None = None,
     top_k: int = 50,
 ) -> VprMethodsEvaluationLog:
-    """Read a VPR-methods-evaluation log folder saved with ``--save_descriptors``.
+    """Read a log folder of VPR-methods-evaluation (gmberton) saved with ``--save_descriptors``.
+
+    The folder holds ``queries_descriptors.npy`` and ``database_descriptors.npy`` (rows in the order of that tool's
+    sorted ``*.jpg`` lists) and ``info.log`` with the run's arguments. Predictions have no scores, so the descriptors
+    are searched again (exact cosine search; for that tool's L2-normalised descriptors its own ranking), and the
+    top-1 is checked against ``preds/*.txt`` when saved. Ground truth is the file given, else derived as that tool
+    does: the database images within ``radius`` metres (default: the run's ``positive_dist_threshold``, else 25)
+    from the UTM coordinates in the image names, when the folders named in ``info.log`` are still there.
 
     Parameters
     ----------
     folder : str or Path
-        The folder holding ``queries_descriptors.npy`` and ``database_descriptors.npy``.
     ground_truth : str or Path, optional
-        Ground-truth file (any format of :func:`vpr_uncertainty.data.load_ground_truth`); by default derived
-        from the image names as that tool does.
+        Any format of :func:`vpr_uncertainty.data.load_ground_truth`.
     radius : float, optional
-        Positive radius in metres for the derived ground truth (default: the run's ``positive_dist_threshold``,
-        else 25).
     top_k : int
         Candidates kept per query (all of them for a smaller database).
-
-    Returns
-    -------
-    VprMethodsEvaluationLog
 
     Raises
     ------
@@ -579,7 +471,144 @@ def read_vpr_methods_evaluation(
     return VprMethodsEvaluationLog(retrieval, arguments, query_paths, database_paths, notes)
 
 
+
+
+
+
+
+
+_MATCHES = (
+    "VPR-Bench precomputed matches (an object array of 6 items: query indices, top-1 indices, top-1 scores, "
+    "similarity matrix, encoding time, matching time)"
+)
+
+
+def load_vprbench_similarity(path: str | Path) -> np.ndarray:
+    """The (Q, D) float32 similarity matrix of VPR-Bench's ``precomputed_data_corrected.npy``.
+
+    The file holds [query indices, top-1 indices, top-1 scores, similarity matrix, encoding time, matching time],
+    read without running code from it; another layout raises a ValueError naming the file.
+    """
+    path = Path(path)
+    content = read_npy(path, what=_MATCHES, allow_objects=True)
+    if content.dtype != object:
+        raise ValueError(
+            f"{path} is a plain {content.dtype} array of shape {content.shape}, not {_MATCHES}; "
+            "read it as a similarity matrix (format 'matrix')"
+        )
+    if content.shape != (6,):
+        raise ValueError(f"{path}: expected {_MATCHES}, got an object array of shape {content.shape}")
+    similarity = content[3]
+    if not isinstance(similarity, np.ndarray) or similarity.dtype.kind not in "iuf" or similarity.ndim != 2:
+        found = (
+            f"a {similarity.dtype} array of shape {similarity.shape}"
+            if isinstance(similarity, np.ndarray)
+            else type(similarity).__name__
+        )
+        raise ValueError(f"{path}: item 3 should be the numeric (queries × database) similarity matrix, got {found}")
+    order = content[0]
+    # Some of VPR-Bench's own files (ap-gem-r101) store the query indices as floats 0.0, 1.0, ...: compared exactly.
+    if not isinstance(order, np.ndarray) or order.dtype.kind not in "iuf" or order.ndim != 1:
+        raise ValueError(f"{path}: item 0 should be the query indices 0..{similarity.shape[0] - 1}, got {order!r:.80}")
+    if len(order) != similarity.shape[0] or not np.array_equal(order, np.arange(len(order))):
+        raise ValueError(f"{path}: expected query indices 0..{similarity.shape[0] - 1} in order")
+    return similarity.astype(np.float32)
+
+
+def _descriptor_file(path: str | Path, split: str | None) -> tuple[Path, bool]:
+    """The path of an existing descriptor file and whether it is HDF5 (which needs a valid ``split``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"descriptor file not found: {path}")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        return path, False
+    if suffix not in (".h5", ".hdf5"):
+        raise ValueError(
+            f"unsupported descriptor file {path}: expected one of {', '.join(DESCRIPTOR_SUFFIXES)} "
+            "(a .npy array of shape (N, dim) or the HDF5 descriptor cache)"
+        )
+    if split not in DESCRIPTOR_SPLITS:
+        raise ValueError(f"reading the descriptor cache {path} needs split in {DESCRIPTOR_SPLITS}, got {split!r}")
+    return path, True
+
+
+def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.ndarray | None, np.ndarray]:
+    """Read descriptors from a ``.npy`` array (N × dim), the HDF5 descriptor cache or hloc's global features.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.npy`` file (read without running code from it), descriptor cache ``.h5`` / ``.hdf5`` written by the
+        feature extraction, or hloc's global features (:mod:`vpr_uncertainty.descriptors.hloc`).
+    split : {"database", "queries"}, optional
+        Which images to read from an HDF5 file; required for ``.h5``, ignored for ``.npy``. An hloc file whose
+        names carry no split prefix (``query/``, ``db/``, ...) is read whole.
+
+    Returns
+    -------
+    names : ndarray of str of shape (N,), or None
+        Image names (None for ``.npy``).
+    descriptors : ndarray of shape (N, dim), float32
+        A new array owned by the caller (it may be normalised in place).
+
+    Raises
+    ------
+    FileNotFoundError
+        When ``path`` is not a file.
+    ValueError
+        For another suffix, a ``.h5`` without a valid ``split``, an unreadable file or an array that is not 2-D.
+    """
+    path, hdf5 = _descriptor_file(path, split)
+    if not hdf5:
+        array, names = read_npy(path, what="a descriptor array of shape (n_images, dimension)"), None
+        if array.dtype.kind not in "biuf":
+            raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
+    else:
+        from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
+        from vpr_uncertainty.descriptors.hloc import is_hloc_file, read_hloc_descriptors
+
+        read = read_hloc_descriptors if is_hloc_file(path) else read_descriptors
+        names, array = read(path, split)
+        names = None if names is None else np.asarray(names, dtype=str)
+    array = np.asarray(array)
+    if array.ndim != 2:
+        raise ValueError(f"{path}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
+    if names is not None and len(names) != len(array):
+        raise ValueError(f"{path}: {len(names)} names but {len(array)} descriptors")
+    return names, np.ascontiguousarray(array, dtype=np.float32)
+
+
+def open_descriptors(path: str | Path, split: str | None = None) -> tuple[np.ndarray | None, DescriptorRows]:
+    """Open a descriptor file without reading its descriptors: rows are read later, one block at a time.
+
+    The same files, arguments and errors as :func:`load_descriptors`; the rows stay on disk in a
+    :class:`~vpr_uncertainty.retrieval.DescriptorRows` (hloc's files are read whole: no rows to slice).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> np.save(folder / "db.npy", np.arange(6, dtype=np.float64).reshape(3, 2))
+    >>> names, rows = open_descriptors(folder / "db.npy")
+    >>> rows.shape, rows.read(1, 3)
+    ((3, 2), array([[2., 3.],
+           [4., 5.]], dtype=float32))
+    """
+    path, hdf5 = _descriptor_file(path, split)
+    if not hdf5:
+        return None, _open_npy(path)
+    from vpr_uncertainty.descriptors.hloc import is_hloc_file, read_hloc_descriptors
+
+    if is_hloc_file(path):
+        names, array = read_hloc_descriptors(path, split)
+        return np.asarray(names, dtype=str), DescriptorRows.from_array(np.asarray(array), source=str(path))
+    return _open_cache(path, split)
+
+
 def _open_npy(path: Path) -> DescriptorRows:
+    """Rows of a ``.npy`` file: each block of a C-ordered file read from the file at its offset (not through a
+    mapping, whose pages would count in resident memory); a Fortran-ordered one sliced through the mapping."""
     array = read_npy(path, what="a descriptor array of shape (n_images, dimension)", mmap=True)
     if array.dtype.kind not in "biuf":
         raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
@@ -624,110 +653,3 @@ def _open_cache(path: Path, split: str) -> tuple[np.ndarray, DescriptorRows]:
         return block
 
     return names, DescriptorRows(read, (count, dimension), source=f"{path} ({split})")
-
-
-def open_descriptors(path: str | Path, split: str | None = None) -> tuple[np.ndarray | None, DescriptorRows]:
-    """Open a descriptor file without reading its descriptors: rows are read later, one block at a time.
-
-    The same files and errors as :func:`~vpr_uncertainty.retrieval.readers.load_descriptors`; only hloc's files
-    are read whole (one HDF5 group per image has no rows to slice).
-
-    Parameters
-    ----------
-    path : str or Path
-        ``.npy`` array (N × dim, memory-mapped), descriptor cache ``.h5`` / ``.hdf5``, or hloc's global features.
-    split : {"database", "queries"}, optional
-        Which images to read from an HDF5 file; required for ``.h5``, ignored for ``.npy``.
-
-    Returns
-    -------
-    names : ndarray of str of shape (N,), or None
-        Image names (from an HDF5 file; None for ``.npy``).
-    rows : DescriptorRows
-        The descriptors, read as float32 on demand.
-
-    Raises
-    ------
-    FileNotFoundError
-        When ``path`` is not a file.
-    ValueError
-        For another suffix, a ``.h5`` without a valid ``split``, an unreadable file or an array that is not 2-D.
-
-    Examples
-    --------
-    >>> import tempfile
-    >>> folder = Path(tempfile.mkdtemp())
-    >>> np.save(folder / "db.npy", np.arange(6, dtype=np.float64).reshape(3, 2))
-    >>> names, rows = open_descriptors(folder / "db.npy")
-    >>> rows.shape, rows.read(1, 3)
-    ((3, 2), array([[2., 3.],
-           [4., 5.]], dtype=float32))
-    """
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"descriptor file not found: {path}")
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        return None, _open_npy(path)
-    if suffix not in (".h5", ".hdf5"):
-        raise ValueError(
-            f"unsupported descriptor file {path}: expected one of {', '.join(DESCRIPTOR_SUFFIXES)} "
-            "(a .npy array of shape (N, dim) or the HDF5 descriptor cache)"
-        )
-    if split not in DESCRIPTOR_SPLITS:
-        raise ValueError(f"reading the descriptor cache {path} needs split in {DESCRIPTOR_SPLITS}, got {split!r}")
-    from vpr_uncertainty.descriptors.hloc import is_hloc_file, read_hloc_descriptors
-
-    if is_hloc_file(path):
-        names, array = read_hloc_descriptors(path, split)
-        return np.asarray(names, dtype=str), DescriptorRows.from_array(np.asarray(array), source=str(path))
-    return _open_cache(path, split)
-
-
-_MATCHES = (
-    "VPR-Bench precomputed matches (an object array of 6 items: query indices, top-1 indices, top-1 scores, "
-    "similarity matrix, encoding time, matching time)"
-)
-
-
-def load_vprbench_similarity(path: str | Path) -> np.ndarray:
-    """Read the full similarity matrix from VPR-Bench's ``precomputed_data_corrected.npy``.
-
-    The file holds [query indices, top-1 indices, top-1 scores, similarity matrix, encoding time, matching
-    time]; the matrix has one row per query and one column per database image, higher = more similar.
-
-    Returns
-    -------
-    ndarray of shape (Q, D), float32
-
-    Raises
-    ------
-    ValueError
-        When the file does not have that layout (e.g. a plain numeric matrix), or its pickled payload names a
-        global other than NumPy array reconstruction (nothing from the file is run).
-    """
-    path = Path(path)
-    content = read_npy(path, what=_MATCHES, allow_objects=True)
-    if content.dtype != object:
-        raise ValueError(
-            f"{path} is a plain {content.dtype} array of shape {content.shape}, not {_MATCHES}; "
-            "read it as a similarity matrix (format 'matrix')"
-        )
-    if content.shape != (6,):
-        raise ValueError(f"{path}: expected {_MATCHES}, got an object array of shape {content.shape}")
-    similarity = content[3]
-    if not isinstance(similarity, np.ndarray) or similarity.dtype.kind not in "iuf" or similarity.ndim != 2:
-        found = (
-            f"a {similarity.dtype} array of shape {similarity.shape}"
-            if isinstance(similarity, np.ndarray)
-            else type(similarity).__name__
-        )
-        raise ValueError(f"{path}: item 3 should be the numeric (queries × database) similarity matrix, got {found}")
-    order = content[0]
-    # Some of VPR-Bench's own files (ap-gem-r101) store the query indices as floats 0.0, 1.0, ...: compared exactly.
-    if not isinstance(order, np.ndarray) or order.dtype.kind not in "iuf" or order.ndim != 1:
-        raise ValueError(f"{path}: item 0 should be the query indices 0..{similarity.shape[0] - 1}, got {order!r:.80}")
-    if len(order) != similarity.shape[0] or not np.array_equal(order, np.arange(len(order))):
-        raise ValueError(f"{path}: expected query indices 0..{similarity.shape[0] - 1} in order")
-    return similarity.astype(np.float32)
