@@ -53,3 +53,9 @@ def test_retrieval_checks_database_sizes():
         )
     with pytest.raises(ValueError, match="database_positions covers only 2"):
         Retrieval(scores=np.zeros((1, 1)), indices=np.array([[5]]), database_positions=np.zeros((2, 2)))
+
+
+def test_a_retrieval_has_a_short_repr():
+    retrieval = Retrieval(np.zeros((1000, 50)), np.tile(np.arange(50), (1000, 1)), positives=[[0]] * 1000)
+    text = repr(retrieval)
+    assert text == ("Retrieval(n_queries=1000, k=50, n_database=50, scores=float64, fields=['positives'], config=[])")
