@@ -1,4 +1,4 @@
-"""The retrieval file: a :class:`~vpr_uncertainty.retrieval.result.Retrieval` in one ``.npz`` archive.
+"""The retrieval file: a :class:`~vpr_uncertainty.retrieval.Retrieval` in one ``.npz`` archive.
 
 Retrieval file (``.npz``, no pickles), format version 1
     ``format_version``   int, 1
