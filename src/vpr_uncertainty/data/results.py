@@ -260,8 +260,6 @@ def read_similarity_top_k(
     return scores, indices, shape
 
 
-
-
 #: The descriptor files of ``--save_descriptors``: (queries, database).
 LOG_FILES: tuple[str, str] = ("queries_descriptors.npy", "database_descriptors.npy")
 _ARGUMENTS = re.compile(r"Arguments: (Namespace\(.*\))\s*$")
@@ -469,12 +467,6 @@ def read_vpr_methods_evaluation(
         if checked:
             notes.append(checked)
     return VprMethodsEvaluationLog(retrieval, arguments, query_paths, database_paths, notes)
-
-
-
-
-
-
 
 
 _MATCHES = (
