@@ -1,4 +1,4 @@
-"""Exact search of a database read block by block (retrieval._streaming, retrieval.descriptor_rows) equals the
+"""Exact search of a database read block by block (retrieval.search, retrieval.blocks) equals the
 in-memory search: indices exactly, scores within float32 tolerance, ties to the lower database index."""
 
 from __future__ import annotations

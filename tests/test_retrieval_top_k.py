@@ -1,4 +1,4 @@
-"""Block-wise top-k of similarity matrices (retrieval/_top_k.py) and the memory-mapped matrix reader."""
+"""Block-wise top-k of similarity matrices (retrieval/blocks.py) and the memory-mapped matrix reader."""
 
 from __future__ import annotations
 

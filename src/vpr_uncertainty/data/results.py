@@ -92,21 +92,22 @@ def read_results(
         stored in a retrieval file.
     file_format : str, default="auto"
         A name of :data:`RESULTS_FORMAT_REGISTRY` (``"retrieval"``, ``"matrix"``, ``"vprbench"``,
-        ``"vpr-methods-evaluation"``, or a plugin's); ``"auto"``: the first format whose ``detect`` accepts the
-        path, else a similarity matrix, plain or VPR-Bench's, as the file holds.
+        ``"vpr-methods-evaluation"``, or a plugin's); ``"auto"``: the first registered format whose ``detect``
+        accepts the path, else a similarity matrix, plain or VPR-Bench's, as the file holds.
     top_k : int
         Candidates kept per query when a full matrix is read (all of them when the database is smaller); pass at
         least the largest k the methods will use. A retrieval file keeps the candidates it holds.
     """
-    if file_format not in input_formats():
-        raise ValueError(f"file_format must be one of {input_formats()}, got {file_format!r}")
     path = Path(path)
-    if file_format == "auto":
-        detected = next((entry for entry in RESULTS_FORMAT_REGISTRY if entry.detect and entry.detect(path)), None)
-        if detected is None:
+    if file_format == "auto":  # among the formats registered so far (the CLI loads the plugins first)
+        entry = next((entry for entry in RESULTS_FORMAT_REGISTRY if entry.detect and entry.detect(path)), None)
+        if entry is None:
             return _read_matrix(path, ground_truth=ground_truth, top_k=top_k, file_format="auto")
-        file_format = detected.name
-    entry = RESULTS_FORMAT_REGISTRY.get(file_format)
+    else:
+        try:
+            entry = RESULTS_FORMAT_REGISTRY.get(file_format)  # a miss loads the plugins
+        except KeyError:
+            raise ValueError(f"file_format must be one of {input_formats()}, got {file_format!r}") from None
     reader = load_target(entry.reader, what=f"results format {entry.name!r}", extra=entry.extra)
     return reader(path, ground_truth=ground_truth, top_k=top_k)
 
@@ -276,12 +277,6 @@ class VprMethodsEvaluationLog:
     query_paths: list[Path] | None = None
     database_paths: list[Path] | None = None
     notes: list[str] = field(default_factory=list)
-
-
-def is_vpr_methods_evaluation_log(path: str | Path) -> bool:
-    """Whether ``path`` is a folder holding the descriptor files of ``--save_descriptors``."""
-    path = Path(path)
-    return path.is_dir() and all((path / name).is_file() for name in LOG_FILES)
 
 
 def _literal(node: ast.AST) -> Any:

@@ -65,7 +65,7 @@ def _check_nonzero(squared: np.ndarray, name: str) -> None:
 
 def _normalised(descriptors: np.ndarray, name: str, *, owned: bool, copy: bool) -> np.ndarray:
     """L2-normalise rows that are not unit-norm already: in place when allowed, else on a copy."""
-    faiss = import_faiss()
+    faiss = _import_faiss()
     n_rows, dimension = descriptors.shape
     if n_rows == 0:
         return descriptors
@@ -103,7 +103,7 @@ def _ordered(scores: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.take_along_axis(scores, order, axis=1), np.take_along_axis(indices, order, axis=1)
 
 
-def _settle_ties(searcher: Searcher, queries: np.ndarray, k: int, n_database: int) -> tuple[np.ndarray, np.ndarray]:
+def _settle_ties(searcher: _Searcher, queries: np.ndarray, k: int, n_database: int) -> tuple[np.ndarray, np.ndarray]:
     """Top-k of queries whose k-th score ties with the next one: search deeper until the tie is complete."""
     depth = min(max(4 * k, k + 16), n_database)
     while True:
@@ -211,10 +211,10 @@ def search_descriptors(
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
     if search_params is not None and not isinstance(search_params, str):
         raise TypeError(f"search_params must be a string such as 'nprobe=32', got {search_params!r}")
-    faiss = import_faiss()
+    faiss = _import_faiss()
     block = _database_block(database, database_block, index, device)
     if block is not None:
-        database = as_rows(database)
+        database = _as_rows(database)
         database_owned = False
     else:
         database, database_owned = _as_descriptors(database, "database")
@@ -245,7 +245,7 @@ def search_descriptors(
         )
         return scores, indices, squared_distances_from_similarities(scores, check=False)
     database = _normalised(database, "database", owned=database_owned, copy=copy)
-    searcher = Searcher(database, index, device, search_params, faiss, progress=progress)
+    searcher = _Searcher(database, index, device, search_params, faiss, progress=progress)
     with progress_bar(total=n_queries, desc="retrieval", unit="query", enabled=progress) as bar:
         for start in range(0, n_queries, batch_size):
             batch = queries[start : start + batch_size]
@@ -335,7 +335,7 @@ def retrieve(
     return Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
 
 
-def as_rows(database: object) -> DescriptorRows:
+def _as_rows(database: object) -> DescriptorRows:
     """A DescriptorRows of the database: itself, or a checked numeric 2-D array (a memmap read block by block)."""
     if isinstance(database, DescriptorRows):
         rows = database
@@ -346,7 +346,7 @@ def as_rows(database: object) -> DescriptorRows:
     return rows
 
 
-def database_norms(rows: DescriptorRows, block: int, faiss: Any) -> np.ndarray:
+def _database_norms(rows: DescriptorRows, block: int, faiss: Any) -> np.ndarray:
     """Squared norms (float32) of every row, read block by block; bad rows raise as in the in-memory search."""
     squared = np.empty(len(rows), dtype=np.float32)
     for start in range(0, len(rows), block):
@@ -371,7 +371,7 @@ def _merge(
     return np.take_along_axis(both_scores, order, axis=1), np.take_along_axis(both_indices, order, axis=1)
 
 
-def _block_top_k(searcher: Searcher, batch: np.ndarray, kept: int, n_block: int) -> tuple[np.ndarray, np.ndarray]:
+def _block_top_k(searcher: _Searcher, batch: np.ndarray, kept: int, n_block: int) -> tuple[np.ndarray, np.ndarray]:
     """Exact top-``min(kept, n_block)`` of a batch of queries in one searcher, ties to the lower index."""
     depth = min(kept + 1, n_block)  # one more than kept reveals a tie across the kept-th place
     scores, indices = _ordered(*searcher.search(batch, depth))
@@ -403,7 +403,7 @@ def search_blocks(
     from vpr_uncertainty.progress import progress_bar
 
     n_database = len(rows)
-    squared = database_norms(rows, block, faiss)
+    squared = _database_norms(rows, block, faiss)
     normalise = bool(np.abs(squared - 1).max() > UNIT_NORM_TOLERANCE)
     del squared
     kept = min(k, n_database)
@@ -414,7 +414,7 @@ def search_blocks(
             data = rows.read(start, start + block)
             if normalise:
                 faiss.normalize_L2(data)
-            searcher = Searcher(data, "Flat", "cpu", None, faiss)
+            searcher = _Searcher(data, "Flat", "cpu", None, faiss)
             for first in range(0, len(queries), batch_size):
                 batch = queries[first : first + batch_size]
                 block_scores, block_indices = _block_top_k(searcher, batch, kept, len(data))
@@ -435,13 +435,13 @@ GPU_MAX_K = 2048
 def faiss_gpu_available() -> bool:
     """Whether the installed Faiss has GPU support and sees at least one GPU."""
     try:
-        faiss = import_faiss()
+        faiss = _import_faiss()
     except ImportError:
         return False
     return hasattr(faiss, "StandardGpuResources") and faiss.get_num_gpus() > 0
 
 
-def import_faiss() -> Any:
+def _import_faiss() -> Any:
     try:
         import faiss
     except ImportError as error:
@@ -452,7 +452,7 @@ def import_faiss() -> Any:
     return faiss
 
 
-class Searcher:
+class _Searcher:
     """``search(queries, k) -> (scores, indices)`` over one database, exact or through a Faiss index."""
 
     def __init__(
@@ -489,13 +489,13 @@ class Searcher:
         try:
             built = faiss.index_factory(dimension, index, faiss.METRIC_INNER_PRODUCT)
         except RuntimeError as error:
-            raise ValueError(f"invalid Faiss index-factory string {index!r}: {faiss_message(error)}") from None
+            raise ValueError(f"invalid Faiss index-factory string {index!r}: {_faiss_message(error)}") from None
         if device == "cuda":
             self._resources = faiss.StandardGpuResources()
             try:
                 built = faiss.index_cpu_to_gpu(self._resources, 0, built)
             except RuntimeError as error:
-                raise ValueError(f"Faiss index {index!r} cannot run on the GPU: {faiss_message(error)}") from None
+                raise ValueError(f"Faiss index {index!r} cannot run on the GPU: {_faiss_message(error)}") from None
         from vpr_uncertainty.progress import progress_status
 
         try:
@@ -504,14 +504,14 @@ class Searcher:
                     built.train(database)
             built.add(database)
         except RuntimeError as error:
-            raise ValueError(f"cannot build the Faiss index {index!r}: {faiss_message(error)}") from None
+            raise ValueError(f"cannot build the Faiss index {index!r}: {_faiss_message(error)}") from None
         if search_params:
             space = faiss.GpuParameterSpace() if device == "cuda" else faiss.ParameterSpace()
             try:
                 space.set_index_parameters(built, search_params)
             except RuntimeError as error:
                 raise ValueError(
-                    f"invalid search_params {search_params!r} for index {index!r}: {faiss_message(error)}"
+                    f"invalid search_params {search_params!r} for index {index!r}: {_faiss_message(error)}"
                 ) from None
         self.index = built
 
@@ -537,7 +537,7 @@ class Searcher:
         return scores, indices
 
 
-def faiss_message(error: BaseException) -> str:
+def _faiss_message(error: BaseException) -> str:
     """The useful last part of a Faiss C++ error message."""
     text = str(error).strip()
     return text.rsplit(": ", 1)[-1] if ": " in text else text
