@@ -17,7 +17,7 @@ def test_retrieval_file_round_trip(tmp_path):
     database, queries, database_positions, query_positions = toy_problem(1)
     names = np.array([f"db/{i:04d}.jpg" for i in range(len(database))])
     result = attach_ground_truth(
-        retrieve(database, queries, k=12),
+        retrieve(database, queries, top_k=12),
         database_positions=database_positions,
         query_positions=query_positions,
         database_names=names,
@@ -37,7 +37,7 @@ def test_retrieval_file_round_trip(tmp_path):
 
 def test_retrieval_file_round_trip_with_missing_candidates(tmp_path):
     database = np.eye(3, dtype=np.float32)
-    result = retrieve(database, database, k=5)
+    result = retrieve(database, database, top_k=5)
     loaded = load_retrieval(save_retrieval(result, tmp_path / "r.npz"))
     assert (loaded.indices[:, 3:] == -1).all() and np.isneginf(loaded.scores[:, 3:]).all()
     assert np.isposinf(loaded.distances[:, 3:]).all()

@@ -531,7 +531,7 @@ def attach_ground_truth(retrieval: Retrieval, fields: Mapping[str, Any] | None =
     >>> from vpr_uncertainty.retrieval import retrieve
     >>> database = np.eye(3, dtype=np.float32)
     >>> result = attach_ground_truth(
-    ...     retrieve(database, database[[2, 0]], k=2),
+    ...     retrieve(database, database[[2, 0]], top_k=2),
     ...     database_positions=[[0, 0], [50, 0], [100, 0]], query_positions=[[95, 0], [10, 0]], position_kind="metres",
     ... )
     >>> result.positives.toarray()

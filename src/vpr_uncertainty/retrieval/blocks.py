@@ -178,7 +178,7 @@ def top_k_blocks(
 
 
 def top_k_from_similarity(
-    similarity: object, k: int, *, chunk_size: int | None = None
+    similarity: object, top_k: int, *, chunk_size: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """The k most similar database images of each query from a full similarity matrix.
 
@@ -191,19 +191,19 @@ def top_k_from_similarity(
     similarity : array-like of shape (Q, D)
         Higher = more similar. NaN is rejected; ``-inf`` marks a database image that is no candidate for that
         query, and comes back with index -1.
-    k : int
-        Candidates per query; ``min(k, D)`` are returned.
+    top_k : int
+        Candidates per query; ``min(top_k, D)`` are returned.
     chunk_size : int, optional
         Queries processed at once, to bound memory; by default as many as hold about 4 M values.
 
     Returns
     -------
-    scores : ndarray of shape (Q, min(k, D)), float32 (float64 for float64 input)
-    indices : ndarray of shape (Q, min(k, D)), int64
+    scores : ndarray of shape (Q, min(top_k, D)), float32 (float64 for float64 input)
+    indices : ndarray of shape (Q, min(top_k, D)), int64
 
     Examples
     --------
-    >>> scores, indices = top_k_from_similarity(np.array([[0.1, 0.9, 0.9, 0.5]]), k=3)
+    >>> scores, indices = top_k_from_similarity(np.array([[0.1, 0.9, 0.9, 0.5]]), top_k=3)
     >>> scores, indices
     (array([[0.9, 0.9, 0.5]]), array([[1, 2, 3]]))
     """
@@ -212,8 +212,8 @@ def top_k_from_similarity(
         raise ValueError(f"similarity must be 2-D (n_queries, n_database), got shape {matrix.shape}")
     if not (np.issubdtype(matrix.dtype, np.floating) or np.issubdtype(matrix.dtype, np.integer)):
         raise TypeError(f"similarity must be numeric, got dtype {matrix.dtype}")
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise ValueError(f"k must be a positive integer, got {k!r}")
+    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 1:
+        raise ValueError(f"top_k must be a positive integer, got {top_k!r}")
     if chunk_size is not None and (isinstance(chunk_size, bool) or chunk_size < 1):
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
     if matrix.shape[1] == 0:
@@ -224,4 +224,4 @@ def top_k_from_similarity(
             row, col = np.argwhere(np.isnan(block))[0]
             raise ValueError(f"similarity contains NaN (first at query {first_row + row}, database image {col})")
 
-    return top_k_blocks(matrix, k, block_rows=chunk_size, check_block=check_block)
+    return top_k_blocks(matrix, top_k, block_rows=chunk_size, check_block=check_block)

@@ -140,7 +140,7 @@ def _database_block(database: object, database_block: object, index: str, device
 def search_descriptors(
     database: object,
     queries: object,
-    k: int = 10,
+    top_k: int = 10,
     *,
     index: str = "Flat",
     device: str = "cpu",
@@ -164,13 +164,13 @@ def search_descriptors(
         Database descriptors, float32 preferred (other types are converted on a copy).
     queries : array-like of shape (Q, dim)
         Query descriptors.
-    k : int, default=10
+    top_k : int, default=10
         Candidates per query. May exceed D: the missing candidates are marked (see Returns).
     index : str, default="Flat"
         Faiss index-factory string: ``"Flat"`` for exact search, or an approximate index such as
         ``"IVF4096,PQ64"`` or ``"HNSW32"``, built with the inner-product metric and trained on the database.
     device : {"cpu", "cuda"}, default="cpu"
-        ``"cuda"``: GPU 0 with GPU Faiss (k < 2048); a ``ValueError`` when Faiss has no GPU (no fallback to the CPU).
+        ``"cuda"``: GPU 0 with GPU Faiss (top_k < 2048); a ``ValueError`` when Faiss has no GPU (no CPU fallback).
     batch_size : int, default=4096
         Queries searched at once; bounds the memory of the intermediate results.
     search_params : str, optional
@@ -186,17 +186,17 @@ def search_descriptors(
 
     Returns
     -------
-    scores : ndarray of shape (Q, k), float32
+    scores : ndarray of shape (Q, top_k), float32
         Cosine similarities, sorted descending; ties ordered by lower database index; ``-inf`` where missing.
-    indices : ndarray of shape (Q, k), int64
+    indices : ndarray of shape (Q, top_k), int64
         Database index of each candidate; ``-1`` where missing.
-    distances : ndarray of shape (Q, k), float32
+    distances : ndarray of shape (Q, top_k), float32
         Squared L2 distances of the normalised descriptors, ``max(2 − 2·score, 0)``; ``+inf`` where missing.
 
     Examples
     --------
     >>> database = np.array([[1.0, 0.0], [0.0, 2.0], [1.0, 0.0]], dtype=np.float32)
-    >>> scores, indices, distances = search_descriptors(database, np.array([[3.0, 0.0]], np.float32), k=4)
+    >>> scores, indices, distances = search_descriptors(database, np.array([[3.0, 0.0]], np.float32), top_k=4)
     >>> scores
     array([[  1.,   1.,   0., -inf]], dtype=float32)
     >>> indices
@@ -204,7 +204,7 @@ def search_descriptors(
     >>> distances
     array([[ 0.,  0.,  2., inf]], dtype=float32)
     """
-    k = _positive_int(k, "k")
+    k = _positive_int(top_k, "top_k")
     batch_size = _positive_int(batch_size, "batch_size")
     index = _check_index_string(index)
     if device not in DEVICES:
@@ -228,7 +228,7 @@ def search_descriptors(
         raise ValueError("the database is empty (0 descriptors)")
     if device == "cuda" and k + 1 > GPU_MAX_K:
         raise ValueError(
-            f"GPU Faiss returns at most {GPU_MAX_K} candidates; k must be < {GPU_MAX_K} with device='cuda'"
+            f"GPU Faiss returns at most {GPU_MAX_K} candidates; top_k must be < {GPU_MAX_K} with device='cuda'"
         )
     queries = _normalised(queries, "queries", owned=queries_owned, copy=copy)
     n_queries, n_database = len(queries), len(database)
@@ -262,7 +262,7 @@ def search_descriptors(
 def retrieve(
     database: object,
     queries: object,
-    k: int = 10,
+    top_k: int = 10,
     *,
     index: str = "Flat",
     device: str = "cpu",
@@ -281,7 +281,7 @@ def retrieve(
     ----------
     database, queries : array-like of shape (D, dim) and (Q, dim)
         Descriptors (see :func:`search_descriptors`).
-    k : int, default=10
+    top_k : int, default=10
         Candidates kept per query.
     index, device, batch_size, search_params, copy, progress, database_block
         Options of :func:`search_descriptors`.
@@ -291,21 +291,21 @@ def retrieve(
     Returns
     -------
     Retrieval
-        ``scores``, ``indices`` and ``distances`` of shape (Q, k); ``config`` holds ``source`` ("faiss"),
+        ``scores``, ``indices`` and ``distances`` of shape (Q, top_k); ``config`` holds ``source`` ("faiss"),
         ``metric`` ("cosine"), ``k``, ``index``, ``device``, ``search_params`` (when given), ``n_database``,
         ``n_queries`` and ``dimension``.
 
     Examples
     --------
     >>> database = np.eye(3, dtype=np.float32)
-    >>> result = retrieve(database, database[[2, 0]], k=2)
+    >>> result = retrieve(database, database[[2, 0]], top_k=2)
     >>> result.indices
     array([[2, 0],
            [0, 1]])
     >>> result.config["n_database"], result.config["dimension"]
     (3, 3)
     """
-    k, index = _positive_int(k, "k"), _check_index_string(index)
+    k, index = _positive_int(top_k, "top_k"), _check_index_string(index)
     scores, indices, distances = search_descriptors(
         database,
         queries,
