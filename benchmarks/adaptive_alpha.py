@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import auc_pr, average_precision, correct_at_n
 from vpr_uncertainty.methods import get_method
-from vpr_uncertainty.retrieval import read_results
 from vpr_uncertainty.scores import adaptive_alpha, ratio_spread, similarity_distribution
 
 ALPHAS = tuple(round(0.1 * i, 1) for i in range(11))

@@ -26,7 +26,7 @@ from vpr_uncertainty import Gate, Retrieval, StatisticalUncertainty, calibrate
 def _retrieval() -> tuple[Retrieval, str]:
     data = os.environ.get("VPR_UNCERTAINTY_DATA")
     if data:
-        from vpr_uncertainty.retrieval import read_results
+        from vpr_uncertainty.data import read_results
 
         root = Path(data) / "vprbench"
         matches = root / "precomputed_matches/corridor/AMOSNet/precomputed_data_corrected.npy"

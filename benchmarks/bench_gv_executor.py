@@ -48,7 +48,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def corridor_pairs(data: Path, count: int) -> tuple[dict[str, Path], list[tuple[str, str]]]:
     """Image paths by name and the (query, top-1) pairs of the first ``count`` queries (NetVLAD's matrix)."""
-    from vpr_uncertainty.retrieval import read_results
+    from vpr_uncertainty.data import read_results
 
     root = data / "vprbench" / "corridor"
     matrix = data / "vprbench" / "precomputed_matches" / "corridor" / "NetVLAD" / "precomputed_data_corrected.npy"

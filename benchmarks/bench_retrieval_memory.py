@@ -38,7 +38,7 @@ CHILD = """
 import sys
 import numpy as np
 import faiss  # noqa: F401  (imported by every run: part of the baseline)
-from vpr_uncertainty.retrieval import load_descriptors, open_descriptors, search_descriptors
+from vpr_uncertainty.data import load_descriptors, open_descriptors, search_descriptors
 
 mode, database_path, queries_path, out = sys.argv[1:5]
 queries = np.load(queries_path)

@@ -33,8 +33,8 @@ import numpy as np
 import torch
 
 from vpr_uncertainty.btl.method import PROTOCOLS, btl_protocol, train_for_protocol
-from vpr_uncertainty.data.attach import attach_ground_truth
-from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth
+from vpr_uncertainty.data.dataset import attach_ground_truth
+from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import evaluate
 from vpr_uncertainty.pipeline.extract import ExtractConf
 from vpr_uncertainty.pipeline.extract import compute as extract

@@ -18,8 +18,9 @@ import numpy as np
 from vpr_uncertainty import calibrate
 from vpr_uncertainty.calibration import evaluate_held_out
 from vpr_uncertainty.calibration.fit import simulate_guarantee
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
-from vpr_uncertainty.retrieval import load_retrieval, read_results
+from vpr_uncertainty.retrieval import load_retrieval
 
 FIXED = ["RS", "SD", "SU", "PA", "L2", "BM", "margin"]
 

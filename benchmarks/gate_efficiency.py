@@ -75,8 +75,9 @@ from scipy import stats
 
 from vpr_uncertainty.calibration import calibrate_arrays
 from vpr_uncertainty.calibration.fit import hindsight_recall
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
-from vpr_uncertainty.retrieval import Retrieval, load_retrieval, read_results
+from vpr_uncertainty.retrieval import Retrieval, load_retrieval
 from vpr_uncertainty.scores import statistical_uncertainty
 
 MAPIE_VERSION = "1.6.0"

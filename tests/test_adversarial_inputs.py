@@ -19,8 +19,8 @@ import pytest
 
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import load_vprbench_dataset
-from vpr_uncertainty.data.listing import list_images
-from vpr_uncertainty.retrieval.vpr_methods_evaluation import _jpg_images
+from vpr_uncertainty.data.images import list_images
+from vpr_uncertainty.data.results import _jpg_images
 
 # --- shared crafting helpers ----------------------------------------------------------------------------------
 
@@ -169,8 +169,8 @@ def test_row9_hloc_external_and_soft_links_are_refused(tmp_path, capsys):
 
 def test_row9_own_descriptor_cache_refuses_external_storage(tmp_path):
     """A descriptors.h5 of ours, its rows replaced by external storage and its checksum recomputed to match."""
+    from vpr_uncertainty.data import open_descriptors
     from vpr_uncertainty.descriptors.cache import DescriptorCache, read_descriptors, split_checksum
-    from vpr_uncertainty.retrieval import open_descriptors
 
     path = tmp_path / "descriptors.h5"
     with DescriptorCache(path, {"model": "toy"}, model_name="toy") as cache:

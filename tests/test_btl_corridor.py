@@ -28,8 +28,8 @@ pytest.importorskip("efficientnet_lite_pytorch")
 
 from vpr_uncertainty.btl import btl_retrieval, load_btl_head, save_btl_head, train_btl_head  # noqa: E402
 from vpr_uncertainty.btl.method import resolve_btl_inputs  # noqa: E402
-from vpr_uncertainty.data.attach import attach_ground_truth  # noqa: E402
-from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth  # noqa: E402
+from vpr_uncertainty.data.dataset import attach_ground_truth  # noqa: E402
+from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth  # noqa: E402
 from vpr_uncertainty.descriptors import extract_descriptors, load_model  # noqa: E402
 from vpr_uncertainty.evaluation import evaluate  # noqa: E402
 from vpr_uncertainty.reports.tables import format_table  # noqa: E402
@@ -92,7 +92,7 @@ def test_training_on_corridor_lowers_the_validation_loss(corridor_head):
 def test_btl_evaluated_end_to_end_with_its_own_retrieval(corridor, corridor_head):
     head_path, _ = corridor_head
     retrieval = attach_ground_truth(
-        retrieve(corridor["database"], corridor["queries"], k=10),
+        retrieve(corridor["database"], corridor["queries"], top_k=10),
         positives=corridor["positives"],
         database_names=corridor["database_names"],
         query_names=corridor["queries_names"],
@@ -121,7 +121,7 @@ def test_btl_evaluated_end_to_end_with_its_own_retrieval(corridor, corridor_head
     assert any("BTL retrieves with its own embeddings" in note for note in results["notes"])
     with pytest.raises(ValueError, match="names"):
         reversed_names = attach_ground_truth(
-            retrieve(corridor["database"], corridor["queries"], k=10),
+            retrieve(corridor["database"], corridor["queries"], top_k=10),
             positives=corridor["positives"],
             query_names=corridor["queries_names"][::-1],
         )
@@ -170,7 +170,7 @@ def test_evaluate_command_refuses_training_queries_unless_allowed(corridor, corr
 
     head_path, _ = corridor_head
     retrieval = attach_ground_truth(
-        retrieve(corridor["database"], corridor["queries"], k=10),
+        retrieve(corridor["database"], corridor["queries"], top_k=10),
         positives=corridor["positives"],
         database_names=corridor["database_names"],
         query_names=corridor["queries_names"],

@@ -13,8 +13,8 @@ from vpr_uncertainty.calibration.calibrator import feature_matrix
 from vpr_uncertainty.calibration.fit import calibrate_arrays, plan_labels
 from vpr_uncertainty.calibration.guarantee import coverage_grid, cuts_at_coverage
 from vpr_uncertainty.cli import main
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
-from vpr_uncertainty.retrieval import read_results
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy")
 

@@ -7,7 +7,7 @@ import pytest
 
 from conftest import assert_close
 from vpr_uncertainty.calibration.calibrator import FEATURES, feature_matrix, row_features
-from vpr_uncertainty.retrieval import read_results
+from vpr_uncertainty.data import read_results
 
 CORRIDOR = ["AMOSNet", "CALC", "denseVLAD", "NetVLAD"]
 

@@ -10,8 +10,9 @@ import pytest
 from conftest import assert_close
 from vpr_uncertainty import Gate, calibrate, evaluate
 from vpr_uncertainty.calibration.calibrator import Calibrator
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
-from vpr_uncertainty.retrieval import Retrieval, read_results
+from vpr_uncertainty.retrieval import Retrieval
 
 
 def _corridor(method, corridor_dir, corridor_matches_dir):

@@ -17,8 +17,8 @@ from vpr_uncertainty.calibration.guarantee import (
     fixed_sequence,
     min_accepted,
 )
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
-from vpr_uncertainty.retrieval import read_results
 
 CORRIDOR = [
     "AMOSNet",

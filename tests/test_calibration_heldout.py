@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.calibration.quality import evaluate_held_out
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.methods import METHODS, register_method
-from vpr_uncertainty.retrieval import read_results
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
 

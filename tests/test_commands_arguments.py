@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.cli import main
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.pipeline.options import command_wording
-from vpr_uncertainty.retrieval import read_results
 
 
 def test_command_wording_turns_argument_names_into_flags():

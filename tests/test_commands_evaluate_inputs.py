@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.cli import main
-from vpr_uncertainty.data.image_folders import retrieval_image_paths
+from vpr_uncertainty.data.images import retrieval_image_paths
 from vpr_uncertainty.retrieval import Retrieval
 
 
@@ -59,7 +59,7 @@ def test_a_folder_with_another_number_of_images_is_refused(tmp_path, corridor_di
 
 
 def test_evaluate_default_methods_add_sue_with_metric_positions(tmp_path, capsys):
-    from vpr_uncertainty.data.attach import attach_ground_truth
+    from vpr_uncertainty.data.dataset import attach_ground_truth
     from vpr_uncertainty.retrieval import retrieve, save_retrieval
 
     rng = np.random.default_rng(0)

@@ -1,4 +1,4 @@
-"""Ground truth, names and positions attached to a search result (vpr_uncertainty.data.attach)."""
+"""Ground truth, names and positions attached to a search result (vpr_uncertainty.data.dataset)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import sparse
 
-from vpr_uncertainty.data.attach import attach_ground_truth, ground_truth_fields
+from vpr_uncertainty.data.dataset import attach_ground_truth, ground_truth_fields
 from vpr_uncertainty.retrieval import retrieve
 
 pytest.importorskip("faiss")
@@ -30,7 +30,7 @@ def toy_problem(seed: int = 0, n_database: int = 200, n_queries: int = 40, dim: 
 def test_attach_builds_positives_from_positions_and_a_config():
     database, queries, database_positions, query_positions = toy_problem()
     result = attach_ground_truth(
-        retrieve(database, queries, k=5, config={"dataset": "toy"}),
+        retrieve(database, queries, top_k=5, config={"dataset": "toy"}),
         database_positions=database_positions,
         query_positions=query_positions,
         radius=25,
@@ -48,7 +48,7 @@ def test_attach_detects_frame_positions():
     database = np.eye(30, dtype=np.float32)
     frames = np.repeat(np.arange(30.0)[:, None], 2, axis=1)
     result = attach_ground_truth(
-        retrieve(database, database, k=3), database_positions=frames, query_positions=frames, radius=2
+        retrieve(database, database, top_k=3), database_positions=frames, query_positions=frames, radius=2
     )
     assert result.config["position_kind"] == "frames"
 
@@ -57,7 +57,7 @@ def test_attach_accepts_one_dimensional_positions():
     database = np.eye(10, dtype=np.float32)
     frames = np.arange(10.0)
     result = attach_ground_truth(
-        retrieve(database, database[:4], k=3), database_positions=frames, query_positions=frames[:4], radius=1
+        retrieve(database, database[:4], top_k=3), database_positions=frames, query_positions=frames[:4], radius=1
     )
     assert result.database_positions.shape == (10, 1)
     assert result.positives[[0], :].toarray().ravel().nonzero()[0].tolist() == [0, 1]
@@ -65,14 +65,14 @@ def test_attach_accepts_one_dimensional_positions():
 
 def test_attach_takes_explicit_positives_and_checks_lengths():
     database = np.eye(4, dtype=np.float32)
-    result = attach_ground_truth(retrieve(database, database[:2], k=2), positives=np.eye(2, 4, dtype=bool))
+    result = attach_ground_truth(retrieve(database, database[:2], top_k=2), positives=np.eye(2, 4, dtype=bool))
     assert result.positives.shape == (2, 4) and "radius" not in result.config
     with pytest.raises(ValueError, match="positives must have shape"):
-        attach_ground_truth(retrieve(database, database[:2], k=2), positives=np.eye(3, 4, dtype=bool))
+        attach_ground_truth(retrieve(database, database[:2], top_k=2), positives=np.eye(3, 4, dtype=bool))
     with pytest.raises(ValueError, match="database_positions has 3 entries"):
-        attach_ground_truth(retrieve(database, database, k=2), database_positions=np.zeros((3, 2)))
+        attach_ground_truth(retrieve(database, database, top_k=2), database_positions=np.zeros((3, 2)))
     with pytest.raises(ValueError, match="position_kind"):
-        attach_ground_truth(retrieve(database, database, k=2), position_kind="miles")
+        attach_ground_truth(retrieve(database, database, top_k=2), position_kind="miles")
 
 
 def test_fields_checked_before_the_search_have_the_form_of_a_datasets():
@@ -85,7 +85,9 @@ def test_fields_checked_before_the_search_have_the_form_of_a_datasets():
     assert fields["config"] == {"radius": 1.0}  # 1-D positions: the kind is not guessed
     with pytest.raises(ValueError, match="query_names has 3 entries, expected 2"):
         ground_truth_fields(2, 6, query_names=["a", "b", "c"])
-    result = attach_ground_truth(retrieve(np.eye(6, dtype=np.float32), np.eye(6, dtype=np.float32)[:2], k=2), fields)
+    result = attach_ground_truth(
+        retrieve(np.eye(6, dtype=np.float32), np.eye(6, dtype=np.float32)[:2], top_k=2), fields
+    )
     assert result.query_positions.shape == (2, 1) and result.config["radius"] == 1.0
 
 
@@ -93,7 +95,7 @@ def test_attaching_keeps_what_is_not_given_and_drops_stale_ground_truth_settings
     database = np.eye(4, dtype=np.float32)
     frames = np.repeat(np.arange(4.0)[:, None], 2, axis=1)
     first = attach_ground_truth(
-        retrieve(database, database[:2], k=2),
+        retrieve(database, database[:2], top_k=2),
         database_positions=frames,
         query_positions=frames[:2],
         radius=1.5,  # frames (i, i) are sqrt(2) apart

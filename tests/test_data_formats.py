@@ -11,19 +11,19 @@ from scipy import sparse
 
 from vpr_uncertainty.data import Dataset, get_named_dataset, load_dataset
 from vpr_uncertainty.data.formats import DATASET_FORMAT_REGISTRY, DatasetFormat, detect_format, register_format
-from vpr_uncertainty.data.named_datasets import NAMED_DATASETS, read_named_datasets
+from vpr_uncertainty.data.named_datasets import NAMED_DATASET_REGISTRY, read_named_datasets
 
 
 def test_named_datasets_are_read_from_the_shipped_json():
     shipped = Path(__file__).parents[1] / "src" / "vpr_uncertainty" / "data" / "named_datasets.json"
     names = [record["name"] for record in json.loads(shipped.read_text())["datasets"]]
-    assert list(NAMED_DATASETS) == names
+    assert NAMED_DATASET_REGISTRY.names() == names
     assert get_named_dataset("tokyo").source.endswith("(it fetches the queries)")  # aliases come from the records
     assert (
         "VPR-datasets-downloader (https://github.com/gmberton/VPR-datasets-downloader)"
-        in NAMED_DATASETS["st_lucia"].source
+        in get_named_dataset("st_lucia").source
     )  # the placeholder is filled in
-    assert NAMED_DATASETS["nordland"].frame_spacing == pytest.approx(25 / 10.5, rel=1e-12)
+    assert get_named_dataset("nordland").frame_spacing == pytest.approx(25 / 10.5, rel=1e-12)
     with pytest.raises(ValueError, match=r"record 0: unknown fields \['radios'\]"):
         read_named_datasets(json.dumps({"datasets": [{"name": "x", "radios": 3}]}))
     with pytest.raises(KeyError, match="did you mean 'st_lucia'"):

@@ -11,7 +11,7 @@ import pytest
 
 from vpr_uncertainty.data import (
     DATA_ROOT_VARIABLE,
-    NAMED_DATASETS,
+    NAMED_DATASET_REGISTRY,
     detect_format,
     find_named_dataset,
     get_named_dataset,
@@ -43,13 +43,14 @@ def no_data_root(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_the_six_datasets_of_the_paper_are_named() -> None:
-    assert PAPER_DATASETS <= set(NAMED_DATASETS)  # with more of the field's (test_data_named_datasets_more.py)
-    for entry in (NAMED_DATASETS[name] for name in PAPER_DATASETS):
+    assert PAPER_DATASETS <= set(NAMED_DATASET_REGISTRY.names())  # and more (test_data_named_datasets_more.py)
+    for entry in (get_named_dataset(name) for name in PAPER_DATASETS):
         assert entry.split == "test" and entry.relative_path == f"{entry.folder}/images/test"
         assert entry.n_database > 0 and entry.n_queries > 0 and entry.source
-    assert NAMED_DATASETS["nordland"].frame_tolerance == 10 and NAMED_DATASETS["nordland"].position_kind == "frames"
-    assert NAMED_DATASETS["amstertime"].position_kind == "placeholder"
-    assert NAMED_DATASETS["pitts250k"].radius == 25 and NAMED_DATASETS["tokyo247"].n_queries == 315
+    nordland = get_named_dataset("nordland")
+    assert nordland.frame_tolerance == 10 and nordland.position_kind == "frames"
+    assert get_named_dataset("amstertime").position_kind == "placeholder"
+    assert get_named_dataset("pitts250k").radius == 25 and get_named_dataset("tokyo247").n_queries == 315
     assert get_named_dataset("Tokyo 24/7".replace(" ", "")).name == "tokyo247"
     assert get_named_dataset("St-Lucia").name == "st_lucia"
     with pytest.raises(KeyError, match="named datasets: pitts250k"):
@@ -58,7 +59,7 @@ def test_the_six_datasets_of_the_paper_are_named() -> None:
 
 @pytest.mark.parametrize("name", sorted(PAPER_DATASETS))
 def test_a_missing_dataset_says_where_to_get_it_and_where_to_put_it(tmp_path: Path, name: str) -> None:
-    entry = NAMED_DATASETS[name]
+    entry = get_named_dataset(name)
     with pytest.raises(FileNotFoundError) as error:
         load_dataset(name, root=tmp_path)
     message = str(error.value)

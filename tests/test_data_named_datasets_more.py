@@ -9,17 +9,23 @@ import pytest
 
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import load_dataset
-from vpr_uncertainty.data.download import CORRIDOR_URL, corridor_files, ensure_corridor
-from vpr_uncertainty.data.named_datasets import NAMED_DATASETS, find_named_dataset, get_named_dataset
+from vpr_uncertainty.data.named_datasets import (
+    CORRIDOR_URL,
+    NAMED_DATASET_REGISTRY,
+    corridor_files,
+    ensure_corridor,
+    find_named_dataset,
+    get_named_dataset,
+)
 
 
 def test_the_fields_datasets_are_named_with_where_to_get_them():
-    assert {"pitts30k", "msls", "sf_xl", "corridor"} <= set(NAMED_DATASETS)
-    assert (NAMED_DATASETS["pitts30k"].n_database, NAMED_DATASETS["pitts30k"].n_queries) == (10_000, 6_816)
-    assert "mapillary.com/dataset/places" in NAMED_DATASETS["msls"].source
-    assert "account" in NAMED_DATASETS["msls"].source  # stated honestly: it needs registration
-    assert "on request" in NAMED_DATASETS["sf_xl"].source and "CosPlace" in NAMED_DATASETS["sf_xl"].source
-    assert "download_pitts30k.py" in NAMED_DATASETS["pitts30k"].source
+    assert {"pitts30k", "msls", "sf_xl", "corridor"} <= set(NAMED_DATASET_REGISTRY.names())
+    assert (get_named_dataset("pitts30k").n_database, get_named_dataset("pitts30k").n_queries) == (10_000, 6_816)
+    assert "mapillary.com/dataset/places" in get_named_dataset("msls").source
+    assert "account" in get_named_dataset("msls").source  # stated honestly: it needs registration
+    assert "on request" in get_named_dataset("sf_xl").source and "CosPlace" in get_named_dataset("sf_xl").source
+    assert "download_pitts30k.py" in get_named_dataset("pitts30k").source
     assert get_named_dataset("Mapillary_SLS").name == "msls"
 
 
@@ -37,7 +43,7 @@ def test_the_corridor_loads_by_name(corridor_dir):
 
 
 def test_where_to_get_the_corridor_names_downloadable_files(tmp_path):
-    source = NAMED_DATASETS["corridor"].source
+    source = get_named_dataset("corridor").source
     assert f"{CORRIDOR_URL}/ground_truth_new.npy" in source and ".zip" in source
     assert find_named_dataset("corridor", tmp_path) is None
     with pytest.raises(FileNotFoundError) as error:

@@ -11,7 +11,7 @@ import pytest
 
 from conftest import assert_close
 from vpr_uncertainty import Retrieval, auc_pr, evaluate, read_results
-from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth
+from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import correct_at_n
 from vpr_uncertainty.geometric import GeometricVerifier, gv_sift, rerank, verify_retrieval
 

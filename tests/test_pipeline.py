@@ -11,7 +11,7 @@ import pytest
 
 from conftest import assert_close
 from vpr_uncertainty.cli import main
-from vpr_uncertainty.data import download
+from vpr_uncertainty.data import named_datasets as download
 from vpr_uncertainty.methods import default_method_names
 
 pytest.importorskip("torch")

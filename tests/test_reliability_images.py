@@ -21,8 +21,8 @@ import pytest
 torch = pytest.importorskip("torch")
 Image = pytest.importorskip("PIL.Image")
 
-from vpr_uncertainty.data import listing as listing_module  # noqa: E402
-from vpr_uncertainty.data.folder import ImageListingError, list_images, load_folder_dataset  # noqa: E402
+from vpr_uncertainty.data import images as listing_module  # noqa: E402
+from vpr_uncertainty.data.images import ImageListingError, list_images, load_folder_dataset  # noqa: E402
 from vpr_uncertainty.descriptors import (  # noqa: E402
     ImageDecodeError,
     Preprocessing,

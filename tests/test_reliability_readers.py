@@ -23,11 +23,9 @@ from numpy.lib import format as npy_format
 
 from vpr_uncertainty import read_results
 from vpr_uncertainty.cli import main as cli_main
-from vpr_uncertainty.data import load_ground_truth, load_vprbench_dataset, positives_from_lists
-from vpr_uncertainty.data.legacy_pickle import UnsafePickleError
-from vpr_uncertainty.data.npy import read_npy
-from vpr_uncertainty.data.vprbench import load_vprbench_ground_truth, load_vprbench_similarity
-from vpr_uncertainty.retrieval import load_similarity_matrix
+from vpr_uncertainty.data import load_ground_truth, load_similarity_matrix, load_vprbench_dataset, positives_from_lists
+from vpr_uncertainty.data.ground_truth import UnsafePickleError, load_vprbench_ground_truth, read_npy
+from vpr_uncertainty.data.results import load_vprbench_similarity
 
 # --------------------------------------------------------------------------------------------------------------
 # Helpers: legacy-looking files and malicious payloads

@@ -14,6 +14,7 @@ from scipy import sparse
 
 from vpr_uncertainty import evaluate
 from vpr_uncertainty.cli import main
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import FewerCandidatesWarning
 from vpr_uncertainty.reports.tables import (
     Table1,
@@ -24,7 +25,7 @@ from vpr_uncertainty.reports.tables import (
     table1_latex,
     table1_markdown,
 )
-from vpr_uncertainty.retrieval import Retrieval, load_retrieval, read_results, save_retrieval, top_k_from_similarity
+from vpr_uncertainty.retrieval import Retrieval, load_retrieval, save_retrieval, top_k_from_similarity
 from vpr_uncertainty.scores import (
     l2_distance,
     perceptual_aliasing,

@@ -19,11 +19,11 @@ from sklearn.metrics import auc, average_precision_score, precision_recall_curve
 
 from conftest import assert_close
 from vpr_uncertainty import evaluate
+from vpr_uncertainty.data import read_results
 from vpr_uncertainty.pipeline import grid as reproduce_command
 from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports, write_results
 from vpr_uncertainty.reports.display import DPI
 from vpr_uncertainty.reports.plots import ablation_figsize, heatmap_figsize, qualitative_figsize
-from vpr_uncertainty.retrieval import read_results
 
 METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]
 CHROMIUM = Path("/usr/bin/chromium")

@@ -139,7 +139,7 @@ def test_sue_on_real_pittsburgh_positions(data_dir):
     from sklearn.metrics import roc_auc_score
 
     from vpr_uncertainty import evaluate
-    from vpr_uncertainty.data.attach import attach_ground_truth
+    from vpr_uncertainty.data.dataset import attach_ground_truth
     from vpr_uncertainty.retrieval import retrieve
 
     poses = np.load(data_dir / "poses" / "pitts30k_test.npz")
@@ -154,11 +154,11 @@ def test_sue_on_real_pittsburgh_positions(data_dir):
 
     options = {"database_positions": database_positions, "query_positions": query_positions, "radius": 25.0}
     queries = features(query_positions, rng.uniform(0.0, 2.0, size=(len(query_positions), 1)))
-    same_place = attach_ground_truth(retrieve(features(database_positions, 0.0), queries, k=10), **options)
+    same_place = attach_ground_truth(retrieve(features(database_positions, 0.0), queries, top_k=10), **options)
     assert same_place.config["position_kind"] == "metres"
     assert (evaluate(same_place, ["SUE"], timing_repeats=1).methods["SUE"].uncertainty == 0).all()
 
-    result = attach_ground_truth(retrieve(features(database_positions, 0.5), queries, k=10), **options)
+    result = attach_ground_truth(retrieve(features(database_positions, 0.5), queries, top_k=10), **options)
     evaluation = evaluate(result, ["SUE"], timing_repeats=1)
     uncertainty = evaluation.methods["SUE"].uncertainty
     assert 0.5 < evaluation.recall_at_n[1] < 0.95

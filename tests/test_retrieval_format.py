@@ -7,7 +7,7 @@ import pytest
 from scipy import sparse
 
 from test_data_attach import toy_problem
-from vpr_uncertainty.data.attach import attach_ground_truth
+from vpr_uncertainty.data.dataset import attach_ground_truth
 from vpr_uncertainty.retrieval import Retrieval, load_retrieval, retrieve, save_retrieval
 
 pytest.importorskip("faiss")
@@ -17,7 +17,7 @@ def test_retrieval_file_round_trip(tmp_path):
     database, queries, database_positions, query_positions = toy_problem(1)
     names = np.array([f"db/{i:04d}.jpg" for i in range(len(database))])
     result = attach_ground_truth(
-        retrieve(database, queries, k=12),
+        retrieve(database, queries, top_k=12),
         database_positions=database_positions,
         query_positions=query_positions,
         database_names=names,
@@ -37,7 +37,7 @@ def test_retrieval_file_round_trip(tmp_path):
 
 def test_retrieval_file_round_trip_with_missing_candidates(tmp_path):
     database = np.eye(3, dtype=np.float32)
-    result = retrieve(database, database, k=5)
+    result = retrieve(database, database, top_k=5)
     loaded = load_retrieval(save_retrieval(result, tmp_path / "r.npz"))
     assert (loaded.indices[:, 3:] == -1).all() and np.isneginf(loaded.scores[:, 3:]).all()
     assert np.isposinf(loaded.distances[:, 3:]).all()
@@ -53,3 +53,9 @@ def test_retrieval_checks_database_sizes():
         )
     with pytest.raises(ValueError, match="database_positions covers only 2"):
         Retrieval(scores=np.zeros((1, 1)), indices=np.array([[5]]), database_positions=np.zeros((2, 2)))
+
+
+def test_a_retrieval_has_a_short_repr():
+    retrieval = Retrieval(np.zeros((1000, 50)), np.tile(np.arange(50), (1000, 1)), positives=[[0]] * 1000)
+    text = repr(retrieval)
+    assert text == ("Retrieval(n_queries=1000, k=50, n_database=50, scores=float64, fields=['positives'], config=[])")

@@ -1,4 +1,4 @@
-"""Top-k from a full similarity matrix, reading precomputed results and descriptor files (retrieval.readers)."""
+"""Top-k from a full similarity matrix, reading precomputed results (data.results) and descriptor files."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty import read_results, top_k_from_similarity
-from vpr_uncertainty.retrieval import Retrieval, load_descriptors, save_retrieval
+from vpr_uncertainty.data import load_descriptors
+from vpr_uncertainty.retrieval import Retrieval, save_retrieval
 
 
 def reference_top_k(similarity, k):
@@ -113,3 +114,28 @@ def test_empty_or_truncated_descriptor_npy_is_one_clear_error(tmp_path):
     np.save(tmp_path / "text.npy", np.array([["a", "b"]]))
     with pytest.raises(ValueError, match="not a numeric descriptor array"):
         load_descriptors(tmp_path / "text.npy")
+
+
+def test_results_formats_are_a_registry_a_plugin_can_extend(tmp_path):
+    from vpr_uncertainty.data import RESULTS_FORMAT_REGISTRY, ResultsFormat, input_formats, register_results_format
+
+    assert input_formats() == ("auto", "vpr-methods-evaluation", "retrieval", "matrix", "vprbench")
+    assert RESULTS_FORMAT_REGISTRY.get("matrix").provides == ("scores",)
+
+    def read_pairs(path, *, ground_truth, top_k):  # one "query database score" line per candidate
+        rows = np.loadtxt(path, ndmin=2)
+        return Retrieval(rows[:, 2:3], rows[:, 1:2].astype(np.int64), positives=[[0]] * len(rows))
+
+    register_results_format(
+        ResultsFormat("pairs", "query database score", read_pairs, detect=lambda p: p.suffix == ".pairs")
+    )
+    try:
+        (tmp_path / "run.pairs").write_text("0 0 0.9\n1 0 0.4\n")
+        assert "pairs" in input_formats()
+        for file_format in ("auto", "pairs"):
+            retrieval = read_results(tmp_path / "run.pairs", file_format=file_format)
+            np.testing.assert_array_equal(retrieval.scores, [[0.9], [0.4]])
+    finally:
+        RESULTS_FORMAT_REGISTRY.unregister("pairs")
+    with pytest.raises(ValueError, match="file_format must be one of"):
+        read_results(tmp_path / "run.pairs", file_format="pairs")

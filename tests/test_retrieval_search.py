@@ -37,7 +37,7 @@ def test_random_descriptors_match_numpy_reference(n_queries):
     rng = np.random.default_rng(0)
     database = rng.standard_normal((500, 32)).astype(np.float32)
     queries = rng.standard_normal((n_queries, 32)).astype(np.float32)
-    scores, indices, distances = search_descriptors(database, queries, k=10)
+    scores, indices, distances = search_descriptors(database, queries, top_k=10)
     expected_scores, expected_indices = reference(database, queries, 10)
     np.testing.assert_array_equal(indices, expected_indices)
     assert_close(scores, expected_scores, atol=1e-6)
@@ -54,7 +54,7 @@ def test_ties_are_ordered_and_cut_by_lower_database_index(n_queries, k):
     database = np.concatenate([base, base[:30], base[:5]])  # exact duplicates, later indices
     rng.shuffle(database)
     queries = np.concatenate([tie_descriptors(rng, n_queries - 2), database[[3, 40]]])
-    scores, indices, _ = search_descriptors(database, queries, k=k)
+    scores, indices, _ = search_descriptors(database, queries, top_k=k)
     expected_scores, expected_indices = reference(database, queries, k)
     np.testing.assert_array_equal(indices, expected_indices)
     np.testing.assert_array_equal(scores, expected_scores)  # exact by construction (multiples of 1/8)
@@ -70,7 +70,7 @@ def test_ties_with_small_batches_and_scaled_duplicates():
     scale = 2.0 ** rng.integers(-3, 4, size=(80, 1))  # powers of two: normalisation stays exact
     database = (np.concatenate([base, base]) * scale).astype(np.float32)
     queries = tie_descriptors(rng, 25) * 4
-    scores, indices, _ = search_descriptors(database, queries, k=6, batch_size=4)
+    scores, indices, _ = search_descriptors(database, queries, top_k=6, batch_size=4)
     expected_scores, expected_indices = reference(database, queries, 6)
     np.testing.assert_array_equal(indices, expected_indices)
     np.testing.assert_array_equal(scores, expected_scores)  # exact by construction (multiples of 1/8)
@@ -78,7 +78,7 @@ def test_ties_with_small_batches_and_scaled_duplicates():
 
 def test_all_database_descriptors_identical():
     database = np.ones((50, 8), dtype=np.float32)
-    scores, indices, _ = search_descriptors(database, np.ones((3, 8), np.float32), k=5)
+    scores, indices, _ = search_descriptors(database, np.ones((3, 8), np.float32), top_k=5)
     np.testing.assert_array_equal(indices, np.tile(np.arange(5), (3, 1)))
     assert_close(scores, 1.0)
 
@@ -88,7 +88,7 @@ def test_k_larger_than_database_pads_with_missing_candidates(n_queries):
     rng = np.random.default_rng(1)
     database = rng.standard_normal((4, 6)).astype(np.float32)
     queries = rng.standard_normal((n_queries, 6)).astype(np.float32)
-    scores, indices, distances = search_descriptors(database, queries, k=7)
+    scores, indices, distances = search_descriptors(database, queries, top_k=7)
     expected_scores, expected_indices = reference(database, queries, 7)
     assert scores.shape == indices.shape == distances.shape == (n_queries, 7)
     np.testing.assert_array_equal(indices, expected_indices)
@@ -103,7 +103,7 @@ def test_missing_candidates_are_scored_on_what_is_there():
 
     rng = np.random.default_rng(2)
     database = rng.standard_normal((4, 6)).astype(np.float32)
-    scores, _, _ = search_descriptors(database, rng.standard_normal((5, 6)).astype(np.float32), k=10)
+    scores, _, _ = search_descriptors(database, rng.standard_normal((5, 6)).astype(np.float32), top_k=10)
     # Two code paths (padded columns skipped vs. absent): float32, so rtol 1e-5, not the default 1e-7.
     assert_close(statistical_uncertainty(scores, k=10), statistical_uncertainty(scores[:, :4], k=4))
 
@@ -112,8 +112,8 @@ def test_batches_and_unnormalised_input_give_the_same_result():
     rng = np.random.default_rng(4)
     database = rng.standard_normal((300, 24)).astype(np.float32) * 7
     queries = rng.standard_normal((45, 24)).astype(np.float64) * 0.1
-    whole = search_descriptors(database, queries, k=8)
-    batched = search_descriptors(database, queries, k=8, batch_size=7)
+    whole = search_descriptors(database, queries, top_k=8)
+    batched = search_descriptors(database, queries, top_k=8, batch_size=7)
     # 45 queries go through Faiss's BLAS kernel, batches of 7 through its direct loop: another summation order.
     np.testing.assert_array_equal(whole[1], batched[1])
     assert_close(whole[0], batched[0], atol=1e-6)
@@ -126,10 +126,10 @@ def test_callers_arrays_are_not_modified_unless_copy_is_false():
     database = rng.standard_normal((50, 8)).astype(np.float32)
     queries = rng.standard_normal((5, 8)).astype(np.float32)
     saved = database.copy(), queries.copy()
-    first = search_descriptors(database, queries, k=3)
+    first = search_descriptors(database, queries, top_k=3)
     np.testing.assert_array_equal(database, saved[0])
     np.testing.assert_array_equal(queries, saved[1])
-    second = search_descriptors(database, queries, k=3, copy=False)
+    second = search_descriptors(database, queries, top_k=3, copy=False)
     assert_close(np.linalg.norm(database, axis=1), 1.0)  # normalised in place
     np.testing.assert_array_equal(first[1], second[1])
 
@@ -139,7 +139,7 @@ def test_unit_norm_input_is_used_without_a_copy(monkeypatch):
     database = unit(rng.standard_normal((40, 8)))
     calls = []
     monkeypatch.setattr(faiss, "normalize_L2", lambda x: calls.append(x.shape))
-    search_descriptors(database, database[:3], k=2)
+    search_descriptors(database, database[:3], top_k=2)
     assert calls == []
 
 
@@ -150,7 +150,7 @@ def test_index_factory_matches_exact_search_when_it_visits_everything(index, par
     rng = np.random.default_rng(7)
     database = rng.standard_normal((400, 16)).astype(np.float32)
     queries = rng.standard_normal((30, 16)).astype(np.float32)
-    scores, indices, _ = search_descriptors(database, queries, k=5, index=index, search_params=params)
+    scores, indices, _ = search_descriptors(database, queries, top_k=5, index=index, search_params=params)
     expected_scores, expected_indices = reference(database, queries, 5)
     np.testing.assert_array_equal(indices, expected_indices)
     assert_close(scores, expected_scores, atol=1e-6)
@@ -159,7 +159,7 @@ def test_index_factory_matches_exact_search_when_it_visits_everything(index, par
 def test_product_quantisation_is_approximate_but_well_formed():
     rng = np.random.default_rng(8)
     database = rng.standard_normal((600, 16)).astype(np.float32)
-    scores, indices, distances = search_descriptors(database, database[:20], k=5, index="PQ4x4")
+    scores, indices, distances = search_descriptors(database, database[:20], top_k=5, index="PQ4x4")
     assert indices.shape == (20, 5) and (indices >= 0).all()
     assert (np.diff(scores, axis=1) <= 0).all() and (distances >= 0).all()
 
@@ -168,7 +168,7 @@ def test_approximate_index_missing_candidates_follow_the_convention():
     rng = np.random.default_rng(9)
     database = rng.standard_normal((200, 8)).astype(np.float32)
     # One of 50 lists probed: some queries find fewer than k candidates.
-    scores, indices, distances = search_descriptors(database, database[:20], k=20, index="IVF50,Flat")
+    scores, indices, distances = search_descriptors(database, database[:20], top_k=20, index="IVF50,Flat")
     missing = indices == -1
     assert missing.any()
     assert np.isneginf(scores[missing]).all() and np.isposinf(distances[missing]).all()
@@ -182,7 +182,7 @@ def test_cuda_without_gpu_faiss_is_a_clear_error():
         pytest.skip("a GPU is available")
     database = np.eye(4, dtype=np.float32)
     with pytest.raises(ValueError, match="GPU Faiss"):
-        search_descriptors(database, database, k=2, device="cuda")
+        search_descriptors(database, database, top_k=2, device="cuda")
 
 
 @pytest.mark.parametrize(
@@ -192,7 +192,7 @@ def test_cuda_without_gpu_faiss_is_a_clear_error():
         (np.ones(5), np.ones((2, 5)), {}, "2-D"),
         (np.ones((0, 4)), np.ones((2, 4)), {}, "empty"),
         (np.ones((5, 0)), np.ones((2, 0)), {}, "dimension 0"),
-        (np.ones((5, 4)), np.ones((2, 4)), {"k": 0}, "k must be a positive integer"),
+        (np.ones((5, 4)), np.ones((2, 4)), {"top_k": 0}, "top_k must be a positive integer"),
         (np.ones((5, 4)), np.ones((2, 4)), {"batch_size": 0}, "batch_size"),
         (np.ones((5, 4)), np.ones((2, 4)), {"device": "tpu"}, "device"),
         (np.ones((5, 4)), np.ones((2, 4)), {"index": "NotAnIndex"}, "index-factory string"),
@@ -219,7 +219,7 @@ def test_bad_rows_are_named(value, message, which):
     arrays = {"database": np.ones((6, 4), np.float32), "queries": np.ones((5, 4), np.float32)}
     arrays[which][3] = value
     with pytest.raises(ValueError, match=f"{which} {message}"):
-        search_descriptors(arrays["database"], arrays["queries"], k=2)
+        search_descriptors(arrays["database"], arrays["queries"], top_k=2)
 
 
 def test_non_numeric_descriptors_are_rejected():
@@ -228,5 +228,5 @@ def test_non_numeric_descriptors_are_rejected():
 
 
 def test_no_queries_gives_empty_results():
-    scores, indices, distances = search_descriptors(np.eye(3, dtype=np.float32), np.empty((0, 3), np.float32), k=2)
+    scores, indices, distances = search_descriptors(np.eye(3, dtype=np.float32), np.empty((0, 3), np.float32), top_k=2)
     assert scores.shape == indices.shape == distances.shape == (0, 2)

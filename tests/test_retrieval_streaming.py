@@ -1,4 +1,4 @@
-"""Exact search of a database read block by block (retrieval._streaming, retrieval.descriptor_rows) equals the
+"""Exact search of a database read block by block (retrieval.search, retrieval.blocks) equals the
 in-memory search: indices exactly, scores within float32 tolerance, ties to the lower database index."""
 
 from __future__ import annotations
@@ -9,16 +9,19 @@ import pytest
 from conftest import assert_close
 from vpr_uncertainty import cache as cache_protocol
 from vpr_uncertainty import cli
+from vpr_uncertainty.data import load_descriptors, open_descriptors
 from vpr_uncertainty.retrieval import (
     DescriptorRows,
-    _streaming,
-    descriptor_rows,
-    load_descriptors,
     load_retrieval,
-    open_descriptors,
     retrieve,
     search_descriptors,
     top_k_from_similarity,
+)
+from vpr_uncertainty.retrieval import (
+    blocks as descriptor_rows,
+)
+from vpr_uncertainty.retrieval import (
+    search as _streaming,
 )
 
 faiss = pytest.importorskip("faiss")
@@ -71,8 +74,8 @@ def test_random_descriptors_equal_the_in_memory_search(n_queries, block, k):
     rng = np.random.default_rng(block + k)
     database = rng.standard_normal((500, 32)).astype(np.float32)
     queries = rng.standard_normal((n_queries, 32)).astype(np.float32)
-    in_memory = search_descriptors(database, queries, k=k)
-    assert_same_search(search_descriptors(database, queries, k=k, database_block=block), in_memory)
+    in_memory = search_descriptors(database, queries, top_k=k)
+    assert_same_search(search_descriptors(database, queries, top_k=k, database_block=block), in_memory)
 
 
 @pytest.mark.parametrize("n_queries", [5, 64])
@@ -83,8 +86,8 @@ def test_ties_and_duplicate_rows_go_to_the_lower_index_across_blocks(n_queries, 
     database = np.concatenate([base, base[:30], base[:5]])  # exact duplicates at later indices, in other blocks
     rng.shuffle(database)
     queries = np.concatenate([tie_descriptors(rng, n_queries - 2), database[[3, 40]]])
-    in_memory = search_descriptors(database, queries, k=k)
-    streamed = search_descriptors(database, queries, k=k, database_block=block, batch_size=17)
+    in_memory = search_descriptors(database, queries, top_k=k)
+    streamed = search_descriptors(database, queries, top_k=k, database_block=block, batch_size=17)
     assert_same_search(streamed, in_memory, exact_scores=True)  # multiples of 1/8: exact in float32
     similarity = queries @ database.T
     expected_scores, expected_indices = top_k_from_similarity(similarity, k)  # ties by lower index
@@ -97,7 +100,7 @@ def test_ties_and_duplicate_rows_go_to_the_lower_index_across_blocks(n_queries, 
 
 def test_all_rows_identical_keeps_the_first_k():
     database = np.ones((50, 8), dtype=np.float32)
-    scores, indices, _ = search_descriptors(database, np.ones((3, 8), np.float32), k=6, database_block=7)
+    scores, indices, _ = search_descriptors(database, np.ones((3, 8), np.float32), top_k=6, database_block=7)
     np.testing.assert_array_equal(indices, np.tile(np.arange(6), (3, 1)))
     assert_close(scores, np.ones((3, 6), np.float32))
 
@@ -107,8 +110,8 @@ def test_database_smaller_than_k_pads_with_missing_candidates(block):
     rng = np.random.default_rng(1)
     database = rng.standard_normal((5, 8)).astype(np.float32)
     queries = rng.standard_normal((4, 8)).astype(np.float32)
-    streamed = search_descriptors(database, queries, k=9, database_block=block)
-    assert_same_search(streamed, search_descriptors(database, queries, k=9))
+    streamed = search_descriptors(database, queries, top_k=9, database_block=block)
+    assert_same_search(streamed, search_descriptors(database, queries, top_k=9))
     assert (streamed[1][:, 5:] == -1).all() and np.isneginf(streamed[0][:, 5:]).all()
     assert np.isposinf(streamed[2][:, 5:]).all()
 
@@ -122,11 +125,12 @@ def test_normalisation_is_decided_on_the_whole_database():
     database = database.astype(np.float32)
     queries = rng.standard_normal((30, 24)).astype(np.float32)
     assert_same_search(
-        search_descriptors(database, queries, k=8, database_block=40), search_descriptors(database, queries, k=8)
+        search_descriptors(database, queries, top_k=8, database_block=40),
+        search_descriptors(database, queries, top_k=8),
     )
     unit = database[:80].copy()  # all unit-norm: used as they are, in memory and in blocks
     assert_same_search(
-        search_descriptors(unit, queries, k=8, database_block=40), search_descriptors(unit, queries, k=8)
+        search_descriptors(unit, queries, top_k=8, database_block=40), search_descriptors(unit, queries, top_k=8)
     )
 
 
@@ -134,8 +138,8 @@ def test_retrieve_streams_with_the_same_result_and_config():
     rng = np.random.default_rng(4)
     database = rng.standard_normal((120, 16)).astype(np.float32)
     queries = rng.standard_normal((10, 16)).astype(np.float32)
-    streamed = retrieve(DescriptorRows.from_array(database), queries, k=5, database_block=11)
-    in_memory = retrieve(database, queries, k=5)
+    streamed = retrieve(DescriptorRows.from_array(database), queries, top_k=5, database_block=11)
+    in_memory = retrieve(database, queries, top_k=5)
     np.testing.assert_array_equal(streamed.indices, in_memory.indices)
     assert_close(streamed.scores, in_memory.scores, atol=1e-6)
     assert streamed.config == in_memory.config  # n_database and dimension read from the shape, not the data
@@ -152,21 +156,21 @@ def test_a_memory_mapped_npy_database_is_streamed_block_by_block(tmp_path, spy_b
     np.save(tmp_path / "db.npy", database)
     names, rows = open_descriptors(tmp_path / "db.npy")
     assert names is None and rows.shape == (1000, 16) and rows.dtype == np.float32
-    in_memory = search_descriptors(load_descriptors(tmp_path / "db.npy")[1], queries, k=10)
-    assert_same_search(search_descriptors(rows, queries, k=10, database_block=300), in_memory)
+    in_memory = search_descriptors(load_descriptors(tmp_path / "db.npy")[1], queries, top_k=10)
+    assert_same_search(search_descriptors(rows, queries, top_k=10, database_block=300), in_memory)
     assert searches == [300] and max(stop - start for start, stop in reads) == 300
     assert sorted(set(reads)) == [(0, 300), (300, 600), (600, 900), (900, 1000)]  # norms pass, then search pass
     # By default a database on disk is streamed when it is larger than one default block (64 MiB; here 1 KiB).
     monkeypatch.setattr(descriptor_rows, "DEFAULT_BLOCK_BYTES", 16 * 4 * 128)
     reads.clear()
-    assert_same_search(search_descriptors(rows, queries, k=10), in_memory)
+    assert_same_search(search_descriptors(rows, queries, top_k=10), in_memory)
     assert searches[-1] == 128 and max(stop - start for start, stop in reads) == 128
     mapped = np.load(tmp_path / "db.npy", mmap_mode="r")  # a memmap given directly is streamed as well
-    assert_same_search(search_descriptors(mapped, queries, k=10), in_memory)
+    assert_same_search(search_descriptors(mapped, queries, top_k=10), in_memory)
     assert searches[-1] == 128
     # A database in memory is searched whole unless database_block is given; one block on disk as well.
-    search_descriptors(database, queries, k=10)
-    search_descriptors(DescriptorRows.from_array(database[:100]), queries, k=10)
+    search_descriptors(database, queries, top_k=10)
+    search_descriptors(DescriptorRows.from_array(database[:100]), queries, top_k=10)
     assert len(searches) == 3
 
 
@@ -227,8 +231,8 @@ def test_the_hdf5_descriptor_cache_is_read_by_slices(tmp_path, spy_blocks, dtype
     np.testing.assert_array_equal(rows.to_array(), database)
     _, queries = load_descriptors(path, "queries")
     reads.clear()
-    streamed = search_descriptors(rows, queries, k=12, database_block=96)
-    assert_same_search(streamed, search_descriptors(database, queries, k=12))
+    streamed = search_descriptors(rows, queries, top_k=12, database_block=96)
+    assert_same_search(streamed, search_descriptors(database, queries, top_k=12))
     assert searches == [96] and max(stop - start for start, stop in reads) == 96
 
 
@@ -261,7 +265,7 @@ def test_the_retrieve_command_streams_a_npy_database(tmp_path, spy_blocks):
     assert cli.main([*common, "--out", str(tmp_path / "streamed.npz"), "--database-block", "64"]) == 0
     # The fingerprint hashes the file in blocks of 64 MiB (here the whole file at once), then the search streams it.
     assert searches == [64] and reads[0] == (0, 400) and max(stop - start for start, stop in reads[1:]) == 64
-    streamed, in_memory = load_retrieval(tmp_path / "streamed.npz"), retrieve(database, queries, k=7)
+    streamed, in_memory = load_retrieval(tmp_path / "streamed.npz"), retrieve(database, queries, top_k=7)
     np.testing.assert_array_equal(streamed.indices, in_memory.indices)
     assert_close(streamed.scores, in_memory.scores, atol=1e-6)
     with pytest.raises(SystemExit) as stopped:  # argparse: "must be an integer >= 1, got 0"
@@ -286,14 +290,14 @@ def test_the_retrieve_command_streams_a_npy_database(tmp_path, spy_blocks):
 def test_bad_block_options_are_one_clear_error(options, message):
     database = np.eye(4, dtype=np.float32)
     with pytest.raises(ValueError, match=message):
-        search_descriptors(database, database, k=2, **options)
+        search_descriptors(database, database, top_k=2, **options)
 
 
 def test_mismatched_dimensions_and_empty_databases_are_one_clear_error(tmp_path):
     np.save(tmp_path / "db.npy", np.ones((10, 8), np.float32))
     _, rows = open_descriptors(tmp_path / "db.npy")
     with pytest.raises(ValueError, match="same descriptor dimension, got 8 and 4"):
-        search_descriptors(rows, np.ones((2, 4), np.float32), k=2, database_block=3)
+        search_descriptors(rows, np.ones((2, 4), np.float32), top_k=2, database_block=3)
     with pytest.raises(ValueError, match="database is empty"):
         search_descriptors(np.empty((0, 8), np.float32), np.ones((2, 8), np.float32), database_block=3)
     with pytest.raises(ValueError, match="2-D"):
@@ -336,7 +340,7 @@ def test_open_descriptors_errors_match_load_descriptors(tmp_path):
 
 def test_a_vpr_methods_evaluation_log_folder_streams_its_database(tmp_path, spy_blocks, monkeypatch):
     from test_retrieval_vpr_methods_evaluation import _log_folder
-    from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_vpr_methods_evaluation
+    from vpr_uncertainty.data.results import read_vpr_methods_evaluation
 
     reads, searches = spy_blocks
     folder = _log_folder(tmp_path)

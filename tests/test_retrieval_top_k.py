@@ -1,13 +1,15 @@
-"""Block-wise top-k of similarity matrices (retrieval/_top_k.py) and the memory-mapped matrix reader."""
+"""Block-wise top-k of similarity matrices (retrieval/blocks.py) and the memory-mapped matrix reader."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from vpr_uncertainty.data.npy import read_npy
-from vpr_uncertainty.retrieval import _top_k, read_results, read_similarity_top_k, top_k_from_similarity
-from vpr_uncertainty.retrieval._top_k import top_k_blocks
+from vpr_uncertainty.data import read_results, read_similarity_top_k
+from vpr_uncertainty.data.ground_truth import read_npy
+from vpr_uncertainty.retrieval import blocks as _top_k
+from vpr_uncertainty.retrieval import top_k_from_similarity
+from vpr_uncertainty.retrieval.blocks import top_k_blocks
 
 
 def reference_top_k(matrix: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:

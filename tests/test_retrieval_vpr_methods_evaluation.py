@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.cli import main
-from vpr_uncertainty.retrieval import read_results
-from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_arguments, read_vpr_methods_evaluation
+from vpr_uncertainty.data import read_results
+from vpr_uncertainty.data.results import read_arguments, read_vpr_methods_evaluation
 
 pytest.importorskip("faiss")
 

@@ -15,6 +15,7 @@ import pytest
 from scipy import sparse
 
 from vpr_uncertainty.calibration.quality import evaluate_held_out
+from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
 from vpr_uncertainty.pipeline.grid import (
     _cell_fingerprint,
     candidates_needed,
@@ -25,7 +26,7 @@ from vpr_uncertainty.pipeline.grid import (
     write_results,
 )
 from vpr_uncertainty.pipeline.grid_config import fitted_per_split, full_query_methods
-from vpr_uncertainty.retrieval import MATRIX_TOP_K, Retrieval, read_results
+from vpr_uncertainty.retrieval import Retrieval
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
 
@@ -105,7 +106,7 @@ def test_cal_row_equals_evaluate_held_out_for_the_same_seed(tmp_path, corridor_d
     retrieval = read_results(
         corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy",
         ground_truth=corridor_dir / "ground_truth_new.npy",
-        top_k=max(MATRIX_TOP_K, candidates_needed(config)),
+        top_k=max(DEFAULT_TOP_K, candidates_needed(config)),
     )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

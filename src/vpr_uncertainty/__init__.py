@@ -17,7 +17,7 @@ array([0.528, 0.979])
 """
 
 from vpr_uncertainty.calibration import Gate, calibrate
-from vpr_uncertainty.data.ground_truth import positives_from_lists
+from vpr_uncertainty.data import load_descriptors, read_results
 from vpr_uncertainty.evaluation import (
     Evaluation,
     auc_pr,
@@ -32,14 +32,13 @@ from vpr_uncertainty.evaluation import (
 from vpr_uncertainty.methods import available_methods, get_method, register_method
 from vpr_uncertainty.retrieval import (
     Retrieval,
-    load_descriptors,
     load_retrieval,
-    read_results,
     retrieve,
     save_retrieval,
     search_descriptors,
     top_k_from_similarity,
 )
+from vpr_uncertainty.retrieval.result import positives_from_lists
 from vpr_uncertainty.scores import (
     StatisticalUncertainty,
     best_match,

@@ -171,7 +171,7 @@ def array_digest(*arrays: Any) -> str:
     """A hash of the dtype, shape and bytes of each array (None counts as an absent array).
 
     Arrays are hashed in pieces of at most 16 MiB (no copy of a whole array). An object with a ``row_blocks()``
-    method, ``shape`` and ``dtype`` (a :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows` on
+    method, ``shape`` and ``dtype`` (a :class:`~vpr_uncertainty.retrieval.blocks.DescriptorRows` on
     disk) is hashed one block of rows at a time, with the digest of the same rows in memory.
 
     Examples

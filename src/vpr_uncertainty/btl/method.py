@@ -62,7 +62,7 @@ def read_btl_descriptors(value: object, split: str, names: object = None) -> obj
     """
     if not isinstance(value, (str, Path)):
         return value
-    from vpr_uncertainty.retrieval import load_descriptors
+    from vpr_uncertainty.data import load_descriptors
 
     option = "query_descriptors" if split == "queries" else "database_descriptors"
     file_names, array = load_descriptors(value, split)
@@ -138,8 +138,8 @@ def read_training_inputs(
     """
     run = None if run is None else Path(run)
     descriptors = None if descriptors is None else Path(descriptors)
-    from vpr_uncertainty.data import load_ground_truth, positives_within_radius
-    from vpr_uncertainty.retrieval import load_descriptors, load_retrieval
+    from vpr_uncertainty.data import load_descriptors, load_ground_truth, positives_within_radius
+    from vpr_uncertainty.retrieval import load_retrieval
 
     if run is not None:
         exclusive = {

@@ -1,68 +1,95 @@
-"""Dataset readers and ground truth.
-
-Every reader returns a :class:`Dataset` (image paths and names, positions when known, positives of each query);
-:func:`load_dataset` reads any supported format from a path, or a named benchmark from the data root; a new
-format is one :func:`register_format` call (see :mod:`vpr_uncertainty.data.formats`).
-"""
+"""Datasets, ground truth and the readers of what a user brings (dataset folders, results and descriptor files)."""
 
 from vpr_uncertainty.data.dataset import (
+    DEFAULT_RADIUS,
     POSITION_KINDS,
     Dataset,
     PlaceholderPositionsWarning,
+    attach_ground_truth,
     detect_position_kind,
+    ground_truth_fields,
+    latlon_to_utm,
+    positives_within_frames,
+    positives_within_radius,
 )
-from vpr_uncertainty.data.folder import MalformedImageNameError, load_folder_dataset, parse_image_name
-from vpr_uncertainty.data.formats import DATASET_FORMAT_REGISTRY, DatasetFormat, register_format
-from vpr_uncertainty.data.geo import latlon_to_utm
+from vpr_uncertainty.data.formats import (
+    DATASET_FORMAT_REGISTRY,
+    DatasetFormat,
+    detect_format,
+    load_poses_dataset,
+    load_table_dataset,
+    load_vprbench_dataset,
+    register_format,
+)
 from vpr_uncertainty.data.ground_truth import (
     load_ground_truth,
     positives_from_lists,
     positives_from_mask,
     positives_to_lists,
 )
+from vpr_uncertainty.data.images import MalformedImageNameError, load_folder_dataset, parse_image_name
 from vpr_uncertainty.data.named_datasets import (
     DATA_ROOT_VARIABLE,
-    NAMED_DATASETS,
+    NAMED_DATASET_REGISTRY,
     NamedDataset,
     data_root,
-    detect_format,
     find_named_dataset,
     get_named_dataset,
     load_dataset,
 )
-from vpr_uncertainty.data.poses import load_poses_dataset
-from vpr_uncertainty.data.positives import DEFAULT_RADIUS, positives_within_frames, positives_within_radius
-from vpr_uncertainty.data.table import load_table_dataset
-from vpr_uncertainty.data.vprbench import load_vprbench_dataset
+from vpr_uncertainty.data.results import (
+    DEFAULT_TOP_K,
+    RESULTS_FORMAT_REGISTRY,
+    ResultsFormat,
+    input_formats,
+    load_descriptors,
+    load_similarity_matrix,
+    open_descriptors,
+    read_results,
+    read_similarity_top_k,
+    register_results_format,
+)
 
 __all__ = [
     "DATASET_FORMAT_REGISTRY",
     "DATA_ROOT_VARIABLE",
     "DEFAULT_RADIUS",
-    "NAMED_DATASETS",
+    "DEFAULT_TOP_K",
+    "NAMED_DATASET_REGISTRY",
     "POSITION_KINDS",
+    "RESULTS_FORMAT_REGISTRY",
     "Dataset",
     "DatasetFormat",
     "MalformedImageNameError",
     "NamedDataset",
     "PlaceholderPositionsWarning",
+    "ResultsFormat",
+    "attach_ground_truth",
     "data_root",
     "detect_format",
     "detect_position_kind",
     "find_named_dataset",
     "get_named_dataset",
+    "ground_truth_fields",
+    "input_formats",
     "latlon_to_utm",
     "load_dataset",
+    "load_descriptors",
     "load_folder_dataset",
     "load_ground_truth",
     "load_poses_dataset",
+    "load_similarity_matrix",
     "load_table_dataset",
     "load_vprbench_dataset",
+    "open_descriptors",
     "parse_image_name",
     "positives_from_lists",
     "positives_from_mask",
     "positives_to_lists",
     "positives_within_frames",
     "positives_within_radius",
+    "read_results",
+    "read_similarity_top_k",
     "register_format",
+    "register_results_format",
 ]

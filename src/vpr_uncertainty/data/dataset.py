@@ -1,52 +1,20 @@
-"""The interface every dataset reader returns: images, their positions when known, and the positives of each query.
-
-A :class:`Dataset` is what the feature-extraction stage reads (image paths and names) and what the retrieval file
-inherits (names, positions, positives). Every reader in :mod:`vpr_uncertainty.data` returns one:
-
-* :func:`~vpr_uncertainty.data.folder.load_folder_dataset`: VPR-datasets-downloader folders, image names
-  ``@east@north@zone@letter@lat@lon@...@.jpg``;
-* :func:`~vpr_uncertainty.data.vprbench.load_vprbench_dataset`: VPR-Bench ``query/``, ``ref/``,
-  ``ground_truth_new.npy``;
-* :func:`~vpr_uncertainty.data.table.load_table_dataset`: CSV/TSV of image paths with x, y in metres or
-  latitude/longitude;
-* :func:`~vpr_uncertainty.data.poses.load_poses_dataset`: ``.npz`` with ``utmQ``, ``utmDb``, ``posDistThr``
-  (positions only);
-* :func:`~vpr_uncertainty.data.named_datasets.load_dataset`: any of the above, detected from the path, or a named
-  dataset of the paper.
-
-Positions and their kind
-    Positions are float64 arrays of shape (N, 2), in metres (UTM easting, northing, or any metric frame) when
-    ``position_kind == "metres"``. Some benchmarks store stand-ins instead, and a method that works in metric
-    space (SUE, spatial spread of the retrieved places) must not take them for metres:
-
-    * ``"frames"``: the position encodes a frame index of a sequence (Nordland: Patch-NetVLAD's ground-truth file
-      stores frame i as (i, i)); neighbouring frames are neighbouring places but the unit is not a metre;
-    * ``"placeholder"``: ids laid out on a line (AmsterTime's pair ids 100 m apart on a dummy axis,
-      VPR-datasets-downloader's Nordland at 25/10.5 m per frame, which the named dataset ``"nordland"`` turns
-      back into frame indices); they only encode which images match.
-
-    :func:`detect_position_kind` recognises these layouts from the numbers alone; named datasets set the kind
-    explicitly; :meth:`Dataset.metric_positions` returns the positions for a metric method and warns with
-    :class:`PlaceholderPositionsWarning` when they are not metres.
-"""
+"""The Dataset every reader returns: images, positions when known, the positives of each query."""
 
 from __future__ import annotations
 
+import dataclasses
+import numbers
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 from scipy import sparse
+from scipy.spatial import cKDTree
 
-__all__ = [
-    "POSITION_KINDS",
-    "Dataset",
-    "PlaceholderPositionsWarning",
-    "PositionKind",
-    "detect_position_kind",
-]
+from vpr_uncertainty.retrieval.result import Retrieval
 
 PositionKind = Literal["metres", "frames", "placeholder"]
 #: The values of :attr:`Dataset.position_kind` (besides None: no positions).
@@ -74,7 +42,7 @@ def _as_positions(value: object, name: str, expected_rows: int | None) -> np.nda
     return array
 
 
-def _line_coordinate(positions: np.ndarray) -> np.ndarray | None:
+def line_coordinate(positions: np.ndarray) -> np.ndarray | None:
     """The 1-D coordinate of positions that all lie on an axis-aligned line or on the diagonal x == y."""
     if len(positions) == 0:
         return None
@@ -89,25 +57,12 @@ def _line_coordinate(positions: np.ndarray) -> np.ndarray | None:
 
 
 def detect_position_kind(*positions: np.ndarray | None) -> PositionKind | None:
-    """Guess whether positions are metres, sequence frame indices or placeholder ids.
+    """Guess whether positions (of one dataset, judged together) are metres, sequence frame indices or placeholder ids.
 
-    Camera positions of a real 2-D dataset never all lie exactly on one axis-aligned line or on the diagonal
-    x == y; benchmarks that have no positions fake them that way. Such positions are ``"frames"`` when the
-    coordinate along the line takes consecutive integer values (frame indices), ``"placeholder"`` otherwise.
-    At least three distinct positions are needed to tell; fewer are taken as metres.
-
-    A genuine 1-D metric track stored as (distance, 0) is classified ``"placeholder"``; pass
-    ``position_kind="metres"`` to the reader to say otherwise.
-
-    Parameters
-    ----------
-    *positions : ndarray of shape (N_i, 2) or None
-        Position arrays of the same dataset (typically database and queries), judged together.
-
-    Returns
-    -------
-    {"metres", "frames", "placeholder"} or None
-        None when no positions are given.
+    Real 2-D camera positions never all lie on one axis-aligned line or on the diagonal x == y; benchmarks without
+    positions fake them that way: ``"frames"`` when the coordinate along the line takes consecutive integers,
+    ``"placeholder"`` otherwise. Fewer than three distinct positions count as metres; None when none are given. A real
+    1-D track stored as (distance, 0) comes out ``"placeholder"``: pass ``position_kind="metres"`` to the reader.
 
     Examples
     --------
@@ -126,7 +81,7 @@ def detect_position_kind(*positions: np.ndarray | None) -> PositionKind | None:
     stacked = np.concatenate([array.reshape(-1, 2) for array in arrays])
     if len(np.unique(stacked, axis=0)) < 3:
         return "metres"
-    line = _line_coordinate(stacked)
+    line = line_coordinate(stacked)
     if line is None:
         return "metres"
     values = np.unique(line)
@@ -155,35 +110,27 @@ class Dataset:
     Attributes
     ----------
     name : str
-        Short name, e.g. ``"st_lucia"`` or the folder name.
     root : Path or None
-        Folder the image names are relative to (the split folder holding ``database/`` and ``queries/``, the
-        VPR-Bench dataset folder, the folder of a CSV), or None.
+        Folder the image names are relative to (the split folder, the VPR-Bench folder, the folder of a table).
     positives : scipy.sparse.csr_array of shape (Q, D), bool
         Row q holds True at the database images that show the place of query q.
     database_paths, query_paths : list of Path (length D and Q), or None
-        Image files, in index order. None when only positions are known (a ``.npz`` of positions).
-    database_positions : ndarray of shape (D, 2), float64, or None
-    query_positions : ndarray of shape (Q, 2), float64, or None
-        Positions; in metres when ``position_kind == "metres"`` (see the module docstring).
+        Image files in index order; None for a positions-only dataset.
+    database_positions, query_positions : ndarray of shape (D, 2) and (Q, 2), float64, or None
     positive_radius : float or None
-        Threshold the positives were computed with, in the unit of the positions (metres, or frames when
-        ``position_kind == "frames"``). None for explicit ground truth.
+        Threshold of the positives, in the unit of the positions; None for explicit ground truth.
     position_kind : {"metres", "frames", "placeholder"} or None
-        What the positions are; None when there are none.
-    database_names, query_names : list of str (length D and Q), or None
-        Image names, unique within the dataset: POSIX paths relative to ``root``. Derived from the paths when
-        not given. They key descriptor caches and are stored in retrieval files.
-    split : str or None
-        Split of the benchmark (``"test"``, ``"val"``, ...), when it has splits.
-    source_format : str or None
-        Reader that produced the dataset: ``"folder"``, ``"vprbench"``, ``"table"`` or ``"poses"``.
+        Metres (UTM or any metric frame); frame indices of a sequence (Nordland); or ids laid out on a line that only
+        encode which images match (AmsterTime). Detected when not given (:func:`detect_position_kind`); a metric
+        method (SUE) must not take the last two for metres: :meth:`metric_positions` warns.
+    database_names, query_names : list of str, or None
+        Unique POSIX paths relative to ``root`` (derived from the paths when not given); they key descriptor caches.
+    split, source_format : str or None
+        The benchmark's split; the reader (``"folder"``, ``"vprbench"``, ``"table"``, ``"poses"``).
     info : dict
-        Anything else worth keeping (UTM zone, original file, notes); JSON-serialisable.
+        Anything else worth keeping (UTM zone, original file); JSON-serialisable.
     unlisted : list of dict
-        What could not be listed when the images were discovered, ``{"path": ..., "error": ...}`` per folder
-        that cannot be read or broken link without an image suffix: images under them are missing from the
-        dataset. The extraction stage reports them (``on_error="skip"``) or refuses to go on (``"fail"``).
+        ``{"path": ..., "error": ...}`` of each folder or broken link that could not be listed: images may be missing.
     """
 
     name: str
@@ -276,27 +223,9 @@ class Dataset:
         )
 
     def metric_positions(self, *, purpose: str = "a metric-space method") -> tuple[np.ndarray, np.ndarray]:
-        """Database and query positions for a method that works in metres, e.g. SUE.
+        """Database (D, 2) and query (Q, 2) positions for a method in metres (``purpose``, e.g. ``"SUE"``).
 
-        Parameters
-        ----------
-        purpose : str
-            Who asks, for the messages (e.g. ``"SUE"``).
-
-        Returns
-        -------
-        database_positions : ndarray of shape (D, 2)
-        query_positions : ndarray of shape (Q, 2)
-
-        Raises
-        ------
-        ValueError
-            When the dataset has no positions.
-
-        Warns
-        -----
-        PlaceholderPositionsWarning
-            When the positions are frame indices or placeholder ids: distances between them are not metres.
+        Raises ValueError when the dataset has none; warns :class:`PlaceholderPositionsWarning` when not metres.
         """
         if self.database_positions is None or self.query_positions is None:
             raise ValueError(
@@ -314,15 +243,7 @@ class Dataset:
 
     # -- summaries -----------------------------------------------------------------------------------------
     def retrieval_fields(self) -> dict[str, Any]:
-        """The fields of a :class:`~vpr_uncertainty.retrieval.Retrieval` that come from the dataset.
-
-        Returns
-        -------
-        dict
-            ``positives``, ``query_names`` and ``database_names`` (ndarray of str or None),
-            ``query_positions`` and ``database_positions`` (or None) and ``config`` (a dict with the dataset
-            name, split, positive radius and position kind).
-        """
+        """The fields of a :class:`~vpr_uncertainty.retrieval.Retrieval` that come from the dataset."""
         return {
             "positives": self.positives,
             "query_names": None if self.query_names is None else np.asarray(self.query_names, dtype=str),
@@ -355,3 +276,283 @@ class Dataset:
             f"{radius}, position_kind={self.position_kind!r}, "
             f"queries_without_positives={self.queries_without_positives.size})"
         )
+
+
+#: Default positive radius in metres.
+DEFAULT_RADIUS = 25.0
+
+
+def _check_positions(positions: object, name: str) -> np.ndarray:
+    array = np.asarray(positions)
+    if array.ndim == 1:
+        array = array[:, None]
+    if array.ndim != 2 or array.shape[1] not in (1, 2, 3):
+        raise ValueError(f"{name} must have shape (n, 2) (or (n,) / (n, 1) / (n, 3)), got shape {array.shape}")
+    if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise TypeError(f"{name} must be numeric, got dtype {array.dtype}")
+    array = array.astype(np.float64, copy=False)
+    if not np.isfinite(array).all():
+        row = int(np.argwhere(~np.isfinite(array))[0, 0])
+        raise ValueError(f"{name} must be finite; row {row} is {array[row].tolist()}")
+    return array
+
+
+def _check_radius(radius: object, name: str) -> float:
+    if isinstance(radius, bool) or not isinstance(radius, numbers.Real):
+        raise TypeError(f"{name} must be a non-negative number, got {radius!r}")
+    value = float(radius)
+    if not value >= 0.0 or not np.isfinite(value):  # also rejects NaN
+        raise ValueError(f"{name} must be a finite non-negative number, got {radius!r}")
+    return value
+
+
+def positives_within_radius(
+    query_positions: object, database_positions: object, radius: float = DEFAULT_RADIUS
+) -> sparse.csr_array:
+    """Positives of each query: the database images at Euclidean distance ``<= radius``.
+
+    Parameters
+    ----------
+    query_positions : array-like of shape (Q, 2)
+        Query positions, e.g. UTM easting and northing in metres. Shapes (Q,), (Q, 1) and (Q, 3) are also
+        accepted (1-D positions along a track, or 3-D positions).
+    database_positions : array-like of shape (D, 2)
+        Database positions, in the same frame and unit as the queries.
+    radius : float, default 25.0
+        Distance threshold, inclusive, in the unit of the positions.
+
+    Returns
+    -------
+    scipy.sparse.csr_array of shape (Q, D), dtype bool
+        Row q holds the positives of query q, with sorted column indices.
+
+    Examples
+    --------
+    >>> queries = np.array([[0.0, 0.0], [100.0, 0.0]])
+    >>> database = np.array([[3.0, 4.0], [30.0, 0.0], [0.0, -25.0]])
+    >>> positives_within_radius(queries, database, radius=25).toarray()
+    array([[ True, False,  True],
+           [False, False, False]])
+    """
+    queries = _check_positions(query_positions, "query_positions")
+    database = _check_positions(database_positions, "database_positions")
+    if queries.shape[1] != database.shape[1]:
+        raise ValueError(
+            f"query_positions and database_positions must have the same number of coordinates, got "
+            f"{queries.shape[1]} and {database.shape[1]}"
+        )
+    radius = _check_radius(radius, "radius")
+    n_queries, n_database = len(queries), len(database)
+    indptr = np.zeros(n_queries + 1, dtype=np.int64)
+    if n_queries == 0 or n_database == 0:
+        return sparse.csr_array(
+            (np.ones(0, dtype=bool), np.zeros(0, dtype=np.int64), indptr), shape=(n_queries, n_database)
+        )
+    tree = cKDTree(database)
+    neighbours = tree.query_ball_point(queries, r=radius, return_sorted=True)
+    counts = np.fromiter((len(row) for row in neighbours), dtype=np.int64, count=n_queries)
+    np.cumsum(counts, out=indptr[1:])
+    indices = np.fromiter((index for row in neighbours for index in row), dtype=np.int64, count=int(indptr[-1]))
+    data = np.ones(indices.size, dtype=bool)
+    return sparse.csr_array((data, indices, indptr), shape=(n_queries, n_database))
+
+
+def positives_within_frames(
+    query_frames: object, database_frames: object, tolerance: int | float = 10
+) -> sparse.csr_array:
+    """Positives of a sequence dataset: the database frames at most ``tolerance`` frames from each query (inclusive).
+
+    Examples
+    --------
+    >>> positives_within_frames([0, 5], [0, 1, 2, 3, 4, 5, 6], tolerance=1).toarray().astype(int)
+    array([[1, 1, 0, 0, 0, 0, 0],
+           [0, 0, 0, 0, 1, 1, 1]])
+    """
+    queries = np.asarray(query_frames)
+    database = np.asarray(database_frames)
+    for name, array in (("query_frames", queries), ("database_frames", database)):
+        if array.ndim != 1:
+            raise ValueError(f"{name} must be 1-D (one frame index per image), got shape {array.shape}")
+    tolerance = _check_radius(tolerance, "tolerance")
+    return positives_within_radius(queries, database, radius=tolerance)
+
+
+def _import_utm():
+    try:
+        import utm
+    except ImportError as error:  # pragma: no cover - utm is a dependency
+        raise ImportError("converting latitude/longitude to metres needs the 'utm' package: pip install utm") from error
+    return utm
+
+
+def latlon_to_utm(
+    latitude: object,
+    longitude: object,
+    *,
+    zone_number: int | None = None,
+    northern: bool | None = None,
+) -> tuple[np.ndarray, int, bool]:
+    """Project WGS84 latitude/longitude (N,) to UTM easting/northing (N, 2) in metres, all in one zone.
+
+    Converting each point in its own 6° zone would put two images on either side of a boundary hundreds of km apart;
+    one zone (by default that of the median point, and its hemisphere) keeps distances right at a dataset's scale.
+    Returns the positions, the zone number and whether the zone is northern.
+
+    Examples
+    --------
+    >>> positions, zone, northern = latlon_to_utm([40.4406, 40.4408], [-79.9959, -79.9959])
+    >>> zone, northern, round(float(np.linalg.norm(positions[1] - positions[0])), 1)
+    (17, True, 22.2)
+    """
+    utm = _import_utm()
+    lat = np.asarray(latitude, dtype=np.float64).reshape(-1)
+    lon = np.asarray(longitude, dtype=np.float64).reshape(-1)
+    if lat.shape != lon.shape:
+        raise ValueError(f"latitude and longitude must have the same length, got {lat.size} and {lon.size}")
+    if not (np.isfinite(lat).all() and np.isfinite(lon).all()):
+        raise ValueError("latitude and longitude must be finite numbers")
+    if lat.size and not ((lat >= -80).all() and (lat <= 84).all()):
+        bad = int(np.flatnonzero((lat < -80) | (lat > 84))[0])
+        raise ValueError(f"latitude must lie in [-80, 84] degrees (UTM), got {lat[bad]} at row {bad}")
+    if lon.size and not ((lon >= -180).all() and (lon <= 180).all()):
+        bad = int(np.flatnonzero((lon < -180) | (lon > 180))[0])
+        raise ValueError(f"longitude must lie in [-180, 180] degrees, got {lon[bad]} at row {bad}")
+    if lat.size == 0:
+        return np.empty((0, 2)), int(zone_number or 0), bool(northern if northern is not None else True)
+    median_lat, median_lon = float(np.median(lat)), float(np.median(lon))
+    if zone_number is None:
+        zone_number = int(utm.latlon_to_zone_number(median_lat, median_lon))
+    if northern is None:
+        northern = median_lat >= 0
+    easting, northing, _, _ = utm.from_latlon(
+        lat, lon, force_zone_number=int(zone_number), force_northern=bool(northern)
+    )
+    positions = np.column_stack([np.asarray(easting, np.float64), np.asarray(northing, np.float64)])
+    return positions, int(zone_number), bool(northern)
+
+
+#: The fields of a Retrieval that come from the dataset.
+FIELDS = ("positives", "query_names", "database_names", "query_positions", "database_positions")
+
+
+def _check_rows(value: object, name: str, expected: int | None, what: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    array = np.asarray(value)
+    if expected is not None and len(array) != expected:
+        raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what} descriptor)")
+    return array
+
+
+def _as_position_matrix(positions: np.ndarray | None) -> np.ndarray | None:
+    if positions is None:
+        return None
+    positions = np.asarray(positions, dtype=np.float64)
+    return positions[:, None] if positions.ndim == 1 else positions
+
+
+def ground_truth_fields(
+    n_queries: int,
+    n_database: int | None,
+    *,
+    positives: object = None,
+    database_positions: object = None,
+    query_positions: object = None,
+    radius: float = DEFAULT_RADIUS,
+    database_names: object = None,
+    query_names: object = None,
+    position_kind: str | None = None,
+) -> dict[str, Any]:
+    """The ground-truth fields of a retrieval of ``n_queries`` queries against ``n_database`` (or None) images.
+
+    Parameters
+    ----------
+    n_queries : int
+    n_database : int or None
+    positives : sparse or dense bool matrix of shape (Q, D), optional
+        Explicit ground truth; used instead of the radius search.
+    database_positions, query_positions : array-like of shape (D, 2) and (Q, 2), optional
+        (N,) arrays are read as (N, 1). With both and no positives, the positives are the database images within
+        ``radius`` of each query (inclusive).
+    radius : float, default=25.0
+        Positive radius, in the unit of the positions.
+    database_names, query_names : sequence of str, optional
+    position_kind : {"metres", "frames", "placeholder"}, optional
+        Detected from two-column positions when not given.
+
+    Returns
+    -------
+    dict
+        ``positives``, ``query_names``, ``database_names``, ``query_positions``, ``database_positions`` (or None)
+        and ``config`` (``radius`` when the positives come from the positions, ``position_kind`` when known).
+        A field of the wrong length raises a ValueError naming it.
+    """
+    if position_kind is not None and position_kind not in POSITION_KINDS:
+        raise ValueError(f"position_kind must be one of {POSITION_KINDS} or None, got {position_kind!r}")
+    database_positions = _check_rows(database_positions, "database_positions", n_database, "database")
+    query_positions = _check_rows(query_positions, "query_positions", n_queries, "query")
+    database_names = _check_rows(database_names, "database_names", n_database, "database")
+    query_names = _check_rows(query_names, "query_names", n_queries, "query")
+    config: dict[str, Any] = {}
+    if positives is not None:
+        positives = sparse.csr_array(positives, dtype=bool)
+        if positives.shape[0] != n_queries or (n_database is not None and positives.shape[1] != n_database):
+            expected = f"({n_queries}, {'D' if n_database is None else n_database})"
+            raise ValueError(f"positives must have shape {expected}, got {positives.shape}")
+    elif database_positions is not None and query_positions is not None:
+        positives = positives_within_radius(query_positions, database_positions, radius)
+        config["radius"] = float(radius)
+    if database_positions is not None or query_positions is not None:
+        if position_kind is None:
+            two_column = [p for p in (database_positions, query_positions) if p is not None and p.shape[1:] == (2,)]
+            position_kind = detect_position_kind(*two_column) if two_column else None
+        if position_kind is not None:
+            config["position_kind"] = position_kind
+    return {
+        "positives": positives,
+        "query_names": query_names,
+        "database_names": database_names,
+        "query_positions": _as_position_matrix(query_positions),
+        "database_positions": _as_position_matrix(database_positions),
+        "config": config,
+    }
+
+
+def attach_ground_truth(retrieval: Retrieval, fields: Mapping[str, Any] | None = None, /, **options: Any) -> Retrieval:
+    """A copy of ``retrieval`` with the ground truth, names and positions of its dataset.
+
+    ``fields`` come from :func:`ground_truth_fields` or :meth:`Dataset.retrieval_fields`; or give the keyword options
+    of :func:`ground_truth_fields` instead (sized by the retrieval, ``config["n_database"]`` as ``retrieve`` writes
+    it). Each field given replaces the retrieval's; ``config`` entries are merged over its own, dropping ``radius``
+    and ``position_kind`` when the positives or positions are replaced.
+
+    Examples
+    --------
+    >>> from vpr_uncertainty.retrieval import retrieve
+    >>> database = np.eye(3, dtype=np.float32)
+    >>> result = attach_ground_truth(
+    ...     retrieve(database, database[[2, 0]], top_k=2),
+    ...     database_positions=[[0, 0], [50, 0], [100, 0]], query_positions=[[95, 0], [10, 0]], position_kind="metres",
+    ... )
+    >>> result.positives.toarray()
+    array([[False, False,  True],
+           [ True, False, False]])
+    """
+    if fields is not None and options:
+        raise TypeError("attach_ground_truth takes fields or keyword options, not both")
+    if fields is None:
+        n_database = retrieval.n_database
+        if n_database is None and isinstance(retrieval.config.get("n_database"), int):
+            n_database = retrieval.config["n_database"]
+        fields = ground_truth_fields(retrieval.n_queries, n_database, **options)
+    unknown = set(fields) - {*FIELDS, "config"}
+    if unknown:
+        raise ValueError(f"unknown ground-truth fields {sorted(unknown)}; expected {', '.join(FIELDS)} and config")
+    given = {name: fields[name] for name in FIELDS if fields.get(name) is not None}
+    config = dict(retrieval.config)
+    if "positives" in given:
+        config.pop("radius", None)
+    if "query_positions" in given or "database_positions" in given:
+        config.pop("position_kind", None)
+    config.update(fields.get("config") or {})
+    return dataclasses.replace(retrieval, **given, config=config)

@@ -1,24 +1,13 @@
-"""The named benchmark datasets and :func:`load_dataset`, which reads any supported dataset from a path or a name.
-
-Named datasets live under a data root, each in the layout VPR-datasets-downloader produces::
-
-    <root>/<folder>/images/<split>/database/   and   <root>/<folder>/images/<split>/queries/
-
-The root is the ``root`` argument (``--root`` on the command line), else the ``VPR_UNCERTAINTY_DATA``
-environment variable. The downloader's own ``datasets/`` folder can serve as the root as it is; a root whose
-``datasets/`` subfolder holds them works too. Nothing is downloaded at run time: a missing dataset gives an error
-that says where to get it and where to put it.
-
-The named datasets are data, not code: the records of ``named_datasets.json`` (shipped with the package), read
-once into :data:`NAMED_DATASETS` and the :data:`NAMED_DATASET_REGISTRY`. Dataset formats are the entries of
-:mod:`vpr_uncertainty.data.formats`.
-"""
+"""The named benchmark datasets under a data root, the corridor download, and load_dataset."""
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
+import urllib.error
+import urllib.request
 import warnings
 from dataclasses import dataclass
 from importlib import resources
@@ -26,68 +15,127 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.data.dataset import Dataset, PositionKind, _line_coordinate
-from vpr_uncertainty.data.folder import load_folder_dataset
-from vpr_uncertainty.data.formats import detect_format, has_split, read_format
-from vpr_uncertainty.data.positives import positives_within_frames
+from vpr_uncertainty.data.dataset import Dataset, PositionKind, line_coordinate, positives_within_frames
+from vpr_uncertainty.data.formats import (
+    detect_format,
+    has_split,
+    is_vprbench_folder,
+    load_vprbench_dataset,
+    read_format,
+)
+from vpr_uncertainty.data.images import load_folder_dataset
 from vpr_uncertainty.plugins import Registry
 
-__all__ = [
-    "DATA_ROOT_VARIABLE",
-    "NAMED_DATASETS",
-    "NAMED_DATASET_REGISTRY",
-    "NamedDataset",
-    "data_root",
-    "detect_format",
-    "find_named_dataset",
-    "get_named_dataset",
-    "load_dataset",
-]
+# --- the corridor download ---
+
+#: The pinned commit of the VPR-Bench repository the corridor files are fetched from.
+CORRIDOR_COMMIT = "1f78cf83661886840ba4ef9ac3d66a01db2f1458"
+#: Base address of the corridor files at that commit: each file is ``CORRIDOR_URL/<relative path>`` (a folder
+#: address itself is not downloadable; the relative paths are the keys of ``corridor_sha256.json``).
+CORRIDOR_URL = f"https://raw.githubusercontent.com/MubarizZaffar/VPR-Bench/{CORRIDOR_COMMIT}/datasets/corridor"
+
+
+def corridor_archive_url() -> str:
+    """The archive of the VPR-Bench repository at the pinned commit (the corridor is its ``datasets/corridor``)."""
+    return f"https://github.com/MubarizZaffar/VPR-Bench/archive/{CORRIDOR_COMMIT}.zip"
+
+
+def default_data_root() -> Path:
+    """``VPR_UNCERTAINTY_DATA`` if set, else a per-user cache directory (``$XDG_CACHE_HOME/vpr-uncertainty``)."""
+    if os.environ.get("VPR_UNCERTAINTY_DATA"):
+        return Path(os.environ["VPR_UNCERTAINTY_DATA"])
+    cache = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(cache) / "vpr-uncertainty"
+
+
+def corridor_files() -> dict[str, str]:
+    """Relative path → SHA-256 of every corridor file."""
+    text = resources.files("vpr_uncertainty.data").joinpath("corridor_sha256.json").read_text()
+    return json.loads(text)
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def verify_corridor(folder: str | Path) -> list[str]:
+    """Relative paths of the corridor files that are missing or whose checksum differs (empty when complete)."""
+    folder = Path(folder)
+    return [
+        name
+        for name, digest in corridor_files().items()
+        if not (folder / name).is_file() or _sha256(folder / name) != digest
+    ]
+
+
+def ensure_corridor(root: str | Path | None = None, *, download: bool = True, timeout: float = 20.0) -> Path:
+    """The VPR-Bench corridor folder (the demo's data) ``root/vprbench/corridor``, fetching missing files if allowed.
+
+    ``root`` defaults to :func:`default_data_root`. With ``download``, missing or corrupt files are fetched from
+    :data:`CORRIDOR_URL` (``timeout`` seconds each), checked against ``corridor_sha256.json`` and only then moved into
+    place. Raises FileNotFoundError, saying which files and where to put them, when they cannot be had.
+    """
+    folder = Path(root or default_data_root()) / "vprbench" / "corridor"
+    missing = verify_corridor(folder) if folder.is_dir() else list(corridor_files())
+    if not missing:
+        return folder
+    where = (
+        f"Put the VPR-Bench corridor dataset into {folder}: download each file from {CORRIDOR_URL}/<file> "
+        f"(e.g. {CORRIDOR_URL}/ground_truth_new.npy, {CORRIDOR_URL}/query/0000000.jpg; the {len(corridor_files())} "
+        "files and their SHA-256 are listed in the package's vpr_uncertainty/data/corridor_sha256.json, and "
+        f"ensure_corridor(root) fetches and checks them when online), or unpack datasets/corridor of "
+        f"{corridor_archive_url()} there; or point VPR_UNCERTAINTY_DATA at a data root that holds vprbench/corridor."
+    )
+    if not download:
+        raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")
+    digests = corridor_files()
+    try:
+        from vpr_uncertainty.atomic_files import atomic_write
+        from vpr_uncertainty.progress import progress_bar
+
+        for name in progress_bar(missing, desc="downloading corridor", unit="file"):
+            target = folder / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            with urllib.request.urlopen(f"{CORRIDOR_URL}/{name}", timeout=timeout) as response:
+                content = response.read()
+            if hashlib.sha256(content).hexdigest() != digests[name]:
+                raise OSError(f"checksum mismatch for {name} downloaded from {CORRIDOR_URL}")
+            with atomic_write(target, "wb") as handle:  # a full disk names the file; nothing half-written kept
+                handle.write(content)
+    except (urllib.error.URLError, OSError, TimeoutError) as error:
+        raise FileNotFoundError(
+            f"cannot download the corridor dataset ({error}); this machine may be offline. {where}"
+        ) from error
+    return folder
+
 
 #: Environment variable naming the data root.
 DATA_ROOT_VARIABLE = "VPR_UNCERTAINTY_DATA"
-#: Names of the formats :func:`load_dataset` reads (at import; the registry is
-#: :data:`~vpr_uncertainty.data.formats.DATASET_FORMAT_REGISTRY`).
 
 
 @dataclass(frozen=True)
 class NamedDataset:
-    """A benchmark dataset of the paper: where it is expected and how its positives are defined.
+    """A benchmark dataset (a record of ``named_datasets.json``): where it is expected, how its positives are made.
 
     Attributes
     ----------
-    name : str
-        Name to type (``load_dataset("st_lucia")``).
-    title : str
-        Usual name in papers.
-    folder : str
-        Folder under the data root.
-    split : str
-        Split read by default.
+    name, title : str
+        The name to type (``load_dataset("st_lucia")``) and the usual name in papers; ``aliases`` other spellings.
+    folder, split, path : str
+        Folder under the data root, the default split, and the split folder when not ``<folder>/images/<split>``.
     radius : float
-        Positive radius in metres, on the coordinates of the image names.
-    threshold : str
-        The positive threshold in words.
+        Positive radius in metres on the coordinates of the image names (``threshold``: the same in words).
     position_kind : {"metres", "frames", "placeholder"}
         What the coordinates in the image names are.
     n_database, n_queries : int
-        Image counts of the split in the standard version (a different count gives a warning).
-    source : str
-        Where to get the data and how to format it.
-    citation : str
-        Paper to cite.
-    aliases : tuple of str
-        Other accepted spellings.
-    frame_tolerance : int or None
-        Sequence datasets: positives are the frames at most this many frames away.
-    frame_spacing : float or None
-        Metres between consecutive frames in the downloader's dummy coordinates (Nordland), to recover frame
-        indices from them.
+        Image counts of the standard split (another count gives a warning).
+    source, citation : str
+        Where to get the data and how to format it; the paper to cite.
+    frame_tolerance, frame_spacing : int and float, or None
+        Sequence datasets: positives are the frames at most ``frame_tolerance`` apart; ``frame_spacing`` metres
+        between frames in the downloader's dummy coordinates (Nordland) recovers the frame indices.
     layout : {"downloader", "vprbench"}
-        The folder layout: VPR-datasets-downloader's (``<split folder>/database/`` and ``queries/``, positions in
-        the names) or VPR-Bench's (``query/``, ``ref/`` and ``ground_truth_new.npy``).
-    path : str or None
-        The split folder relative to the data root, when it is not ``<folder>/images/<split>``.
+        VPR-datasets-downloader's folders (positions in the names) or VPR-Bench's (``query/``, ``ref/``, positives).
     """
 
     name: str
@@ -127,7 +175,6 @@ def read_named_datasets(text: str | None = None) -> list[NamedDataset]:
         text = resources.files("vpr_uncertainty.data").joinpath("named_datasets.json").read_text(encoding="utf-8")
     document = json.loads(text)
     downloader = str(document.get("downloader", ""))
-    from vpr_uncertainty.data.download import CORRIDOR_URL, corridor_archive_url
 
     fields = {item.name for item in dataclasses.fields(NamedDataset)}
     records = []
@@ -145,10 +192,10 @@ def read_named_datasets(text: str | None = None) -> list[NamedDataset]:
 
 #: The named datasets: records read from the package's ``named_datasets.json`` (names and aliases).
 NAMED_DATASET_REGISTRY: Registry[NamedDataset] = Registry("dataset", normalise=_normalise, label="named datasets")
+
+
 for _record in read_named_datasets():
     NAMED_DATASET_REGISTRY.register(_record, aliases=_record.aliases)
-#: The named datasets by name (at import).
-NAMED_DATASETS: dict[str, NamedDataset] = {entry.name: entry for entry in NAMED_DATASET_REGISTRY}
 
 
 def get_named_dataset(name: str) -> NamedDataset:
@@ -177,10 +224,8 @@ def find_named_dataset(name: str, root: str | Path | None = None, *, split: str 
     if base is None:
         return None
     if entry.layout == "vprbench":
-        from vpr_uncertainty.data.formats import _is_vprbench
-
         candidate = base / entry.relative_path
-        return candidate if _is_vprbench(candidate) else None
+        return candidate if is_vprbench_folder(candidate) else None
     split = split or entry.split
     candidates = [base / entry.path] if entry.path is not None and split == entry.split else []
     for folder in (base / entry.folder, base / "datasets" / entry.folder):
@@ -209,16 +254,11 @@ def _missing_message(entry: NamedDataset, root: Path | None, split: str) -> str:
 
 
 def _frames_from_dummy(dataset: Dataset, entry: NamedDataset, tolerance: float) -> Dataset:
-    """Nordland as exported by the downloader: recover frame indices from the dummy coordinates.
-
-    The downloader puts frame k at (0, k · 25/10.5 m), rounded to 0.1 m, so that 25 m means ±10 frames. Frame
-    indices make the positives exact and the positions honest (``position_kind="frames"``). Positions that do not
-    follow that layout are left as they are.
-    """
+    """Nordland as the downloader exports it (frame k at (0, k · 25/10.5 m)): frame indices and exact positives."""
     assert entry.frame_spacing is not None
     assert dataset.database_positions is not None and dataset.query_positions is not None
     both = np.concatenate([dataset.database_positions, dataset.query_positions])
-    line = _line_coordinate(both)
+    line = line_coordinate(both)
     if line is None:
         return dataset
     frames = line / entry.frame_spacing
@@ -248,8 +288,6 @@ def _load_named(entry: NamedDataset, root: str | Path | None, split: str | None,
     if folder is None:
         raise FileNotFoundError(_missing_message(entry, base, split))
     if entry.layout == "vprbench":
-        from vpr_uncertainty.data.vprbench import load_vprbench_dataset
-
         return load_vprbench_dataset(folder, name=entry.name)
     dataset = load_folder_dataset(
         folder,
@@ -280,7 +318,7 @@ def load_dataset(
     name: str | None = None,
     position_kind: PositionKind | None = None,
 ) -> Dataset:
-    """Read a dataset from a path (format detected) or a name of :data:`NAMED_DATASETS`.
+    """Read a dataset from a path (format detected) or a name of :data:`NAMED_DATASET_REGISTRY`.
 
     Parameters
     ----------
@@ -321,7 +359,7 @@ def load_dataset(
         except KeyError:
             raise FileNotFoundError(
                 f"{str(path_or_name)!r} is neither an existing file or folder nor a named dataset "
-                f"({', '.join(NAMED_DATASETS)})"
+                f"({', '.join(NAMED_DATASET_REGISTRY.names())})"
             ) from None
         return _load_named(entry, root, split, radius)
     arguments = {"split": split, "radius": radius, "queries": queries, "name": name, "position_kind": position_kind}

@@ -32,7 +32,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from vpr_uncertainty.data.image_folders import check_image_counts
+from vpr_uncertainty.data.images import check_image_counts
 from vpr_uncertainty.evaluation import recall_at_n
 from vpr_uncertainty.geometric.cache import ExtractionStats, chunk_size, extract_features, image_names, read_features
 from vpr_uncertainty.geometric.local_features import (

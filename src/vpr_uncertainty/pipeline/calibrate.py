@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
 from vpr_uncertainty.pipeline.options import candidate_count, command_wording, output_file
-from vpr_uncertainty.retrieval import INPUT_FORMATS, MATRIX_TOP_K, Retrieval, read_results
+from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["add_cli"]
 
@@ -59,7 +60,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("scores", type=Path, metavar="SCORES", help="labelled calibration results")
     parser.add_argument("--gt", type=Path, help="ground truth (as in evaluate); required unless SCORES holds it")
-    parser.add_argument("--format", choices=INPUT_FORMATS, default="auto", help="how to read SCORES")
+    parser.add_argument("--format", choices=input_formats(), default="auto", help="how to read SCORES")
     parser.add_argument(
         "--out", type=output_file, metavar="GATE.json", help="gate file to write (required unless --plan)"
     )
@@ -102,11 +103,11 @@ def _handle(args: argparse.Namespace) -> int:
         raise ValueError("--out GATE.json is required (unless --plan)")
     with command_wording(ground_truth="--gt GT"):
         retrieval = read_results(
-            args.scores, ground_truth=args.gt, file_format=args.format, top_k=max(MATRIX_TOP_K, args.k)
+            args.scores, ground_truth=args.gt, file_format=args.format, top_k=max(DEFAULT_TOP_K, args.k)
         )
         unlabelled = None
         if args.unlabelled is not None:
-            unlabelled = _read_unlabelled(args.unlabelled, args.format, max(MATRIX_TOP_K, args.k))
+            unlabelled = _read_unlabelled(args.unlabelled, args.format, max(DEFAULT_TOP_K, args.k))
         if args.plan:
             return _run_plan(args, retrieval, unlabelled)
         gate = calibrate(
@@ -158,7 +159,7 @@ def _read_unlabelled(path: Path, file_format: str, top_k: int) -> np.ndarray:
     is_retrieval = file_format == "retrieval" or (file_format == "auto" and path.suffix.lower() == ".npz")
     if is_retrieval or file_format not in ("auto", "matrix", "vprbench"):
         return read_results(path, file_format=file_format, top_k=top_k).scores
-    from vpr_uncertainty.retrieval.readers import read_similarity_top_k
+    from vpr_uncertainty.data.results import read_similarity_top_k
 
     scores, _, _ = read_similarity_top_k(path, top_k, file_format=file_format)
     return scores

@@ -35,13 +35,13 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
 def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.data.named_datasets import (
         DATA_ROOT_VARIABLE,
-        NAMED_DATASETS,
+        NAMED_DATASET_REGISTRY,
         data_root,
         find_named_dataset,
         get_named_dataset,
     )
 
-    entries = [get_named_dataset(name) for name in args.names] if args.names else list(NAMED_DATASETS.values())
+    entries = [get_named_dataset(name) for name in args.names] if args.names else list(NAMED_DATASET_REGISTRY)
     root = data_root(args.root)
     found = {entry.name: find_named_dataset(entry.name, root) if root is not None else None for entry in entries}
     if args.json:

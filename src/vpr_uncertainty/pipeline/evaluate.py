@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty.data import DEFAULT_TOP_K
 from vpr_uncertainty.methods import default_method_names
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
@@ -41,8 +42,6 @@ from vpr_uncertainty.scores import check_alpha
 __all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "compute", "main", "method_list"]
 
 STAGE = "uncertainty"
-#: Candidates read from a full similarity matrix: enough for k = 10 and recall@20.
-TOP_K = 20
 
 
 def method_list(text: str) -> list[str]:
@@ -170,9 +169,9 @@ def compute(
 
 def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_truth: str | Path | None = None) -> Path:
     """Evaluate the uncertainties of ``results`` (any file :func:`vpr_uncertainty.read_results` reads) into ``out``."""
-    from vpr_uncertainty.retrieval import read_results
+    from vpr_uncertainty.data import read_results
 
-    retrieval = read_results(results, ground_truth=ground_truth, top_k=max(TOP_K, conf.k))
+    retrieval = read_results(results, ground_truth=ground_truth, top_k=max(DEFAULT_TOP_K, conf.k))
     return compute(conf, retrieval, out).path  # type: ignore[return-value]
 
 
@@ -199,10 +198,10 @@ def _verifying(methods: list[str]) -> list[str]:
 
 def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list[str], dict[str, Any], list[str]]:
     """SCORES and the image folders of the command's arguments: (retrieval, methods, image options, notes)."""
-    from vpr_uncertainty.retrieval import read_results
-    from vpr_uncertainty.retrieval.vpr_methods_evaluation import read_vpr_methods_evaluation
+    from vpr_uncertainty.data import read_results
+    from vpr_uncertainty.data.results import read_vpr_methods_evaluation
 
-    top_k = max(TOP_K, conf.k)  # a full matrix gives as many candidates as k asks, and enough for recall@20
+    top_k = max(DEFAULT_TOP_K, conf.k)  # a full matrix gives as many candidates as k asks, and enough for recall@20
     notes: list[str] = []
     log_paths: tuple[Any, Any] = (None, None)
     if Path(args.scores).is_dir() and args.format == "auto":
@@ -228,7 +227,7 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
     options: dict[str, Any] = {}
     if verifying:
         if given:
-            from vpr_uncertainty.data.image_folders import retrieval_image_paths
+            from vpr_uncertainty.data.images import retrieval_image_paths
 
             query_paths, database_paths = retrieval_image_paths(retrieval, **folders)
         elif log_paths[0] is not None:
@@ -263,7 +262,7 @@ def _open_fraction(text: str) -> float:
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """The ``evaluate`` command."""
-    from vpr_uncertainty.retrieval import INPUT_FORMATS
+    from vpr_uncertainty.data import input_formats
 
     parser = subparsers.add_parser(
         "evaluate",
@@ -295,7 +294,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         ".txt with one line of positive indices per query, or .npz; required unless SCORES holds it",
     )
     parser.add_argument(
-        "--format", choices=INPUT_FORMATS, default="auto", help="how to read SCORES (default: from its name)"
+        "--format", choices=input_formats(), default="auto", help="how to read SCORES (default: from its name)"
     )
     add_options(parser, EvaluateConf, only=("methods", "k", "alpha"))
     parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)

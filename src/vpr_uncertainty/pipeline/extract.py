@@ -187,7 +187,7 @@ def main(conf: ExtractConf, dataset: str | Path, out: str | Path, *, executor: A
 
 
 def _scan(folder: Path, root: Path, unlisted: list[dict[str, str]]) -> tuple[list[Path], list[str]]:
-    from vpr_uncertainty.data.folder import ImageListingError, list_images
+    from vpr_uncertainty.data.images import ImageListingError, list_images
 
     found: list[dict[str, str]] = []
     paths = list_images(folder, problems=found)
@@ -223,10 +223,10 @@ def dataset_images(
     dataset : str or Path
     unlisted : list, optional
         Receives ``{"path", "error"}`` of each folder or link that could not be listed. By default such a problem
-        raises :class:`~vpr_uncertainty.data.folder.ImageListingError` naming it.
+        raises :class:`~vpr_uncertainty.data.images.ImageListingError` naming it.
     """
     from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.data.folder import ImageListingError
+    from vpr_uncertainty.data.images import ImageListingError
 
     folder = Path(dataset)
     found: list[dict[str, str]] = []
@@ -317,7 +317,7 @@ def add_threads_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup
 
 
 def _handle(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.folder import describe_unlisted
+    from vpr_uncertainty.data.images import describe_unlisted
 
     executor_options(args)  # bad executor options fail before any work
     unlisted: list[dict[str, str]] | None = [] if args.on_error == "skip" else None

@@ -28,7 +28,7 @@ from vpr_uncertainty import cache
 from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, auc_pr, correct_at_n
 from vpr_uncertainty.methods import get_method
 from vpr_uncertainty.pipeline import evaluate
-from vpr_uncertainty.pipeline.evaluate import TOP_K, EvaluateConf
+from vpr_uncertainty.pipeline.evaluate import EvaluateConf
 from vpr_uncertainty.pipeline.grid_config import GridConfig, InputEntry, full_query_methods, load_config
 from vpr_uncertainty.pipeline.grid_report import Cell, write_reports, write_results
 from vpr_uncertainty.pipeline.options import (
@@ -183,13 +183,13 @@ def _load_cell_input(
     """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None); the
     pipeline's stage times are added to ``seconds`` (as ``pipeline_<stage>``)."""
     if entry.model is None:
-        from vpr_uncertainty.retrieval import read_results
+        from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
 
         retrieval = read_results(
             entry.scores,
             ground_truth=entry.ground_truth,
             file_format=entry.file_format,
-            top_k=max(TOP_K, candidates_needed(config)),
+            top_k=max(DEFAULT_TOP_K, candidates_needed(config)),
         )
         return retrieval, None, None
     from vpr_uncertainty.pipeline.extract import ExtractConf

@@ -66,7 +66,7 @@ class Retrieved:
 
 
 def ground_truth_key(fields: Mapping[str, Any]) -> str:
-    """A digest of the content of ground-truth fields (:func:`vpr_uncertainty.data.attach.ground_truth_fields`)."""
+    """A digest of the content of ground-truth fields (:func:`vpr_uncertainty.data.dataset.ground_truth_fields`)."""
     positives = fields.get("positives")
     parts: list[Any] = []
     if positives is None:
@@ -106,7 +106,7 @@ def compute(
         :class:`~vpr_uncertainty.retrieval.DescriptorRows` (from :func:`~vpr_uncertainty.retrieval.open_descriptors`):
         it is then hashed and searched one block of rows at a time, never read whole (exact search).
     ground_truth : mapping, optional
-        Fields made by :func:`vpr_uncertainty.data.attach.ground_truth_fields` (None: no ground truth).
+        Fields made by :func:`vpr_uncertainty.data.dataset.ground_truth_fields` (None: no ground truth).
     path : str or Path
         The retrieval file (``.npz``).
     describe : mapping, optional
@@ -114,7 +114,7 @@ def compute(
     copy : bool
         Leave the descriptor arrays untouched (False normalises them in place).
     """
-    from vpr_uncertainty.data.attach import attach_ground_truth
+    from vpr_uncertainty.data.dataset import attach_ground_truth
     from vpr_uncertainty.retrieval import load_retrieval, retrieve, save_retrieval
 
     path = Path(path)
@@ -158,7 +158,7 @@ def main(
     ground_truth: Mapping[str, Any] | None = None,
 ) -> Path:
     """Search the descriptor file ``database`` (.npy or .h5) for each row of ``queries`` and write ``out``."""
-    from vpr_uncertainty.retrieval import load_descriptors, open_descriptors
+    from vpr_uncertainty.data import load_descriptors, open_descriptors
 
     database_names, database_array = open_descriptors(database, "database")
     query_names, query_array = load_descriptors(queries, "queries")
@@ -260,9 +260,9 @@ def _load_positions(path: Path | None, expected: int, what: str) -> np.ndarray |
 
 
 def _handle(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.attach import ground_truth_fields
+    from vpr_uncertainty.data import load_descriptors, open_descriptors
+    from vpr_uncertainty.data.dataset import ground_truth_fields
     from vpr_uncertainty.evaluation import recall_at_n
-    from vpr_uncertainty.retrieval import load_descriptors, open_descriptors
 
     if args.out.suffix.lower() != ".npz":
         raise ValueError(f"--out must name a .npz file, got {args.out}")

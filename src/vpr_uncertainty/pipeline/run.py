@@ -161,7 +161,7 @@ def load_and_check(conf: RunConf, dataset: Any) -> Any:
     if unmet:
         raise ValueError("; ".join(unmet))
     if dataset.unlisted:
-        from vpr_uncertainty.data.folder import ImageListingError, describe_unlisted
+        from vpr_uncertainty.data.images import ImageListingError, describe_unlisted
 
         if conf.extract.on_error == "fail":
             raise ImageListingError(dataset.root or dataset.name, dataset.unlisted)
@@ -175,7 +175,7 @@ def load_and_check(conf: RunConf, dataset: Any) -> Any:
 
 def _ground_truth(dataset: Any, descriptors: Any) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
     """The ground-truth fields of the images that have descriptors, and their indices in the dataset."""
-    from vpr_uncertainty.data.attach import ground_truth_fields
+    from vpr_uncertainty.data.dataset import ground_truth_fields
 
     fields = dataset.retrieval_fields()
     kept_database = _positions_of(dataset.database_names, descriptors.names["database"])
@@ -433,7 +433,7 @@ def _handle_run(args: argparse.Namespace) -> int:
 
 
 def _handle_demo(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.download import ensure_corridor
+    from vpr_uncertainty.data.named_datasets import ensure_corridor
 
     conf = conf_of(args)
     corridor = ensure_corridor(args.root, download=not args.no_download)

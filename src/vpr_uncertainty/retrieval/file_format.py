@@ -1,4 +1,4 @@
-"""The retrieval file: a :class:`~vpr_uncertainty.retrieval.result.Retrieval` in one ``.npz`` archive.
+"""The retrieval file: a :class:`~vpr_uncertainty.retrieval.Retrieval` in one ``.npz`` archive.
 
 Retrieval file (``.npz``, no pickles), format version 1
     ``format_version``   int, 1
@@ -16,22 +16,12 @@ Retrieval file (``.npz``, no pickles), format version 1
                          by :func:`save_retrieval`; verified on read when present, so a file changed on disk
                          after it was written is refused, naming it; files of other tools may have none)
 
-    Keys of ``config`` written by :func:`~vpr_uncertainty.retrieval.search.retrieve` and
-    :func:`~vpr_uncertainty.data.attach.attach_ground_truth` (readers must ignore keys they do not know):
-    ``"source"`` ("faiss"), ``"metric"`` ("cosine"), ``"k"``, ``"index"``, ``"device"``, ``"search_params"``,
-    ``"dimension"``, ``"n_database"``, ``"n_queries"``, ``"radius"`` (when the positives come from positions),
-    ``"database"`` and ``"queries"`` (descriptor files, when read from files) and ``"position_kind"``:
-    ``"metres"`` (positions in a metric frame such as UTM), ``"frames"`` (frame indices of a sequence) or
-    ``"placeholder"`` (ids laid out on a line that only encode which images match). Methods that work in
-    metric space (SUE) warn when ``position_kind`` is present and not ``"metres"``; an absent key means metres.
+    ``config`` keys written by ``retrieve`` and ``attach_ground_truth`` (readers ignore keys they do not know):
+    ``source``, ``metric``, ``k``, ``index``, ``device``, ``search_params``, ``dimension``, ``n_database``,
+    ``n_queries``, ``radius``, ``database``, ``queries`` and ``position_kind`` (absent = metres).
 
-Writes are atomic (:func:`vpr_uncertainty.cache.atomic_write`): the archive is written whole to a temporary file
-beside the target, fsynced, then renamed over it, so an interrupted write never leaves a truncated file. Reading
-checks every field (see :mod:`vpr_uncertainty.retrieval._checks`) and what only a file has: ``format_version``
-an integer between 1 and :data:`FORMAT_VERSION`; the CSR ground truth (``positives_indptr``,
-``positives_indices``, ``n_database``) consistent; ``config`` a JSON object; no database image twice among one
-query's candidates, no name twice among the query or the database names. A zero-byte, truncated or non-``.npz``
-file is reported as such.
+Writes are atomic (written whole beside the target, then renamed). Reading checks every field as a Retrieval does,
+and what only a file has (version, CSR ground truth, JSON config, distinct candidates and names).
 """
 
 from __future__ import annotations
@@ -46,8 +36,7 @@ import numpy as np
 from scipy import sparse
 
 from vpr_uncertainty.cache import ChecksumError, atomic_write, payload_checksum
-from vpr_uncertainty.retrieval._checks import check_distinct, check_indices, check_integers, check_scores
-from vpr_uncertainty.retrieval.result import Retrieval
+from vpr_uncertainty.retrieval.result import Retrieval, check_distinct, check_indices, check_integers, check_scores
 
 __all__ = ["FORMAT_VERSION", "load_retrieval", "save_retrieval"]
 
@@ -92,9 +81,6 @@ def _checksum(arrays: dict[str, np.ndarray]) -> str:
 
 def load_retrieval(path: str | Path) -> Retrieval:
     """Read a retrieval file written by :func:`save_retrieval` (or any ``.npz`` with ``scores``, ``indices``).
-
-    Every field is checked (dtype, range, and consistency between ``indices``, ``scores``, ``distances``, the
-    positives, names and positions; see :mod:`vpr_uncertainty.retrieval._checks`).
 
     Raises
     ------

@@ -1,53 +1,36 @@
-"""The result type of a retrieval: the top-k database images of every query, with its ground truth.
-
-A :class:`Retrieval` is what every uncertainty method and the evaluation read. It is made from a full similarity
-matrix (:func:`~vpr_uncertainty.retrieval.readers.read_results`), from descriptors
-(:func:`~vpr_uncertainty.retrieval.search.retrieve`, a Faiss search), or read back from a retrieval file
-(:func:`~vpr_uncertainty.retrieval.file_format.load_retrieval`); the ground truth, names and positions of a
-dataset are attached by :func:`vpr_uncertainty.data.attach.attach_ground_truth`.
-
-Conventions: scores are similarities, higher = more similar, sorted descending along each row; a missing
-candidate (k larger than the database, or an approximate index that found fewer) has index ``-1``, score
-``-inf`` and distance ``+inf``, at the end of its row. ``config["position_kind"]`` says what the positions are:
-``"metres"`` (a metric frame such as UTM), ``"frames"`` (frame indices of a sequence) or ``"placeholder"`` (ids
-laid out on a line that only encode which images match); an absent key means metres.
-"""
+"""The Retrieval type: the top-k database images of every query, with its ground truth, every field checked."""
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import sparse
 
-from vpr_uncertainty.retrieval._checks import check_retrieval_fields
 
-__all__ = ["Retrieval"]
-
-
-@dataclass
+@dataclass(repr=False)
 class Retrieval:
     """Top-k retrieval of Q queries against a database of D images.
 
     Attributes
     ----------
     scores : ndarray of shape (Q, K), float
-        Similarities, higher = more similar, sorted descending; ``-inf`` marks a missing candidate.
+        Similarities, higher = more similar, sorted descending; ``-inf`` marks a missing candidate (at the row's end).
     indices : ndarray of shape (Q, K), int64
         Database index of each candidate; ``-1`` marks a missing candidate.
     positives : scipy.sparse.csr_array of shape (Q, D), bool, optional
-        Ground truth: the database images that are correct answers for each query. Given as a list of positive
-        database indices per query (``[[0, 4], [], [7]]``), a boolean (Q, D) mask or a sparse matrix; stored as a
-        boolean ``csr_array``. From lists, D is the size that ``database_names`` or ``database_positions`` give,
-        else the smallest that holds every positive and retrieved index (see
-        :func:`vpr_uncertainty.positives_from_lists` to fix D yourself).
+        Ground truth: the correct database images of each query. Given as lists of indices per query
+        (``[[0, 4], [], [7]]``), a boolean (Q, D) mask or a sparse matrix. From lists, D is what ``database_names`` or
+        ``database_positions`` give, else the smallest that holds every index (:func:`positives_from_lists` fixes D).
     distances : ndarray of shape (Q, K), optional
-        Squared L2 distances of the candidates, ascending.
+        Squared L2 distances of the candidates, ascending; ``+inf`` where missing.
     query_names, database_names : ndarray of str, optional
     query_positions, database_positions : ndarray of shape (Q, 2) and (D, 2), optional
-        Positions in metres (e.g. UTM easting, northing).
+        Positions, in metres unless ``config["position_kind"]`` is ``"frames"`` or ``"placeholder"``.
     config : dict
         What produced this retrieval (method, dataset, k, ...), stored with the file.
     """
@@ -63,7 +46,7 @@ class Retrieval:
     config: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        """Check every field (see :mod:`vpr_uncertainty.retrieval._checks`); a ValueError names the field."""
+        """Check every field; a ValueError names the field."""
         check_retrieval_fields(self)
 
     @property
@@ -101,3 +84,398 @@ class Retrieval:
     def k(self) -> int:
         """Number of candidates stored per query."""
         return self.scores.shape[1]
+
+    def __repr__(self) -> str:
+        optional = ("positives", "distances", "query_names", "database_names", "query_positions", "database_positions")
+        given = [name for name in optional if getattr(self, name) is not None]
+        return (
+            f"Retrieval(n_queries={self.n_queries}, k={self.k}, n_database={self.n_database}, "
+            f"scores={self.scores.dtype}, fields={given}, config={sorted(self.config)})"
+        )
+
+
+_INT64_MAX = np.iinfo(np.int64).max
+
+
+def _first(mask: np.ndarray) -> tuple[int, ...]:
+    return tuple(int(i) for i in np.argwhere(mask)[0])
+
+
+def _where(position: tuple[int, ...]) -> str:
+    return f"row {position[0]}, column {position[1]}" if len(position) == 2 else f"entry {position[0]}"
+
+
+def _check_real(name: str, value: object) -> np.ndarray:
+    array = np.asarray(value)
+    if array.dtype == bool or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"{name} must hold real numbers, got dtype {array.dtype}")
+    return array
+
+
+def check_integers(name: str, value: object) -> np.ndarray:
+    """An integer array (any integer dtype) converted to int64 without wrapping."""
+    array = np.asarray(value)
+    if array.dtype == bool or not np.issubdtype(array.dtype, np.integer):
+        raise ValueError(f"{name} must hold integers, got dtype {array.dtype}")
+    if array.size and np.issubdtype(array.dtype, np.unsignedinteger) and array.max() > _INT64_MAX:
+        position = _first(array > _INT64_MAX)
+        raise ValueError(
+            f"{name} holds {int(array[position])} at {_where(position)}, beyond the int64 range (a negative "
+            "index wrapped into an unsigned type?)"
+        )
+    return array.astype(np.int64, copy=False)
+
+
+def check_scores(scores: object) -> np.ndarray:
+    scores = _check_real("scores", scores)
+    if scores.ndim != 2 or scores.shape[1] < 1:
+        raise ValueError(f"scores must have shape (n_queries, k) with k >= 1, got shape {scores.shape}")
+    if np.issubdtype(scores.dtype, np.floating) and scores.size:
+        nan = np.isnan(scores)
+        if nan.any():
+            raise ValueError(f"scores contains NaN (first at {_where(_first(nan))}); expected finite similarities")
+        if (scores == np.inf).any():
+            raise ValueError(f"scores contains +inf (first at {_where(_first(scores == np.inf))})")
+    if scores.shape[1] > 1:
+        unsorted = scores[:, 1:] > scores[:, :-1]
+        if unsorted.any():
+            row, column = _first(unsorted)
+            raise ValueError(
+                f"scores must be sorted in descending order along each row, but row {row} has "
+                f"{scores[row, column]} before {scores[row, column + 1]}"
+            )
+    return scores
+
+
+def check_indices(indices: object, scores: np.ndarray) -> np.ndarray:
+    indices = check_integers("indices", indices)
+    if indices.shape != scores.shape:
+        raise ValueError(f"indices has shape {indices.shape} but scores has shape {scores.shape}; they must agree")
+    if indices.size and indices.min() < -1:
+        position = _first(indices < -1)
+        raise ValueError(
+            f"indices holds {int(indices[position])} at {_where(position)}; expected a database index >= 0, or -1 "
+            "for a missing candidate"
+        )
+    missing_score = scores == -np.inf
+    mismatch = (indices == -1) != missing_score
+    if mismatch.any():
+        position = _first(mismatch)
+        raise ValueError(
+            f"indices holds {int(indices[position])} beside the score {scores[position]} at {_where(position)}; a "
+            "missing candidate must have index -1 and score -inf, and only a missing one"
+        )
+    return indices
+
+
+def check_distinct(indices: np.ndarray, names: dict[str, object]) -> None:
+    """Refuse a database image twice among one query's candidates (``-1`` may repeat), and a name given twice."""
+    if indices.ndim == 2 and indices.shape[1] > 1:
+        ordered = np.sort(indices, axis=1)
+        repeated = (ordered[:, 1:] == ordered[:, :-1]) & (ordered[:, 1:] >= 0)
+        if repeated.any():
+            row, column = _first(repeated)
+            raise ValueError(
+                f"indices: query {row} lists database image {int(ordered[row, column + 1])} twice among its "
+                "candidates; expected each database image at most once per query"
+            )
+    for key, value in names.items():
+        if value is None:
+            continue
+        array = np.asarray(value)
+        unique, counts = np.unique(array, return_counts=True)
+        if (counts > 1).any():
+            name = unique[np.argmax(counts > 1)]
+            rows = np.flatnonzero(array == name)[:2].tolist()
+            raise ValueError(
+                f"{key} holds {str(name)!r} twice (entries {rows[0]} and {rows[1]}); expected one distinct name "
+                "per image"
+            )
+
+
+def _check_distances(distances: object, indices: np.ndarray) -> np.ndarray:
+    distances = _check_real("distances", distances)
+    if distances.shape != indices.shape:
+        raise ValueError(
+            f"distances has shape {distances.shape} but scores and indices have shape {indices.shape}; they must agree"
+        )
+    if not distances.size:
+        return distances
+    with np.errstate(invalid="ignore"):
+        missing = indices == -1
+        bad = np.isnan(distances) | (distances < 0) | (np.isinf(distances) != missing)
+    if bad.any():
+        position = _first(bad)
+        raise ValueError(
+            f"distances holds {distances[position]} at {_where(position)}; expected finite squared L2 distances "
+            ">= 0, and +inf where a candidate is missing (index -1)"
+        )
+    if distances.shape[1] > 1:
+        unsorted = distances[:, 1:] < distances[:, :-1]
+        if unsorted.any():
+            row, column = _first(unsorted)
+            raise ValueError(
+                f"distances must be sorted in ascending order along each row (nearest first), but row {row} has "
+                f"{distances[row, column]} before {distances[row, column + 1]}"
+            )
+    return distances
+
+
+def _check_names(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    array = np.asarray(value)
+    if array.ndim != 1 or array.dtype.kind not in "USO":
+        raise ValueError(
+            f"{name} must be a 1-D array of strings (one per {what}), got dtype {array.dtype} and shape {array.shape}"
+        )
+    if expected is not None and len(array) != expected:
+        raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what})")
+    return array
+
+
+def _check_positions(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    array = _check_real(name, value)
+    if array.ndim != 2 or array.shape[1] < 1:
+        raise ValueError(f"{name} must have shape (n_images, 2) (one row per {what}), got shape {array.shape}")
+    if expected is not None and len(array) != expected:
+        raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what})")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name} holds a non-finite value (first at {_where(_first(~np.isfinite(array)))})")
+    return array
+
+
+def _known_database_size(retrieval: Any) -> int | None:
+    """The database size the names or positions tell (the first 1-D / 2-D one); None when neither is given."""
+    for value, ndim in ((retrieval.database_names, 1), (retrieval.database_positions, 2)):
+        if value is not None and np.ndim(value) == ndim:
+            return len(value)
+    return None
+
+
+def check_retrieval_fields(retrieval: Any) -> None:
+    """Check every field of a Retrieval, converting in place (indices to int64); a ValueError names the field."""
+    retrieval.scores = check_scores(retrieval.scores)
+    retrieval.indices = check_indices(retrieval.indices, retrieval.scores)
+    n_queries = retrieval.scores.shape[0]
+    if retrieval.distances is not None:
+        retrieval.distances = _check_distances(retrieval.distances, retrieval.indices)
+    if retrieval.positives is not None:
+        retrieval.positives = coerce_positives(
+            retrieval.positives, n_database=_known_database_size(retrieval), indices=retrieval.indices
+        )
+        if retrieval.positives.shape[0] != n_queries:
+            raise ValueError(
+                f"positives has {retrieval.positives.shape[0]} rows but there are {n_queries} queries (scores rows)"
+            )
+    retrieval.query_names = _check_names("query_names", retrieval.query_names, n_queries, "query")
+    retrieval.database_names = _check_names("database_names", retrieval.database_names, None, "database image")
+    retrieval.query_positions = _check_positions("query_positions", retrieval.query_positions, n_queries, "query")
+    retrieval.database_positions = _check_positions(
+        "database_positions", retrieval.database_positions, None, "database image"
+    )
+    if retrieval.query_positions is not None and retrieval.database_positions is not None:
+        if retrieval.query_positions.shape[1] != retrieval.database_positions.shape[1]:
+            raise ValueError(
+                f"query_positions has {retrieval.query_positions.shape[1]} columns but database_positions has "
+                f"{retrieval.database_positions.shape[1]}; they must agree"
+            )
+    sizes = {
+        name: length
+        for name, length in (
+            ("positives", None if retrieval.positives is None else retrieval.positives.shape[1]),
+            ("database_names", None if retrieval.database_names is None else len(retrieval.database_names)),
+            ("database_positions", None if retrieval.database_positions is None else len(retrieval.database_positions)),
+        )
+        if length is not None
+    }
+    if len(set(sizes.values())) > 1:
+        described = ", ".join(f"{name}: {length}" for name, length in sizes.items())
+        raise ValueError(f"the database sizes disagree ({described})")
+    if sizes and retrieval.indices.size and retrieval.indices.max() >= max(sizes.values()):
+        name, length = next(iter(sizes.items()))
+        position = _first(retrieval.indices >= length)
+        raise ValueError(
+            f"indices refer to database image {int(retrieval.indices[position])} (at {_where(position)}) but "
+            f"{name} covers only {length} database images"
+        )
+
+
+_EXPECTED = (
+    "a list of positive database indices per query (e.g. [[0, 4], [], [7]]), a boolean (n_queries, n_database) "
+    "mask or a scipy sparse matrix"
+)
+
+
+def _is_boolean_rows(rows: list[object]) -> bool:
+    """A list of non-empty lists of booleans: a mask written as Python lists."""
+    return bool(rows) and all(
+        isinstance(row, (list, tuple)) and len(row) > 0 and all(isinstance(x, (bool, np.bool_)) for x in row)
+        for row in rows
+    )
+
+
+def _from_sparse(value: object) -> sparse.csr_array:
+    matrix = sparse.csr_array(value)
+    if matrix.ndim != 2:
+        raise ValueError(f"positives must be 2-D (n_queries, n_database), got shape {matrix.shape}")
+    if matrix.dtype != bool:
+        if matrix.dtype.kind not in "iuf" or not np.isin(matrix.data, (0, 1)).all():
+            raise ValueError(
+                f"positives is a sparse matrix of dtype {matrix.dtype}; expected booleans (or 0/1), got values "
+                f"{np.unique(matrix.data)[:5].tolist()}"
+            )
+        matrix = matrix.astype(bool)
+        matrix.eliminate_zeros()
+    return matrix
+
+
+def coerce_positives(value: object, *, n_database: int | None, indices: np.ndarray) -> sparse.csr_array:
+    """``positives`` as lists per query, a boolean (Q, D) mask or a sparse matrix, as a boolean ``csr_array``.
+
+    Lists without a known ``n_database`` cover every positive and every retrieved index (``indices``).
+    """
+    if sparse.issparse(value):
+        return _from_sparse(value)
+    if isinstance(value, np.ndarray) and value.dtype != object:
+        if value.ndim != 2:
+            raise ValueError(f"positives must be {_EXPECTED}; got an array of shape {value.shape}")
+        return positives_from_mask(value, source="positives")
+    if isinstance(value, (str, bytes, dict)) or not isinstance(value, Iterable):
+        raise ValueError(f"positives must be {_EXPECTED}; got {type(value).__name__}")
+    rows = list(value)
+    if _is_boolean_rows(rows):
+        widths = {len(row) for row in rows}
+        if len(widths) > 1:
+            raise ValueError(f"positives as a boolean mask needs rows of one length, got lengths {sorted(widths)}")
+        return positives_from_mask(np.array(rows, dtype=bool), source="positives")
+    try:
+        lists = positives_from_lists(rows, n_database=n_database)
+    except ValueError as error:
+        raise ValueError(f"{error} (positives must be {_EXPECTED})") from None
+    if n_database is None:
+        largest = int(lists.indices.max()) if lists.nnz else -1
+        if indices.size:
+            largest = max(largest, int(indices.max()))
+        n_database = largest + 1
+        lists = sparse.csr_array((lists.data, lists.indices, lists.indptr), shape=(lists.shape[0], n_database))
+    return lists
+
+
+def is_index(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _index_row(item: object, query: int, n_database: int | None, source: str) -> np.ndarray:
+    """Validate the positives of one query; return them as a sorted, duplicate-free int64 array."""
+    expected = f"an integer in [0, {n_database})" if n_database is not None else "a non-negative integer"
+    if isinstance(item, np.ndarray) and item.dtype.kind in "iu":
+        values = item.reshape(-1)
+        if values.dtype.kind == "u" and values.size and values.max() > np.iinfo(np.int64).max:
+            raise ValueError(
+                f"{source}positives of query {query} must be database indices ({expected}), got {values.max()}"
+            )
+    else:
+        if isinstance(item, (str, bytes, dict)) or not isinstance(item, (Iterable, np.ndarray)):
+            raise ValueError(f"{source}positives of query {query} must be a list of database indices, got {item!r}")
+        values = list(np.asarray(item, dtype=object).reshape(-1)) if isinstance(item, np.ndarray) else list(item)
+        for value in values:
+            if not is_index(value):
+                raise ValueError(
+                    f"{source}positives of query {query}: {value!r} is not a database index (expected {expected})"
+                )
+        values = [int(value) for value in values]
+        if values and (min(values) < 0 or max(values) > np.iinfo(np.int64).max):
+            bad = min(values) if min(values) < 0 else max(values)
+            raise ValueError(f"{source}positives of query {query} must be database indices ({expected}), got {bad}")
+        values = np.asarray(values, dtype=np.int64)
+    row = np.unique(values.astype(np.int64))
+    if row.size and (row[0] < 0 or (n_database is not None and row[-1] >= n_database)):
+        bad = row[0] if row[0] < 0 else row[-1]
+        raise ValueError(f"{source}positives of query {query} must be database indices ({expected}), got {bad}")
+    return row
+
+
+def _csr_from_rows(rows: Sequence[np.ndarray], n_database: int) -> sparse.csr_array:
+    indptr = np.zeros(len(rows) + 1, dtype=np.int64)
+    np.cumsum([row.size for row in rows], out=indptr[1:])
+    indices = np.concatenate(rows) if rows else np.empty(0, np.int64)
+    data = np.ones(indices.size, dtype=bool)
+    return sparse.csr_array((data, indices, indptr), shape=(len(rows), n_database))
+
+
+def check_n_database(n_database: object) -> int:
+    if not is_index(n_database) or n_database < 0:
+        raise ValueError(f"n_database must be a non-negative integer, got {n_database!r}")
+    return int(n_database)
+
+
+def positives_from_lists(
+    lists: Sequence[Iterable[int]], n_database: int | None = None, *, source: str | Path | None = None
+) -> sparse.csr_array:
+    """Build the positives matrix from one list of database indices per query.
+
+    Parameters
+    ----------
+    lists : sequence of iterables of int, length Q
+        Positive database indices of each query (may be empty; duplicates are merged). Floats and booleans are
+        rejected, not converted.
+    n_database : int, optional
+        Number of database images D; every index must be below it. By default the largest index + 1 (pass it
+        whenever you know it: the last database images may be nobody's positive).
+    source : str or Path, optional
+        What the lists come from (a file name), prefixed to error messages.
+
+    Returns
+    -------
+    scipy.sparse.csr_array of shape (Q, D), dtype bool
+
+    Raises
+    ------
+    ValueError
+        When an entry is not an integer database index in range; the message names the query and the value.
+
+    Examples
+    --------
+    >>> positives_from_lists([[0, 2], []], n_database=3).toarray()
+    array([[ True, False,  True],
+           [False, False, False]])
+    >>> positives_from_lists([[1], [0, 1]]).shape
+    (2, 2)
+    """
+    if n_database is not None:
+        n_database = check_n_database(n_database)
+    prefix = f"{source}: " if source is not None else ""
+    rows = [_index_row(item, query, n_database, prefix) for query, item in enumerate(lists)]
+    if n_database is None:
+        n_database = max((int(row[-1]) for row in rows if row.size), default=-1) + 1
+    return _csr_from_rows(rows, n_database)
+
+
+def positives_from_mask(mask: object, *, source: str | Path | None = None) -> sparse.csr_array:
+    """Build the positives matrix from a boolean (Q × D) mask.
+
+    Numeric masks are accepted when every value is exactly 0 or 1; ``source`` (a file name) prefixes errors.
+
+    Examples
+    --------
+    >>> positives_from_mask(np.array([[True, False], [False, False]])).nnz
+    1
+    """
+    prefix = f"{source}: " if source is not None else ""
+    array = np.asarray(mask)
+    if array.ndim != 2:
+        raise ValueError(f"{prefix}a ground-truth mask must be 2-D (n_queries, n_database), got shape {array.shape}")
+    if array.dtype != bool:
+        numeric = array.dtype.kind in "iuf"
+        valid = np.isin(array, (0, 1)) if numeric else np.zeros(array.shape, dtype=bool)
+        if not valid.all():
+            query, column = (int(i) for i in np.argwhere(~valid)[0])
+            raise ValueError(
+                f"{prefix}a ground-truth mask must be boolean (or 0/1), got dtype {array.dtype} with "
+                f"{array[query, column].item()!r} at query {query}, database image {column}"
+            )
+        array = array.astype(bool)
+    return sparse.csr_array(array)

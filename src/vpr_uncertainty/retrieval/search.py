@@ -1,31 +1,4 @@
-"""Descriptor search with Faiss: the top-k database images of every query, by cosine similarity.
-
-Descriptors are float32 arrays of shape (N, D). They are L2-normalised and compared by inner product, so the
-scores are cosine similarities in [-1, 1] and the squared L2 distances beside them are d² = 2 − 2s (clipped at 0,
-by :func:`vpr_uncertainty.scores.squared_distances_from_similarities`, the one place this conversion is made).
-Exact search (``index="Flat"``) by default; any Faiss index-factory string (``"IVF4096,PQ64"``, ``"HNSW32"``, ...)
-builds an approximate index, trained on the database. Queries are searched in batches, so the memory used beyond
-the descriptors themselves stays bounded; exact search can also stream the database from disk one block of rows
-at a time (``database_block``; :mod:`~vpr_uncertainty.retrieval._streaming`), with the same result, for databases
-larger than memory. Defined behaviour on hard input:
-
-* **Ties and duplicate descriptors**: candidates with equal scores are ordered by lower database index, and when
-  a tie straddles the k-th place, the lower indices are kept, exactly as
-  :func:`~vpr_uncertainty.retrieval.readers.top_k_from_similarity` does. (Faiss alone orders them arbitrarily;
-  the search asks for one candidate more than k to detect such a tie and searches that query again with a larger
-  k to settle it.)
-* **k larger than the database** (or an approximate index that finds fewer than k candidates): the result still
-  has k columns; the missing candidates have index ``-1``, score ``-inf`` and distance ``+inf``, at the end of
-  the row. The uncertainty methods score such a row on the candidates it has.
-  (:func:`~vpr_uncertainty.retrieval.readers.top_k_from_similarity` instead returns min(k, D) columns.)
-* **Normalisation**: rows whose squared norm is already within 1e-5 of 1 are used as they are; other rows are
-  divided by their norm, on a copy unless ``copy=False``. NaN, infinite values and all-zero rows (which have no
-  direction) are rejected with the row named.
-
-:func:`search_descriptors` returns arrays; :func:`retrieve` wraps them in a
-:class:`~vpr_uncertainty.retrieval.result.Retrieval` with the search settings in its ``config``. Ground truth,
-names and positions are attached afterwards, by :func:`vpr_uncertainty.data.attach.attach_ground_truth`.
-"""
+"""Descriptor search with Faiss: the top-k database images of every query, by cosine similarity."""
 
 from __future__ import annotations
 
@@ -33,19 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.retrieval._faiss import GPU_MAX_K, Searcher, faiss_gpu_available, import_faiss
-from vpr_uncertainty.retrieval.descriptor_rows import DescriptorRows, default_block_rows
+from vpr_uncertainty.retrieval.blocks import DescriptorRows, default_block_rows
 from vpr_uncertainty.retrieval.result import Retrieval
 from vpr_uncertainty.scores import squared_distances_from_similarities
-
-__all__ = [
-    "DEFAULT_BATCH_SIZE",
-    "DEVICES",
-    "GPU_MAX_K",
-    "faiss_gpu_available",
-    "retrieve",
-    "search_descriptors",
-]
 
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
 #: Squared norms within this distance of 1 count as already L2-normalised (float32 rounding is ~1e-6).
@@ -102,7 +65,7 @@ def _check_nonzero(squared: np.ndarray, name: str) -> None:
 
 def _normalised(descriptors: np.ndarray, name: str, *, owned: bool, copy: bool) -> np.ndarray:
     """L2-normalise rows that are not unit-norm already: in place when allowed, else on a copy."""
-    faiss = import_faiss()
+    faiss = _import_faiss()
     n_rows, dimension = descriptors.shape
     if n_rows == 0:
         return descriptors
@@ -140,7 +103,7 @@ def _ordered(scores: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.take_along_axis(scores, order, axis=1), np.take_along_axis(indices, order, axis=1)
 
 
-def _settle_ties(searcher: Searcher, queries: np.ndarray, k: int, n_database: int) -> tuple[np.ndarray, np.ndarray]:
+def _settle_ties(searcher: _Searcher, queries: np.ndarray, k: int, n_database: int) -> tuple[np.ndarray, np.ndarray]:
     """Top-k of queries whose k-th score ties with the next one: search deeper until the tie is complete."""
     depth = min(max(4 * k, k + 16), n_database)
     while True:
@@ -177,7 +140,7 @@ def _database_block(database: object, database_block: object, index: str, device
 def search_descriptors(
     database: object,
     queries: object,
-    k: int = 10,
+    top_k: int = 10,
     *,
     index: str = "Flat",
     device: str = "cpu",
@@ -189,13 +152,11 @@ def search_descriptors(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Top-k cosine similarities of each query among the database descriptors, with Faiss.
 
-    Exact search can stream the database: read, normalise and search it one block of ``database_block`` rows at a
-    time (:mod:`vpr_uncertainty.retrieval._streaming`), so that it never needs to fit in memory, with the same
-    result (indices equal, scores equal up to float32 rounding). It streams when ``database_block`` is given, and
-    by default when the database is on disk (a :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows`
-    from :func:`~vpr_uncertainty.retrieval.descriptor_rows.open_descriptors`, or a :class:`numpy.memmap`) and
-    larger than one default block (64 MiB of float32 rows). Approximate indexes and ``device="cuda"`` hold the
-    whole database in their index: a database on disk is read into memory for them, as before.
+    Descriptors are L2-normalised (rows within 1e-5 of unit norm are used as they are; NaN, infinite and all-zero rows
+    are rejected, naming the row) and compared by inner product. Ties are ordered by lower database index, also across
+    the k-th place (Faiss alone orders them arbitrarily: a tied query is searched again deeper). Exact search streams
+    the database one block of rows at a time, with the same result, when ``database_block`` is given, and by default
+    for a database on disk (:class:`DescriptorRows`, :class:`numpy.memmap`) larger than one 64 MiB block.
 
     Parameters
     ----------
@@ -203,14 +164,13 @@ def search_descriptors(
         Database descriptors, float32 preferred (other types are converted on a copy).
     queries : array-like of shape (Q, dim)
         Query descriptors.
-    k : int, default=10
+    top_k : int, default=10
         Candidates per query. May exceed D: the missing candidates are marked (see Returns).
     index : str, default="Flat"
         Faiss index-factory string: ``"Flat"`` for exact search, or an approximate index such as
         ``"IVF4096,PQ64"`` or ``"HNSW32"``, built with the inner-product metric and trained on the database.
     device : {"cpu", "cuda"}, default="cpu"
-        ``"cuda"`` runs the index on GPU 0 with GPU Faiss (k < 2048; a tie that extends beyond 2048 candidates
-        is cut where Faiss cuts it); a ``ValueError`` says so when Faiss has no GPU, with no fallback to the CPU.
+        ``"cuda"``: GPU 0 with GPU Faiss (top_k < 2048); a ``ValueError`` when Faiss has no GPU (no CPU fallback).
     batch_size : int, default=4096
         Queries searched at once; bounds the memory of the intermediate results.
     search_params : str, optional
@@ -221,23 +181,22 @@ def search_descriptors(
     progress : bool, optional
         Show a progress bar; by default shown on a terminal for long searches.
     database_block : int, optional
-        Stream the database in blocks of this many rows (exact search on the CPU only: with an approximate index
-        or ``device="cuda"`` it is an error). Peak memory is then the queries, the (Q × k) result and one block;
-        the database is read twice (its norms, then the search). By default: see above.
+        Stream the database in blocks of this many rows (exact search on the CPU only). Peak memory is then the
+        queries, the (Q × k) result and one block; the database is read twice (its norms, then the search).
 
     Returns
     -------
-    scores : ndarray of shape (Q, k), float32
+    scores : ndarray of shape (Q, top_k), float32
         Cosine similarities, sorted descending; ties ordered by lower database index; ``-inf`` where missing.
-    indices : ndarray of shape (Q, k), int64
+    indices : ndarray of shape (Q, top_k), int64
         Database index of each candidate; ``-1`` where missing.
-    distances : ndarray of shape (Q, k), float32
+    distances : ndarray of shape (Q, top_k), float32
         Squared L2 distances of the normalised descriptors, ``max(2 − 2·score, 0)``; ``+inf`` where missing.
 
     Examples
     --------
     >>> database = np.array([[1.0, 0.0], [0.0, 2.0], [1.0, 0.0]], dtype=np.float32)
-    >>> scores, indices, distances = search_descriptors(database, np.array([[3.0, 0.0]], np.float32), k=4)
+    >>> scores, indices, distances = search_descriptors(database, np.array([[3.0, 0.0]], np.float32), top_k=4)
     >>> scores
     array([[  1.,   1.,   0., -inf]], dtype=float32)
     >>> indices
@@ -245,19 +204,17 @@ def search_descriptors(
     >>> distances
     array([[ 0.,  0.,  2., inf]], dtype=float32)
     """
-    k = _positive_int(k, "k")
+    k = _positive_int(top_k, "top_k")
     batch_size = _positive_int(batch_size, "batch_size")
     index = _check_index_string(index)
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
     if search_params is not None and not isinstance(search_params, str):
         raise TypeError(f"search_params must be a string such as 'nprobe=32', got {search_params!r}")
-    faiss = import_faiss()
+    faiss = _import_faiss()
     block = _database_block(database, database_block, index, device)
     if block is not None:
-        from vpr_uncertainty.retrieval._streaming import as_rows
-
-        database = as_rows(database)
+        database = _as_rows(database)
         database_owned = False
     else:
         database, database_owned = _as_descriptors(database, "database")
@@ -271,7 +228,7 @@ def search_descriptors(
         raise ValueError("the database is empty (0 descriptors)")
     if device == "cuda" and k + 1 > GPU_MAX_K:
         raise ValueError(
-            f"GPU Faiss returns at most {GPU_MAX_K} candidates; k must be < {GPU_MAX_K} with device='cuda'"
+            f"GPU Faiss returns at most {GPU_MAX_K} candidates; top_k must be < {GPU_MAX_K} with device='cuda'"
         )
     queries = _normalised(queries, "queries", owned=queries_owned, copy=copy)
     n_queries, n_database = len(queries), len(database)
@@ -283,28 +240,17 @@ def search_descriptors(
     if progress is None and float(n_queries) * n_database * database.shape[1] < _PROGRESS_WORK:
         progress = bool(progress_requested())  # a short search gets no bar unless bars were asked for
     if block is not None:
-        from vpr_uncertainty.retrieval._streaming import search_blocks
-
         scores[:, :kept], indices[:, :kept] = search_blocks(
             database, queries, k, block=block, batch_size=batch_size, faiss=faiss, progress=progress
         )
         return scores, indices, squared_distances_from_similarities(scores, check=False)
     database = _normalised(database, "database", owned=database_owned, copy=copy)
-    searcher = Searcher(database, index, device, search_params, faiss, progress=progress)
-    depth = min(k + 1, n_database)  # one more than k reveals a tie across the k-th place
+    searcher = _Searcher(database, index, device, search_params, faiss, progress=progress)
     with progress_bar(total=n_queries, desc="retrieval", unit="query", enabled=progress) as bar:
         for start in range(0, n_queries, batch_size):
             batch = queries[start : start + batch_size]
             stop = start + len(batch)
-            batch_scores, batch_indices = _ordered(*searcher.search(batch, depth))
-            if depth > k:
-                tied = np.flatnonzero((batch_indices[:, k] >= 0) & (batch_scores[:, k - 1] == batch_scores[:, k]))
-                if tied.size:
-                    settled_scores, settled_indices = _settle_ties(searcher, batch[tied], k, n_database)
-                    batch_scores[tied, :k] = settled_scores
-                    batch_indices[tied, :k] = settled_indices
-            scores[start:stop, :kept] = batch_scores[:, :kept]
-            indices[start:stop, :kept] = batch_indices[:, :kept]
+            scores[start:stop, :kept], indices[start:stop, :kept] = _block_top_k(searcher, batch, k, n_database)
             bar.update(len(batch))
     missing = indices < 0
     scores[missing] = -np.inf
@@ -316,7 +262,7 @@ def search_descriptors(
 def retrieve(
     database: object,
     queries: object,
-    k: int = 10,
+    top_k: int = 10,
     *,
     index: str = "Flat",
     device: str = "cpu",
@@ -329,40 +275,37 @@ def retrieve(
 ) -> Retrieval:
     """Search the database descriptors for every query and return the result as a :class:`Retrieval`.
 
-    The result has no ground truth, names or positions: attach them with
-    :func:`vpr_uncertainty.data.attach.attach_ground_truth`.
+    The result has no ground truth, names or positions: :func:`vpr_uncertainty.data.attach_ground_truth` adds them.
 
     Parameters
     ----------
     database, queries : array-like of shape (D, dim) and (Q, dim)
-        Descriptors (see :func:`search_descriptors`); the database may be a
-        :class:`~vpr_uncertainty.retrieval.descriptor_rows.DescriptorRows` or a memmap, searched block by block.
-    k : int, default=10
+        Descriptors (see :func:`search_descriptors`).
+    top_k : int, default=10
         Candidates kept per query.
     index, device, batch_size, search_params, copy, progress, database_block
         Options of :func:`search_descriptors`.
     config : dict, optional
-        Extra JSON-serialisable entries for ``Retrieval.config`` (e.g. the dataset and descriptor names); they
-        take precedence over the search settings of the same name.
+        Extra JSON-serialisable entries for ``Retrieval.config``; they take precedence over the search settings.
 
     Returns
     -------
     Retrieval
-        ``scores``, ``indices`` and ``distances`` of shape (Q, k); ``config`` holds ``source`` ("faiss"),
+        ``scores``, ``indices`` and ``distances`` of shape (Q, top_k); ``config`` holds ``source`` ("faiss"),
         ``metric`` ("cosine"), ``k``, ``index``, ``device``, ``search_params`` (when given), ``n_database``,
         ``n_queries`` and ``dimension``.
 
     Examples
     --------
     >>> database = np.eye(3, dtype=np.float32)
-    >>> result = retrieve(database, database[[2, 0]], k=2)
+    >>> result = retrieve(database, database[[2, 0]], top_k=2)
     >>> result.indices
     array([[2, 0],
            [0, 1]])
     >>> result.config["n_database"], result.config["dimension"]
     (3, 3)
     """
-    k, index = _positive_int(k, "k"), _check_index_string(index)
+    k, index = _positive_int(top_k, "top_k"), _check_index_string(index)
     scores, indices, distances = search_descriptors(
         database,
         queries,
@@ -390,3 +333,211 @@ def retrieve(
     settings["dimension"] = dimension
     settings.update(config or {})
     return Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
+
+
+def _as_rows(database: object) -> DescriptorRows:
+    """A DescriptorRows of the database: itself, or a checked numeric 2-D array (a memmap read block by block)."""
+    if isinstance(database, DescriptorRows):
+        rows = database
+    else:
+        rows = DescriptorRows.from_array(_checked_array(database, "database"), source="database")
+    if rows.shape[1] == 0:
+        raise ValueError("database has dimension 0; descriptors need at least one component")
+    return rows
+
+
+def _database_norms(rows: DescriptorRows, block: int, faiss: Any) -> np.ndarray:
+    """Squared norms (float32) of every row, read block by block; bad rows raise as in the in-memory search."""
+    squared = np.empty(len(rows), dtype=np.float32)
+    for start in range(0, len(rows), block):
+        data = rows.read(start, start + block)
+        part = squared[start : start + len(data)]
+        faiss.fvec_norms_L2sqr(faiss.swig_ptr(part), faiss.swig_ptr(data), data.shape[1], len(data))
+        _check_norms(part, data, "database", first_row=start)
+        del data  # before the next block is read: one block in memory at a time
+    _check_nonzero(squared, "database")
+    return squared
+
+
+def _merge(
+    scores: np.ndarray, indices: np.ndarray, new_scores: np.ndarray, new_indices: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The first ``scores.shape[1]`` of two candidate lists by score descending, then database index ascending."""
+    kept = scores.shape[1]
+    both_scores = np.concatenate([scores, new_scores], axis=1)
+    both_indices = np.concatenate([indices, new_indices], axis=1)
+    missing = both_indices < 0
+    order = np.lexsort((np.where(missing, np.iinfo(np.int64).max, both_indices), -both_scores), axis=1)[:, :kept]
+    return np.take_along_axis(both_scores, order, axis=1), np.take_along_axis(both_indices, order, axis=1)
+
+
+def _block_top_k(searcher: _Searcher, batch: np.ndarray, kept: int, n_block: int) -> tuple[np.ndarray, np.ndarray]:
+    """Exact top-``min(kept, n_block)`` of a batch of queries in one searcher, ties to the lower index."""
+    depth = min(kept + 1, n_block)  # one more than kept reveals a tie across the kept-th place
+    scores, indices = _ordered(*searcher.search(batch, depth))
+    if depth > kept:
+        tied = np.flatnonzero((indices[:, kept] >= 0) & (scores[:, kept - 1] == scores[:, kept]))
+        if tied.size:
+            settled_scores, settled_indices = _settle_ties(searcher, batch[tied], kept, n_block)
+            scores[tied, :kept] = settled_scores
+            indices[tied, :kept] = settled_indices
+    width = min(kept, n_block)
+    return scores[:, :width], indices[:, :width]
+
+
+def search_blocks(
+    rows: DescriptorRows,
+    queries: np.ndarray,
+    k: int,
+    *,
+    block: int,
+    batch_size: int,
+    faiss: Any,
+    progress: bool | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact top-min(k, D) (cosine, ties to the lower index) of L2-normalised queries, reading ``block`` rows at once.
+
+    Each block's top-k is made exact under the order (score descending, index ascending) and merged into the running
+    top-k: the result equals the in-memory search in indices, and in scores up to float32 rounding.
+    """
+    from vpr_uncertainty.progress import progress_bar
+
+    n_database = len(rows)
+    squared = _database_norms(rows, block, faiss)
+    normalise = bool(np.abs(squared - 1).max() > UNIT_NORM_TOLERANCE)
+    del squared
+    kept = min(k, n_database)
+    scores = np.full((len(queries), kept), -np.inf, dtype=np.float32)
+    indices = np.full((len(queries), kept), -1, dtype=np.int64)
+    with progress_bar(total=n_database, desc="retrieval", unit="descriptor", enabled=progress) as bar:
+        for start in range(0, n_database, block):
+            data = rows.read(start, start + block)
+            if normalise:
+                faiss.normalize_L2(data)
+            searcher = _Searcher(data, "Flat", "cpu", None, faiss)
+            for first in range(0, len(queries), batch_size):
+                batch = queries[first : first + batch_size]
+                block_scores, block_indices = _block_top_k(searcher, batch, kept, len(data))
+                block_indices = np.where(block_indices >= 0, block_indices + start, -1)  # database numbering
+                stop = first + len(batch)
+                scores[first:stop], indices[first:stop] = _merge(
+                    scores[first:stop], indices[first:stop], block_scores, block_indices
+                )
+            bar.update(len(data))
+            del data, searcher
+    return scores, indices
+
+
+#: Largest k that GPU Faiss can return.
+GPU_MAX_K = 2048
+
+
+def faiss_gpu_available() -> bool:
+    """Whether the installed Faiss has GPU support and sees at least one GPU."""
+    try:
+        faiss = _import_faiss()
+    except ImportError:
+        return False
+    return hasattr(faiss, "StandardGpuResources") and faiss.get_num_gpus() > 0
+
+
+def _import_faiss() -> Any:
+    try:
+        import faiss
+    except ImportError as error:
+        raise ImportError(
+            "descriptor retrieval needs Faiss; install it with: pip install faiss-cpu (or faiss-gpu to search on a "
+            "CUDA device)"
+        ) from error
+    return faiss
+
+
+class _Searcher:
+    """``search(queries, k) -> (scores, indices)`` over one database, exact or through a Faiss index."""
+
+    def __init__(
+        self,
+        database: np.ndarray,
+        index: str,
+        device: str,
+        search_params: str | None,
+        faiss: Any,
+        *,
+        progress: bool | None = None,
+    ) -> None:
+        self.database = database
+        self.faiss = faiss
+        self.max_k = GPU_MAX_K if device == "cuda" else None
+        self.index = None
+        self._resources = None
+        exact = index.replace(" ", "").lower() == "flat"
+        if device == "cpu" and exact:
+            if search_params:
+                raise ValueError(f"search_params {search_params!r} need an approximate index; exact search has none")
+            return  # faiss.knn_inner_product on the array itself: no copy of the database into an index
+        if device == "cuda":
+            if not hasattr(faiss, "StandardGpuResources") or faiss.get_num_gpus() < 1:
+                if hasattr(faiss, "StandardGpuResources"):
+                    reason = "has GPU support but sees no GPU"
+                else:
+                    reason = "is built without GPU support"
+                raise ValueError(
+                    f"device='cuda' needs GPU Faiss and a visible GPU, but this Faiss ({faiss.__version__}) {reason}; "
+                    "install faiss-gpu and check CUDA_VISIBLE_DEVICES, or use device='cpu'"
+                )
+        dimension = database.shape[1]
+        try:
+            built = faiss.index_factory(dimension, index, faiss.METRIC_INNER_PRODUCT)
+        except RuntimeError as error:
+            raise ValueError(f"invalid Faiss index-factory string {index!r}: {_faiss_message(error)}") from None
+        if device == "cuda":
+            self._resources = faiss.StandardGpuResources()
+            try:
+                built = faiss.index_cpu_to_gpu(self._resources, 0, built)
+            except RuntimeError as error:
+                raise ValueError(f"Faiss index {index!r} cannot run on the GPU: {_faiss_message(error)}") from None
+        from vpr_uncertainty.progress import progress_status
+
+        try:
+            if not built.is_trained:  # IVF/PQ training can take minutes: say so while it runs
+                with progress_status(f"train Faiss {index} on {len(database):,} vectors", enabled=progress):
+                    built.train(database)
+            built.add(database)
+        except RuntimeError as error:
+            raise ValueError(f"cannot build the Faiss index {index!r}: {_faiss_message(error)}") from None
+        if search_params:
+            space = faiss.GpuParameterSpace() if device == "cuda" else faiss.ParameterSpace()
+            try:
+                space.set_index_parameters(built, search_params)
+            except RuntimeError as error:
+                raise ValueError(
+                    f"invalid search_params {search_params!r} for index {index!r}: {_faiss_message(error)}"
+                ) from None
+        self.index = built
+
+    def search(self, queries: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        scores = np.empty((len(queries), k), dtype=np.float32)
+        indices = np.empty((len(queries), k), dtype=np.int64)
+        if len(queries) == 0:
+            return scores, indices
+        faiss = self.faiss
+        if self.index is None:
+            faiss.knn_inner_product(
+                faiss.swig_ptr(queries),
+                faiss.swig_ptr(self.database),
+                self.database.shape[1],
+                len(queries),
+                len(self.database),
+                k,
+                faiss.swig_ptr(scores),
+                faiss.swig_ptr(indices),
+            )
+        else:
+            self.index.search(queries, k, D=scores, I=indices)
+        return scores, indices
+
+
+def _faiss_message(error: BaseException) -> str:
+    """The useful last part of a Faiss C++ error message."""
+    text = str(error).strip()
+    return text.rsplit(": ", 1)[-1] if ": " in text else text
