@@ -90,7 +90,7 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
         raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")
     digests = corridor_files()
     try:
-        from vpr_uncertainty.atomic_files import atomic_write
+        from vpr_uncertainty.cache import atomic_write
         from vpr_uncertainty.progress import progress_bar
 
         for name in progress_bar(missing, desc="downloading corridor", unit="file"):
