@@ -50,7 +50,7 @@ def test_retrieve_accepts_hloc_files(tmp_path, capsys):
     _hloc_file(tmp_path / "q.h5", ["a.jpg", "b.jpg"], database[[4, 1]])
     out = tmp_path / "r.npz"
     argv = ["retrieve", "--database", str(tmp_path / "db.h5"), "--queries", str(tmp_path / "q.h5"), "--out", str(out)]
-    assert main([*argv, "--k", "3"]) == 0
+    assert main([*argv, "--top-k", "3"]) == 0
     from vpr_uncertainty.retrieval import load_retrieval
 
     retrieval = load_retrieval(out)

@@ -95,15 +95,15 @@ def test_reproduce_command_on_ray_reads_the_cells_of_a_local_run(ray_cluster, gr
     from vpr_uncertainty.cli import main
 
     assert main(["reproduce", str(grid), "--no-report"]) == 0
-    assert main(["reproduce", str(grid), "--no-report", "--executor", "ray", "--ray-workers", "2"]) == 0
+    assert main(["reproduce", str(grid), "--no-report", "--executor", "ray", "--workers", "2"]) == 0
     assert "2 of 2 cells read from the cache" in capsys.readouterr().out
 
 
 def test_ray_only_options_are_refused_with_the_local_executor(grid, capsys):
     from vpr_uncertainty.cli import main
 
-    assert main(["reproduce", str(grid), "--ray-workers", "2"]) != 0
-    assert "--ray-workers: only with --executor ray" in capsys.readouterr().err
+    assert main(["reproduce", str(grid), "--gpus-per-worker", "1"]) != 0
+    assert "--gpus-per-worker: only with --executor ray" in capsys.readouterr().err
 
 
 def _closed_port() -> int:
@@ -197,7 +197,7 @@ def test_the_command_line_unwinds_on_sigterm(monkeypatch):
         return 0
 
     parser = cli.build_parser()
-    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(cli, "build_parser", lambda plugins=(): parser)
     monkeypatch.setattr(parser, "parse_args", lambda argv: argparse.Namespace(command="x", handler=handler))
     before = signal.getsignal(signal.SIGTERM)
     assert cli.main(["x"]) == 0

@@ -71,13 +71,12 @@ def test_ground_truth_is_derived_as_that_tool_does(tmp_path):
     assert retrieval.config["radius"] == 25.0
 
 
-def test_the_radius_flag_and_its_alias(tmp_path, capsys):
+def test_the_radius_flag(tmp_path, capsys):
     folder = _log_folder(tmp_path)
-    for flag in ("--radius", "--positive_dist_threshold"):
-        out = tmp_path / f"{flag}.json"
-        assert main(["evaluate", str(folder), flag, "5", "--methods", "SU", "--json", str(out)]) == 0
-        assert "within 5 m" in capsys.readouterr().out
-        assert out.is_file()
+    out = tmp_path / "radius.json"
+    assert main(["evaluate", str(folder), "--radius", "5", "--methods", "SU", "--json", str(out)]) == 0
+    assert "within 5 m" in capsys.readouterr().out
+    assert out.is_file()
 
 
 def test_evaluate_on_the_log_folder(tmp_path, capsys):
