@@ -47,7 +47,7 @@ from vpr_uncertainty.pipeline.options import (
 )
 from vpr_uncertainty.pipeline.retrieve import RetrieveConf, search_device
 
-__all__ = ["RunConf", "RunResult", "add_cli", "main", "run"]
+__all__ = ["RunConf", "RunResult", "add_cli", "default_conf", "main", "run"]
 
 #: Options the run gives every uncertainty method (images, descriptors, a cache folder, the device).
 STAGE_INPUTS = ("query_paths", "database_paths", "query_descriptors", "database_descriptors", "cache_dir", "device")
@@ -72,6 +72,10 @@ class RunConf:
 
     def to_dict(self) -> dict[str, Any]:
         return json_ready(dataclasses.asdict(self))
+
+
+#: The configuration of a run when none is given (hloc's ``default_conf``): every stage's default.
+default_conf = RunConf()
 
 
 def json_ready(value: Any) -> Any:
