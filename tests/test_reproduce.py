@@ -340,3 +340,20 @@ def test_image_methods_get_the_images_of_the_config(tmp_path, corridor_matches_d
     assert sift.auc_pr > cell.evaluation.methods["SU"].auc_pr - 0.1  # a real verification, not a constant
     assert len(np.unique(sift.uncertainty)) > 5
     assert list((tmp_path / "out" / "local_features").glob("sift-*.h5"))
+
+
+def test_grid_main_runs_a_config_file_and_returns_results_json(tmp_path, corridor_matches_dir, corridor_dir):
+    from vpr_uncertainty.pipeline import grid
+
+    config_path = tmp_path / "grid.toml"
+    config_path.write_text(
+        f'out = "out"\nmethods = ["SU", "BM"]\nalphas = []\nks = []\n[[inputs]]\nvpr_method = "NetVLAD"\n'
+        f'dataset = "corridor"\nscores = "{corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy"}"\n'
+        f'ground_truth = "{corridor_dir / "ground_truth_new.npy"}"\n'
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        path = grid.main(config_path, tmp_path / "elsewhere", report=False)
+    assert path == tmp_path / "elsewhere" / "results.json"
+    document = json.loads(path.read_text())
+    assert document["cells"][0]["vpr_method"] == "NetVLAD"

@@ -262,3 +262,18 @@ def test_a_retrieval_npz_changed_on_disk_is_refused_and_rebuilt(corridor_copy, t
         again = run(corridor_copy, out)
     assert_same_result(again, first)
     load_retrieval(path)  # rebuilt: verifies again
+
+
+def test_each_stage_module_has_hlocs_shape():
+    """Every stage module holds its configuration, a default of it, main(conf, ..., out) and add_cli."""
+    import dataclasses
+    import inspect
+
+    from vpr_uncertainty.pipeline import evaluate, extract, grid, retrieve, run
+
+    for module in (extract, retrieve, evaluate, run):
+        assert dataclasses.is_dataclass(module.default_conf) and module.default_conf.__dataclass_params__.frozen
+        parameters = list(inspect.signature(module.main).parameters)
+        assert parameters[0] == "conf" and "out" in parameters, module.__name__
+    for module in (extract, retrieve, evaluate, run, grid):
+        assert callable(module.add_cli) and callable(module.main)

@@ -9,6 +9,7 @@ module                 artefact                    reused when
 :mod:`.extract`        ``descriptors.h5``          per image: same model, preprocessing and image content
 :mod:`.retrieve`       ``retrieval.npz``           same options, descriptors and ground truth
 :mod:`.evaluate`       ``uncertainties.npz``       never (it measures the time per query)
+:mod:`.verify`         ``verification.npz``        never; each image's local features are cached
 :mod:`.report`         ``results.{json,md}``, plot never (cheap)
 :mod:`.run`            all of the above            the one composer (``run``, ``demo``)
 :mod:`.grid`           ``out/cells``, report.html  per cell: same inputs (by content) and settings (``reproduce``)
@@ -26,5 +27,6 @@ COMMAND_MODULES: tuple[str, ...] = (
     "datasets",
     "extract",
     "retrieve",
+    "verify",
     "train_btl",
 )

@@ -39,7 +39,7 @@ from vpr_uncertainty.pipeline.options import (
 )
 from vpr_uncertainty.scores import check_alpha
 
-__all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "compute", "main", "method_list"]
+__all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "compute", "default_conf", "main", "method_list"]
 
 STAGE = "uncertainty"
 
@@ -103,6 +103,10 @@ class EvaluateConf:
     def method_names(self, *, metric_positions: bool) -> list[str]:
         """``methods``, else the registry's defaults (with SUE when the positions are metric)."""
         return list(self.methods) if self.methods else default_method_names(metric_positions=metric_positions)
+
+
+#: The configuration of the stage when none is given (hloc's ``default_conf``).
+default_conf = EvaluateConf()
 
 
 @dataclass

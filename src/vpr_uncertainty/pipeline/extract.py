@@ -34,7 +34,7 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = ["Descriptors", "ExtractConf", "add_cli", "compute", "main", "model_of"]
+__all__ = ["Descriptors", "ExtractConf", "add_cli", "compute", "default_conf", "main", "model_of"]
 
 SPLITS = ("database", "queries")
 #: Image files a dataset folder scan picks up (case-insensitive).
@@ -76,6 +76,10 @@ class ExtractConf:
     workers: int | None = field(default=None)  # image decoding threads: the executor option --workers
     overwrite: bool = field(default=False)
     progress: bool | None = field(default=None)
+
+
+#: The configuration of the stage when none is given (hloc's ``default_conf``).
+default_conf = ExtractConf()
 
 
 @dataclass

@@ -13,6 +13,7 @@ with ``--verify``. Image inputs run :func:`vpr_uncertainty.pipeline.run.run` on 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 import warnings
@@ -50,6 +51,7 @@ __all__ = [
     "add_cli",
     "held_out_evaluation",
     "load_config",
+    "main",
     "run_cell",
     "run_grid",
     "write_reports",
@@ -114,6 +116,22 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     add_executor_options(parser, ray_workers="the grid cells run as Ray tasks at once (default: the cluster's CPUs)")
     parser.set_defaults(handler=_handle)
+
+
+def main(config: GridConfig | str | Path, out: str | Path | None = None, *, report: bool = True) -> Path:
+    """Run the grid of ``config`` (a :class:`GridConfig` or its file) and write its files; the path of results.json.
+
+    ``out`` overrides the config's output folder; ``report=False`` writes results.json/csv only.
+    """
+    if not isinstance(config, GridConfig):
+        config = load_config(config, out=out)
+    elif out is not None:
+        config = dataclasses.replace(config, out=Path(out))
+    cells = run_grid(config)
+    paths = write_results(cells, config)
+    if report:
+        write_reports(cells, config)
+    return paths["results_json"]
 
 
 def _handle(args: argparse.Namespace) -> int:

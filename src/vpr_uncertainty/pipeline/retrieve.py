@@ -28,7 +28,16 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = ["RetrieveConf", "Retrieved", "add_cli", "compute", "ground_truth_key", "main", "search_device"]
+__all__ = [
+    "RetrieveConf",
+    "Retrieved",
+    "add_cli",
+    "compute",
+    "default_conf",
+    "ground_truth_key",
+    "main",
+    "search_device",
+]
 
 STAGE = "retrieval"
 
@@ -53,6 +62,10 @@ class RetrieveConf:
         metavar="ROWS",
     )
     progress: bool | None = field(default=None)
+
+
+#: The configuration of the stage when none is given (hloc's ``default_conf``).
+default_conf = RetrieveConf()
 
 
 @dataclass

@@ -6,6 +6,7 @@ Each stage writes one file into the run directory and a rerun reuses what is sti
 ``descriptors.h5``      global descriptors keyed by image name and content key (:mod:`.extract`)
 ``retrieval.npz``       top-k scores, indices, distances, positives, names and positions (:mod:`.retrieve`)
 ``uncertainties.npz``   one (Q,) array per uncertainty method, higher = less trustworthy (:mod:`.evaluate`)
+``verification.npz``    with ``--rerank``: inliers of the top k and the re-ranked candidates (:mod:`.verify`)
 ``results.json``        the schema of ``evaluate --json``, plus the configuration, the time of each stage and,
                         under ``dataset``, the images left out and the folders that could not be listed
 ``results.md``          the table; ``pr_curves.png``: end-to-end precision-recall of every method (:mod:`.report`)
@@ -27,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.pipeline import evaluate, extract, report, retrieve
+from vpr_uncertainty.pipeline import evaluate, extract, report, retrieve, verify
 from vpr_uncertainty.pipeline.evaluate import METHOD_SPEC_HELP, EvaluateConf, method_options
 from vpr_uncertainty.pipeline.extract import ExtractConf, add_threads_option
 from vpr_uncertainty.pipeline.options import (
@@ -47,7 +48,7 @@ from vpr_uncertainty.pipeline.options import (
 )
 from vpr_uncertainty.pipeline.retrieve import RetrieveConf, search_device
 
-__all__ = ["RunConf", "RunResult", "add_cli", "main", "run"]
+__all__ = ["RunConf", "RunResult", "add_cli", "default_conf", "main", "run"]
 
 #: Options the run gives every uncertainty method (images, descriptors, a cache folder, the device).
 STAGE_INPUTS = ("query_paths", "database_paths", "query_descriptors", "database_descriptors", "cache_dir", "device")
@@ -72,6 +73,10 @@ class RunConf:
 
     def to_dict(self) -> dict[str, Any]:
         return json_ready(dataclasses.asdict(self))
+
+
+#: The configuration of a run when none is given (hloc's ``default_conf``): every stage's default.
+default_conf = RunConf()
 
 
 def json_ready(value: Any) -> Any:
@@ -263,20 +268,17 @@ def run(conf: RunConf, dataset: Any, out: str | Path, *, executor: Any = None) -
 
     reranking = None
     if conf.rerank:
-        from vpr_uncertainty.geometric import rerank
-
         start = time.perf_counter()
-        result = rerank(
+        verified = verify.compute(
+            verify.VerifyConf(method=conf.rerank, top_k=conf.evaluate.k, device=conf.extract.device),
             retrieval,
-            conf.rerank,
-            top_k=conf.evaluate.k,
-            query_paths=inputs["query_paths"],
-            database_paths=inputs["database_paths"],
+            inputs["query_paths"],
+            inputs["database_paths"],
+            out / "verification.npz",
             cache_dir=out,
-            device=conf.extract.device,
             executor=executor,
         )
-        reranking = {"method": conf.rerank, "top_k": conf.evaluate.k, **result.recall}
+        reranking = {"method": conf.rerank, "top_k": conf.evaluate.k, **verified.reranking.recall}
         seconds["reranking"] = time.perf_counter() - start
 
     left_out = _left_out(dataset, descriptors)
