@@ -19,6 +19,7 @@ from typing import Any
 from vpr_uncertainty.cache import slug
 from vpr_uncertainty.methods import default_method_names, describe_needs, get_method, split_method_list
 from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
+from vpr_uncertainty.scores import check_alpha
 
 
 def read_mapping(path: Path) -> dict[str, Any]:
@@ -539,11 +540,12 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
     ks = _numbers(data, "ks", DEFAULT_KS, int, problems)
     if isinstance(k, bool) or not isinstance(k, int) or k < 2:
         problems.append(f"k must be an integer >= 2, got {k!r}")
-    if isinstance(alpha, bool) or not isinstance(alpha, (int, float)):
-        problems.append(f"alpha must be a number in [0, 1], got {alpha!r}")
-        alpha = 0.5
-    if not 0.0 <= float(alpha) <= 1.0 or any(not 0.0 <= a <= 1.0 for a in alphas):
-        problems.append(f"alpha and alphas must lie in [0, 1], got {alpha!r} and {alphas}")
+    for name, value in [("alpha", alpha), *((f"alphas[{i}]", a) for i, a in enumerate(alphas))]:
+        try:
+            check_alpha(value, name=name)  # the one check of the range
+        except (TypeError, ValueError) as error:
+            problems.append(str(error))
+    alpha = alpha if isinstance(alpha, (int, float)) and not isinstance(alpha, bool) else 0.5
     if any(v < 2 for v in ks):
         problems.append(f"every k of the k ablation must be >= 2, got {ks}")
     verify_fraction = data.get("verify_fraction")
