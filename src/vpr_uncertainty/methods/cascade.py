@@ -186,6 +186,7 @@ def cascade_entry(name: str) -> UncertaintyMethod:
         resolve=resolve,
         bound={},
         base=None,
+        reads=(),
     )
 
 
