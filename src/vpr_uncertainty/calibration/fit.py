@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import (
     DEFAULT_FEATURES,
     FOLDS,
@@ -95,8 +96,7 @@ def calibrate_arrays(
             f"the calibration queries hold only {'correct' if correct.any() else 'wrong'} answers "
             f"({correct.size} queries): P(correct) cannot be fitted; label more queries (both outcomes are needed)"
         )
-    if not isinstance(folds, int) or folds < 2:
-        raise ValueError(f"folds must be an integer >= 2, got {folds!r}")
+    check_count(folds, "folds", 2)
     if model not in ("logistic", "isotonic"):
         raise ValueError(f"model must be one of ('logistic', 'isotonic'), got {model!r}")
     answerable = np.ones(correct.size, bool) if answerable is None else np.asarray(answerable, dtype=bool)
@@ -422,8 +422,7 @@ def plan_labels(
         )
     if not 0.0 < useful_fraction <= 1.0:
         raise ValueError(f"useful_fraction must lie in (0, 1], got {useful_fraction}")
-    if not isinstance(draws, int) or draws < 1:
-        raise ValueError(f"draws must be an integer >= 1, got {draws!r}")
+    check_count(draws, "draws", 1)
     sizes = sorted({int(size) for size in sizes})
     if not sizes or sizes[0] < 2:
         raise ValueError(f"sizes must be integers >= 2, got {sizes}")

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import stratified_split
 from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.gate import Gate
@@ -74,8 +75,7 @@ def reliability_diagram(probability: object, correct: object, *, n_bins: int = 1
     ([2, 1], [0.5, 1.0])
     """
     probability, correct = _check(probability, correct)
-    if not isinstance(n_bins, int) or n_bins < 1:
-        raise ValueError(f"n_bins must be an integer >= 1, got {n_bins!r}")
+    check_count(n_bins, "n_bins", 1)
     edges = np.linspace(0.0, 1.0, n_bins + 1)
     which = np.clip(np.searchsorted(edges, probability, side="right") - 1, 0, n_bins - 1)
     counts = np.bincount(which, minlength=n_bins)
@@ -240,8 +240,7 @@ def evaluate_held_out(
         raise ValueError("the held-out evaluation needs the ground truth (argument ground_truth)")
     if not 0.0 < calibration_fraction < 1.0:
         raise ValueError(f"calibration_fraction must lie in (0, 1), got {calibration_fraction}")
-    if not isinstance(repeats, int) or repeats < 1:
-        raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
+    check_count(repeats, "repeats", 1)
     entries = [get_method(name) for name in methods]
     uses_cal = any((entry.base or entry.name) == "CAL" for entry in entries)
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
