@@ -44,7 +44,6 @@ Hard input, defined once for all of them
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 
 import numpy as np
@@ -52,6 +51,7 @@ import numpy as np
 from vpr_uncertainty._validation import (
     as_score_array,
     check_best_scores,
+    check_fraction,
     check_k,
     check_rows,
     check_top_k_scores,
@@ -83,11 +83,7 @@ def check_alpha(alpha: object, *, name: str = "alpha") -> float:
 
     The one check of the range, for the library, the method specs and the command line (``name="--alpha"``).
     """
-    if isinstance(alpha, bool) or not isinstance(alpha, numbers.Real):
-        raise TypeError(f"{name} must be a real number in [0, 1], got {alpha!r} of type {type(alpha).__name__}")
-    if not 0.0 <= float(alpha) <= 1.0:  # also rejects NaN
-        raise ValueError(f"{name} must lie in [0, 1], got {alpha}")
-    return float(alpha)
+    return check_fraction(alpha, name)
 
 
 def _combination_weights(n: int, rs_weight: float, sd_weight: float, dtype: np.dtype) -> np.ndarray:

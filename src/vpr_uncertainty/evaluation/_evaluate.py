@@ -49,12 +49,12 @@ __all__ = [
 ]
 
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
+#: Seconds of calls after which the timings stop repeating a call.
+_TIMING_BUDGET_S = 0.5
 
 
-def time_per_query(
-    compute: Callable[[], Any], n_queries: int, *, repeats: int = 5, budget_s: float = 0.5
-) -> tuple[Any, float]:
-    """Run ``compute`` once, then repeat it while within ``budget_s`` (at most ``repeats`` times in all).
+def time_per_query(compute: Callable[[], Any], n_queries: int, *, repeats: int = 5) -> tuple[Any, float]:
+    """Run ``compute`` once, then repeat it while the calls took under half a second (at most ``repeats`` in all).
 
     Returns
     -------
@@ -66,7 +66,7 @@ def time_per_query(
     start = time.perf_counter()
     result = compute()
     durations.append(time.perf_counter() - start)
-    while len(durations) < repeats and sum(durations) < budget_s:
+    while len(durations) < repeats and sum(durations) < _TIMING_BUDGET_S:
         start = time.perf_counter()
         compute()
         durations.append(time.perf_counter() - start)
@@ -380,7 +380,7 @@ def time_geometric(
         return result, first, None
     created = bool(_snapshot(cache_dir) - before)  # a new cache file: nothing of this extractor was cached
     warm: list[float] = [] if created else [first]
-    while len(warm) < max(repeats, 1) and (not warm or sum(warm) < 0.5):
+    while len(warm) < max(repeats, 1) and (not warm or sum(warm) < _TIMING_BUDGET_S):
         start = time.perf_counter()
         call(options)
         warm.append(time.perf_counter() - start)
