@@ -26,7 +26,9 @@ from vpr_uncertainty.calibration.calibrator import (
     DEFAULT_FEATURES,
     FOLDS,
     Calibrator,
+    check_both_outcomes,
     check_features,
+    check_model,
     columns,
     feature_columns,
     feature_matrix,
@@ -91,14 +93,9 @@ def calibrate_arrays(
     scores = np.asarray(scores)
     if scores.ndim != 2 or correct.shape != (scores.shape[0],):
         raise ValueError(f"scores (Q, K) and correct (Q,) must match, got {scores.shape} and {correct.shape}")
-    if correct.all() or not correct.any():
-        raise ValueError(
-            f"the calibration queries hold only {'correct' if correct.any() else 'wrong'} answers "
-            f"({correct.size} queries): P(correct) cannot be fitted; label more queries (both outcomes are needed)"
-        )
+    check_both_outcomes(correct)
     check_count(folds, "folds", 2)
-    if model not in ("logistic", "isotonic"):
-        raise ValueError(f"model must be one of ('logistic', 'isotonic'), got {model!r}")
+    check_model(model)
     answerable = np.ones(correct.size, bool) if answerable is None else np.asarray(answerable, dtype=bool)
     if unlabelled is not None:
         unlabelled = np.asarray(unlabelled)
