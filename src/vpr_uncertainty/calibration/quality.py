@@ -20,6 +20,7 @@ from vpr_uncertainty.calibration.calibrator import stratified_split
 from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.evaluation import correct_at_n, evaluate
+from vpr_uncertainty.evaluation.metrics import check_labels
 from vpr_uncertainty.methods import get_method, register_method
 from vpr_uncertainty.retrieval import Retrieval
 
@@ -36,17 +37,10 @@ __all__ = [
 
 
 def _check(probability: object, correct: object) -> tuple[np.ndarray, np.ndarray]:
-    probability = np.asarray(probability, dtype=np.float64)
-    correct = np.asarray(correct)
-    if probability.ndim != 1 or correct.shape != probability.shape:
-        raise ValueError(
-            f"probability and correct must be 1-D of one length, got shapes {probability.shape} and {correct.shape}"
-        )
-    if probability.size == 0:
-        raise ValueError("probability is empty")
-    if not (np.isfinite(probability).all() and (probability >= 0).all() and (probability <= 1).all()):
+    correct, probability = check_labels(correct, probability, name="probability")
+    if not ((probability >= 0).all() and (probability <= 1).all()):
         raise ValueError("probability must lie in [0, 1]")
-    return probability, correct.astype(bool)
+    return probability, correct
 
 
 @dataclass
