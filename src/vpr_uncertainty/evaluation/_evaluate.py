@@ -3,6 +3,7 @@ geometric verification), measure it, and note where the input bends a convention
 
 from __future__ import annotations
 
+import functools
 import statistics
 import tempfile
 import time
@@ -182,8 +183,7 @@ def evaluate(
             result, seconds = time_per_query(call, retrieval.n_queries, repeats=timing_repeats)
             entry.check_result(result, retrieval)
         if latency and entry.kind in LATENCY_KINDS:
-            call = lambda row, entry=entry, inputs=inputs: entry(row, **inputs)  # noqa: E731
-            timings["latency_ms_batch1"] = latency_batch1(call, retrieval) * 1e3
+            timings["latency_ms_batch1"] = latency_batch1(functools.partial(entry, **inputs), retrieval) * 1e3
         method_correct, method_both, own_recall, details = correct, both_classes, None, {}
         if isinstance(result, DetailedUncertainty):
             result, details = result.uncertainty, dict(result.details)
