@@ -30,6 +30,18 @@ def test_evaluate_on_synthetic_retrieval_matches_direct_computation():
     assert set(as_json["methods"]["SU"]) >= {"auc_pr", "average_precision", "aurc", "time_per_query_ms"}
 
 
+def test_a_score_entry_binds_its_scores_function_directly_with_its_own_options():
+    from vpr_uncertainty import scores as score_functions
+    from vpr_uncertainty.methods import get_method
+
+    retrieval = Retrieval(scores=np.array([[0.9, 0.5, 0.4]]), indices=np.array([[0, 1, 2]]))
+    call = get_method("SU").bind(retrieval, {"k": 3, "alpha": 0.2, "sort": True, "device": "cpu"})
+    assert call.func is score_functions.statistical_uncertainty  # the timed call is the formula, no wrapper
+    assert call.args[0] is retrieval.scores and call.keywords == {"k": 3, "alpha": 0.2}
+    call = get_method("L2").bind(retrieval, {"k": 3, "alpha": 0.2})
+    assert call.func is score_functions.l2_distance and call.keywords == {"k": 3, "distances": None}
+
+
 def test_evaluate_reports_undefined_auc_instead_of_nan():
     scores = np.array([[0.9, 0.5], [0.8, 0.1]])
     retrieval = Retrieval(scores=scores, indices=np.array([[0, 1], [1, 0]]), positives=np.eye(2, dtype=bool))

@@ -11,6 +11,8 @@ __all__ = [
     "as_score_array",
     "check_best_scores",
     "check_block",
+    "check_count",
+    "check_fraction",
     "check_k",
     "check_rows",
     "check_top_k_scores",
@@ -25,6 +27,22 @@ def check_k(k: object, *, name: str = "k") -> int:
     if k < 2:
         raise ValueError(f"{name} must be >= 2 (the metrics compare the best match with its runners-up), got {k}")
     return int(k)
+
+
+def check_count(value: object, name: str, minimum: int) -> int:
+    """Return ``value`` as an int after checking that it is an integer (not a bool) >= ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def check_fraction(value: object, name: str) -> float:
+    """Return ``value`` as a float after checking that it is a real number (not a bool) in [0, 1]."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number in [0, 1], got {value!r} of type {type(value).__name__}")
+    if not 0.0 <= float(value) <= 1.0:  # also rejects NaN
+        raise ValueError(f"{name} must lie in [0, 1], got {value}")
+    return float(value)
 
 
 #: Rows validated (and, in the metrics, computed) at once: small enough for the block to stay in cache.

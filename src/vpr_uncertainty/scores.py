@@ -44,7 +44,6 @@ Hard input, defined once for all of them
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 
 import numpy as np
@@ -52,6 +51,7 @@ import numpy as np
 from vpr_uncertainty._validation import (
     as_score_array,
     check_best_scores,
+    check_fraction,
     check_k,
     check_rows,
     check_top_k_scores,
@@ -83,11 +83,7 @@ def check_alpha(alpha: object, *, name: str = "alpha") -> float:
 
     The one check of the range, for the library, the method specs and the command line (``name="--alpha"``).
     """
-    if isinstance(alpha, bool) or not isinstance(alpha, numbers.Real):
-        raise TypeError(f"{name} must be a real number in [0, 1], got {alpha!r} of type {type(alpha).__name__}")
-    if not 0.0 <= float(alpha) <= 1.0:  # also rejects NaN
-        raise ValueError(f"{name} must lie in [0, 1], got {alpha}")
-    return float(alpha)
+    return check_fraction(alpha, name)
 
 
 def _combination_weights(n: int, rs_weight: float, sd_weight: float, dtype: np.dtype) -> np.ndarray:
@@ -284,25 +280,27 @@ def statistical_uncertainty(
     return _ratio_metric(scores, k, alpha, 1.0 - alpha, sort, on_nonpositive)
 
 
-def _one_row(scores: object) -> list[float]:
-    """One query's scores as a list: from a (K,) or (1, K) ndarray, a torch tensor (duck-typed) or a sequence."""
+def one_row(scores: object, *, shapes: str = "(k,) or (1, k)", advice: str = "") -> list[float]:
+    """One query's scores as a new list: from a sequence, or an ndarray or torch tensor (duck-typed) of shape (K,) or
+    (1, K), of numbers; ``shapes`` and ``advice`` word the error for another shape."""
+    if type(scores) is list:  # the common case, first
+        return scores[:]
     if not isinstance(scores, np.ndarray) and hasattr(scores, "detach") and hasattr(scores, "tolist"):
         scores = scores.detach()  # a torch tensor: .cpu().tolist() below, also for bfloat16 and CUDA tensors
         if hasattr(scores, "cpu"):
             scores = scores.cpu()
+    if isinstance(scores, np.ndarray) and scores.dtype.kind not in "fiu":
+        raise TypeError(f"scores must be numbers, got an array of dtype {scores.dtype}")
     shape = getattr(scores, "shape", None)
     if shape is not None:
         shape = tuple(shape)
         if len(shape) == 2 and shape[0] == 1:
             return scores.tolist()[0]
         if len(shape) != 1:
-            raise ValueError(
-                f"scores must be one query's top-k, of shape (k,) or (1, k), got shape {shape}; use "
-                "batch() or statistical_uncertainty() for many queries"
-            )
+            raise ValueError(f"scores must be one query's top-k, of shape {shapes}, got shape {shape}{advice}")
         return scores.tolist()
     if isinstance(scores, (str, bytes)):
-        raise TypeError(f"scores must be a sequence of similarities, got {type(scores).__name__}")
+        raise TypeError(f"scores must be a sequence of similarities, got {type(scores).__name__} {scores!r}")
     return list(scores)
 
 
@@ -392,8 +390,8 @@ class StatisticalUncertainty:
             (1, K) array is what Faiss's ``index.search`` returns for one query. A tensor (any device, with or
             without grad) is read through ``.detach().cpu().tolist()``; torch itself is never imported.
         """
-        if type(scores) is not list:  # a list, or a 1-D array, is the fast path of a running robot
-            scores = scores.tolist() if type(scores) is np.ndarray and scores.ndim == 1 else _one_row(scores)
+        if type(scores) is not list:  # a list is the fast path of a running robot
+            scores = one_row(scores, advice="; use batch() or statistical_uncertainty() for many queries")
         if scores and isinstance(scores[0], (list, tuple)):
             if len(scores) == 1:
                 return self(list(scores[0]))  # [[s_1, ..., s_k]]: one query written as a (1, K) nested list

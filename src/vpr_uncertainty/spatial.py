@@ -40,6 +40,7 @@ import warnings
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.methods import register_method
 from vpr_uncertainty.retrieval import Retrieval
 from vpr_uncertainty.scores import squared_distances_from_similarities
@@ -80,8 +81,7 @@ def check_sue_options(
     >>> check_sue_options(clip="one-sided", slope=300)
     (300.0, 500.0)
     """
-    if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
-        raise ValueError(f"k must be a positive integer, got {k!r}")
+    check_count(k, "k", 1)
     if clip not in CLIP_MODES:
         raise ValueError(f"clip must be one of {', '.join(CLIP_MODES)}, got {clip!r}")
     return _real(slope, "slope"), _real(max_deviation, "max_deviation", positive=True)

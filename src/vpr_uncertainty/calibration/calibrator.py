@@ -45,7 +45,9 @@ __all__ = [
     "Calibrator",
     "aliasing_ratio",
     "average_precision",
+    "check_both_outcomes",
     "check_features",
+    "check_model",
     "columns",
     "cross_fitted",
     "feature_columns",
@@ -144,8 +146,7 @@ class Calibrator:
     def from_dict(cls, data: dict[str, Any], *, where: str = "calibrator") -> Calibrator:
         """The inverse of :meth:`to_dict`; a ValueError names the missing or malformed field."""
         model = data.get("model")
-        if model not in MODELS:
-            raise ValueError(f"{where}: model must be one of {MODELS}, got {model!r}")
+        check_model(model, where=where)
         features = data.get("features")
         if not isinstance(features, list) or not features or not all(isinstance(f, str) for f in features):
             raise ValueError(f"{where}: features must be a non-empty list of names, got {features!r}")
@@ -201,12 +202,24 @@ def _check_training(features: np.ndarray, correct: np.ndarray) -> tuple[np.ndarr
     if not np.isfinite(features).all():
         raise ValueError("features must be finite")
     correct = correct.astype(bool)
+    check_both_outcomes(correct)
+    return features, correct
+
+
+def check_both_outcomes(correct: np.ndarray) -> None:
+    """Raise ValueError unless the bool labels ``correct`` (Q,) hold both correct and wrong answers."""
     if correct.all() or not correct.any():
         raise ValueError(
             f"the calibration queries hold only {'correct' if correct.any() else 'wrong'} answers "
             f"({correct.size} queries): P(correct) cannot be fitted; label more queries (both outcomes are needed)"
         )
-    return features, correct
+
+
+def check_model(model: object, *, where: str | None = None) -> None:
+    """Raise ValueError (prefixed by ``where``) unless ``model`` is one of :data:`MODELS`."""
+    if model not in MODELS:
+        prefix = f"{where}: " if where else ""
+        raise ValueError(f"{prefix}model must be one of {MODELS}, got {model!r}")
 
 
 def fit_calibrator(
@@ -231,8 +244,7 @@ def fit_calibrator(
     regularisation : float, default=1.0
         Inverse L2 strength C of the logistic regression (> 0).
     """
-    if model not in MODELS:
-        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    check_model(model)
     features, correct = _check_training(features, correct)
     if len(feature_names) != features.shape[1]:
         raise ValueError(f"feature_names has {len(feature_names)} names for {features.shape[1]} columns")

@@ -21,11 +21,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import (
     DEFAULT_FEATURES,
     FOLDS,
     Calibrator,
+    check_both_outcomes,
     check_features,
+    check_model,
     columns,
     feature_columns,
     feature_matrix,
@@ -90,15 +93,9 @@ def calibrate_arrays(
     scores = np.asarray(scores)
     if scores.ndim != 2 or correct.shape != (scores.shape[0],):
         raise ValueError(f"scores (Q, K) and correct (Q,) must match, got {scores.shape} and {correct.shape}")
-    if correct.all() or not correct.any():
-        raise ValueError(
-            f"the calibration queries hold only {'correct' if correct.any() else 'wrong'} answers "
-            f"({correct.size} queries): P(correct) cannot be fitted; label more queries (both outcomes are needed)"
-        )
-    if not isinstance(folds, int) or folds < 2:
-        raise ValueError(f"folds must be an integer >= 2, got {folds!r}")
-    if model not in ("logistic", "isotonic"):
-        raise ValueError(f"model must be one of ('logistic', 'isotonic'), got {model!r}")
+    check_both_outcomes(correct)
+    check_count(folds, "folds", 2)
+    check_model(model)
     answerable = np.ones(correct.size, bool) if answerable is None else np.asarray(answerable, dtype=bool)
     if unlabelled is not None:
         unlabelled = np.asarray(unlabelled)
@@ -422,8 +419,7 @@ def plan_labels(
         )
     if not 0.0 < useful_fraction <= 1.0:
         raise ValueError(f"useful_fraction must lie in (0, 1], got {useful_fraction}")
-    if not isinstance(draws, int) or draws < 1:
-        raise ValueError(f"draws must be an integer >= 1, got {draws!r}")
+    check_count(draws, "draws", 1)
     sizes = sorted({int(size) for size in sizes})
     if not sizes or sizes[0] < 2:
         raise ValueError(f"sizes must be integers >= 2, got {sizes}")

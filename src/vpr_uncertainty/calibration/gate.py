@@ -30,7 +30,7 @@ from vpr_uncertainty.calibration.calibrator import (
     feature_matrix,
     row_features,
 )
-from vpr_uncertainty.scores import row_statistics
+from vpr_uncertainty.scores import one_row, row_statistics
 
 __all__ = ["FORMAT", "Gate"]
 
@@ -125,7 +125,7 @@ class Gate:
         A malformed row (not numbers, NaN or ±inf at the top, unsorted, overflowing, another shape) raises, as
         :meth:`accept` does: a robot that catches the error rejects the query.
         """
-        return self._confidence_of(_one_row(scores)) >= self._cut
+        return self._confidence_of(one_row(scores, shapes="(K,) or (1, K)")) >= self._cut
 
     def _confidence_of(self, values: list[float]) -> float:
         best, second, runners, median, last, _ = row_statistics(values, self._k)
@@ -158,7 +158,7 @@ class Gate:
 
     def probability_one(self, scores: Sequence[float] | np.ndarray) -> float:
         """P(correct) of one query (same input as ``gate(scores)``)."""
-        confidence = self._confidence_of(_one_row(scores))
+        confidence = self._confidence_of(one_row(scores, shapes="(K,) or (1, K)"))
         return float(self.calibrator.probability_from_confidence(np.array([confidence]))[0])
 
     # --- many queries -------------------------------------------------------------------------------------------
@@ -256,20 +256,3 @@ class Gate:
         except (json.JSONDecodeError, UnicodeDecodeError) as error:
             raise ValueError(f"{path}: not a JSON gate file: {error}") from None
         return cls.from_dict(data, where=str(path))
-
-
-def _one_row(scores: Sequence[float] | np.ndarray) -> list[float]:
-    """One query's scores as a new list: a sequence of numbers, or an array of shape (K,) or (1, K) of numbers."""
-    if type(scores) is list:  # the common case, first
-        return scores[:]
-    if isinstance(scores, np.ndarray):
-        if scores.ndim != 1:
-            if scores.ndim != 2 or scores.shape[0] != 1:
-                raise ValueError(f"scores must be one query's top-k, shape (K,) or (1, K), got {scores.shape}")
-            scores = scores[0]
-        if scores.dtype.kind not in "fiu":
-            raise TypeError(f"scores must be numbers, got an array of dtype {scores.dtype}")
-        return scores.tolist()
-    if isinstance(scores, (str, bytes)):
-        raise TypeError(f"scores must be numbers, got {type(scores).__name__} {scores!r}")
-    return list(scores)

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import RANKINGS, Calibrator, columns, cross_fitted, fit_model, platt
 
 #: With many labelled queries, the coverage grid starts at the first step that accepts at least this share.
@@ -159,8 +160,7 @@ def coverage_grid(n_labelled: int, target_precision: float, delta: float) -> np.
     [22, 38, 52, 65, 78, 91]
     """
     _check_target(target_precision, delta)
-    if not isinstance(n_labelled, (int, np.integer)) or isinstance(n_labelled, bool) or n_labelled < 0:
-        raise ValueError(f"n_labelled must be an integer >= 0, got {n_labelled!r}")
+    check_count(n_labelled, "n_labelled", 0)
     accepted = np.arange(1, n_labelled + 1)
     # the fewest correct answers that certify among m accepted: P[Binomial(m, p*) >= c] <= δ
     needed = stats.binom.isf(delta, accepted, target_precision) + 1

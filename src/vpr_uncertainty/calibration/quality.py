@@ -15,10 +15,12 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import stratified_split
 from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.evaluation import correct_at_n, evaluate
+from vpr_uncertainty.evaluation.metrics import check_labels
 from vpr_uncertainty.methods import get_method, register_method
 from vpr_uncertainty.retrieval import Retrieval
 
@@ -35,17 +37,10 @@ __all__ = [
 
 
 def _check(probability: object, correct: object) -> tuple[np.ndarray, np.ndarray]:
-    probability = np.asarray(probability, dtype=np.float64)
-    correct = np.asarray(correct)
-    if probability.ndim != 1 or correct.shape != probability.shape:
-        raise ValueError(
-            f"probability and correct must be 1-D of one length, got shapes {probability.shape} and {correct.shape}"
-        )
-    if probability.size == 0:
-        raise ValueError("probability is empty")
-    if not (np.isfinite(probability).all() and (probability >= 0).all() and (probability <= 1).all()):
+    correct, probability = check_labels(correct, probability, name="probability")
+    if not ((probability >= 0).all() and (probability <= 1).all()):
         raise ValueError("probability must lie in [0, 1]")
-    return probability, correct.astype(bool)
+    return probability, correct
 
 
 @dataclass
@@ -74,8 +69,7 @@ def reliability_diagram(probability: object, correct: object, *, n_bins: int = 1
     ([2, 1], [0.5, 1.0])
     """
     probability, correct = _check(probability, correct)
-    if not isinstance(n_bins, int) or n_bins < 1:
-        raise ValueError(f"n_bins must be an integer >= 1, got {n_bins!r}")
+    check_count(n_bins, "n_bins", 1)
     edges = np.linspace(0.0, 1.0, n_bins + 1)
     which = np.clip(np.searchsorted(edges, probability, side="right") - 1, 0, n_bins - 1)
     counts = np.bincount(which, minlength=n_bins)
@@ -240,8 +234,7 @@ def evaluate_held_out(
         raise ValueError("the held-out evaluation needs the ground truth (argument ground_truth)")
     if not 0.0 < calibration_fraction < 1.0:
         raise ValueError(f"calibration_fraction must lie in (0, 1), got {calibration_fraction}")
-    if not isinstance(repeats, int) or repeats < 1:
-        raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
+    check_count(repeats, "repeats", 1)
     entries = [get_method(name) for name in methods]
     uses_cal = any((entry.base or entry.name) == "CAL" for entry in entries)
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.evaluation.metrics import check_labels
 
 if TYPE_CHECKING:
@@ -60,12 +61,6 @@ BOOTSTRAP_METRICS: dict[str, bool] = {"auc_pr": True, "average_precision": True,
 _BLOCK = 100
 
 
-def _check_count(value: object, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 def resample_indices(n_queries: int, n_resamples: int, seed: int) -> Iterator[np.ndarray]:
     """The bootstrap resamples of ``n_queries`` queries, in blocks of at most 100 resamples.
 
@@ -88,8 +83,8 @@ def resample_indices(n_queries: int, n_resamples: int, seed: int) -> Iterator[np
     >>> [block.shape for block in resample_indices(5, 150, seed=0)]
     [(100, 5), (50, 5)]
     """
-    n_queries = _check_count(n_queries, "n_queries", 1)
-    n_resamples = _check_count(n_resamples, "n_resamples", 1)
+    n_queries = check_count(n_queries, "n_queries", 1)
+    n_resamples = check_count(n_resamples, "n_resamples", 1)
     rng = np.random.default_rng(seed)
     for start in range(0, n_resamples, _BLOCK):
         yield rng.integers(0, n_queries, size=(min(_BLOCK, n_resamples - start), n_queries), dtype=np.int64)
@@ -330,8 +325,7 @@ def check_bootstrap(n_resamples: object, seed: object, confidence: float = 0.95,
     """Raise ValueError naming the argument when a bootstrap setting is not valid (0 resamples: no bootstrap)."""
     if isinstance(n_resamples, bool) or not isinstance(n_resamples, (int, np.integer)) or n_resamples < 0:
         raise ValueError(f"bootstrap must be an integer >= 0 (resamples; 0 = none), got {n_resamples!r}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    check_count(seed, "seed", 0)
     if not 0.0 < confidence < 1.0 or not 0.0 < level < 1.0:
         raise ValueError(f"confidence and level must lie in (0, 1), got {confidence} and {level}")
 

@@ -130,22 +130,24 @@ def recall_at_n(indices: object, positives: object, ns: Sequence[int] = RECALL_N
     return {int(n): float(correct_at_n(indices, positives, n)[answerable].mean()) for n in ns if n <= indices.shape[1]}
 
 
-def check_labels(correct: object, uncertainty: object) -> tuple[np.ndarray, np.ndarray]:
-    """``correct`` as bool and ``uncertainty`` as float64, both of shape (Q,) with Q >= 1, finite; else ValueError."""
+def check_labels(correct: object, uncertainty: object, *, name: str = "uncertainty") -> tuple[np.ndarray, np.ndarray]:
+    """``correct`` as bool and ``uncertainty`` (called ``name`` in the errors) as float64, both of shape (Q,) with
+    Q >= 1, finite; else ValueError."""
     correct = np.asarray(correct)
     uncertainty = np.asarray(uncertainty, dtype=np.float64)
     if correct.ndim != 1 or uncertainty.shape != correct.shape:
         raise ValueError(
-            f"correct and uncertainty must both have shape (n_queries,), got {correct.shape} and {uncertainty.shape}"
+            f"correct and {name} must both have shape (n_queries,) (1-D, of one length), got {correct.shape} and "
+            f"{uncertainty.shape}"
         )
     if correct.size == 0:
-        raise ValueError("no queries to evaluate (correct and uncertainty are empty)")
+        raise ValueError(f"no queries to evaluate (correct and {name} are empty)")
     if correct.dtype != bool:
         if not np.isin(correct, (0, 1)).all():
             raise ValueError(f"correct must be boolean, got values {np.unique(correct)[:5]}")
         correct = correct.astype(bool)
     if not np.isfinite(uncertainty).all():
-        raise ValueError(f"uncertainty contains {int((~np.isfinite(uncertainty)).sum())} NaN or inf values")
+        raise ValueError(f"{name} contains {int((~np.isfinite(uncertainty)).sum())} NaN or inf values")
     return correct, uncertainty
 
 

@@ -30,6 +30,8 @@ TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms
 #: Numbers a method reports about its own run (:class:`~vpr_uncertainty.methods.DetailedUncertainty`), written
 #: beside its metrics and read back by :meth:`MethodEvaluation.from_dict`.
 DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries", "trained_on_queries")
+#: The metrics with a bootstrap interval (``<metric>_ci``).
+_INTERVALS = ("auc_pr", "average_precision", "aurc")
 
 
 @dataclass(repr=False)
@@ -106,16 +108,13 @@ class MethodEvaluation:
                 if self.own_recall_at_1 is not None
                 else {}
             ),
-            **{key: list(value) for key, value in self._intervals().items() if value is not None},
+            **{
+                f"{metric}_ci": list(getattr(self, f"{metric}_ci"))
+                for metric in _INTERVALS
+                if getattr(self, f"{metric}_ci") is not None
+            },
             **({"vs_reference": dict(self.vs_reference)} if self.vs_reference is not None else {}),
             **self.details,
-        }
-
-    def _intervals(self) -> dict[str, tuple[float, float] | None]:
-        return {
-            "auc_pr_ci": self.auc_pr_ci,
-            "average_precision_ci": self.average_precision_ci,
-            "aurc_ci": self.aurc_ci,
         }
 
     @classmethod
@@ -149,7 +148,7 @@ class MethodEvaluation:
             precision_at_recall={float(level): value for level, value in data["precision_at_recall"].items()},
             own_recall_at_1=data.get("own_recall@1"),
             correct=None if own_correct is None else labels,
-            **{key: _interval(data.get(key)) for key in ("auc_pr_ci", "average_precision_ci", "aurc_ci")},
+            **{f"{metric}_ci": _interval(data.get(f"{metric}_ci")) for metric in _INTERVALS},
             vs_reference=dict(data["vs_reference"]) if data.get("vs_reference") is not None else None,
             timings={key: data[key] for key in TIMING_KEYS if data.get(key) is not None},
             details={key: data[key] for key in DETAIL_KEYS if key in data},
@@ -280,7 +279,6 @@ class Evaluation:
         )
 
 
-_INTERVALS = ("auc_pr", "average_precision", "aurc")
 _VS_REFERENCE = ("delta_auc_pr", "p_value_holm", "significant")
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_fraction
 from vpr_uncertainty.methods.entries import (
     METHODS,
     DetailedUncertainty,
@@ -38,15 +39,6 @@ DEFAULT_VERIFY_FRACTION = 0.3
 _GEOMETRIC = "geometric"
 
 
-def check_verify_fraction(verify_fraction: Any) -> float:
-    """``verify_fraction`` as a float in [0, 1]; a ValueError otherwise."""
-    if isinstance(verify_fraction, bool) or not isinstance(verify_fraction, (int, float, np.floating)):
-        raise ValueError(f"verify_fraction must be a number in [0, 1], got {verify_fraction!r}")
-    if not 0.0 <= float(verify_fraction) <= 1.0:
-        raise ValueError(f"verify_fraction must lie in [0, 1], got {verify_fraction}")
-    return float(verify_fraction)
-
-
 def most_uncertain(uncertainty: np.ndarray, fraction: float) -> np.ndarray:
     """Indices of the ``round(fraction · Q)`` most uncertain queries (ties broken by query order), ascending.
 
@@ -56,7 +48,7 @@ def most_uncertain(uncertainty: np.ndarray, fraction: float) -> np.ndarray:
     array([1, 3])
     """
     uncertainty = np.asarray(uncertainty, dtype=np.float64)
-    count = round(check_verify_fraction(fraction) * uncertainty.size)
+    count = round(check_fraction(fraction, "verify_fraction") * uncertainty.size)
     order = np.argsort(-uncertainty, kind="stable")
     return np.sort(order[:count])
 
@@ -114,7 +106,7 @@ def run_cascade(
         The combined uncertainties, with ``details`` ``verified_fraction`` (verified queries / Q) and
         ``verified_queries``.
     """
-    fraction = check_verify_fraction(verify_fraction)
+    fraction = check_fraction(verify_fraction, "verify_fraction")
     score_result = score(retrieval, **options)
     if isinstance(score_result, (OwnRetrievalUncertainty, DetailedUncertainty)):
         raise ValueError(f"cascade {score.name}+{gv.name}: {score.name} does not give one uncertainty per query")
@@ -180,12 +172,15 @@ def cascade_entry(name: str) -> UncertaintyMethod:
         requires=tuple(dict.fromkeys((*score.requires, *gv.requires))),
         extra=gv.extra or score.extra,
         options=defaults,
-        validate=lambda **given: check_verify_fraction(given.get("verify_fraction", DEFAULT_VERIFY_FRACTION)),
+        validate=lambda **given: check_fraction(
+            given.get("verify_fraction", DEFAULT_VERIFY_FRACTION), "verify_fraction"
+        ),
         kind="cascade",
         default=False,
         resolve=resolve,
         bound={},
         base=None,
+        reads=(),
     )
 
 

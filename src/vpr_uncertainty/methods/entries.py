@@ -10,6 +10,7 @@ selected method takes is an error (:func:`check_options`). A name can carry its 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 import math
 from collections.abc import Callable, Collection, Mapping, Sequence
@@ -181,6 +182,9 @@ class UncertaintyMethod:
         Options of this variant; they override the options given at call time.
     base : str or None
         The registered name of a variant (None for a registered entry).
+    reads : tuple of str
+        Retrieval fields the function takes in place of the retrieval (e.g. ``("scores", "distances")`` for
+        ``l2_distance(scores, k, *, distances)``): the first positionally, the others as keywords of their name.
     """
 
     name: str
@@ -195,6 +199,7 @@ class UncertaintyMethod:
     resolve: Callable[..., dict[str, Any]] | str | None = None
     bound: dict[str, Any] = field(default_factory=dict)
     base: str | None = None
+    reads: tuple[str, ...] = ()
     _function: MethodFunction | None = field(default=None, init=False, repr=False)
 
     @property
@@ -212,7 +217,9 @@ class UncertaintyMethod:
         return dict(hook(retrieval, options))
 
     def accepted_options(self) -> set[str] | None:
-        """Keyword options the function takes (None when it takes any)."""
+        """Keyword options the function takes (None when it takes any); with ``reads``, the declared options."""
+        if self.reads:
+            return set(self.option_defaults())
         parameters = inspect.signature(self.function).parameters.values()
         if any(parameter.kind is inspect.Parameter.VAR_KEYWORD for parameter in parameters):
             return None
@@ -243,10 +250,11 @@ class UncertaintyMethod:
         given = set(available) | {key for key, value in self.bound.items() if value is not None}
         return [need for need in self.requires if not all(key in given for key in NEEDS.get(need, ((need,), ""))[0])]
 
-    def __call__(
-        self, retrieval: Retrieval, **options: Any
-    ) -> np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty:
-        options = self.resolve_inputs(retrieval, options)
+    def bind(self, retrieval: Retrieval, options: Mapping[str, Any]) -> Callable[[], Any]:
+        """The function on ``retrieval`` with the ``options`` it takes, as a call without arguments.
+
+        ``options`` are already resolved (:meth:`resolve_inputs`); an unmet need is a ValueError, raised now.
+        """
         present = [name for name in vars(retrieval) if getattr(retrieval, name) is not None]
         missing = self.unmet_needs([*present, *(key for key, value in options.items() if value is not None)])
         if missing:
@@ -254,7 +262,16 @@ class UncertaintyMethod:
         accepted = self.accepted_options()
         if accepted is not None:
             options = {key: value for key, value in options.items() if key in accepted}
-        result = self.function(retrieval, **options)
+        if not self.reads:
+            return functools.partial(self.function, retrieval, **options)
+        first, *others = self.reads
+        fields = {name: getattr(retrieval, name) for name in others}
+        return functools.partial(self.function, getattr(retrieval, first), **options, **fields)
+
+    def check_result(
+        self, result: Any, retrieval: Retrieval
+    ) -> np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty:
+        """``result`` when it holds one finite uncertainty per query of ``retrieval``, else a RuntimeError."""
         wrapped = isinstance(result, (OwnRetrievalUncertainty, DetailedUncertainty))
         uncertainty = np.asarray(result.uncertainty if wrapped else result)
         if isinstance(result, OwnRetrievalUncertainty) and result.retrieval.n_queries != retrieval.n_queries:
@@ -267,6 +284,12 @@ class UncertaintyMethod:
         if not np.isfinite(uncertainty).all():
             raise RuntimeError(f"uncertainty method {self.name!r} returned NaN or inf")
         return result
+
+    def __call__(
+        self, retrieval: Retrieval, **options: Any
+    ) -> np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty:
+        call = self.bind(retrieval, self.resolve_inputs(retrieval, options))
+        return self.check_result(call(), retrieval)
 
 
 def describe_needs(needs: Collection[str]) -> str:
@@ -326,6 +349,7 @@ def register_method(
     kind: str = "score",
     default: bool = False,
     resolve: Callable[..., dict[str, Any]] | str | None = None,
+    reads: Sequence[str] = (),
     overwrite: bool = False,
 ) -> UncertaintyMethod:
     """Add a method to the registry and return its entry.
@@ -356,6 +380,7 @@ def register_method(
         kind=kind,
         default=default,
         resolve=resolve,
+        reads=tuple(reads),
     )
     return METHODS.register(entry, overwrite=overwrite)
 
