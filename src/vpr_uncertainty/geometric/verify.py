@@ -240,6 +240,14 @@ def verify_on_executor(
     return matches, inliers, seconds, 0.0
 
 
+def _map_pairs(function: Callable[[Any], Any], items: list, workers: int, desc: str) -> list:
+    """``function`` of each item, with a progress bar, in ``workers`` threads when more than one."""
+    if workers > 1 and len(items) > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            return list(progress_bar(pool.map(function, items), total=len(items), desc=desc, unit="pair"))
+    return [function(item) for item in progress_bar(items, desc=desc, unit="pair")]
+
+
 @dataclass
 class VerificationResult:
     """Inliers of each verified pair and where the time went.
@@ -416,13 +424,10 @@ class GeometricVerifier:
             return self.matcher.match(features[pair[0]], features[pair[1]], max_side=self.max_side)
 
         uses_torch = getattr(self.matcher, "uses_torch", False)
+        parallel = self.matcher.thread_parallel
         blas = contextlib.nullcontext() if uses_torch else single_blas_thread()
-        if self.matcher.thread_parallel and self.workers > 1 and len(pairs) > 1:
-            with blas, single_torch_thread(uses_torch), ThreadPoolExecutor(self.workers) as pool:
-                all_matches = list(progress_bar(pool.map(match, pairs), total=len(pairs), desc="matching", unit="pair"))
-        else:
-            with blas, single_torch_thread(uses_torch and self.matcher.thread_parallel):
-                all_matches = [match(pair) for pair in progress_bar(pairs, desc="matching", unit="pair")]
+        with blas, single_torch_thread(uses_torch and parallel):
+            all_matches = _map_pairs(match, pairs, self.workers if parallel else 1, "matching")
         ransac_start = time.perf_counter()
 
         def ransac(item: tuple[tuple[str, str], np.ndarray]) -> int:
@@ -439,12 +444,7 @@ class GeometricVerifier:
                 seed=self.seed,
             )
 
-        items = list(zip(pairs, all_matches, strict=True))
-        if self.workers > 1 and len(items) > 1:
-            with ThreadPoolExecutor(self.workers) as pool:
-                inliers = list(progress_bar(pool.map(ransac, items), total=len(items), desc="RANSAC", unit="pair"))
-        else:
-            inliers = [ransac(item) for item in progress_bar(items, desc="RANSAC", unit="pair")]
+        inliers = _map_pairs(ransac, list(zip(pairs, all_matches, strict=True)), self.workers, "RANSAC")
         end = time.perf_counter()
         return [len(m) for m in all_matches], inliers, ransac_start - matching_start, end - ransac_start
 
