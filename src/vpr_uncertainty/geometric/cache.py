@@ -87,9 +87,11 @@ def deferring_writes(function: Callable[[Any], Any], item: Any) -> tuple[Any, li
 CHUNKS_PER_WORKER = 4
 
 
-def chunk_size(items: int, executor: Any) -> int:
-    """Items per executor task: :data:`CHUNKS_PER_WORKER` chunks per worker."""
-    return max(1, math.ceil(items / (CHUNKS_PER_WORKER * max(1, executor.workers or 1))))
+def split_chunks(items: list, executor: Any) -> list[list]:
+    """``items`` in consecutive chunks of equal size (the last may be shorter), one executor task each:
+    :data:`CHUNKS_PER_WORKER` chunks per worker."""
+    size = max(1, math.ceil(len(items) / (CHUNKS_PER_WORKER * max(1, executor.workers or 1))))
+    return [items[start : start + size] for start in range(0, len(items), size)]
 
 
 def _extract_chunk(paths: list[Path], extractor: Any) -> list[Any]:
@@ -105,13 +107,10 @@ def extract_on_executor(extractor: Any, paths: Sequence[Path], executor: Any) ->
 
     Chunks come back in completion order; within one they are in order. The caller writes them to the cache.
     """
-    paths = list(paths)
-    size = chunk_size(len(paths), executor)
-    starts = list(range(0, len(paths), size))
-    chunks = [paths[start : start + size] for start in starts]
+    chunks = split_chunks(list(paths), executor)
     for chunk, features in executor.imap(partial(_extract_chunk, extractor=extractor), chunks):
         for offset, result in enumerate(features):
-            yield starts[chunk] + offset, result
+            yield chunk * len(chunks[0]) + offset, result
 
 
 CACHE_FORMAT_VERSION = 2

@@ -34,7 +34,7 @@ import numpy as np
 
 from vpr_uncertainty.data.images import check_image_counts
 from vpr_uncertainty.evaluation import recall_at_n
-from vpr_uncertainty.geometric.cache import ExtractionStats, chunk_size, extract_features, image_names, read_features
+from vpr_uncertainty.geometric.cache import ExtractionStats, extract_features, image_names, read_features, split_chunks
 from vpr_uncertainty.geometric.local_features import (
     DEFAULT_MAX_SIDE,
     MIN_MATCHES,
@@ -224,10 +224,8 @@ def verify_on_executor(
     """``(matches, inliers, seconds, 0.0)`` of every pair (in order), computed in chunks on ``verifier.executor``
     from ``features`` (by image name); matching and RANSAC run together in each task, so all time is matching."""
     executor = verifier.executor
-    size = chunk_size(len(pairs), executor)
     chunks = []
-    for start in range(0, len(pairs), size):
-        chunk = pairs[start : start + size]
+    for chunk in split_chunks(pairs, executor):
         names = dict.fromkeys(name for pair in chunk for name in pair)
         chunks.append((chunk, {name: features[name] for name in names}))
     light = copy.copy(verifier)  # what a task needs: matcher and RANSAC settings; no extractor, no executor
