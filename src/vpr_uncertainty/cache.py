@@ -68,6 +68,7 @@ __all__ = [
     "slug",
     "stale_notice",
     "verify_checksum",
+    "write_figure",
     "write_json",
     "write_text",
 ]
@@ -461,6 +462,14 @@ def write_text(path: str | Path, text: str) -> Path:
 def write_json(path: str | Path, document: Any) -> Path:
     """Write ``document`` as indented JSON (one trailing newline) to ``path`` atomically and return the path."""
     return write_text(path, json.dumps(document, indent=2, default=str) + "\n")
+
+
+def write_figure(figure: Any, path: str | Path, **savefig_options: Any) -> Path:
+    """Save a matplotlib ``figure`` to ``path`` atomically, in the format of its suffix (PNG without one)."""
+    path = Path(path)
+    with atomic_path(path) as temporary:
+        figure.savefig(temporary, format=path.suffix.lstrip(".") or "png", **savefig_options)
+    return path
 
 
 # --- HDF5 inputs that hold their own data ---

@@ -12,7 +12,6 @@ _EXPORTS = {
     "DEFAULT_MARGIN": "model",
     "DEFAULT_PRIOR_VARIANCE": "model",
     "BTLHead": "model",
-    "BayesianTripletLoss": "model",
     "bayesian_triplet_loss": "model",
     "embed": "model",
     "kl_to_isotropic_prior": "model",

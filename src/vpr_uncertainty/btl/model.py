@@ -262,46 +262,6 @@ def bayesian_triplet_loss(
     return TripletLossTerms(loss=nll + kl_weight * kl, nll=nll, kl=kl)
 
 
-class BayesianTripletLoss(nn.Module):
-    """:func:`bayesian_triplet_loss` as a module; ``forward`` returns :class:`TripletLossTerms`."""
-
-    def __init__(
-        self,
-        margin: float = DEFAULT_MARGIN,
-        kl_weight: float = DEFAULT_KL_WEIGHT,
-        prior_variance: float = DEFAULT_PRIOR_VARIANCE,
-    ) -> None:
-        super().__init__()
-        self.margin = float(margin)
-        self.kl_weight = float(kl_weight)
-        self.prior_variance = float(prior_variance)
-
-    def forward(
-        self,
-        mean_a: torch.Tensor,
-        var_a: torch.Tensor,
-        mean_p: torch.Tensor,
-        var_p: torch.Tensor,
-        mean_n: torch.Tensor,
-        var_n: torch.Tensor,
-    ) -> TripletLossTerms:
-        """Means (B, E) and variances (B,) of anchors, positives and negatives -> loss terms."""
-        return bayesian_triplet_loss(
-            mean_a,
-            var_a,
-            mean_p,
-            var_p,
-            mean_n,
-            var_n,
-            margin=self.margin,
-            kl_weight=self.kl_weight,
-            prior_variance=self.prior_variance,
-        )
-
-    def extra_repr(self) -> str:
-        return f"margin={self.margin}, kl_weight={self.kl_weight}, prior_variance={self.prior_variance}"
-
-
 HEAD_FORMAT = "vpr-uncertainty btl-head"
 
 HEAD_FORMAT_VERSION = 1

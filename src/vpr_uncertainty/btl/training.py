@@ -15,7 +15,6 @@ their positives come from the ground truth (within 25 m, or explicit lists). Det
 from __future__ import annotations
 
 import copy
-import json
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -33,7 +32,7 @@ from vpr_uncertainty.btl.model import (
     bayesian_triplet_loss,
     row_digests,
 )
-from vpr_uncertainty.cache import atomic_path, write_text
+from vpr_uncertainty.cache import write_figure, write_json
 
 
 @dataclass(frozen=True)
@@ -489,9 +488,7 @@ def train_btl_head(
 
 def save_training_curve(history: TrainingHistory, json_path: str | Path, png_path: str | Path | None = None) -> None:
     """Write the training curve as JSON (every epoch's losses) and, optionally, as a PNG plot."""
-    json_path = Path(json_path)
-    json_path.parent.mkdir(parents=True, exist_ok=True)
-    write_text(json_path, json.dumps(history.to_dict(), indent=2) + "\n")
+    write_json(json_path, history.to_dict())
     if png_path is None:
         return
     from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global state
@@ -506,7 +503,4 @@ def save_training_curve(history: TrainingHistory, json_path: str | Path, png_pat
     axes.set_ylabel("Bayesian triplet loss")
     axes.set_title("BTL head training")
     axes.legend()
-    png_path = Path(png_path)
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(png_path) as temporary:
-        figure.savefig(temporary, dpi=120)
+    write_figure(figure, png_path, dpi=120)

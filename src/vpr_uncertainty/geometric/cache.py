@@ -87,9 +87,11 @@ def deferring_writes(function: Callable[[Any], Any], item: Any) -> tuple[Any, li
 CHUNKS_PER_WORKER = 4
 
 
-def chunk_size(items: int, executor: Any) -> int:
-    """Items per executor task: :data:`CHUNKS_PER_WORKER` chunks per worker."""
-    return max(1, math.ceil(items / (CHUNKS_PER_WORKER * max(1, executor.workers or 1))))
+def split_chunks(items: list, executor: Any) -> list[list]:
+    """``items`` in consecutive chunks of equal size (the last may be shorter), one executor task each:
+    :data:`CHUNKS_PER_WORKER` chunks per worker."""
+    size = max(1, math.ceil(len(items) / (CHUNKS_PER_WORKER * max(1, executor.workers or 1))))
+    return [items[start : start + size] for start in range(0, len(items), size)]
 
 
 def _extract_chunk(paths: list[Path], extractor: Any) -> list[Any]:
@@ -105,13 +107,10 @@ def extract_on_executor(extractor: Any, paths: Sequence[Path], executor: Any) ->
 
     Chunks come back in completion order; within one they are in order. The caller writes them to the cache.
     """
-    paths = list(paths)
-    size = chunk_size(len(paths), executor)
-    starts = list(range(0, len(paths), size))
-    chunks = [paths[start : start + size] for start in starts]
+    chunks = split_chunks(list(paths), executor)
     for chunk, features in executor.imap(partial(_extract_chunk, extractor=extractor), chunks):
         for offset, result in enumerate(features):
-            yield starts[chunk] + offset, result
+            yield chunk * len(chunks[0]) + offset, result
 
 
 CACHE_FORMAT_VERSION = 2
@@ -248,6 +247,16 @@ def _group_names(file: h5py.File) -> list[str]:
     return names
 
 
+def _stored_key(handle: h5py.File, name: str) -> str | None:
+    """The content key stored with the features of ``name``; None when they are missing or incomplete."""
+    import h5py
+
+    group = handle.get(name)
+    if isinstance(group, h5py.Group) and "image_size" in group:
+        return group.attrs.get("content_key")
+    return None
+
+
 def _open_cache(path: Path, config: str) -> h5py.File:
     """The cache file for appending: created whole when missing; rebuilt (one-line notice) when unusable."""
     import h5py
@@ -294,8 +303,6 @@ def store_features(pending: Iterable[Iterable[PendingFeatures]]) -> int:
     file is created (or rebuilt, with the one-line notice) first; a file that cannot be written (locked, disk full)
     is reported in one line (:class:`~vpr_uncertainty.cache.CacheWarning`) and left as is.
     """
-    import h5py
-
     merged: dict[Path, PendingFeatures] = {}
     for entries in pending:
         for entry in entries:
@@ -304,18 +311,11 @@ def store_features(pending: Iterable[Iterable[PendingFeatures]]) -> int:
     written = 0
     for path, entry in merged.items():
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
             with _open_cache(path, entry.config) as handle:
                 for name, (features, key) in entry.features.items():
-                    group = handle.get(name)
-                    if (
-                        isinstance(group, h5py.Group)
-                        and group.attrs.get("content_key") == key
-                        and "image_size" in group
-                    ):
-                        continue
-                    write_features(handle, name, features, content_key=key)
-                    written += 1
+                    if _stored_key(handle, name) != key:
+                        write_features(handle, name, features, content_key=key)
+                        written += 1
         except OSError as error:  # e.g. locked by another run: the results are computed, only the cache is missed
             cache.stale_notice(path, f"not written ({error})", "a rerun extracts these images again")
     return written
@@ -388,7 +388,6 @@ def extract_features(
             config = json.dumps(extractor.config(), sort_keys=True, default=str)
             store = active_store()
             if store is None:
-                file_path.parent.mkdir(parents=True, exist_ok=True)
                 handle = _open_cache(file_path, config)
             else:  # a task: read the shared file, keep what is extracted for the driver
                 deferred = store.setdefault(file_path, PendingFeatures(file_path, config))
@@ -397,13 +396,12 @@ def extract_features(
             if handle is not None:
                 changed = []
                 for name, path in unique.items():
-                    if name not in features and name in handle and "image_size" in handle[name]:
-                        stored = handle[name].attrs.get("content_key")
-                        if stored is not None and Path(path).is_file() and stored == cache.content_key(path):
-                            try:
-                                features[name] = read_features(handle, name, verify=True)
-                            except cache.ChecksumError:
-                                changed.append(name)
+                    stored = None if name in features else _stored_key(handle, name)
+                    if stored is not None and Path(path).is_file() and stored == cache.content_key(path):
+                        try:
+                            features[name] = read_features(handle, name, verify=True)
+                        except cache.ChecksumError:
+                            changed.append(name)
                 if changed:  # one line for all: edited on disk, or written before features carried a checksum
                     cache.stale_notice(
                         file_path,

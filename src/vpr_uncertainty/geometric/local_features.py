@@ -48,15 +48,15 @@ def torch_device(device: str | None) -> Any:
 
 
 @contextlib.contextmanager
-def torch_threads(workers: int | None) -> Iterator[None]:
-    """Run torch's CPU operators on ``workers`` threads inside the block, then restore the previous setting."""
-    import torch
-
-    if workers is None:
+def single_torch_thread(active: bool) -> Iterator[None]:
+    """When ``active``, run torch's CPU operators on one thread inside the block, then restore the previous setting."""
+    if not active:
         yield
         return
+    import torch
+
     previous = torch.get_num_threads()
-    torch.set_num_threads(max(1, int(workers)))
+    torch.set_num_threads(1)
     try:
         yield
     finally:
@@ -202,12 +202,6 @@ def load_image(path: str | Path, *, max_side: int, grayscale: bool) -> tuple[np.
         size = (max(1, round(width * scale)), max(1, round(height * scale)))
         image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
     return image, (width, height)
-
-
-def single_torch_thread(active: bool) -> contextlib.AbstractContextManager[None]:
-    if not active:
-        return contextlib.nullcontext()
-    return torch_threads(1)
 
 
 def single_blas_thread() -> contextlib.AbstractContextManager[Any]:

@@ -34,7 +34,7 @@ import numpy as np
 
 from vpr_uncertainty.data.images import check_image_counts
 from vpr_uncertainty.evaluation import recall_at_n
-from vpr_uncertainty.geometric.cache import ExtractionStats, chunk_size, extract_features, image_names, read_features
+from vpr_uncertainty.geometric.cache import ExtractionStats, extract_features, image_names, read_features, split_chunks
 from vpr_uncertainty.geometric.local_features import (
     DEFAULT_MAX_SIDE,
     MIN_MATCHES,
@@ -224,10 +224,8 @@ def verify_on_executor(
     """``(matches, inliers, seconds, 0.0)`` of every pair (in order), computed in chunks on ``verifier.executor``
     from ``features`` (by image name); matching and RANSAC run together in each task, so all time is matching."""
     executor = verifier.executor
-    size = chunk_size(len(pairs), executor)
     chunks = []
-    for start in range(0, len(pairs), size):
-        chunk = pairs[start : start + size]
+    for chunk in split_chunks(pairs, executor):
         names = dict.fromkeys(name for pair in chunk for name in pair)
         chunks.append((chunk, {name: features[name] for name in names}))
     light = copy.copy(verifier)  # what a task needs: matcher and RANSAC settings; no extractor, no executor
@@ -238,6 +236,14 @@ def verify_on_executor(
     matches = [count for chunk_matches, _ in results for count in chunk_matches]
     inliers = [count for _, chunk_inliers in results for count in chunk_inliers]
     return matches, inliers, seconds, 0.0
+
+
+def _map_pairs(function: Callable[[Any], Any], items: list, workers: int, desc: str) -> list:
+    """``function`` of each item, with a progress bar, in ``workers`` threads when more than one."""
+    if workers > 1 and len(items) > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            return list(progress_bar(pool.map(function, items), total=len(items), desc=desc, unit="pair"))
+    return [function(item) for item in progress_bar(items, desc=desc, unit="pair")]
 
 
 @dataclass
@@ -416,13 +422,10 @@ class GeometricVerifier:
             return self.matcher.match(features[pair[0]], features[pair[1]], max_side=self.max_side)
 
         uses_torch = getattr(self.matcher, "uses_torch", False)
+        parallel = self.matcher.thread_parallel
         blas = contextlib.nullcontext() if uses_torch else single_blas_thread()
-        if self.matcher.thread_parallel and self.workers > 1 and len(pairs) > 1:
-            with blas, single_torch_thread(uses_torch), ThreadPoolExecutor(self.workers) as pool:
-                all_matches = list(progress_bar(pool.map(match, pairs), total=len(pairs), desc="matching", unit="pair"))
-        else:
-            with blas, single_torch_thread(uses_torch and self.matcher.thread_parallel):
-                all_matches = [match(pair) for pair in progress_bar(pairs, desc="matching", unit="pair")]
+        with blas, single_torch_thread(uses_torch and parallel):
+            all_matches = _map_pairs(match, pairs, self.workers if parallel else 1, "matching")
         ransac_start = time.perf_counter()
 
         def ransac(item: tuple[tuple[str, str], np.ndarray]) -> int:
@@ -439,12 +442,7 @@ class GeometricVerifier:
                 seed=self.seed,
             )
 
-        items = list(zip(pairs, all_matches, strict=True))
-        if self.workers > 1 and len(items) > 1:
-            with ThreadPoolExecutor(self.workers) as pool:
-                inliers = list(progress_bar(pool.map(ransac, items), total=len(items), desc="RANSAC", unit="pair"))
-        else:
-            inliers = [ransac(item) for item in progress_bar(items, desc="RANSAC", unit="pair")]
+        inliers = _map_pairs(ransac, list(zip(pairs, all_matches, strict=True)), self.workers, "RANSAC")
         end = time.perf_counter()
         return [len(m) for m in all_matches], inliers, ransac_start - matching_start, end - ransac_start
 

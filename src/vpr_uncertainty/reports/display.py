@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty.cache import atomic_path
+from vpr_uncertainty.cache import write_figure
 from vpr_uncertainty.calibration.quality import Reliability, reliability_diagram
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
 
@@ -113,14 +113,8 @@ def save_figure(figure: Any, path: str | Path, *, tight: bool = True) -> list[Pa
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"save_figure writes a .png and a {VECTOR_SUFFIX} beside it, got {path}")
-    path.parent.mkdir(parents=True, exist_ok=True)
     options = {"bbox_inches": "tight", "pad_inches": 0.05} if tight else {}
-    written = []
-    for target in (path, path.with_suffix(VECTOR_SUFFIX)):
-        with atomic_path(target) as temporary:
-            figure.savefig(temporary, dpi=DPI, format=target.suffix.lstrip("."), **options)
-        written.append(target)
-    return written
+    return [write_figure(figure, target, dpi=DPI, **options) for target in (path, path.with_suffix(VECTOR_SUFFIX))]
 
 
 #: Why the area under an end-to-end curve is not the AUC-PR of the legend (written under the curves).
@@ -458,15 +452,11 @@ def plot_rejection_curves(evaluation: Evaluation, path: str | Path, *, title: st
         Figure title.
     """
     plt = pyplot()
-    path = Path(path)
     figure = draw_rejection_curves(evaluation, title=title)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary:
-            figure.savefig(temporary, dpi=DPI, bbox_inches="tight", format=path.suffix.lstrip(".") or "png")
+        return write_figure(figure, path, dpi=DPI, bbox_inches="tight")
     finally:
         plt.close(figure)
-    return path
 
 
 def write_rejection_curves(evaluation: Evaluation, path: str | Path, *, title: str | None = None) -> list[Path]:
@@ -493,14 +483,10 @@ def plot_reliability(reliability: Reliability, path: str | Path, *, title: str |
         Figure title.
     """
     plt = pyplot()
-    path = Path(path)
     figure, axes = plt.subplots(figsize=(5.2, 4.8), dpi=120)
     try:
         ReliabilityDisplay.from_reliability(reliability, ax=axes, title=title)
         figure.tight_layout()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(path) as temporary:
-            figure.savefig(temporary)
+        return write_figure(figure, path)
     finally:
         plt.close(figure)
-    return path

@@ -28,11 +28,12 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.cache import slug, write_text
+from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.calibration.quality import Reliability
 from vpr_uncertainty.methods import typed_option
 from vpr_uncertainty.plugins import Registry, load_target, merge_options
 from vpr_uncertainty.reports.display import VECTOR_SUFFIX, plot_reliability, write_rejection_curves
+from vpr_uncertainty.reports.html import cell_stem
 from vpr_uncertainty.reports.plots import (
     cascades,
     plot_alpha_ablation,
@@ -233,7 +234,6 @@ def _table1(cells: Sequence[Any], config: Any, metric: str):
 def _write_table1(cells: Sequence[Any], config: Any, out_dir: Path, metric: str, stem: str) -> list[Path]:
     table = _table1(cells, config, metric)
     note = table1_note(cells) if metric == "auc_pr" else None
-    out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex)):
         path = out_dir / f"{stem}.{suffix}"
@@ -276,7 +276,6 @@ table1_aurc_section = _section("aurc")
 def write_ties(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``ties.md`` and ``ties.csv``: the share of tied queries and the distinct values of every method."""
     table = build_ties_table(cells)
-    out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / "ties.md", out_dir / "ties.csv"]
     write_text(paths[0], ties_markdown(table))
     write_text(paths[1], ties_csv(table))
@@ -311,7 +310,7 @@ def write_pr_curves(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Pa
         for cell in cells
         for path in write_rejection_curves(
             cell.evaluation,
-            out_dir / "figures" / "pr" / f"{slug(cell.vpr_method)}__{slug(cell.dataset)}.png",
+            out_dir / "figures" / "pr" / f"{cell_stem(cell)}.png",
             title=f"{cell.vpr_method} on {cell.dataset} ({cell.evaluation.n_queries} queries)",
         )
     ]
@@ -365,7 +364,7 @@ def write_qualitative(cells: Sequence[Any], config: Any, out_dir: Path, *, rank_
         chosen = chosen[:1]
     paths = []
     for cell in chosen:
-        path = out_dir / "figures" / f"qualitative__{slug(cell.vpr_method)}__{slug(cell.dataset)}.png"
+        path = out_dir / "figures" / f"qualitative__{cell_stem(cell)}.png"
         written = plot_qualitative(cell, path, rank_by=rank_by, alpha=config.alpha)
         if written is not None:
             paths.append(written)
@@ -384,7 +383,7 @@ def write_reliability(cells: Sequence[Any], config: Any, out_dir: Path) -> list[
         if quality is None:
             continue
         title = f"{cell.vpr_method} on {cell.dataset}: ECE {quality['ece']:.3f}, Brier {quality['brier']:.3f}"
-        path = out_dir / "figures" / "reliability" / f"{slug(cell.vpr_method)}__{slug(cell.dataset)}.png"
+        path = out_dir / "figures" / "reliability" / f"{cell_stem(cell)}.png"
         paths.append(plot_reliability(Reliability(**quality["reliability"]), path, title=title))
     return paths
 

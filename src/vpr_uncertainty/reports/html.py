@@ -13,6 +13,7 @@ from vpr_uncertainty.cache import slug, write_text
 
 __all__ = [
     "Section",
+    "cell_stem",
     "embed_png",
     "figure_caption",
     "png_display_width",
@@ -101,10 +102,7 @@ def render_report(title: str, sections: Sequence[Section], *, intro: str = "") -
 
 def write_report(path: str | Path, title: str, sections: Sequence[Section], *, intro: str = "") -> Path:
     """Write :func:`render_report` to ``path`` (UTF-8) and return it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_text(path, render_report(title, sections, intro=intro))
-    return path
+    return write_text(path, render_report(title, sections, intro=intro))
 
 
 def _names(values: Sequence[str]) -> str:
@@ -112,9 +110,14 @@ def _names(values: Sequence[str]) -> str:
     return values[0] if len(values) == 1 else ", ".join(values[:-1]) + " and " + values[-1]
 
 
+def cell_stem(cell: Any) -> str:
+    """``<vpr method>__<dataset>`` (slugged): how the file names of a cell's figures end."""
+    return f"{slug(cell.vpr_method)}__{slug(cell.dataset)}"
+
+
 def _cell_of(path: Path, cells: Sequence[Any]) -> Any:
     for cell in cells:
-        if path.stem.endswith(f"{slug(cell.vpr_method)}__{slug(cell.dataset)}"):
+        if path.stem.endswith(cell_stem(cell)):
             return cell
     return None
 

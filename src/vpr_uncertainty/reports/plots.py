@@ -26,7 +26,7 @@ import numpy as np
 from vpr_uncertainty.cache import slug
 from vpr_uncertainty.evaluation import auc_pr
 from vpr_uncertainty.methods.cascade import combine_cascade, most_uncertain, split_cascade_name
-from vpr_uncertainty.reports.display import DPI, legend_outside, pyplot, save_figure
+from vpr_uncertainty.reports.display import DPI, legend_outside, method_styles, pyplot, save_figure
 
 __all__ = [
     "CATEGORIES",
@@ -59,8 +59,6 @@ PANEL_SIZE: tuple[float, float] = (2.8, 2.3)
 #: Room in inches for the title above the panels, and for each row of the legend below them.
 _TITLE_HEIGHT, _LEGEND_ROW = 0.55, 0.22
 _MAX_COLUMNS = 5
-_LINE_STYLES = ("-", "--", "-.", ":")
-_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "*")
 
 
 def _defined(curve: dict) -> dict:
@@ -140,15 +138,6 @@ def ablation_figsize(n_panels: int, columns: int | None = None, legend_entries: 
     )
 
 
-def _style(index: int) -> dict:
-    """Colour, line style and marker of the index-th line: distinct for up to 40 lines."""
-    return {
-        "color": f"C{index % 10}",
-        "linestyle": _LINE_STYLES[(index // 10) % len(_LINE_STYLES)],
-        "marker": _MARKERS[index % len(_MARKERS)],
-    }
-
-
 def _subplots(plt, n_panels: int, columns: int | None, legend_entries: int):
     """Constrained-layout small multiples, each panel with its own y range."""
     rows, columns = _layout(n_panels, columns)
@@ -186,12 +175,13 @@ def plot_alpha_ablation(cells: Sequence, path: str | Path) -> Path:
     datasets = list(dict.fromkeys(d for lines in panels.values() for d in lines))
     entries = 1 + (len(datasets) if len(datasets) > 1 else 0)
     figure, axes = _subplots(plt, len(panels), None, entries)
+    styles = method_styles(datasets)
     try:
         handles: dict = {}
         for axis, (vpr_method, lines) in zip(axes.ravel(), panels.items(), strict=False):
             bests = []
             for dataset, curve in lines.items():
-                style = _style(datasets.index(dataset))
+                style = styles[dataset]
                 (line,) = axis.plot(list(curve), list(curve.values()), markersize=3, label=dataset, **style)
                 handles.setdefault(dataset, line)
                 best = best_alpha(curve)
@@ -224,6 +214,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
     panels = k_panels(cells)
     methods = list(dict.fromkeys(m for lines in panels.values() for m in lines))
     figure, axes = _subplots(plt, len(panels), min(max(len(panels), 1), 2), len(methods))
+    styles = method_styles(methods)
     try:
         handles: dict = {}
         ticks = sorted({k for lines in panels.values() for curve in lines.values() for k in curve})
@@ -234,7 +225,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
                     list(curve.values()),
                     markersize=3,
                     label=vpr_method,
-                    **_style(methods.index(vpr_method)),
+                    **styles[vpr_method],
                 )
                 handles.setdefault(vpr_method, line)
             axis.set_xscale("log")
