@@ -19,7 +19,7 @@ from vpr_uncertainty.data.images import is_hidden
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, MappedRows, top_k_blocks
 from vpr_uncertainty.retrieval.file_format import load_retrieval
-from vpr_uncertainty.retrieval.result import Retrieval
+from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
 from vpr_uncertainty.retrieval.search import retrieve
 
 #: Candidates kept per query when a full matrix is read, unless a larger k asks for more (recall@20 needs 20).
@@ -248,8 +248,7 @@ def read_similarity_top_k(
     """
     path = Path(path)
     matrix = _open_similarity(path, file_format, mmap=True)
-    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 1:
-        raise ValueError(f"top_k must be a positive integer, got {top_k!r}")
+    check_positive_int(top_k, "top_k")
 
     def check_block(block: np.ndarray, first_row: int) -> None:
         _check_similarity_values(block, path, first_row)

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, default_block_rows
-from vpr_uncertainty.retrieval.result import Retrieval
+from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
 from vpr_uncertainty.scores import squared_distances_from_similarities
 
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
@@ -87,12 +87,6 @@ def _check_index_string(index: object) -> str:
     return index.strip()
 
 
-def _positive_int(value: object, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
 def _ordered(scores: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Missing candidates as -inf / -1, rows sorted by score descending then database index ascending."""
     missing = indices < 0
@@ -120,7 +114,7 @@ def _database_block(database: object, database_block: object, index: str, device
     """Rows per block when the database is streamed (see :func:`search_descriptors`), None to search it whole."""
     exact = index.replace(" ", "").lower() == "flat"
     if database_block is not None:
-        database_block = _positive_int(database_block, "database_block")
+        database_block = check_positive_int(database_block, "database_block")
         if not exact or device != "cpu":
             raise ValueError(
                 f"database_block streams the database through exact search on the CPU (index='Flat', "
@@ -204,8 +198,8 @@ def search_descriptors(
     >>> distances
     array([[ 0.,  0.,  2., inf]], dtype=float32)
     """
-    k = _positive_int(top_k, "top_k")
-    batch_size = _positive_int(batch_size, "batch_size")
+    k = check_positive_int(top_k, "top_k")
+    batch_size = check_positive_int(batch_size, "batch_size")
     index = _check_index_string(index)
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
@@ -305,7 +299,7 @@ def retrieve(
     >>> result.config["n_database"], result.config["dimension"]
     (3, 3)
     """
-    k, index = _positive_int(top_k, "top_k"), _check_index_string(index)
+    k, index = check_positive_int(top_k, "top_k"), _check_index_string(index)
     scores, indices, distances = search_descriptors(
         database,
         queries,
