@@ -110,9 +110,14 @@ def _settle_ties(searcher: _Searcher, queries: np.ndarray, k: int, n_database: i
         depth = min(4 * depth, n_database)
 
 
+def _is_exact(index: str) -> bool:
+    """Whether a Faiss index-factory string is exact search (``"Flat"``, in any case and spacing)."""
+    return index.replace(" ", "").lower() == "flat"
+
+
 def _database_block(database: object, database_block: object, index: str, device: str) -> int | None:
     """Rows per block when the database is streamed (see :func:`search_descriptors`), None to search it whole."""
-    exact = index.replace(" ", "").lower() == "flat"
+    exact = _is_exact(index)
     if database_block is not None:
         database_block = check_positive_int(database_block, "database_block")
         if not exact or device != "cpu":
@@ -464,8 +469,7 @@ class _Searcher:
         self.max_k = GPU_MAX_K if device == "cuda" else None
         self.index = None
         self._resources = None
-        exact = index.replace(" ", "").lower() == "flat"
-        if device == "cpu" and exact:
+        if device == "cpu" and _is_exact(index):
             if search_params:
                 raise ValueError(f"search_params {search_params!r} need an approximate index; exact search has none")
             return  # faiss.knn_inner_product on the array itself: no copy of the database into an index
