@@ -341,16 +341,16 @@ def load_folder_dataset(
 IMAGE_SPLIT_FOLDERS: tuple[tuple[str, str], ...] = (("query", "ref"), ("queries", "database"))
 
 
-def find_split_folders(folder: str | Path, *, argument: str = "images") -> tuple[Path, Path]:
+def find_split_folders(folder: str | Path) -> tuple[Path, Path]:
     """The (queries, database) image folders of a dataset: ``query/``, ``ref/`` or ``queries/``, ``database/``."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise FileNotFoundError(f"image folder not found: {folder} (argument {argument})")
+        raise FileNotFoundError(f"image folder not found: {folder} (argument images)")
     for queries, database in IMAGE_SPLIT_FOLDERS:
         if (folder / queries).is_dir() and (folder / database).is_dir():
             return folder / queries, folder / database
     expected = " or ".join(f"{q}/ and {d}/" for q, d in IMAGE_SPLIT_FOLDERS)
-    raise FileNotFoundError(f"{folder} has no image subfolders {expected} (argument {argument})")
+    raise FileNotFoundError(f"{folder} has no image subfolders {expected} (argument images)")
 
 
 def check_image_counts(
