@@ -519,6 +519,16 @@ def _descriptor_file(path: str | Path, split: str | None) -> tuple[Path, bool]:
     return path, True
 
 
+def _read_npy_descriptors(path: Path, *, mmap: bool) -> np.ndarray:
+    """The numeric 2-D array of a ``.npy`` descriptor file (memory-mapped when ``mmap``)."""
+    array = read_npy(path, what="a descriptor array of shape (n_images, dimension)", mmap=mmap)
+    if array.dtype.kind not in "biuf":
+        raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
+    if array.ndim != 2:
+        raise ValueError(f"{path}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
+    return array
+
+
 def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.ndarray | None, np.ndarray]:
     """Read descriptors from a ``.npy`` array (N × dim), the HDF5 descriptor cache or hloc's global features.
 
@@ -547,9 +557,7 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     """
     path, hdf5 = _descriptor_file(path, split)
     if not hdf5:
-        array, names = read_npy(path, what="a descriptor array of shape (n_images, dimension)"), None
-        if array.dtype.kind not in "biuf":
-            raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
+        array, names = _read_npy_descriptors(path, mmap=False), None
     else:
         from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
         from vpr_uncertainty.descriptors.hloc import is_hloc_file, read_hloc_descriptors
@@ -595,11 +603,7 @@ def open_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
 def _open_npy(path: Path) -> DescriptorRows:
     """Rows of a ``.npy`` file: each block of a C-ordered file read from the file at its offset (not through a
     mapping, whose pages would count in resident memory); a Fortran-ordered one sliced through the mapping."""
-    array = read_npy(path, what="a descriptor array of shape (n_images, dimension)", mmap=True)
-    if array.dtype.kind not in "biuf":
-        raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
-    if array.ndim != 2:
-        raise ValueError(f"{path}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
+    array = _read_npy_descriptors(path, mmap=True)
     if not isinstance(array, np.memmap) or not array.flags.c_contiguous:
         return DescriptorRows.from_array(array, source=str(path))  # empty, or Fortran-ordered: sliced
     shape, dtype, offset = array.shape, array.dtype, int(array.offset)  # a fresh mapping of the whole file
