@@ -27,8 +27,9 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.cache import content_key
+from vpr_uncertainty.data.images import printable
 from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache, read_descriptors
-from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, printable, to_model_input
+from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, to_model_input
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, DescriptorModel, load_model
 from vpr_uncertainty.executors import MAX_RETRIES
 from vpr_uncertainty.progress import progress_bar
