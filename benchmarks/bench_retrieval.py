@@ -64,7 +64,7 @@ def child(kind: str, folder: Path, batch_size: int) -> None:
     import faiss
 
     if kind == "ours":
-        from vpr_uncertainty.data.positives import positives_within_radius
+        from vpr_uncertainty.data import positives_within_radius
         from vpr_uncertainty.retrieval import Retrieval, save_retrieval, search_descriptors
     before = _current_kib()
     database = np.load(folder / "database.npy")

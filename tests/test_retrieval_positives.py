@@ -1,5 +1,5 @@
 """``Retrieval(positives=...)`` accepts lists of positive indices, boolean masks and sparse matrices
-(vpr_uncertainty.retrieval._positives), and rejects anything else with one short message."""
+(vpr_uncertainty.retrieval.result), and rejects anything else with one short message."""
 
 from __future__ import annotations
 

@@ -25,11 +25,17 @@ class PlaceholderPositionsWarning(UserWarning):
     """Issued when a method that needs metric positions is given frame indices or placeholder ids."""
 
 
-def _as_positions(value: object, name: str, expected_rows: int | None) -> np.ndarray | None:
-    if value is None:
-        return None
+def _check_positions(
+    value: object, name: str, *, expected_rows: int | None = None, any_dimension: bool = False
+) -> np.ndarray:
+    """Finite float64 positions of shape (n, 2); with ``any_dimension`` also (n,), (n, 1) and (n, 3)."""
     array = np.asarray(value)
-    if array.ndim != 2 or array.shape[1] != 2:
+    if any_dimension:
+        if array.ndim == 1:
+            array = array[:, None]
+        if array.ndim != 2 or array.shape[1] not in (1, 2, 3):
+            raise ValueError(f"{name} must have shape (n, 2) (or (n,) / (n, 1) / (n, 3)), got shape {array.shape}")
+    elif array.ndim != 2 or array.shape[1] != 2:
         raise ValueError(f"{name} must have shape (n, 2), got shape {array.shape}")
     if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
         raise TypeError(f"{name} must be numeric, got dtype {array.dtype}")
@@ -174,8 +180,10 @@ class Dataset:
                 if len(names) != expected:
                     raise ValueError(f"{name}_names has {len(names)} entries but positives has {expected}")
                 setattr(self, f"{name}_names", names)
-            positions = _as_positions(getattr(self, f"{name}_positions"), f"{name}_positions", expected)
-            setattr(self, f"{name}_positions", positions)
+            positions = getattr(self, f"{name}_positions")
+            if positions is not None:
+                positions = _check_positions(positions, f"{name}_positions", expected_rows=expected)
+                setattr(self, f"{name}_positions", positions)
         has_positions = self.database_positions is not None or self.query_positions is not None
         if self.position_kind is None and has_positions:
             self.position_kind = detect_position_kind(self.database_positions, self.query_positions)
@@ -282,21 +290,6 @@ class Dataset:
 DEFAULT_RADIUS = 25.0
 
 
-def _check_positions(positions: object, name: str) -> np.ndarray:
-    array = np.asarray(positions)
-    if array.ndim == 1:
-        array = array[:, None]
-    if array.ndim != 2 or array.shape[1] not in (1, 2, 3):
-        raise ValueError(f"{name} must have shape (n, 2) (or (n,) / (n, 1) / (n, 3)), got shape {array.shape}")
-    if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
-        raise TypeError(f"{name} must be numeric, got dtype {array.dtype}")
-    array = array.astype(np.float64, copy=False)
-    if not np.isfinite(array).all():
-        row = int(np.argwhere(~np.isfinite(array))[0, 0])
-        raise ValueError(f"{name} must be finite; row {row} is {array[row].tolist()}")
-    return array
-
-
 def _check_radius(radius: object, name: str) -> float:
     if isinstance(radius, bool) or not isinstance(radius, numbers.Real):
         raise TypeError(f"{name} must be a non-negative number, got {radius!r}")
@@ -334,8 +327,8 @@ def positives_within_radius(
     array([[ True, False,  True],
            [False, False, False]])
     """
-    queries = _check_positions(query_positions, "query_positions")
-    database = _check_positions(database_positions, "database_positions")
+    queries = _check_positions(query_positions, "query_positions", any_dimension=True)
+    database = _check_positions(database_positions, "database_positions", any_dimension=True)
     if queries.shape[1] != database.shape[1]:
         raise ValueError(
             f"query_positions and database_positions must have the same number of coordinates, got "

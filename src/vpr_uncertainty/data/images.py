@@ -36,16 +36,23 @@ class ImageListingError(ValueError):
 
     def __init__(self, folder: str | Path, problems: list[dict[str, str]]) -> None:
         self.problems = list(problems)
-        super().__init__(f"cannot list every image under {_printable(folder)}: {describe_unlisted(problems)}")
+        super().__init__(f"cannot list every image under {printable(folder)}: {describe_unlisted(problems)}")
 
 
-def _printable(path: str | Path) -> str:
-    return os.fsencode(str(path)).decode("utf-8", "backslashreplace")
+def printable(text: str | Path) -> str:
+    r"""``text`` with the bytes of a file name that is not valid UTF-8 written as ``\xNN`` escapes.
+
+    Examples
+    --------
+    >>> printable("caf\udce9.jpg")  # the file name b"caf\xe9.jpg" (Latin-1), as Python reads it on Linux
+    'caf\\xe9.jpg'
+    """
+    return os.fsencode(str(text)).decode("utf-8", "backslashreplace")
 
 
 def describe_unlisted(problems: list[dict[str, str]], *, shown: int = 3) -> str:
     """The first ``shown`` listing problems, ``path (error)``, separated by semicolons."""
-    listed = "; ".join(f"{_printable(item['path'])} ({item['error']})" for item in problems[:shown])
+    listed = "; ".join(f"{printable(item['path'])} ({item['error']})" for item in problems[:shown])
     return listed + (f"; and {len(problems) - shown} more" if len(problems) > shown else "")
 
 
@@ -54,7 +61,7 @@ def _link_error(path: Path) -> str:
         os.stat(path)
     except OSError as error:
         kind = "loops back on itself" if error.errno == errno.ELOOP else "whose target does not exist"
-        return f"symbolic link to '{_printable(os.readlink(path))}' {kind}; if it was a folder, its images are missing"
+        return f"symbolic link to '{printable(os.readlink(path))}' {kind}; if it was a folder, its images are missing"
     return "cannot be read"
 
 
@@ -341,16 +348,16 @@ def load_folder_dataset(
 IMAGE_SPLIT_FOLDERS: tuple[tuple[str, str], ...] = (("query", "ref"), ("queries", "database"))
 
 
-def find_split_folders(folder: str | Path, *, argument: str = "images") -> tuple[Path, Path]:
+def find_split_folders(folder: str | Path) -> tuple[Path, Path]:
     """The (queries, database) image folders of a dataset: ``query/``, ``ref/`` or ``queries/``, ``database/``."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise FileNotFoundError(f"image folder not found: {folder} (argument {argument})")
+        raise FileNotFoundError(f"image folder not found: {folder} (argument images)")
     for queries, database in IMAGE_SPLIT_FOLDERS:
         if (folder / queries).is_dir() and (folder / database).is_dir():
             return folder / queries, folder / database
     expected = " or ".join(f"{q}/ and {d}/" for q, d in IMAGE_SPLIT_FOLDERS)
-    raise FileNotFoundError(f"{folder} has no image subfolders {expected} (argument {argument})")
+    raise FileNotFoundError(f"{folder} has no image subfolders {expected} (argument images)")
 
 
 def check_image_counts(

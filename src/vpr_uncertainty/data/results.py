@@ -19,7 +19,7 @@ from vpr_uncertainty.data.images import is_hidden
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, MappedRows, top_k_blocks
 from vpr_uncertainty.retrieval.file_format import load_retrieval
-from vpr_uncertainty.retrieval.result import Retrieval
+from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
 from vpr_uncertainty.retrieval.search import retrieve
 
 #: Candidates kept per query when a full matrix is read, unless a larger k asks for more (recall@20 needs 20).
@@ -248,8 +248,7 @@ def read_similarity_top_k(
     """
     path = Path(path)
     matrix = _open_similarity(path, file_format, mmap=True)
-    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 1:
-        raise ValueError(f"top_k must be a positive integer, got {top_k!r}")
+    check_positive_int(top_k, "top_k")
 
     def check_block(block: np.ndarray, first_row: int) -> None:
         _check_similarity_values(block, path, first_row)
@@ -520,6 +519,16 @@ def _descriptor_file(path: str | Path, split: str | None) -> tuple[Path, bool]:
     return path, True
 
 
+def _read_npy_descriptors(path: Path, *, mmap: bool) -> np.ndarray:
+    """The numeric 2-D array of a ``.npy`` descriptor file (memory-mapped when ``mmap``)."""
+    array = read_npy(path, what="a descriptor array of shape (n_images, dimension)", mmap=mmap)
+    if array.dtype.kind not in "biuf":
+        raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
+    if array.ndim != 2:
+        raise ValueError(f"{path}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
+    return array
+
+
 def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.ndarray | None, np.ndarray]:
     """Read descriptors from a ``.npy`` array (N × dim), the HDF5 descriptor cache or hloc's global features.
 
@@ -548,9 +557,7 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     """
     path, hdf5 = _descriptor_file(path, split)
     if not hdf5:
-        array, names = read_npy(path, what="a descriptor array of shape (n_images, dimension)"), None
-        if array.dtype.kind not in "biuf":
-            raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
+        array, names = _read_npy_descriptors(path, mmap=False), None
     else:
         from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
         from vpr_uncertainty.descriptors.hloc import is_hloc_file, read_hloc_descriptors
@@ -596,11 +603,7 @@ def open_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
 def _open_npy(path: Path) -> DescriptorRows:
     """Rows of a ``.npy`` file: each block of a C-ordered file read from the file at its offset (not through a
     mapping, whose pages would count in resident memory); a Fortran-ordered one sliced through the mapping."""
-    array = read_npy(path, what="a descriptor array of shape (n_images, dimension)", mmap=True)
-    if array.dtype.kind not in "biuf":
-        raise ValueError(f"{path} is not a numeric descriptor array (it holds dtype {array.dtype})")
-    if array.ndim != 2:
-        raise ValueError(f"{path}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
+    array = _read_npy_descriptors(path, mmap=True)
     if not isinstance(array, np.memmap) or not array.flags.c_contiguous:
         return DescriptorRows.from_array(array, source=str(path))  # empty, or Fortran-ordered: sliced
     shape, dtype, offset = array.shape, array.dtype, int(array.offset)  # a fresh mapping of the whole file

@@ -40,7 +40,7 @@ _HASH_BLOCK_BYTES = 1 << 24
 
 
 class _StoredRows:
-    """The first ``count`` rows of an HDF5 dataset, read one block at a time."""
+    """The first ``count`` rows of an HDF5 dataset (or array), read one block at a time."""
 
     def __init__(self, dataset: Any, count: int) -> None:
         self.dataset = dataset
@@ -76,15 +76,20 @@ def verify_split(path: Path, group: Any, split: str, count: int, descriptors: np
     protocol.verify_checksum(path, stored, *_parts(group, count, descriptors), what=f"the {split!r} descriptors")
 
 
-def non_finite_rows(group: Any, count: int) -> np.ndarray:
-    """Indices of the first ``count`` rows of a split whose descriptors hold NaN or infinite values (block by block)."""
-    if count == 0 or "descriptors" not in group:
-        return np.empty(0, dtype=np.int64)
-    found, start = [], 0
-    for block in _StoredRows(group["descriptors"], count).row_blocks():
+def _non_finite(rows: _StoredRows) -> np.ndarray:
+    """Indices of the rows holding NaN or infinite values, found one block at a time."""
+    found, start = [np.zeros(0, dtype=np.int64)], 0
+    for block in rows.row_blocks():
         found.append(start + np.flatnonzero(~np.isfinite(block).all(axis=1)))
         start += len(block)
     return np.concatenate(found)
+
+
+def non_finite_rows(group: Any, count: int) -> np.ndarray:
+    """Indices of the first ``count`` rows of a split whose descriptors hold NaN or infinite values (block by block)."""
+    if "descriptors" not in group:
+        return np.empty(0, dtype=np.int64)
+    return _non_finite(_StoredRows(group["descriptors"], count))
 
 
 def blank_non_finite(path: Path, group: Any, split: str, names: Any, keys: Any) -> list[str]:
@@ -107,12 +112,7 @@ def blank_non_finite(path: Path, group: Any, split: str, names: Any, keys: Any) 
 def check_finite(path: Path | str, split: str, descriptors: np.ndarray, names: Any, first_row: int = 0) -> None:
     """Raise ValueError naming ``path`` when rows ``first_row`` … of ``split`` hold NaN or infinite values (checked
     one block of rows at a time: no temporary the size of ``descriptors``)."""
-    row_bytes = max(1, int(np.prod(descriptors.shape[1:], dtype=np.int64)) * descriptors.dtype.itemsize)
-    step = max(1, _HASH_BLOCK_BYTES // row_bytes)
-    found = [np.zeros(0, dtype=np.int64)]
-    for start in range(0, len(descriptors), step):
-        found.append(start + np.flatnonzero(~np.isfinite(descriptors[start : start + step]).all(axis=1)))
-    bad = np.concatenate(found)
+    bad = _non_finite(_StoredRows(descriptors, len(descriptors)))
     if bad.size:
         row = int(bad[0])
         name = f" (image {str(names[first_row + row])!r})" if names is not None else ""
@@ -208,7 +208,7 @@ def _valid_length(group: Any) -> int:
     """Rows present in every dataset (a kill between the writes leaves at most one batch unmatched)."""
     if "names" not in group or "descriptors" not in group:
         return 0
-    lengths = [group[key].shape[0] for key in ("names", "descriptors", "keys") if key in group]
+    lengths = [group[key].shape[0] for key in _DATASETS if key in group]
     return min(lengths)
 
 
@@ -485,7 +485,7 @@ class DescriptorCache:
     def _create(self, group: Any, dim: int) -> None:
         import h5py
 
-        for key in ("names", "descriptors", "keys"):
+        for key in _DATASETS:
             if key in group:
                 del group[key]
         group.create_dataset(
@@ -525,7 +525,7 @@ class DescriptorCache:
                     group["names"].resize((len(names),))
                     group["names"][:] = np.asarray(list(names), dtype=object)
                 else:
-                    for key in ("names", "descriptors", "keys"):
+                    for key in _DATASETS:
                         if key in group:
                             del group[key]
         with self._writing():

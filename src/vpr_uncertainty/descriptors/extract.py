@@ -27,11 +27,13 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.cache import content_key
+from vpr_uncertainty.data.images import printable
 from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache, read_descriptors
-from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, printable, to_model_input
+from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, to_model_input
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, DescriptorModel, load_model
 from vpr_uncertainty.executors import MAX_RETRIES
 from vpr_uncertainty.progress import progress_bar
+from vpr_uncertainty.retrieval.result import check_positive_int
 
 ON_ERROR = ("fail", "skip")
 
@@ -57,8 +59,7 @@ def _validate(
         raise ValueError(f"image names must be unique, repeated: {', '.join(duplicates[:5])}{hint}")
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
-    if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
-        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    check_positive_int(batch_size, "batch_size")
     if on_error not in ON_ERROR:
         raise ValueError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
     return paths, names

@@ -131,14 +131,11 @@ def write_hloc_descriptors(
     path: str | Path,
     names: Sequence[str],
     descriptors: np.ndarray,
-    *,
-    image_sizes: Sequence[tuple[int, int]] | None = None,
 ) -> Path:
     """Write global descriptors in hloc's layout (one group per image name, dataset ``global_descriptor``).
 
     Existing groups of the same names are replaced, others are kept (so the queries and the database can go
-    into one file, as hloc does). ``image_sizes`` ((width, height) per image) are written as hloc's
-    ``image_size`` datasets when given.
+    into one file, as hloc does).
 
     Returns
     -------
@@ -152,8 +149,6 @@ def write_hloc_descriptors(
         raise ValueError(f"descriptors must have shape (len(names), D) = ({len(names)}, D), got {descriptors.shape}")
     if len(set(names)) != len(names):
         raise ValueError("image names must be unique")
-    if image_sizes is not None and len(image_sizes) != len(names):
-        raise ValueError(f"got {len(image_sizes)} image_sizes for {len(names)} names")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with h5py.File(path, "a") as handle:
@@ -163,8 +158,6 @@ def write_hloc_descriptors(
                     del handle[name]
                 group = handle.create_group(name)
                 group.create_dataset(HLOC_DATASET, data=descriptors[row])
-                if image_sizes is not None:
-                    group.create_dataset("image_size", data=np.asarray(image_sizes[row], dtype=np.int64))
             handle.flush()
         except (OSError, RuntimeError) as error:  # disk full, I/O error: an OSError naming this file
             from vpr_uncertainty.descriptors.cache import write_error

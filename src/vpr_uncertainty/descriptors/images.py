@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.data.images import printable
+
 IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
 IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
 
@@ -50,17 +52,6 @@ def require_torch(what: str = "descriptor extraction") -> Any:
             f"{what} needs PyTorch, which is not installed; install it with {TORCH_EXTRA_HINT}"
         ) from error
     return torch
-
-
-def printable(text: str | Path) -> str:
-    r"""``text`` with the bytes of a file name that is not valid UTF-8 written as ``\xNN`` escapes.
-
-    Examples
-    --------
-    >>> printable("caf\udce9.jpg")  # the file name b"caf\xe9.jpg" (Latin-1), as Python reads it on Linux
-    'caf\\xe9.jpg'
-    """
-    return os.fsencode(str(text)).decode("utf-8", "backslashreplace")
 
 
 class ImageDecodeError(ValueError):

@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.retrieval.result import check_positive_int
+
 #: Bytes of float32 descriptors per block when no block size is given (64 MiB: 65,536 rows of dimension 256).
 DEFAULT_BLOCK_BYTES = 1 << 26
 
@@ -212,8 +214,7 @@ def top_k_from_similarity(
         raise ValueError(f"similarity must be 2-D (n_queries, n_database), got shape {matrix.shape}")
     if not (np.issubdtype(matrix.dtype, np.floating) or np.issubdtype(matrix.dtype, np.integer)):
         raise TypeError(f"similarity must be numeric, got dtype {matrix.dtype}")
-    if isinstance(top_k, bool) or not isinstance(top_k, (int, np.integer)) or top_k < 1:
-        raise ValueError(f"top_k must be a positive integer, got {top_k!r}")
+    check_positive_int(top_k, "top_k")
     if chunk_size is not None and (isinstance(chunk_size, bool) or chunk_size < 1):
         raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
     if matrix.shape[1] == 0:

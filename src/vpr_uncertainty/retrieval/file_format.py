@@ -158,7 +158,8 @@ def _scalar_int(name: str, value: np.ndarray) -> int:
     return int(value)
 
 
-def _format_version(arrays: dict[str, np.ndarray], maximum: int = FORMAT_VERSION) -> int:
+def _format_version(arrays: dict[str, np.ndarray]) -> int:
+    maximum = FORMAT_VERSION
     if "format_version" not in arrays:
         return maximum  # written by another tool: read as the current version
     value = arrays["format_version"]

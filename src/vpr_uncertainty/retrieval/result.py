@@ -406,6 +406,13 @@ def _csr_from_rows(rows: Sequence[np.ndarray], n_database: int) -> sparse.csr_ar
     return sparse.csr_array((data, indices, indptr), shape=(len(rows), n_database))
 
 
+def check_positive_int(value: object, name: str) -> int:
+    """``value`` as an int when it is an integer >= 1 (not a bool); otherwise a ValueError naming ``name``."""
+    if not is_index(value) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
 def check_n_database(n_database: object) -> int:
     if not is_index(n_database) or n_database < 0:
         raise ValueError(f"n_database must be a non-negative integer, got {n_database!r}")

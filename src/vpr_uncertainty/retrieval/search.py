@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, default_block_rows
-from vpr_uncertainty.retrieval.result import Retrieval
+from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
 from vpr_uncertainty.scores import squared_distances_from_similarities
 
 DEVICES: tuple[str, ...] = ("cpu", "cuda")
@@ -87,12 +87,6 @@ def _check_index_string(index: object) -> str:
     return index.strip()
 
 
-def _positive_int(value: object, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
 def _ordered(scores: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Missing candidates as -inf / -1, rows sorted by score descending then database index ascending."""
     missing = indices < 0
@@ -116,11 +110,16 @@ def _settle_ties(searcher: _Searcher, queries: np.ndarray, k: int, n_database: i
         depth = min(4 * depth, n_database)
 
 
+def _is_exact(index: str) -> bool:
+    """Whether a Faiss index-factory string is exact search (``"Flat"``, in any case and spacing)."""
+    return index.replace(" ", "").lower() == "flat"
+
+
 def _database_block(database: object, database_block: object, index: str, device: str) -> int | None:
     """Rows per block when the database is streamed (see :func:`search_descriptors`), None to search it whole."""
-    exact = index.replace(" ", "").lower() == "flat"
+    exact = _is_exact(index)
     if database_block is not None:
-        database_block = _positive_int(database_block, "database_block")
+        database_block = check_positive_int(database_block, "database_block")
         if not exact or device != "cpu":
             raise ValueError(
                 f"database_block streams the database through exact search on the CPU (index='Flat', "
@@ -204,8 +203,8 @@ def search_descriptors(
     >>> distances
     array([[ 0.,  0.,  2., inf]], dtype=float32)
     """
-    k = _positive_int(top_k, "top_k")
-    batch_size = _positive_int(batch_size, "batch_size")
+    k = check_positive_int(top_k, "top_k")
+    batch_size = check_positive_int(batch_size, "batch_size")
     index = _check_index_string(index)
     if device not in DEVICES:
         raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
@@ -305,7 +304,7 @@ def retrieve(
     >>> result.config["n_database"], result.config["dimension"]
     (3, 3)
     """
-    k, index = _positive_int(top_k, "top_k"), _check_index_string(index)
+    k, index = check_positive_int(top_k, "top_k"), _check_index_string(index)
     scores, indices, distances = search_descriptors(
         database,
         queries,
@@ -470,8 +469,7 @@ class _Searcher:
         self.max_k = GPU_MAX_K if device == "cuda" else None
         self.index = None
         self._resources = None
-        exact = index.replace(" ", "").lower() == "flat"
-        if device == "cpu" and exact:
+        if device == "cpu" and _is_exact(index):
             if search_params:
                 raise ValueError(f"search_params {search_params!r} need an approximate index; exact search has none")
             return  # faiss.knn_inner_product on the array itself: no copy of the database into an index
