@@ -94,3 +94,13 @@ def test_extending_example_runs(number, tmp_path, monkeypatch):
                 registries[kind].unregister(name)
     assert sum(len(names) for names in added.values()) == 1, added
     assert all(set(registry.names()) == before[kind] for kind, registry in registries.items())
+
+
+def test_architecture_stage_example_runs(tmp_path, monkeypatch, capsys):
+    """The example of running two stage modules from Python prints what its comment says and writes its files."""
+    (block,) = re.findall(r"```python\n(.*?)```", _section("Architecture"), re.S)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(block, f"{README} (Architecture)", "exec"), {"__name__": "readme"})
+    path, auc_pr = capsys.readouterr().out.split()
+    assert path == "runs/stages/retrieval.npz" and abs(float(auc_pr) - 0.956) <= 0.002  # another BLAS may round apart
+    assert (tmp_path / "runs" / "stages" / "uncertainties.npz").is_file()
