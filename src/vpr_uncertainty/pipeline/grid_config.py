@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty.cache import slug
-from vpr_uncertainty.methods import default_method_names, describe_needs, get_method, split_method_list
+from vpr_uncertainty.methods import STAGE_INPUTS, default_method_names, describe_needs, get_method, split_method_list
 from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
 from vpr_uncertainty.scores import check_alpha
 
@@ -217,8 +217,6 @@ def unmet_needs(entries: list[InputEntry], methods: list[str]) -> list[str]:
     A cell gives its retrieval's fields (a retrieval file's arrays, the positions of a dataset), the image files
     when it has images (``images`` or a model input), the descriptors for a model input, and a feature cache.
     """
-    from vpr_uncertainty.pipeline.run import STAGE_INPUTS
-
     found = [get_method(name) for name in methods]
     lines = []
     for entry in entries:
@@ -227,7 +225,7 @@ def unmet_needs(entries: list[InputEntry], methods: list[str]) -> list[str]:
         cell = f"cell {entry.vpr_method} / {entry.dataset}"
         given = {*_GRID_OPTIONS, *(_IMAGE_OPTIONS if entry.images is not None else ())}
         if entry.model is not None:
-            given |= set(STAGE_INPUTS)
+            given |= STAGE_INPUTS
         if any(method.unmet_needs(given) for method in found):  # read the inputs only when it matters
             fields = _retrieval_fields(entry)
             if isinstance(fields, str):

@@ -50,9 +50,6 @@ from vpr_uncertainty.pipeline.retrieve import RetrieveConf, search_device
 
 __all__ = ["RunConf", "RunResult", "add_cli", "default_conf", "main", "run"]
 
-#: Options the run gives every uncertainty method (images, descriptors, a cache folder, the device).
-STAGE_INPUTS = ("query_paths", "database_paths", "query_descriptors", "database_descriptors", "cache_dir", "device")
-
 
 @dataclass(frozen=True)
 class RunConf:
@@ -137,7 +134,7 @@ def load_and_check(conf: RunConf, dataset: Any) -> Any:
     """The dataset (a folder, a registered name or a loaded Dataset), after every check that can fail before
     extraction (the slow part)."""
     from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.methods import describe_needs, get_method
+    from vpr_uncertainty.methods import STAGE_INPUTS, describe_needs, get_method
 
     if conf.retrieve.top_k < conf.evaluate.k:
         raise ValueError(f"top_k ({conf.retrieve.top_k}) must be >= k ({conf.evaluate.k})")
@@ -157,7 +154,7 @@ def load_and_check(conf: RunConf, dataset: Any) -> Any:
         raise ValueError(f"dataset {dataset.name!r} has no image paths; `run` needs images to extract descriptors")
     fields = dataset.retrieval_fields()
     available = {key for key, value in {**fields, **conf.evaluate.options}.items() if value is not None}
-    available |= set(STAGE_INPUTS)
+    available |= STAGE_INPUTS
     unmet = [
         f"uncertainty method {name!r} needs {describe_needs(need)}, which dataset {dataset.name!r} lacks"
         for name in methods
