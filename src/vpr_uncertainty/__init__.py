@@ -10,80 +10,71 @@ scikit-learn's Display style are in :mod:`vpr_uncertainty.reports.display`. The 
 their own registries: :func:`vpr_uncertainty.descriptors.register_model`,
 :func:`vpr_uncertainty.data.register_format` and :func:`vpr_uncertainty.reports.register_report_figure`.
 
+Importing the package loads numpy only; each name below is imported from its module when first used (PEP 562),
+so a robot that needs the scores or a gate does not pay for scikit-learn, h5py, Faiss or torch.
+
 >>> import numpy as np
 >>> from vpr_uncertainty import statistical_uncertainty
 >>> statistical_uncertainty(np.array([[0.9, 0.5, 0.4], [0.6, 0.59, 0.58]]), k=3).round(3)
 array([0.528, 0.979])
 """
 
-from vpr_uncertainty.calibration import Gate, calibrate
-from vpr_uncertainty.data import load_descriptors, read_results
-from vpr_uncertainty.evaluation import (
-    Evaluation,
-    auc_pr,
-    aurc,
-    average_precision,
-    correct_at_n,
-    evaluate,
-    recall_at_n,
-    rejection_curve,
-    threshold_at_precision,
-)
-from vpr_uncertainty.methods import available_methods, get_method, register_method
-from vpr_uncertainty.retrieval import (
-    Retrieval,
-    load_retrieval,
-    retrieve,
-    save_retrieval,
-    search_descriptors,
-    top_k_from_similarity,
-)
-from vpr_uncertainty.retrieval.result import positives_from_lists
-from vpr_uncertainty.scores import (
-    StatisticalUncertainty,
-    best_match,
-    l2_distance,
-    margin,
-    perceptual_aliasing,
-    ratio_spread,
-    similarity_distribution,
-    statistical_uncertainty,
-)
-from vpr_uncertainty.spatial import spatial_uncertainty
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "Evaluation",
-    "Gate",
-    "Retrieval",
-    "StatisticalUncertainty",
-    "auc_pr",
-    "aurc",
-    "available_methods",
-    "average_precision",
-    "best_match",
-    "calibrate",
-    "correct_at_n",
-    "evaluate",
-    "get_method",
-    "l2_distance",
-    "load_descriptors",
-    "load_retrieval",
-    "margin",
-    "perceptual_aliasing",
-    "positives_from_lists",
-    "ratio_spread",
-    "read_results",
-    "recall_at_n",
-    "register_method",
-    "rejection_curve",
-    "retrieve",
-    "save_retrieval",
-    "search_descriptors",
-    "similarity_distribution",
-    "spatial_uncertainty",
-    "statistical_uncertainty",
-    "threshold_at_precision",
-    "top_k_from_similarity",
-]
+#: Each public name, and the module it is imported from on first use.
+_EXPORTS: dict[str, str] = {
+    **dict.fromkeys(("Gate", "calibrate"), "vpr_uncertainty.calibration"),
+    **dict.fromkeys(("load_descriptors", "read_results"), "vpr_uncertainty.data"),
+    **dict.fromkeys(
+        (
+            "Evaluation",
+            "auc_pr",
+            "aurc",
+            "average_precision",
+            "correct_at_n",
+            "evaluate",
+            "recall_at_n",
+            "rejection_curve",
+            "threshold_at_precision",
+        ),
+        "vpr_uncertainty.evaluation",
+    ),
+    **dict.fromkeys(("available_methods", "get_method", "register_method"), "vpr_uncertainty.methods"),
+    **dict.fromkeys(
+        ("Retrieval", "load_retrieval", "retrieve", "save_retrieval", "search_descriptors", "top_k_from_similarity"),
+        "vpr_uncertainty.retrieval",
+    ),
+    "positives_from_lists": "vpr_uncertainty.retrieval.result",
+    **dict.fromkeys(
+        (
+            "StatisticalUncertainty",
+            "best_match",
+            "l2_distance",
+            "margin",
+            "perceptual_aliasing",
+            "ratio_spread",
+            "similarity_distribution",
+            "statistical_uncertainty",
+        ),
+        "vpr_uncertainty.scores",
+    ),
+    "spatial_uncertainty": "vpr_uncertainty.spatial",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'vpr_uncertainty' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # the next access is a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

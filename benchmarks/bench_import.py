@@ -1,0 +1,48 @@
+"""Import cost of the package beside that of numpy, measured in the same run (fresh interpreters, medians).
+
+    python benchmarks/bench_import.py [--rounds 7]
+
+Each round starts one interpreter per statement and reads its wall time; rounds interleave the statements.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import time
+
+STATEMENTS = {
+    "import numpy": "import numpy",
+    "import vpr_uncertainty": "import vpr_uncertainty",
+    "import vpr_uncertainty + SU of one row": (
+        "import numpy as np, vpr_uncertainty as v; v.statistical_uncertainty(np.array([[0.9, 0.5, 0.4]]), k=3)"
+    ),
+}
+
+
+def measure(statement: str) -> float:
+    """Wall seconds of a fresh interpreter that runs ``statement``."""
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-c", statement], check=True)
+    return time.perf_counter() - start
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rounds", type=int, default=7)
+    args = parser.parse_args()
+    times: dict[str, list[float]] = {name: [] for name in STATEMENTS}
+    for _ in range(args.rounds):  # interleaved, so that a noisy moment hits every statement alike
+        for name, statement in STATEMENTS.items():
+            times[name].append(measure(statement))
+    reference = statistics.median(times["import numpy"])
+    print(f"{'statement':<40}{'median ms':>10}{'x numpy':>9}")
+    for name, values in times.items():
+        median = statistics.median(values)
+        print(f"{name:<40}{median * 1e3:>10.0f}{median / reference:>9.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,35 @@
+"""`import vpr_uncertainty` is light: the public names load their modules when first used (PEP 562)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+import vpr_uncertainty
+
+HEAVY = ("scipy", "sklearn", "matplotlib", "h5py", "faiss", "torch", "pandas", "cv2")
+
+
+def test_importing_the_package_and_scoring_loads_no_heavy_library():
+    # Before: `import vpr_uncertainty` imported calibration, evaluation and data (scipy, scikit-learn, pandas...),
+    # about 1.6-3 s on the development VM; a robot that needs SU paid for all of it.
+    script = (
+        "import sys, numpy as np, vpr_uncertainty as v\n"
+        "v.statistical_uncertainty(np.array([[0.9, 0.5, 0.4]]), k=3)\n"
+        f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))\n"
+    )
+    loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    assert loaded.strip() == ""
+
+
+@pytest.mark.parametrize("name", vpr_uncertainty.__all__)
+def test_every_public_name_resolves(name):
+    assert getattr(vpr_uncertainty, name) is not None
+    assert name in dir(vpr_uncertainty)
+
+
+def test_an_unknown_name_is_an_attribute_error():
+    with pytest.raises(AttributeError, match="has no attribute 'statistical_uncertanty'"):
+        vpr_uncertainty.statistical_uncertanty  # noqa: B018
