@@ -33,3 +33,24 @@ def test_every_public_name_resolves(name):
 def test_an_unknown_name_is_an_attribute_error():
     with pytest.raises(AttributeError, match="has no attribute 'statistical_uncertanty'"):
         vpr_uncertainty.statistical_uncertanty  # noqa: B018
+
+
+def test_a_saved_gate_loads_and_decides_without_a_heavy_library(tmp_path):
+    """The robot's path: import, Gate.load, one call per query (the issue's light-import target)."""
+    import numpy as np
+
+    from vpr_uncertainty import Retrieval, calibrate
+
+    rng = np.random.default_rng(0)
+    scores = -np.sort(-rng.random((300, 10)), axis=1)
+    positives = rng.random((300, 10)) < scores  # a higher score is more often right
+    retrieval = Retrieval(scores=scores, indices=np.tile(np.arange(10), (300, 1)), positives=positives)
+    path = calibrate(retrieval).save(tmp_path / "gate.json")
+    script = (
+        "import sys, vpr_uncertainty as v\n"
+        f"gate = v.Gate.load({str(path)!r})\n"
+        "print(gate([0.9, 0.5, 0.4, 0.3, 0.3, 0.2, 0.2, 0.1, 0.1, 0.1]) in (True, False))\n"
+        f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))\n"
+    )
+    printed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    assert printed.split("\n")[:2] == ["True", ""]

@@ -1,34 +1,35 @@
 """From doubt to decision: features → calibrated P(correct top-1) → a gate with a precision guarantee.
 
-Importing the package registers the uncertainty method ``CAL`` (:mod:`~vpr_uncertainty.calibration.quality`).
+Each name below is imported from its module on first use (PEP 562), so ``Gate.load(path)(row)`` in a robot loads
+numpy and the gate only. The uncertainty method ``CAL`` registers in :mod:`~vpr_uncertainty.calibration.quality`
+(an entry point of the package, loaded on the method registry's first lookup).
 """
 
-from vpr_uncertainty.calibration.calibrator import (
-    DEFAULT_FEATURES,
-    FEATURES,
-    Calibrator,
-    feature_matrix,
-    fit_calibrator,
-)
-from vpr_uncertainty.calibration.fit import LabelPlan, calibrate, calibrate_arrays, plan_labels
-from vpr_uncertainty.calibration.gate import Gate
-from vpr_uncertainty.calibration.guarantee import Certificate, certify_threshold, min_accepted
-from vpr_uncertainty.calibration.quality import HeldOutEvaluation, evaluate_held_out
+import importlib
+from typing import Any
 
-__all__ = [
-    "DEFAULT_FEATURES",
-    "FEATURES",
-    "Calibrator",
-    "Certificate",
-    "Gate",
-    "HeldOutEvaluation",
-    "LabelPlan",
-    "calibrate",
-    "calibrate_arrays",
-    "certify_threshold",
-    "evaluate_held_out",
-    "feature_matrix",
-    "fit_calibrator",
-    "min_accepted",
-    "plan_labels",
-]
+_EXPORTS: dict[str, str] = {
+    **dict.fromkeys(
+        ("DEFAULT_FEATURES", "FEATURES", "Calibrator", "feature_matrix", "fit_calibrator"),
+        "vpr_uncertainty.calibration.calibrator",
+    ),
+    **dict.fromkeys(("LabelPlan", "calibrate", "calibrate_arrays", "plan_labels"), "vpr_uncertainty.calibration.fit"),
+    "Gate": "vpr_uncertainty.calibration.gate",
+    **dict.fromkeys(("Certificate", "certify_threshold", "min_accepted"), "vpr_uncertainty.calibration.guarantee"),
+    **dict.fromkeys(("HeldOutEvaluation", "evaluate_held_out"), "vpr_uncertainty.calibration.quality"),
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'vpr_uncertainty.calibration' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})
