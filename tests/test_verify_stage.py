@@ -61,3 +61,11 @@ def test_verify_reranks_and_refuses_a_score_method(corridor_retrieval, corridor_
     assert (np.sort(indices[:, :3], axis=1) == np.sort(np.load(path)["indices"][:, :3], axis=1)).all()
     assert main(["verify", str(path), "--images", str(corridor_dir), "--out", str(out), "--method", "SU"]) == 2
     assert "--method must be a geometric verification method" in capsys.readouterr().err
+
+
+def test_verify_names_the_flag_of_a_missing_image_folder(corridor_retrieval, tmp_path, capsys):
+    _, path = corridor_retrieval
+    assert main(["verify", str(path), "--out", str(tmp_path / "v.npz")]) == 2
+    assert "no image folder given (--images)" in capsys.readouterr().err
+    assert main(["verify", str(path), "--images", str(tmp_path / "none"), "--out", str(tmp_path / "v.npz")]) == 2
+    assert "image folder not found" in capsys.readouterr().err and not (tmp_path / "v.npz").exists()

@@ -8,20 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
-from vpr_uncertainty.pipeline.options import candidate_count, command_wording, output_file
+from vpr_uncertainty.pipeline.options import candidate_count, command_wording, open_fraction, output_file
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["add_cli"]
-
-
-def _probability(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must lie strictly between 0 and 1, got {text}")
-    return value
 
 
 def _names(text: str) -> tuple[str, ...]:
@@ -64,8 +54,8 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--out", type=output_file, metavar="GATE.json", help="gate file to write (required unless --plan)"
     )
-    parser.add_argument("--target-precision", type=_probability, metavar="P", help="precision to certify, in (0, 1)")
-    parser.add_argument("--delta", type=_probability, default=0.1, help="risk of the guarantee (default 0.1)")
+    parser.add_argument("--target-precision", type=open_fraction, metavar="P", help="precision to certify, in (0, 1)")
+    parser.add_argument("--delta", type=open_fraction, default=0.1, help="risk of the guarantee (default 0.1)")
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query (default 10)")
     parser.add_argument("--model", choices=("logistic", "isotonic"), default="logistic", help="calibrator")
     parser.add_argument("--seed", type=int, default=0, help="seed of the cross-fitting folds (default 0)")

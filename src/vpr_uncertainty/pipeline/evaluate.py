@@ -9,6 +9,7 @@ This module holds the one call of :func:`vpr_uncertainty.evaluation.evaluate` th
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +33,7 @@ from vpr_uncertainty.pipeline.options import (
     fraction,
     integer_at_least,
     non_negative_float,
+    open_fraction,
     option,
     output_file,
     positive_int,
@@ -100,9 +102,13 @@ class EvaluateConf:
     def __post_init__(self) -> None:
         check_alpha(self.alpha)  # before any work (run extracts descriptors first)
 
-    def method_names(self, *, metric_positions: bool) -> list[str]:
-        """``methods``, else the registry's defaults (with SUE when the positions are metric)."""
-        return list(self.methods) if self.methods else default_method_names(metric_positions=metric_positions)
+    def method_names(self, retrieval: Any) -> list[str]:
+        """``methods``, else the registry's defaults (with SUE when the retrieval's positions are metric)."""
+        if self.methods:
+            return list(self.methods)
+        kind = retrieval.config.get("position_kind")
+        metric = retrieval.database_positions is not None and kind in (None, "metres")
+        return default_method_names(metric_positions=metric)
 
 
 #: The configuration of the stage when none is given (hloc's ``default_conf``).
@@ -147,9 +153,7 @@ def compute(
     """
     from vpr_uncertainty.evaluation import evaluate as evaluate_methods
 
-    kind = retrieval.config.get("position_kind")
-    metric = retrieval.database_positions is not None and kind in (None, "metres")
-    methods = conf.method_names(metric_positions=metric)
+    methods = conf.method_names(retrieval)
     evaluation = evaluate_methods(
         retrieval,
         methods,
@@ -218,8 +222,7 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
                 "its ground truth"
             )
         retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
-    kind = retrieval.config.get("position_kind")
-    methods = conf.method_names(metric_positions=retrieval.database_positions is not None and kind in (None, "metres"))
+    methods = conf.method_names(retrieval)
     verifying = _verifying(methods)
     folders = {"images": args.images, "query_images": args.query_images, "database_images": args.database_images}
     given = any(value is not None for value in folders.values())
@@ -252,16 +255,6 @@ def _method_help() -> str:
     from vpr_uncertainty.methods import available_methods, get_method
 
     return "\n".join(f"  {name:<8} {get_method(name).description}" for name in available_methods())
-
-
-def _open_fraction(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must lie strictly between 0 and 1, got {text}")
-    return value
 
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
@@ -340,7 +333,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     held_out.add_argument(
         "--calibration-fraction",
-        type=_open_fraction,
+        type=open_fraction,
         metavar="F",
         help="share of the queries used to fit CAL in each split, in (0, 1), e.g. 0.3",
     )
@@ -393,7 +386,7 @@ def _handle(args: argparse.Namespace) -> int:
     wording = {"images": "--images", "query_images": "--query-images", "database_images": "--database-images"}
     with command_wording(ground_truth="--gt GT", database_positions="--database-positions", **wording):
         retrieval, methods, image_options, notes = read_inputs(args, conf)
-        conf = conf_from_args(EvaluateConf, args, methods=methods, options={**conf.options, **image_options})
+        conf = dataclasses.replace(conf, methods=methods, options={**conf.options, **image_options})
         for note in notes:
             print(f"note: {note}")
         if args.calibration_fraction is not None and args.bootstrap:

@@ -38,6 +38,7 @@ __all__ = [
     "integer_at_least",
     "local_workers",
     "non_negative_float",
+    "open_fraction",
     "option",
     "output_directory",
     "output_file",
@@ -105,6 +106,17 @@ def checked_number(check: Callable[[float], Any]) -> Callable[[str], float]:
 
     parse.__name__ = getattr(check, "__name__", "number")
     return parse
+
+
+def open_fraction(text: str) -> float:
+    """An argparse type accepting numbers strictly between 0 and 1 (a probability, a share of the queries)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"must lie strictly between 0 and 1, got {text}")
+    return value
 
 
 _DEVICE = re.compile(r"(cpu|mps|cuda(:\d+)?)")

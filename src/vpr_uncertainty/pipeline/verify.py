@@ -20,6 +20,7 @@ from vpr_uncertainty import cache
 from vpr_uncertainty.pipeline.options import (
     add_executor_options,
     add_options,
+    command_wording,
     conf_from_args,
     device_name,
     executor_from_args,
@@ -175,9 +176,11 @@ def _handle(args: argparse.Namespace) -> int:
         )
     executor_options(args)  # bad executor options fail before any work
     retrieval = load_retrieval(args.retrieval)
-    query_paths, database_paths = retrieval_image_paths(
-        retrieval, images=args.images, query_images=args.query_images, database_images=args.database_images
-    )
+    wording = {"images": "--images", "query_images": "--query-images", "database_images": "--database-images"}
+    with command_wording(**wording):
+        query_paths, database_paths = retrieval_image_paths(
+            retrieval, images=args.images, query_images=args.query_images, database_images=args.database_images
+        )
     conf = conf_from_args(VerifyConf, args)
     with executor_from_args(args) as executor:
         verified = compute(
