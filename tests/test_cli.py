@@ -59,3 +59,38 @@ def test_new_names_parse_without_a_note(argv, dest, capsys):
     args = build_parser().parse_args(argv)
     assert getattr(args, dest) == Path("data")
     assert capsys.readouterr().err == ""
+
+
+def test_the_command_table_names_the_module_of_every_command():
+    from vpr_uncertainty.pipeline import COMMANDS
+
+    assert list(COMMANDS) == command_names()
+    for command, module in COMMANDS.items():
+        alone = build_parser(command=command)
+        assert command in alone._subparsers._group_actions[0].choices, module  # type: ignore[union-attr]
+
+
+def test_a_command_imports_only_its_own_stage_module():
+    """`vpr-uncertainty datasets` does not import the other commands' modules (nor what they import)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from vpr_uncertainty import cli; cli.main(['datasets', '--json', '-']); "
+        "print(sorted(m for m in sys.modules if m.startswith('vpr_uncertainty.pipeline.')))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    loaded = done.stdout.splitlines()[-1]
+    assert "pipeline.datasets" in loaded
+    for other in ("pipeline.evaluate", "pipeline.grid", "pipeline.extract", "pipeline.verify", "pipeline.run"):
+        assert f"'vpr_uncertainty.{other}'" not in loaded
+
+
+def test_an_unknown_command_still_lists_every_command(capsys):
+    from vpr_uncertainty.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["evalute"])
+    assert exit_.value.code == 2
+    error = capsys.readouterr().err
+    assert "invalid choice: 'evalute'" in error and "evaluate" in error

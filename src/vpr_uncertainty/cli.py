@@ -20,7 +20,7 @@ import zipfile
 from collections.abc import Sequence
 from typing import NoReturn
 
-from vpr_uncertainty.pipeline import COMMAND_MODULES
+from vpr_uncertainty.pipeline import COMMAND_MODULES, COMMANDS
 from vpr_uncertainty.pipeline.options import add_progress_options
 
 __all__ = [
@@ -75,8 +75,17 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser(plugins: Sequence[str] = ()) -> argparse.ArgumentParser:
-    """The parser of every command, after loading the plugins (entry points and ``plugins``)."""
+def build_parser(plugins: Sequence[str] = (), *, command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command, after loading the plugins (entry points and ``plugins``).
+
+    Parameters
+    ----------
+    plugins : sequence of str
+        Modules to import first (``--plugin``).
+    command : str, optional
+        Build only this command's parser (importing only its stage module), as :func:`main` does for the command
+        it runs; by default every command's.
+    """
     from vpr_uncertainty.plugins import load_plugins
 
     load_plugins(plugins)
@@ -104,7 +113,8 @@ def build_parser(plugins: Sequence[str] = ()) -> argparse.ArgumentParser:
     )
     add_progress_options(parser, top_level=True)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in COMMAND_MODULES:
+    modules = (COMMANDS[command],) if command in COMMANDS else COMMAND_MODULES
+    for module in modules:
         importlib.import_module(f"vpr_uncertainty.pipeline.{module}").add_cli(subparsers)
     for command in subparsers.choices.values():
         if "--progress" not in command._option_string_actions:  # every command takes the progress flags
@@ -118,12 +128,14 @@ def command_names() -> list[str]:
     return [name for action in parser._subparsers._group_actions for name in action.choices]  # type: ignore[union-attr]
 
 
-def _plugins(argv: Sequence[str]) -> list[str]:
-    """The ``--plugin`` modules of ``argv`` (before the command), read before the parser is built."""
+def _early_arguments(argv: Sequence[str]) -> tuple[list[str], str | None]:
+    """The ``--plugin`` modules of ``argv`` and its command (None when there is none), read before the parser is
+    built so that only that command's module is imported."""
     early = argparse.ArgumentParser(add_help=False)
     early.add_argument("--plugin", action="append", default=[])
-    known, _ = early.parse_known_args(list(argv))
-    return known.plugin
+    known, rest = early.parse_known_args(list(argv))
+    command = next((word for word in rest if not word.startswith("-")), None)
+    return known.plugin, command
 
 
 def package_version() -> str:
@@ -194,7 +206,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     prefix = "vpr-uncertainty"
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
-        args = build_parser(_plugins(argv)).parse_args(argv)
+        plugins, command = _early_arguments(argv)
+        args = build_parser(plugins, command=command).parse_args(argv)
         prefix = f"vpr-uncertainty {args.command}"
         warnings.formatwarning = _short_warning
         from vpr_uncertainty.progress import progress_default

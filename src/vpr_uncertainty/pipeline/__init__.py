@@ -18,15 +18,21 @@ module                 artefact                    reused when
 :mod:`.calibrate`, :mod:`.datasets` and :mod:`.train_btl` are the commands beside the data flow.
 """
 
+#: Each command and the stage module whose ``add_cli`` defines it, in the order ``--help`` lists them. The command
+#: line imports only the module of the command it runs (``tests/test_cli.py`` checks this table against the
+#: commands the modules define).
+COMMANDS: dict[str, str] = {
+    "demo": "run",
+    "run": "run",
+    "evaluate": "evaluate",
+    "calibrate": "calibrate",
+    "reproduce": "grid",
+    "datasets": "datasets",
+    "extract": "extract",
+    "retrieve": "retrieve",
+    "verify": "verify",
+    "train-btl": "train_btl",
+}
+
 #: The modules whose ``add_cli`` the command line collects, in the order ``--help`` lists their commands.
-COMMAND_MODULES: tuple[str, ...] = (
-    "run",
-    "evaluate",
-    "calibrate",
-    "grid",
-    "datasets",
-    "extract",
-    "retrieve",
-    "verify",
-    "train_btl",
-)
+COMMAND_MODULES: tuple[str, ...] = tuple(dict.fromkeys(COMMANDS.values()))
