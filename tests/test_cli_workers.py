@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 
 from vpr_uncertainty.cli import build_parser, main
-from vpr_uncertainty.pipeline.options import executor_options, local_workers
+from vpr_uncertainty.pipeline.options import executor_options, local_workers, ray_log_file
 
 _REQUIRED = {
     "run": ["--dataset", "d", "--out", "o"],
@@ -57,6 +57,7 @@ def test_workers_is_the_number_of_ray_workers_under_ray(command):
         "workers": 3,
         "gpus_per_worker": 0.0,
         "connect_timeout": 30.0,
+        "log_file": ray_log_file(),
     }
     assert local_workers(args) is None  # the Ray actors decode their own images
 
@@ -83,7 +84,14 @@ def test_run_gives_the_workers_to_ray_and_no_decoding_threads(tmp_path, monkeypa
 
     monkeypatch.setattr("vpr_uncertainty.pipeline.run.run", fake_run)
     assert main(["run", "--dataset", "d", "--out", str(tmp_path), "--executor", "ray", "--workers", "2"]) == 130
-    assert seen == {"name": "ray", "address": None, "workers": 2, "gpus_per_worker": 0.0, "connect_timeout": 30.0}
+    assert seen == {
+        "name": "ray",
+        "address": None,
+        "workers": 2,
+        "gpus_per_worker": 0.0,
+        "connect_timeout": 30.0,
+        "log_file": ray_log_file(),
+    }
     assert configs == [(None, "ray")]
 
 

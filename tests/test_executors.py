@@ -313,3 +313,51 @@ def test_workers_killed_while_the_local_cluster_starts_give_a_timeout_not_a_hang
     finally:
         if process.poll() is None:
             process.kill()
+
+
+_RAY_IN_A_CHILD = """
+import sys
+from vpr_uncertainty.executors import RayExecutor
+log_file = sys.argv[1] or None
+with RayExecutor(workers=1, log_file=log_file) as executor:
+    print(executor.map(abs, [-3]))
+import logging
+print(all(not isinstance(h, logging.FileHandler) for h in logging.getLogger("ray").handlers))
+"""
+
+
+@pytest.mark.parametrize("quiet", [True, False], ids=["log_file", "ray_default"])
+def test_ray_log_lines_go_to_the_log_file_not_the_terminal(tmp_path, quiet):
+    """Ray's start-up notice (and its token-auth warning, where Ray gives one) reaches stderr only without a log
+    file; with one, they are in the file, and Ray's own handlers are back once the executor closes."""
+    import os
+    import subprocess
+
+    pytest.importorskip("ray")
+    log_file = tmp_path / "logs" / "ray.log"
+    environment = {key: value for key, value in os.environ.items() if key != "RAY_AUTH_MODE"}
+    done = subprocess.run(
+        [sys.executable, "-c", _RAY_IN_A_CHILD, str(log_file) if quiet else ""],
+        capture_output=True,
+        text=True,
+        env=environment,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["[3]", "True"]
+    if quiet:
+        assert "Ray" not in done.stderr, done.stderr
+        assert "Started a local Ray instance" in log_file.read_text()
+    else:
+        assert "Started a local Ray instance" in done.stderr and not log_file.exists()
+
+
+def test_verbose_keeps_ray_logs_on_the_terminal(monkeypatch, tmp_path):
+    from vpr_uncertainty.pipeline.options import add_executor_options, executor_options
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    parser = argparse.ArgumentParser()
+    add_executor_options(parser)
+    quiet = executor_options(parser.parse_args(["--executor", "ray"]))
+    assert quiet["log_file"] == tmp_path / "vpr-uncertainty" / "logs" / "ray.log"
+    assert executor_options(parser.parse_args(["--executor", "ray", "--verbose"]))["log_file"] is None

@@ -19,6 +19,7 @@ Examples
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import signal
 import socket
@@ -26,6 +27,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target, merge_options
@@ -42,6 +44,7 @@ __all__ = [
     "executor_names",
     "get_executor",
     "import_ray",
+    "redirect_ray_logs",
     "register_executor",
     "start_ray",
     "wait_for_address",
@@ -148,6 +151,10 @@ class RayExecutor(BaseExecutor):
         itself would wait for minutes on an address where nothing listens).
     start_timeout : float, default=180
         Seconds ``ray.init`` may take (see :func:`start_ray`).
+    log_file : str or Path, optional
+        Where Ray's own log lines in this process (its start-up notices and warnings, Ray Data's progress
+        messages) go while the executor is open (see :func:`redirect_ray_logs`); by default Ray's own handling
+        (the terminal). The command line passes a file unless ``--verbose``.
     """
 
     name = "ray"
@@ -159,6 +166,7 @@ class RayExecutor(BaseExecutor):
         gpus_per_worker: float = 0.0,
         connect_timeout: float = CONNECT_TIMEOUT,
         start_timeout: float = START_TIMEOUT,
+        log_file: str | Path | None = None,
     ) -> None:
         self.workers = _check_workers(workers)
         if isinstance(gpus_per_worker, bool) or not isinstance(gpus_per_worker, (int, float)) or gpus_per_worker < 0:
@@ -173,6 +181,14 @@ class RayExecutor(BaseExecutor):
             wait_for_address(address, connect_timeout)
         self.ray = import_ray()
         self._owns_cluster = False
+        self._restore_logs = redirect_ray_logs(log_file) if log_file is not None else None
+        try:
+            self._connect(address, start_timeout)
+        except BaseException:
+            self._put_logs_back()
+            raise
+
+    def _connect(self, address: str | None, start_timeout: float) -> None:
         if not self.ray.is_initialized():
             # "local": a new cluster, never one that a `ray start` on this machine left behind
             options: dict[str, Any] = {"address": address or "local", "include_dashboard": False}
@@ -217,9 +233,40 @@ class RayExecutor(BaseExecutor):
 
     def close(self) -> None:
         """Shut down the local cluster this executor started (a cluster it connected to keeps running)."""
-        if self._owns_cluster and self.ray.is_initialized():
-            self.ray.shutdown()
-        self._owns_cluster = False
+        try:
+            if self._owns_cluster and self.ray.is_initialized():
+                self.ray.shutdown()
+            self._owns_cluster = False
+        finally:
+            self._put_logs_back()
+
+    def _put_logs_back(self) -> None:
+        if self._restore_logs is not None:
+            self._restore_logs()
+            self._restore_logs = None
+
+
+def redirect_ray_logs(path: str | Path) -> Callable[[], None]:
+    """Send the log records of Ray's ``ray`` logger (and its children) to the file ``path`` (appended, parent
+    folders created) instead of the terminal; returns the function that puts Ray's handlers back.
+
+    Ray's workers do not log to this process (``log_to_driver=False``); their own logs stay in Ray's session folder
+    (``/tmp/ray/session_latest/logs``).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    logger = logging.getLogger("ray")
+    previous = (list(logger.handlers), logger.propagate)
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    logger.handlers = [handler]
+    logger.propagate = False
+
+    def put_back() -> None:
+        handler.close()
+        logger.handlers, logger.propagate = previous
+
+    return put_back
 
 
 def start_ray(ray: Any, options: dict[str, Any], timeout: float) -> None:
@@ -367,6 +414,7 @@ register_executor(
         "gpus_per_worker": 0.0,
         "connect_timeout": CONNECT_TIMEOUT,
         "start_timeout": START_TIMEOUT,
+        "log_file": None,
     },
     extra="ray",
 )

@@ -413,7 +413,20 @@ def add_executor_options(
         metavar="G",
         help="GPUs Ray assigns to each worker (default 0; fractions share a GPU)",
     )
+    group.add_argument(
+        "--verbose",
+        action="store_true",
+        help=f"show Ray's own log lines (start-up notices, warnings) on the terminal; by default they are appended "
+        f"to {ray_log_file()}",
+    )
     parser.set_defaults(workers_mean_locally=local_workers is not None)
+
+
+def ray_log_file() -> Path:
+    """Where the command line sends Ray's log lines without ``--verbose``: ``$XDG_CACHE_HOME/vpr-uncertainty/
+    logs/ray.log`` (``~/.cache`` without XDG_CACHE_HOME)."""
+    cache = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(cache) / "vpr-uncertainty" / "logs" / "ray.log"
 
 
 def executor_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -437,6 +450,7 @@ def executor_options(args: argparse.Namespace) -> dict[str, Any]:
         "workers": workers,
         "gpus_per_worker": args.gpus_per_worker,
         "connect_timeout": args.connect_timeout,
+        "log_file": None if args.verbose else ray_log_file(),
     }
 
 
