@@ -262,4 +262,5 @@ register_method(
     options={"k": 10, "slope": DEFAULT_SLOPE, "clip": "symmetric", "max_deviation": MAX_DEVIATION},
     validate=check_sue_options,
     kind="spatial",
+    scores="cosine",  # weights from d² = 2 − 2s unless the retrieval holds its distances
 )

@@ -39,7 +39,8 @@ class ResultsFormat:
     ----------
     name, description : str
     reader : callable or str
-        ``reader(path, *, ground_truth, top_k) -> Retrieval``, or its dotted path ``"module:function"``.
+        ``reader(path, *, ground_truth, top_k) -> Retrieval``, or its dotted path ``"module:function"``; with
+        ``reads_distances``, it also takes ``higher_is_better=False``.
     detect : callable or None
         ``detect(path) -> bool``: whether ``file_format="auto"`` reads ``path`` with this format (formats are tried
         in registration order). None: only read when named.
@@ -47,6 +48,8 @@ class ResultsFormat:
         What a file of this format gives the methods (``"scores"``, ``"distances"``, ``"positives"``, ``"names"``).
     extra : str or None
         The pip extra its reader needs.
+    reads_distances : bool
+        Whether a file of this format may hold lower-is-better scores (``read_results(higher_is_better=False)``).
     """
 
     name: str
@@ -55,6 +58,7 @@ class ResultsFormat:
     detect: Callable[[Path], bool] | None = None
     provides: tuple[str, ...] = ()
     extra: str | None = None
+    reads_distances: bool = False
 
 
 #: The registered results formats, in detection order.
@@ -78,6 +82,7 @@ def read_results(
     ground_truth: str | Path | None = None,
     file_format: str = "auto",
     top_k: int = DEFAULT_TOP_K,
+    higher_is_better: bool = True,
 ) -> Retrieval:
     """Read precomputed results and their ground truth into a Retrieval.
 
@@ -97,19 +102,36 @@ def read_results(
     top_k : int
         Candidates kept per query when a full matrix is read (all of them when the database is smaller); pass at
         least the largest k the methods will use. A retrieval file keeps the candidates it holds.
+    higher_is_better : bool, default=True
+        False when a matrix holds distances (or any score where lower is better): its k smallest values per query
+        are kept, as the retrieval's ``distances`` and negated as its ``scores`` (see
+        :meth:`~vpr_uncertainty.retrieval.Retrieval.from_distances`). Only matrix formats hold either kind; a
+        retrieval file or log folder stores similarities, and False is refused for it.
     """
     path = Path(path)
+    if not isinstance(higher_is_better, bool):
+        raise TypeError(f"higher_is_better must be True or False, got {higher_is_better!r}")
     if file_format == "auto":  # among the formats registered so far (the CLI loads the plugins first)
         entry = next((entry for entry in RESULTS_FORMAT_REGISTRY if entry.detect and entry.detect(path)), None)
         if entry is None:
-            return _read_matrix(path, ground_truth=ground_truth, top_k=top_k, file_format="auto")
+            return _read_matrix(
+                path, ground_truth=ground_truth, top_k=top_k, file_format="auto", higher_is_better=higher_is_better
+            )
     else:
         try:
             entry = RESULTS_FORMAT_REGISTRY.get(file_format)  # a miss loads the plugins
         except KeyError:
             raise ValueError(f"file_format must be one of {input_formats()}, got {file_format!r}") from None
     reader = load_target(entry.reader, what=f"results format {entry.name!r}", extra=entry.extra)
-    return reader(path, ground_truth=ground_truth, top_k=top_k)
+    if higher_is_better:
+        return reader(path, ground_truth=ground_truth, top_k=top_k)
+    if not entry.reads_distances:
+        raise ValueError(
+            f"{path} is read as {entry.description}, whose scores are similarities; lower-is-better scores "
+            "(distances) are read from a similarity or distance matrix only (formats: "
+            f"{', '.join(e.name for e in RESULTS_FORMAT_REGISTRY if e.reads_distances)})"
+        )
+    return reader(path, ground_truth=ground_truth, top_k=top_k, higher_is_better=False)
 
 
 def _read_retrieval_file(path: Path, *, ground_truth: str | Path | None, **_: Any) -> Retrieval:
@@ -129,10 +151,18 @@ def _read_retrieval_file(path: Path, *, ground_truth: str | Path | None, **_: An
 
 
 def _read_matrix(
-    path: Path, *, ground_truth: str | Path | None, top_k: int, file_format: str = "matrix", **_: Any
+    path: Path,
+    *,
+    ground_truth: str | Path | None,
+    top_k: int,
+    file_format: str = "matrix",
+    higher_is_better: bool = True,
+    **_: Any,
 ) -> Retrieval:
     # Memory-mapped and cut to its top-k one block of queries at a time: never the whole matrix in memory.
-    scores, indices, (n_queries, n_database) = read_similarity_top_k(path, top_k, file_format=file_format)
+    scores, indices, (n_queries, n_database) = read_similarity_top_k(
+        path, top_k, file_format=file_format, higher_is_better=higher_is_better
+    )
     if ground_truth is None:
         raise ValueError(
             f"{path} is a similarity matrix without ground truth; give the ground truth (argument ground_truth)"
@@ -140,7 +170,9 @@ def _read_matrix(
     # Sized by the matrix: a positive beyond its columns, or a mask of another width, is an error naming the file.
     positives = load_ground_truth(ground_truth, n_queries=n_queries, n_database=n_database)
     config = {"source": str(path), "ground_truth": str(ground_truth), "top_k": int(scores.shape[1])}
-    return Retrieval(scores=scores, indices=indices, positives=positives, config=config)
+    if higher_is_better:
+        return Retrieval(scores=scores, indices=indices, positives=positives, config=config)
+    return Retrieval.from_distances(-scores, indices, positives=positives, config=config)
 
 
 def _read_vprbench(path: Path, **options: Any) -> Retrieval:
@@ -166,8 +198,20 @@ for _entry in (
         detect=lambda path: path.suffix.lower() == ".npz",
         provides=("scores", "distances", "positives", "names", "positions"),
     ),
-    ResultsFormat("matrix", "a full (queries × database) similarity matrix (.npy)", _read_matrix, provides=("scores",)),
-    ResultsFormat("vprbench", "VPR-Bench's precomputed_data_corrected.npy", _read_vprbench, provides=("scores",)),
+    ResultsFormat(
+        "matrix",
+        "a full (queries × database) similarity or distance matrix (.npy)",
+        _read_matrix,
+        provides=("scores",),
+        reads_distances=True,
+    ),
+    ResultsFormat(
+        "vprbench",
+        "VPR-Bench's precomputed_data_corrected.npy",
+        _read_vprbench,
+        provides=("scores",),
+        reads_distances=True,
+    ),
 ):
     register_results_format(_entry)
 
@@ -188,17 +232,25 @@ def _check_similarity_shape(matrix: np.ndarray, path: Path) -> np.ndarray:
     return matrix
 
 
-def _check_similarity_values(block: np.ndarray, path: Path, first_row: int = 0) -> None:
-    """No NaN or +inf in rows ``first_row`` … of a similarity matrix; -inf (no candidate) is allowed."""
-    largest = block.max()  # NaN when any value is NaN; one pass, no temporary the size of the block
-    if np.isnan(largest) or largest == np.inf:
-        bad = np.isnan(block) | np.isposinf(block)
+def _check_similarity_values(
+    block: np.ndarray, path: Path, first_row: int = 0, *, higher_is_better: bool = True
+) -> None:
+    """No NaN or +inf in rows ``first_row`` … of a similarity matrix; -inf (no candidate) is allowed. For a distance
+    matrix (``higher_is_better=False``) the other way round: no NaN or -inf; +inf marks no candidate."""
+    # NaN when any value is NaN; one pass, no temporary the size of the block
+    extreme = block.max() if higher_is_better else block.min()
+    wrong_infinity = np.inf if higher_is_better else -np.inf
+    if np.isnan(extreme) or extreme == wrong_infinity:
+        bad = np.isnan(block) | (block == wrong_infinity)
         row, column = (int(i) for i in np.argwhere(bad)[0])
         last = first_row + len(block) - 1
+        matrix, what, missing = (
+            ("similarity", "similarities", "-inf") if higher_is_better else ("distance", "distances", "+inf")
+        )
         raise ValueError(
-            f"{path}: the similarity matrix holds {block[row, column]} at query {first_row + row}, database image "
+            f"{path}: the {matrix} matrix holds {block[row, column]} at query {first_row + row}, database image "
             f"{column} ({int(bad.sum())} such values in queries {first_row}–{last}); expected finite "
-            "similarities (-inf marks a database image that is no candidate)"
+            f"{what} ({missing} marks a database image that is no candidate)"
         )
 
 
@@ -237,26 +289,34 @@ def load_similarity_matrix(path: str | Path, *, file_format: str = "auto") -> np
 
 
 def read_similarity_top_k(
-    path: str | Path, top_k: int, *, file_format: str = "auto", block_rows: int | None = None
+    path: str | Path,
+    top_k: int,
+    *,
+    file_format: str = "auto",
+    block_rows: int | None = None,
+    higher_is_better: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """The top-k of every query of a similarity matrix file, memory-mapped and read one block of queries at a time.
 
     Peak memory is the (Q × k) result plus one block (``block_rows`` queries, by default about 4 M values); values are
     checked block by block with the errors of :func:`load_similarity_matrix`; VPR-Bench's legacy files are read whole.
     Returns scores and indices of shape (Q, min(top_k, D)) as :func:`~vpr_uncertainty.retrieval.top_k_from_similarity`
-    does, and the matrix's shape (Q, D).
+    does, and the matrix's shape (Q, D). ``higher_is_better=False``: the file holds distances; the k nearest are
+    returned with their distances negated (the scores of a Retrieval are higher = better).
     """
     path = Path(path)
     matrix = _open_similarity(path, file_format, mmap=True)
     check_positive_int(top_k, "top_k")
 
     def check_block(block: np.ndarray, first_row: int) -> None:
-        _check_similarity_values(block, path, first_row)
+        _check_similarity_values(block, path, first_row, higher_is_better=higher_is_better)
 
     shape = (int(matrix.shape[0]), int(matrix.shape[1]))
     if isinstance(matrix, np.memmap) and matrix.flags.c_contiguous:
         matrix = MappedRows(matrix)  # one mapping per block: read pages do not pile up in resident memory
-    scores, indices = top_k_blocks(matrix, top_k, block_rows=block_rows, check_block=check_block)
+    scores, indices = top_k_blocks(
+        matrix, top_k, block_rows=block_rows, check_block=check_block, higher_is_better=higher_is_better
+    )
     return scores, indices, shape
 
 

@@ -96,7 +96,8 @@ def evaluate(
         Top-k retrieval with its ground truth (``retrieval.positives``).
     methods : sequence of str, optional
         Registered method names (see :func:`vpr_uncertainty.available_methods`); by default the registry's default
-        entries at call time (:func:`~vpr_uncertainty.methods.default_method_names`), plugins included.
+        entries at call time (:func:`~vpr_uncertainty.methods.default_method_names`), plugins included, less
+        those that do not suit the retrieval's scores (with a warning naming them: e.g. RS, SD, SU on distances).
     k, alpha : int, float
         Options of the score-based methods (k candidates, weight α of SU). When the retrieval holds fewer than
         k candidates per query, the methods use those it has: a :class:`FewerCandidatesWarning` and a note say
@@ -132,7 +133,7 @@ def evaluate(
     if retrieval.n_queries == 0:
         raise ValueError("the retrieval has no queries")
     if methods is None:
-        methods = default_method_names()
+        methods = default_method_names(retrieval=retrieval)
     if not methods:
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work

@@ -24,17 +24,20 @@ def _late(function: object) -> str:
 # Registration order is the order of tables and of evaluate's default list (the entries with default=True).
 _K = {"k": 10}
 _SCORE = {"options": _K, "validate": _check_k_alpha, "kind": "score", "default": True, "reads": ("scores",)}
-_WITH_DISTANCES = {**_SCORE, "reads": ("scores", "distances")}
+_RATIOS = {**_SCORE, "scores": "similarity"}  # divide by s_1
+_WITH_DISTANCES = {**_SCORE, "reads": ("scores", "distances"), "scores": "cosine"}  # d² = 2 − 2s without distances
 
-register_method("RS", _late(_scores.ratio_spread), description="Ratio Spread: mean s_i/s_1 of the runners-up", **_SCORE)
 register_method(
-    "SD", _late(_scores.similarity_distribution), description="Similarity Distribution: median/s_1", **_SCORE
+    "RS", _late(_scores.ratio_spread), description="Ratio Spread: mean s_i/s_1 of the runners-up", **_RATIOS
+)
+register_method(
+    "SD", _late(_scores.similarity_distribution), description="Similarity Distribution: median/s_1", **_RATIOS
 )
 register_method(
     "SU",
     _late(_scores.statistical_uncertainty),
     description="Statistical Uncertainty: α·RS + (1−α)·SD",
-    **{**_SCORE, "options": {**_K, "alpha": 0.5}},
+    **{**_RATIOS, "options": {**_K, "alpha": 0.5}},
 )
 register_method("PA", _late(_scores.perceptual_aliasing), description="Perceptual aliasing: d_1/d_2", **_WITH_DISTANCES)
 register_method("L2", _late(_scores.l2_distance), description="Top-1 L2 descriptor distance d_1", **_WITH_DISTANCES)
@@ -43,6 +46,6 @@ register_method(
     "SU-adaptive",
     _late(_scores.adaptive_statistical_uncertainty),
     description="SU with α per query: 1 − |mean − median|/std of the runners-up (training-free)",
-    **{**_SCORE, "default": False},
+    **{**_RATIOS, "default": False},
 )
 register_method("margin", _late(_scores.margin), description="Negated margin s_2 − s_1", **{**_SCORE, "default": False})

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty import scores as _scores
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target
 from vpr_uncertainty.retrieval import Retrieval
 
@@ -185,6 +186,12 @@ class UncertaintyMethod:
     reads : tuple of str
         Retrieval fields the function takes in place of the retrieval (e.g. ``("scores", "distances")`` for
         ``l2_distance(scores, k, *, distances)``): the first positionally, the others as keywords of their name.
+    scores : {"any", "similarity", "cosine"}
+        What the method assumes of the retrieval's scores: nothing (``"any"``: BM, margin, the methods that do not
+        read them), similarities with a positive best score (``"similarity"``: RS, SD, SU divide by s_1), or
+        cosine similarities in [−1, 1] unless the retrieval holds its distances (``"cosine"``: L2, PA, SUE use
+        d² = 2 − 2s). :meth:`unsuited_to` says why a retrieval does not fit; such a method is left out of the
+        default list (:func:`default_method_names`), and named explicitly it raises its own error.
     """
 
     name: str
@@ -200,7 +207,33 @@ class UncertaintyMethod:
     bound: dict[str, Any] = field(default_factory=dict)
     base: str | None = None
     reads: tuple[str, ...] = ()
+    scores: str = "any"
     _function: MethodFunction | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.scores not in SCORE_ASSUMPTIONS:
+            raise ValueError(f"scores must be one of {SCORE_ASSUMPTIONS}, got {self.scores!r}")
+
+    def unsuited_to(self, retrieval: Retrieval) -> str | None:
+        """Why the retrieval's scores do not fit what this method assumes (:attr:`scores`), or None when they do."""
+        if self.scores == "similarity":
+            if retrieval.score_kind == "distance":
+                return "they divide by the best similarity s_1, and these scores are distances"
+            if retrieval.n_queries and not (retrieval.scores[:, 0] > 0).any():
+                low, high = _score_range(retrieval.scores[:, :1])
+                return (
+                    f"they divide by the best similarity s_1, and no query's is positive (s_1 in [{low:.4g}, "
+                    f"{high:.4g}]; for distances or negated distances, read them as distances: --scores distance)"
+                )
+        if self.scores == "cosine" and retrieval.distances is None:
+            low, high = _score_range(retrieval.scores[:, :2])
+            tolerance = _scores.COSINE_TOLERANCE
+            if low < -1 - tolerance or high > 1 + tolerance:
+                return (
+                    f"they need cosine similarities in [-1, 1] (d² = 2 − 2s) or the candidates' distances, and "
+                    f"the scores lie in [{low:.4g}, {high:.4g}]"
+                )
+        return None
 
     @property
     def function(self) -> MethodFunction:
@@ -292,6 +325,16 @@ class UncertaintyMethod:
         return self.check_result(call(), retrieval)
 
 
+#: What a method may assume of the scores (:attr:`UncertaintyMethod.scores`).
+SCORE_ASSUMPTIONS: tuple[str, ...] = ("any", "similarity", "cosine")
+
+
+def _score_range(scores: np.ndarray) -> tuple[float, float]:
+    """The smallest and largest finite score (0, 0 when there is none)."""
+    finite = scores[np.isfinite(scores)]
+    return (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+
+
 def describe_needs(needs: Collection[str]) -> str:
     """Say what the named needs (entries of ``UncertaintyMethod.requires``) are, in words, joined by "; "."""
     return "; ".join(NEEDS[need][1] if need in NEEDS else need for need in needs)
@@ -350,6 +393,7 @@ def register_method(
     default: bool = False,
     resolve: Callable[..., dict[str, Any]] | str | None = None,
     reads: Sequence[str] = (),
+    scores: str = "any",
     overwrite: bool = False,
 ) -> UncertaintyMethod:
     """Add a method to the registry and return its entry.
@@ -381,6 +425,7 @@ def register_method(
         default=default,
         resolve=resolve,
         reads=tuple(reads),
+        scores=scores,
     )
     return METHODS.register(entry, overwrite=overwrite)
 
@@ -475,11 +520,13 @@ def available_methods(**attributes: Any) -> list[str]:
     return METHODS.names(**attributes)
 
 
-def default_method_names(*, metric_positions: bool = False) -> list[str]:
+def default_method_names(*, metric_positions: bool = False, retrieval: Retrieval | None = None) -> list[str]:
     """The methods evaluated when none are named, by ``evaluate``, ``run`` and ``demo`` alike.
 
     The registry's entries with ``default=True`` (in registration order), then its spatial methods (SUE) when
-    the database positions are metric, since those need nothing else.
+    the database positions are metric, since those need nothing else. Given the ``retrieval``, the methods whose
+    assumptions about the scores it does not meet (:meth:`UncertaintyMethod.unsuited_to`: RS, SD, SU on distances;
+    L2, PA, SUE on similarities outside [−1, 1] without distances) are left out, with one UserWarning that names them.
 
     Examples
     --------
@@ -491,4 +538,21 @@ def default_method_names(*, metric_positions: bool = False) -> list[str]:
     names = available_methods(default=True)
     if metric_positions:
         names += [name for name in available_methods(kind="spatial") if name not in names]
-    return names
+    if retrieval is None:
+        return names
+    reasons: dict[str, list[str]] = {}
+    for name in names:
+        reason = get_method(name).unsuited_to(retrieval)
+        if reason is not None:
+            reasons.setdefault(reason, []).append(name)
+    if reasons:
+        import warnings
+
+        left_out = "; ".join(f"{', '.join(group)}: {reason}" for reason, group in reasons.items())
+        warnings.warn(
+            f"left out of the default methods ({left_out}); name one explicitly to run it anyway",
+            UserWarning,
+            stacklevel=2,
+        )
+    unsuited = {name for group in reasons.values() for name in group}
+    return [name for name in names if name not in unsuited]

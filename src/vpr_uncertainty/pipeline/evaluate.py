@@ -24,6 +24,7 @@ from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
     add_options,
+    add_score_kind_option,
     candidate_count,
     checked_number,
     command_wording,
@@ -103,12 +104,13 @@ class EvaluateConf:
         check_alpha(self.alpha)  # before any work (run extracts descriptors first)
 
     def method_names(self, retrieval: Any) -> list[str]:
-        """``methods``, else the registry's defaults (with SUE when the retrieval's positions are metric)."""
+        """``methods``, else the registry's defaults (with SUE when the retrieval's positions are metric), less those
+        the retrieval's scores do not suit (a warning names them)."""
         if self.methods:
             return list(self.methods)
         kind = retrieval.config.get("position_kind")
         metric = retrieval.database_positions is not None and kind in (None, "metres")
-        return default_method_names(metric_positions=metric)
+        return default_method_names(metric_positions=metric, retrieval=retrieval)
 
 
 #: The configuration of the stage when none is given (hloc's ``default_conf``).
@@ -212,7 +214,10 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
     top_k = max(DEFAULT_TOP_K, conf.k)  # a full matrix gives as many candidates as k asks, and enough for recall@20
     notes: list[str] = []
     log_paths: tuple[Any, Any] = (None, None)
+    higher_is_better = args.score_kind == "similarity"
     if Path(args.scores).is_dir() and args.format == "auto":
+        if not higher_is_better:
+            raise ValueError("--scores distance: a VPR-methods-evaluation log folder is searched by similarity")
         log = read_vpr_methods_evaluation(args.scores, ground_truth=args.gt, radius=args.radius, top_k=top_k)
         retrieval, notes, log_paths = log.retrieval, log.notes, (log.query_paths, log.database_paths)
     else:
@@ -221,7 +226,13 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
                 "--radius applies to VPR-methods-evaluation log folders; a results file holds or is given (--gt) "
                 "its ground truth"
             )
-        retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=top_k)
+        retrieval = read_results(
+            args.scores,
+            ground_truth=args.gt,
+            file_format=args.format,
+            top_k=top_k,
+            higher_is_better=higher_is_better,
+        )
     methods = conf.method_names(retrieval)
     verifying = _verifying(methods)
     folders = {"images": args.images, "query_images": args.query_images, "database_images": args.database_images}
@@ -272,6 +283,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
             "SCORES is one of:\n"
             "  retrieval.npz                a retrieval file (scores, indices, optionally the ground truth)\n"
             "  matrix.npy                   a full similarity matrix, queries x database, higher = more similar\n"
+            "                               (a distance matrix with --scores distance)\n"
             "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy object array, read safely)\n"
             "  LOGDIR/                      a VPR-methods-evaluation log folder saved with --save_descriptors\n"
             "                               (ground truth derived from its image names when --gt is not given)\n\n"
@@ -293,6 +305,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--format", choices=input_formats(), default="auto", help="how to read SCORES (default: from its name)"
     )
+    add_score_kind_option(parser)
     add_options(parser, EvaluateConf, only=("methods", "k", "alpha"))
     parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
     group = parser.add_argument_group(

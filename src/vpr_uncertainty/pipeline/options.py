@@ -26,6 +26,7 @@ __all__ = [
     "add_executor_options",
     "add_options",
     "add_progress_options",
+    "add_score_kind_option",
     "apply_threads",
     "candidate_count",
     "checked_number",
@@ -420,6 +421,21 @@ def add_executor_options(
         f"to {ray_log_file()}",
     )
     parser.set_defaults(workers_mean_locally=local_workers is not None)
+
+
+def add_score_kind_option(parser: argparse.ArgumentParser) -> None:
+    """``--scores similarity|distance``: which way the scores of a matrix file point (``higher_is_better``)."""
+    parser.add_argument(
+        "--scores",
+        dest="score_kind",
+        choices=("similarity", "distance"),
+        default="similarity",
+        help="what a matrix file holds: similarity, higher = more similar (default: cosine similarities, dot "
+        "products, HOG scores), or distance, lower = more similar (L2 distances, any lower-is-better score). "
+        "Distances are kept as the candidates' distances and negated as scores; the methods that assume "
+        "otherwise (RS, SD, SU divide by s_1; L2, PA, SUE need cosine similarities or distances) are left out "
+        "of the default list with one notice",
+    )
 
 
 def ray_log_file() -> Path:

@@ -153,12 +153,14 @@ def top_k_blocks(
     *,
     block_rows: int | None = None,
     check_block: Callable[[np.ndarray, int], None] | None = None,
+    higher_is_better: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The k largest values of each row of a (Q, D) numeric matrix and their columns, ``block_rows`` rows at a time.
 
-    ``check_block(block, first_row)`` is called on every block (as float) and raises for values the caller rejects.
-    Returns scores (Q, min(k, D)), float32 (float64 for float64 or wide integer input), and indices, int64, ``-1``
-    where the score is ``-inf``; ties go to the lower column.
+    ``check_block(block, first_row)`` is called on every block (as float, as stored) and raises for values the caller
+    rejects. Returns scores (Q, min(k, D)), float32 (float64 for float64 or wide integer input), and indices, int64,
+    ``-1`` where the score is ``-inf``; ties go to the lower column. With ``higher_is_better=False`` (a distance
+    matrix) the k smallest values are taken and returned negated, as similarities (``+inf``: no candidate).
     """
     if block_rows is not None and (isinstance(block_rows, bool) or int(block_rows) < 1):
         raise ValueError(f"block_rows must be a positive integer, got {block_rows!r}")
@@ -172,7 +174,7 @@ def top_k_blocks(
         block = np.asarray(matrix[start : start + rows], dtype=dtype)  # reads only these rows of a memmap
         if check_block is not None:
             check_block(block, start)
-        values, candidates = _top_k_block(block, k)
+        values, candidates = _top_k_block(block if higher_is_better else -block, k)
         scores[start : start + len(block)] = values
         indices[start : start + len(block)] = candidates
     indices[scores == -np.inf] = -1  # -inf = no candidate: the retrieval convention pairs it with index -1

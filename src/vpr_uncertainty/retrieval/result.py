@@ -32,7 +32,8 @@ class Retrieval:
     query_positions, database_positions : ndarray of shape (Q, 2) and (D, 2), optional
         Positions, in metres unless ``config["position_kind"]`` is ``"frames"`` or ``"placeholder"``.
     config : dict
-        What produced this retrieval (method, dataset, k, ...), stored with the file.
+        What produced this retrieval (method, dataset, k, ...), stored with the file. ``config["scores"] ==
+        "distance"`` marks scores that are negated distances (:meth:`from_distances`; see :attr:`score_kind`).
     """
 
     scores: np.ndarray
@@ -48,6 +49,37 @@ class Retrieval:
     def __post_init__(self) -> None:
         """Check every field; a ValueError names the field."""
         check_retrieval_fields(self)
+
+    @classmethod
+    def from_distances(cls, distances: object, indices: object, **fields: Any) -> Retrieval:
+        """A retrieval from distances (or any score where lower is better) sorted ascending.
+
+        The one conversion of lower-is-better scores: ``distances`` are kept as :attr:`distances` and negated as
+        :attr:`scores` (higher = better, as every method reads them), and ``config["scores"]`` says ``"distance"``,
+        so that the methods that need similarities (RS, SD, SU divide by s_1) are left out of the default list.
+
+        Parameters
+        ----------
+        distances : array-like of shape (Q, K)
+            Ascending per row; ``+inf`` marks a missing candidate.
+        indices : array-like of shape (Q, K), int
+        **fields
+            The other fields of :class:`Retrieval` (``positives``, names, positions, ``config``).
+
+        Examples
+        --------
+        >>> retrieval = Retrieval.from_distances([[0.2, 0.5, 0.9]], [[4, 0, 7]])
+        >>> retrieval.scores, retrieval.score_kind
+        (array([[-0.2, -0.5, -0.9]]), 'distance')
+        """
+        distances = _check_real("distances", distances)
+        config = {**fields.pop("config", {}), "scores": "distance"}
+        return cls(scores=-distances, indices=indices, distances=distances, config=config, **fields)
+
+    @property
+    def score_kind(self) -> str:
+        """``"distance"`` when the scores are negated distances (:meth:`from_distances`), else ``"similarity"``."""
+        return "distance" if self.config.get("scores") == "distance" else "similarity"
 
     @property
     def n_database(self) -> int | None:
