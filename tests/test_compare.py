@@ -198,3 +198,21 @@ def test_stage_module_has_hlocs_shape(corridor_dir, corridor_matches_dir, tmp_pa
     out = stage.main(conf, paths, tmp_path / "c.json", ground_truth=corridor_dir / "ground_truth_new.npy")
     document = json.loads(out.read_text())
     assert (document["a"], document["b"]) == ("HOG", "CALC") and len(document["differences"]) == 2
+
+
+@pytest.mark.filterwarnings("ignore:reading the legacy")
+def test_readme_compare_example_prints_what_it_shows(data_dir, capsys, monkeypatch):
+    """The README's `compare` example (section "Compare two methods on the same queries") prints its table."""
+    import re
+    import shlex
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = re.search(r"^### Compare two methods on the same queries\n(.*?)(?=^##)", readme, re.S | re.M).group(1)
+    command = re.search(r"```bash\n(.*?)```", section, re.S).group(1).replace("\\\n", " ")
+    shown = re.search(r"```text\n(.*?)```", section, re.S).group(1)
+    monkeypatch.setenv("VPR_UNCERTAINTY_DATA", str(data_dir))
+    argv = shlex.split(command.replace("$VPR_UNCERTAINTY_DATA", str(data_dir)))
+    assert argv[:2] == ["vpr-uncertainty", "compare"]
+    assert main(argv[1:]) == 0
+    assert [line.rstrip() for line in capsys.readouterr().out.splitlines()] == shown.splitlines()
