@@ -30,10 +30,12 @@ _EXPORTS: dict[str, str] = {
     **dict.fromkeys(("load_descriptors", "read_results"), "vpr_uncertainty.data"),
     **dict.fromkeys(
         (
+            "Comparison",
             "Evaluation",
             "auc_pr",
             "aurc",
             "average_precision",
+            "compare",
             "correct_at_n",
             "evaluate",
             "recall_at_n",

@@ -15,7 +15,7 @@ module                 artefact                    reused when
 :mod:`.grid`           ``out/cells``, report.html  per cell: same inputs (by content) and settings (``reproduce``)
 =====================  ==========================  ===================================================================
 
-:mod:`.calibrate`, :mod:`.datasets` and :mod:`.train_btl` are the commands beside the data flow.
+:mod:`.compare`, :mod:`.calibrate`, :mod:`.datasets` and :mod:`.train_btl` are the commands beside the data flow.
 """
 
 #: Each command and the stage module whose ``add_cli`` defines it, in the order ``--help`` lists them. The command
@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "demo": "run",
     "run": "run",
     "evaluate": "evaluate",
+    "compare": "compare",
     "calibrate": "calibrate",
     "reproduce": "grid",
     "datasets": "datasets",
