@@ -15,8 +15,7 @@ import sys
 import typing
 from pathlib import Path
 
-# This checkout's package, not whichever one the environment has installed.
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
+ROOT = Path(__file__).resolve().parents[2]
 
 MARKER = "<!-- generated: reproduce config reference -->"
 
@@ -102,7 +101,13 @@ def _check(described: dict, actual: set, what: str) -> None:
 
 def render() -> str:
     """The Markdown tables of the config reference; raises when the descriptions and the schema disagree."""
+    src = str(ROOT / "src")  # this checkout's package (at call time: MkDocs restores sys.path after loading a hook)
+    if src not in sys.path:
+        sys.path.insert(0, src)
     from vpr_uncertainty.pipeline import grid_config
+
+    if not Path(grid_config.__file__).is_relative_to(ROOT / "src"):
+        raise RuntimeError(f"the schema was imported from {grid_config.__file__}, not from this checkout's {src}")
 
     fields = {field.name: field for field in dataclasses.fields(grid_config.GridConfig)}
     _check(TOP_LEVEL, set(grid_config._TOP_KEYS), "top-level keys")

@@ -12,7 +12,20 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "src"))  # this checkout's package, not whichever one the environment has installed
+
+
+def use_this_checkout() -> None:
+    """Import ``vpr_uncertainty`` from this checkout's ``src``, not from whichever one the environment installed.
+
+    Done at call time: MkDocs restores ``sys.path`` after loading a hook module.
+    """
+    src = str(ROOT / "src")
+    if src not in sys.path:
+        sys.path.insert(0, src)
+    module = sys.modules.get("vpr_uncertainty")
+    if module is not None and not Path(module.__file__).is_relative_to(ROOT / "src"):
+        raise RuntimeError(f"vpr_uncertainty was imported from {module.__file__}, not from this checkout's {src}")
+
 
 README_MARKER = "<!-- generated: README.md -->"
 API_MARKER = "<!-- generated: top-level API -->"
@@ -28,6 +41,7 @@ def top_level_api() -> str:
     """A table of the public top-level names: each links to its documentation on the page of its module."""
     import inspect
 
+    use_this_checkout()
     import vpr_uncertainty
 
     rows = ["| name | defined in | what it is |", "|---|---|---|"]
