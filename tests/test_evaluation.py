@@ -115,3 +115,35 @@ def test_method_returning_nan_is_an_error():
             evaluate(retrieval, ["NAN-TEST"])
     finally:
         METHODS.unregister("NAN-TEST")
+
+
+def test_evaluate_sorts_each_method_once_and_tables_count_no_ties_again(monkeypatch):
+    """One argsort per method serves AUC-PR, AP, the rejection curve and AURC; format_table reads stored counts."""
+    from vpr_uncertainty.reports.tables import format_table
+
+    rng = np.random.default_rng(6)
+    scores = -np.sort(-rng.uniform(0.2, 0.9, size=(200, 10)), axis=1)
+    indices = np.tile(np.arange(10), (200, 1))
+    mask = np.zeros((200, 30), bool)
+    mask[np.arange(200), rng.integers(0, 3, size=200)] = True
+    retrieval = Retrieval(scores=scores, indices=indices, positives=sparse.csr_array(mask))
+    calls = {"argsort": 0, "unique": 0}
+    for name in calls:
+        original = getattr(np, name)
+
+        def counting(*args, _original=original, _name=name, **kwargs):
+            calls[_name] += 1
+            return _original(*args, **kwargs)
+
+        monkeypatch.setattr(np, name, counting)
+    evaluation = evaluate(retrieval, ["SU", "BM", "RS"], timing_repeats=1)
+    assert calls["argsort"] == 3
+    calls.update(argsort=0, unique=0)
+    text = format_table(evaluation)
+    assert calls == {"argsort": 0, "unique": 0}
+    monkeypatch.undo()
+    for method in evaluation.methods.values():
+        _, counts = np.unique(method.uncertainty, return_counts=True)
+        assert method.n_distinct == counts.size
+        assert method.tied_share == counts[counts > 1].sum() / counts.sum()
+    assert "SU" in text

@@ -14,7 +14,9 @@ from vpr_uncertainty.evaluation.metrics import (
     aurc,
     average_precision,
     correct_at_n,
+    first_positive_rank,
     precision_at_recall,
+    rank_queries,
     recall_at_full_precision,
     recall_at_n,
     rejection_curve,
@@ -159,3 +161,97 @@ def test_correct_and_recall_at_n_match_loop():
     assert_close(recalls[5], correct_at_n(indices, mask, 5)[answerable].mean())
     with pytest.raises(ValueError, match="between 1 and"):
         correct_at_n(indices, mask, 21)
+
+
+def test_ranking_hand_computed_with_a_tie():
+    # accepted in order: T (0.1), then F and T together (0.3, tied), then F (0.4)
+    correct = np.array([True, False, True, False])
+    uncertainty = np.array([0.1, 0.3, 0.3, 0.4])
+    ranking = rank_queries(correct, uncertainty)
+    np.testing.assert_array_equal(ranking.thresholds, [0.1, 0.3, 0.4])
+    np.testing.assert_array_equal(ranking.accepted, [1, 3, 4])
+    np.testing.assert_array_equal(ranking.correct_accepted, [1, 2, 2])
+    assert ranking.n_distinct == 3 and ranking.tied_share == 0.5
+    # PR points (recall, precision): (0, 1), (1/2, 1), (1, 2/3), (1, 1/2); the tie is one step, never split
+    assert_close(ranking.auc_pr(), 0.5 * 1 + 0.5 * (1 + 2 / 3) / 2)
+    assert_close(ranking.average_precision(), 0.5 * 1 + 0.5 * 2 / 3)
+    # coverage 1/4 at risk 0, 3/4 at risk 1/3, 1 at risk 1/2
+    assert_close(ranking.aurc(), 0.5 * (1 / 3) + 0.25 * 0.5)
+    curve = ranking.rejection_curve(n_answerable=3)
+    assert_close(curve.precision, [1, 2 / 3, 1 / 2])
+    assert_close(curve.recall, [1 / 3, 2 / 3, 2 / 3])
+    assert_close(curve.coverage, [1 / 4, 3 / 4, 1])
+    with pytest.raises(ValueError, match="n_answerable must be >= the 2 correct"):
+        ranking.rejection_curve(n_answerable=1)
+
+
+@pytest.mark.parametrize("decimals", [None, 1, 0])
+def test_one_ranking_gives_what_each_function_and_scikit_learn_give(labels, decimals):
+    from sklearn.metrics import auc, average_precision_score, precision_recall_curve
+
+    correct, uncertainty = labels
+    if decimals is not None:
+        uncertainty = np.round(uncertainty, decimals)  # ties: decimals 0 leaves about 7 distinct values
+    ranking = rank_queries(correct, uncertainty)
+    # the functions sort themselves; given one ranking the metrics are the very same code path: equal exactly
+    assert ranking.auc_pr() == auc_pr(correct, uncertainty)
+    assert ranking.average_precision() == average_precision(correct, uncertainty)
+    assert ranking.aurc() == aurc(correct, uncertainty)
+    curve, alone = ranking.rejection_curve(n_answerable=320), rejection_curve(correct, uncertainty, n_answerable=320)
+    for field in ("thresholds", "precision", "recall", "coverage"):
+        np.testing.assert_array_equal(getattr(curve, field), getattr(alone, field))
+    # and scikit-learn's convention: one threshold per distinct value of -uncertainty
+    precision, recall, _ = precision_recall_curve(correct, -uncertainty)
+    got_precision, got_recall = ranking.precision_recall()
+    assert_close(got_precision, precision)
+    assert_close(got_recall, recall)
+    assert_close(ranking.auc_pr(), auc(recall, precision))
+    assert_close(ranking.average_precision(), average_precision_score(correct, -uncertainty))
+    _, counts = np.unique(uncertainty, return_counts=True)
+    assert ranking.n_distinct == counts.size
+    assert ranking.tied_share == counts[counts > 1].sum() / counts.sum()
+
+
+def test_ranking_does_not_depend_on_the_order_of_the_queries():
+    rng = np.random.default_rng(5)
+    correct = rng.uniform(size=500) < 0.6
+    uncertainty = rng.integers(0, 12, size=500) / 4.0  # heavy ties
+    ranking = rank_queries(correct, uncertainty)
+    for _ in range(5):
+        order = rng.permutation(500)  # ties now meet the sort in another order
+        shuffled = rank_queries(correct[order], uncertainty[order])
+        for field in ("thresholds", "accepted", "correct_accepted"):
+            np.testing.assert_array_equal(getattr(shuffled, field), getattr(ranking, field))
+        assert shuffled.auc_pr() == ranking.auc_pr() and shuffled.aurc() == ranking.aurc()
+
+
+def test_ranking_validates_like_the_functions():
+    with pytest.raises(ValueError, match="NaN or inf"):
+        rank_queries([True, False], [0.1, np.inf])
+    with pytest.raises(ValueError, match="all 2 top-1 answers are correct"):
+        rank_queries([True, True], [0.1, 0.2]).auc_pr()
+    with pytest.raises(ValueError, match="are wrong"):
+        rank_queries([False, False], [0.1, 0.2]).average_precision()
+    assert rank_queries([False, False], [0.1, 0.2]).aurc() == 1.0  # AURC is defined with one class
+
+
+def test_first_positive_rank_answers_every_n_from_one_look_up():
+    rng = np.random.default_rng(4)
+    n_queries, n_database, k = 50, 30, 10
+    indices = np.array([rng.permutation(n_database)[:k] for _ in range(n_queries)])
+    indices[3, 2:] = -1
+    mask = rng.uniform(size=(n_queries, n_database)) < 0.08
+    mask[9] = False
+    rank = first_positive_rank(indices, mask)
+    for q in range(n_queries):
+        hits = [i >= 0 and mask[q, i] for i in indices[q]]
+        assert rank[q] == (hits.index(True) if any(hits) else k)
+    for n in range(1, k + 1):
+        np.testing.assert_array_equal(rank < n, correct_at_n(indices, mask, n))
+        np.testing.assert_array_equal(first_positive_rank(indices, mask, n), np.minimum(rank, n))
+    answerable = mask.any(axis=1)
+    given = recall_at_n(indices, mask, ns=(1, 2, 5, 10), first_rank=rank, answerable=answerable)
+    assert given == recall_at_n(indices, mask, ns=(1, 2, 5, 10))
+    assert given == {n: float(correct_at_n(indices, mask, n)[answerable].mean()) for n in (1, 2, 5, 10)}
+    with pytest.raises(ValueError, match="between 1 and"):
+        recall_at_n(indices, mask, ns=(0, 1))

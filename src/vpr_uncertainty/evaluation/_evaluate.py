@@ -16,14 +16,13 @@ import numpy as np
 
 from vpr_uncertainty.evaluation.bootstrap import add_bootstrap, check_bootstrap, resolve_reference
 from vpr_uncertainty.evaluation.metrics import (
-    auc_pr,
-    aurc,
-    average_precision,
+    answerable_queries,
     correct_at_n,
+    first_positive_rank,
     precision_at_recall,
+    rank_queries,
     recall_at_full_precision,
     recall_at_n,
-    rejection_curve,
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 from vpr_uncertainty.methods import (
@@ -142,13 +141,14 @@ def evaluate(
     if bootstrap:
         resolve_reference(reference, [entry.name for entry in entries])
     positives = retrieval.positives
-    answerable = np.asarray(positives.sum(axis=1)).ravel() > 0
-    correct = correct_at_n(retrieval.indices, positives, 1)
+    answerable = answerable_queries(positives)
+    first_rank = first_positive_rank(retrieval.indices, positives)  # one look-up for correct and every recall@N
+    correct = first_rank < 1
     evaluation = Evaluation(
         n_queries=retrieval.n_queries,
         n_answerable=int(answerable.sum()),
         correct=correct,
-        recall_at_n=recall_at_n(retrieval.indices, positives),
+        recall_at_n=recall_at_n(retrieval.indices, positives, first_rank=first_rank, answerable=answerable),
         k=min(int(k), retrieval.k),
         k_requested=int(k),
     )
@@ -206,13 +206,14 @@ def evaluate(
             )
         else:
             uncertainty = result
-        curve = rejection_curve(method_correct, uncertainty, n_answerable=evaluation.n_answerable)
+        ranking = rank_queries(method_correct, uncertainty)  # one sort for every metric of this method
+        curve = ranking.rejection_curve(n_answerable=evaluation.n_answerable)
         evaluation.methods[entry.name] = MethodEvaluation(
             name=entry.name,
             uncertainty=uncertainty,
-            auc_pr=auc_pr(method_correct, uncertainty) if method_both else None,
-            average_precision=average_precision(method_correct, uncertainty) if method_both else None,
-            aurc=aurc(method_correct, uncertainty),
+            auc_pr=ranking.auc_pr() if method_both else None,
+            average_precision=ranking.average_precision() if method_both else None,
+            aurc=ranking.aurc(),
             time_per_query_ms=seconds * 1e3,
             curve=curve,
             recall_at_full_precision=recall_at_full_precision(curve),
@@ -221,6 +222,8 @@ def evaluate(
             correct=None if own_recall is None else method_correct,
             timings=timings,
             details=details,
+            n_distinct=ranking.n_distinct,
+            tied_share=ranking.tied_share,
         )
     tied = _tied_note(evaluation.methods.values(), evaluation.n_queries)
     if tied:

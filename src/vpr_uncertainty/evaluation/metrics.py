@@ -18,6 +18,11 @@ Conventions
   candidates.
 * **AURC** is the area under the risk-coverage curve: Σ over thresholds of (coverage gained) × (error rate among
   the accepted queries), with coverage in steps of tied groups; lower is better.
+
+AUC-PR, AP, the rejection curve and AURC all read the same numbers: for each distinct uncertainty value (ascending),
+how many queries have an uncertainty <= it and how many of those are correct. :func:`rank_queries` computes them
+with one sort (an :class:`UncertaintyRanking`), and its methods give each metric; the functions of this module build
+one per call. :func:`vpr_uncertainty.evaluate` builds one per method and shares it.
 """
 
 from __future__ import annotations
@@ -30,18 +35,22 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from sklearn.metrics import auc, average_precision_score, precision_recall_curve
+from sklearn.metrics import auc
 
 __all__ = [
     "RECALL_NS",
     "RejectionCurve",
     "ThresholdChoice",
+    "UncertaintyRanking",
+    "answerable_queries",
     "auc_pr",
     "aurc",
     "average_precision",
     "check_labels",
     "correct_at_n",
+    "first_positive_rank",
     "precision_at_recall",
+    "rank_queries",
     "recall_at_full_precision",
     "recall_at_n",
     "rejection_curve",
@@ -58,6 +67,51 @@ def _check_positives(indices: np.ndarray, positives: object) -> sparse.csr_array
     if positives.shape[0] != indices.shape[0]:
         raise ValueError(f"positives has {positives.shape[0]} rows but indices has {indices.shape[0]} queries")
     return positives
+
+
+def first_positive_rank(indices: object, positives: object, n: int | None = None) -> np.ndarray:
+    """Rank (0-based) of each query's first positive among its first ``n`` candidates; ``n`` when there is none.
+
+    One look-up of the ground truth answers every N <= n: a query has a positive among its first N candidates
+    exactly when its rank is < N.
+
+    Parameters
+    ----------
+    indices : array-like of shape (Q, K), int
+        Database index of each candidate, best first; ``-1`` marks a missing candidate.
+    positives : sparse or dense bool matrix of shape (Q, D)
+        Ground truth.
+    n : int, optional
+        How many candidates count; must be <= K (default: K).
+
+    Returns
+    -------
+    ndarray of shape (Q,), int64
+
+    Examples
+    --------
+    >>> first_positive_rank(np.array([[2, 0], [1, 0], [1, 2]]), np.array([[1, 0, 0], [1, 0, 0], [1, 0, 0]], bool))
+    array([1, 1, 2])
+    """
+    indices = np.asarray(indices)
+    if indices.ndim != 2:
+        raise ValueError(f"indices must be 2-D (n_queries, k), got shape {indices.shape}")
+    n = indices.shape[1] if n is None else n
+    if not 1 <= n <= indices.shape[1]:
+        raise ValueError(f"n must be between 1 and the {indices.shape[1]} candidates per query, got {n}")
+    positives = _check_positives(indices, positives)
+    top = indices[:, :n]
+    if top.size and top.max() >= positives.shape[1]:
+        raise ValueError(
+            f"indices refer to database image {int(top.max())} but the ground truth covers "
+            f"{positives.shape[1]} database images"
+        )
+    rows = np.repeat(np.arange(len(top)), n)
+    hits = np.asarray(positives[rows, np.maximum(top.ravel(), 0)]).reshape(top.shape)
+    hits &= top >= 0
+    first = hits.argmax(axis=1)  # the first True, or 0 when none
+    first[~hits[np.arange(len(hits)), first]] = n
+    return first
 
 
 def correct_at_n(indices: object, positives: object, n: int = 1) -> np.ndarray:
@@ -83,24 +137,22 @@ def correct_at_n(indices: object, positives: object, n: int = 1) -> np.ndarray:
     >>> correct_at_n(np.array([[2, 0], [1, 0]]), np.array([[True, False, False], [True, False, False]]), n=2)
     array([ True,  True])
     """
-    indices = np.asarray(indices)
-    if indices.ndim != 2:
-        raise ValueError(f"indices must be 2-D (n_queries, k), got shape {indices.shape}")
-    if not 1 <= n <= indices.shape[1]:
-        raise ValueError(f"n must be between 1 and the {indices.shape[1]} candidates per query, got {n}")
-    positives = _check_positives(indices, positives)
-    top = indices[:, :n]
-    if top.size and top.max() >= positives.shape[1]:
-        raise ValueError(
-            f"indices refer to database image {int(top.max())} but the ground truth covers "
-            f"{positives.shape[1]} database images"
-        )
-    rows = np.repeat(np.arange(len(top)), n)
-    hits = np.asarray(positives[rows, np.maximum(top.ravel(), 0)]).reshape(top.shape)
-    return (hits & (top >= 0)).any(axis=1)
+    return first_positive_rank(indices, positives, n) < n
 
 
-def recall_at_n(indices: object, positives: object, ns: Sequence[int] = RECALL_NS) -> dict[int, float]:
+def answerable_queries(positives: object) -> np.ndarray:
+    """Whether each query has at least one positive in the database, shape (Q,), bool."""
+    return np.asarray(sparse.csr_array(positives, dtype=bool).sum(axis=1)).ravel() > 0
+
+
+def recall_at_n(
+    indices: object,
+    positives: object,
+    ns: Sequence[int] = RECALL_NS,
+    *,
+    first_rank: np.ndarray | None = None,
+    answerable: np.ndarray | None = None,
+) -> dict[int, float]:
     """recall@N over the queries that have at least one positive; N larger than K is left out.
 
     Parameters
@@ -111,6 +163,9 @@ def recall_at_n(indices: object, positives: object, ns: Sequence[int] = RECALL_N
         Ground truth.
     ns : sequence of int, default=RECALL_NS
         The N to report.
+    first_rank, answerable : ndarray of shape (Q,), optional
+        :func:`first_positive_rank` over all K candidates and :func:`answerable_queries` of these inputs, when the
+        caller has them already (otherwise computed here; every N is answered from one look-up either way).
 
     Returns
     -------
@@ -123,11 +178,21 @@ def recall_at_n(indices: object, positives: object, ns: Sequence[int] = RECALL_N
     {1: 0.0, 2: 1.0}
     """
     indices = np.asarray(indices)
-    positives = _check_positives(indices, positives)
-    answerable = np.asarray(positives.sum(axis=1)).ravel() > 0
+    if answerable is None:
+        positives = _check_positives(indices, positives)
+        answerable = answerable_queries(positives)
     if not answerable.any():
         raise ValueError("no query has a positive in the database; recall@N is undefined")
-    return {int(n): float(correct_at_n(indices, positives, n)[answerable].mean()) for n in ns if n <= indices.shape[1]}
+    for n in ns:
+        if n < 1:
+            raise ValueError(f"n must be between 1 and the {indices.shape[1]} candidates per query, got {n}")
+    ns = [int(n) for n in ns if n <= indices.shape[1]]
+    if not ns:
+        return {}
+    if first_rank is None:
+        first_rank = first_positive_rank(indices, positives, max(ns))
+    ranks = first_rank[answerable]
+    return {n: float((ranks < n).mean()) for n in ns}
 
 
 def check_labels(correct: object, uncertainty: object, *, name: str = "uncertainty") -> tuple[np.ndarray, np.ndarray]:
@@ -153,51 +218,15 @@ def check_labels(correct: object, uncertainty: object, *, name: str = "uncertain
 
 def _check_both_classes(correct: np.ndarray) -> None:
     if correct.all() or not correct.any():
-        state = "correct" if correct.all() else "wrong"
+        _raise_one_class(int(correct.sum()), correct.size)
+
+
+def _raise_one_class(n_correct: int, n_queries: int) -> None:
+    if n_correct in (0, n_queries):
+        state = "correct" if n_correct else "wrong"
         raise ValueError(
-            f"all {correct.size} top-1 answers are {state}: precision-recall needs both correct and wrong answers"
+            f"all {n_queries} top-1 answers are {state}: precision-recall needs both correct and wrong answers"
         )
-
-
-def auc_pr(correct: object, uncertainty: object) -> float:
-    """AUC-PR of an uncertainty as a predictor of a correct top-1 answer (trapezoid rule; higher is better).
-
-    Parameters
-    ----------
-    correct : array-like of shape (Q,), bool
-        Whether each query's top-1 answer is correct.
-    uncertainty : array-like of shape (Q,)
-        Higher = less trustworthy.
-
-    Examples
-    --------
-    >>> auc_pr([True, True, False, False], [0.1, 0.2, 0.3, 0.4])
-    1.0
-    """
-    correct, uncertainty = check_labels(correct, uncertainty)
-    _check_both_classes(correct)
-    precision, recall, _ = precision_recall_curve(correct, -uncertainty)
-    return float(auc(recall, precision))
-
-
-def average_precision(correct: object, uncertainty: object) -> float:
-    """Average precision (step-wise area under the PR curve) of an uncertainty; higher is better.
-
-    Parameters
-    ----------
-    correct : array-like of shape (Q,), bool
-        Whether each query's top-1 answer is correct.
-    uncertainty : array-like of shape (Q,)
-        Higher = less trustworthy.
-
-    Examples
-    --------
-    >>> average_precision([True, False, True, False], [0.1, 0.2, 0.3, 0.4])
-    0.8333333333333333
-    """
-    correct, uncertainty = check_labels(correct, uncertainty)
-    _check_both_classes(correct)
-    return float(average_precision_score(correct, -uncertainty))
 
 
 @dataclass(frozen=True)
@@ -219,6 +248,171 @@ class RejectionCurve:
     coverage: np.ndarray
 
 
+@dataclass(frozen=True)
+class UncertaintyRanking:
+    """Queries grouped by distinct uncertainty, ascending: what every threshold metric reads, from one sort.
+
+    Build it with :func:`rank_queries`. Tied queries form one group (one threshold, accepted together), so every
+    number here is a count over whole groups and does not depend on how a sort orders the queries within a tie.
+
+    Attributes
+    ----------
+    thresholds : ndarray of shape (T,), float64
+        The distinct uncertainty values, ascending.
+    accepted : ndarray of shape (T,), int64
+        Queries with uncertainty <= each threshold.
+    correct_accepted : ndarray of shape (T,), int64
+        Correct answers among them.
+    """
+
+    thresholds: np.ndarray
+    accepted: np.ndarray
+    correct_accepted: np.ndarray
+
+    @property
+    def n_queries(self) -> int:
+        return int(self.accepted[-1])
+
+    @property
+    def n_correct(self) -> int:
+        return int(self.correct_accepted[-1])
+
+    @property
+    def n_distinct(self) -> int:
+        """Number of distinct uncertainty values (1: every query tied)."""
+        return int(self.thresholds.size)
+
+    @property
+    def tied_share(self) -> float:
+        """Share of the queries whose uncertainty equals that of at least one other query (0: no ties)."""
+        sizes = np.diff(self.accepted, prepend=0)
+        return float(sizes[sizes > 1].sum() / self.n_queries)
+
+    def precision_recall(self) -> tuple[np.ndarray, np.ndarray]:
+        """Precision and recall of ``sklearn.metrics.precision_recall_curve(correct, -uncertainty)``, in its layout
+        (most lenient threshold first, then the point (recall 0, precision 1)) and its arithmetic.
+
+        Needs both correct and wrong answers (else ValueError).
+        """
+        _raise_one_class(self.n_correct, self.n_queries)
+        tps = self.correct_accepted.astype(np.float64)
+        precision = tps / self.accepted  # sklearn: tps / (tps + fps), and tps + fps = accepted, exactly
+        recall = tps / tps[-1]
+        return np.concatenate((precision[::-1], [1.0])), np.concatenate((recall[::-1], [0.0]))
+
+    def auc_pr(self) -> float:
+        """Trapezoid AUC-PR, ``sklearn.metrics.auc(recall, precision)``; see :func:`auc_pr`."""
+        precision, recall = self.precision_recall()
+        return float(auc(recall, precision))
+
+    def average_precision(self) -> float:
+        """Step-wise area, ``sklearn.metrics.average_precision_score``'s sum; see :func:`average_precision`."""
+        precision, recall = self.precision_recall()
+        return float(max(0.0, -np.sum(np.diff(recall) * precision[:-1])))
+
+    def rejection_curve(self, *, n_answerable: int | None = None) -> RejectionCurve:
+        """See :func:`rejection_curve`."""
+        n_correct = self.n_correct
+        n_answerable = self.n_queries if n_answerable is None else int(n_answerable)
+        if n_answerable <= 0 or n_answerable < n_correct:
+            raise ValueError(f"n_answerable must be >= the {n_correct} correct answers and > 0, got {n_answerable}")
+        return RejectionCurve(
+            thresholds=self.thresholds,
+            precision=self.correct_accepted / self.accepted,
+            recall=self.correct_accepted / n_answerable,
+            coverage=self.accepted / self.n_queries,
+        )
+
+    def aurc(self) -> float:
+        """See :func:`aurc`."""
+        risk = 1.0 - self.correct_accepted / self.accepted
+        coverage_gained = np.diff(self.accepted / self.n_queries, prepend=0.0)
+        return float(np.sum(coverage_gained * risk))
+
+
+def rank_queries(correct: object, uncertainty: object) -> UncertaintyRanking:
+    """Sort the queries by uncertainty once and count, at each distinct value, the queries accepted and the correct.
+
+    Parameters
+    ----------
+    correct : array-like of shape (Q,), bool
+        Whether each query's top-1 answer is correct.
+    uncertainty : array-like of shape (Q,)
+        Higher = less trustworthy; finite.
+
+    Returns
+    -------
+    UncertaintyRanking
+        Its methods give AUC-PR, AP, the rejection curve and AURC without sorting again.
+
+    Examples
+    --------
+    >>> ranking = rank_queries([True, False, True, False], [0.1, 0.3, 0.3, 0.4])
+    >>> ranking.thresholds, ranking.accepted, ranking.correct_accepted
+    (array([0.1, 0.3, 0.4]), array([1, 3, 4]), array([1, 2, 2]))
+    >>> ranking.auc_pr() == auc_pr([True, False, True, False], [0.1, 0.3, 0.3, 0.4])
+    True
+    """
+    correct, uncertainty = check_labels(correct, uncertainty)
+    # Any order sorts the values; the counts at the ends of tie groups do not depend on the order within a group,
+    # so the faster unstable sort gives the same numbers as a stable one.
+    order = np.argsort(uncertainty)
+    sorted_uncertainty = uncertainty[order]
+    correct_accepted = np.cumsum(correct[order], dtype=np.int64)
+    # The last query of each group of tied uncertainties marks one threshold.
+    group_ends = np.flatnonzero(np.diff(sorted_uncertainty, append=np.inf) > 0)
+    return UncertaintyRanking(
+        thresholds=sorted_uncertainty[group_ends],
+        accepted=group_ends + 1,
+        correct_accepted=correct_accepted[group_ends],
+    )
+
+
+def auc_pr(correct: object, uncertainty: object) -> float:
+    """AUC-PR of an uncertainty as a predictor of a correct top-1 answer (trapezoid rule; higher is better).
+
+    The same number as ``sklearn.metrics.auc(recall, precision)`` over
+    ``sklearn.metrics.precision_recall_curve(correct, -uncertainty)`` (one threshold per distinct uncertainty).
+
+    Parameters
+    ----------
+    correct : array-like of shape (Q,), bool
+        Whether each query's top-1 answer is correct.
+    uncertainty : array-like of shape (Q,)
+        Higher = less trustworthy.
+
+    Examples
+    --------
+    >>> auc_pr([True, True, False, False], [0.1, 0.2, 0.3, 0.4])
+    1.0
+    """
+    correct, uncertainty = check_labels(correct, uncertainty)
+    _check_both_classes(correct)
+    return rank_queries(correct, uncertainty).auc_pr()
+
+
+def average_precision(correct: object, uncertainty: object) -> float:
+    """Average precision (step-wise area under the PR curve) of an uncertainty; higher is better.
+
+    The same number as ``sklearn.metrics.average_precision_score(correct, -uncertainty)``.
+
+    Parameters
+    ----------
+    correct : array-like of shape (Q,), bool
+        Whether each query's top-1 answer is correct.
+    uncertainty : array-like of shape (Q,)
+        Higher = less trustworthy.
+
+    Examples
+    --------
+    >>> average_precision([True, False, True, False], [0.1, 0.2, 0.3, 0.4])
+    0.8333333333333333
+    """
+    correct, uncertainty = check_labels(correct, uncertainty)
+    _check_both_classes(correct)
+    return rank_queries(correct, uncertainty).average_precision()
+
+
 def rejection_curve(correct: object, uncertainty: object, *, n_answerable: int | None = None) -> RejectionCurve:
     """End-to-end precision-recall of the VPR system when queries above an uncertainty threshold are rejected.
 
@@ -238,24 +432,7 @@ def rejection_curve(correct: object, uncertainty: object, *, n_answerable: int |
     >>> curve.precision, curve.recall
     (array([1.        , 1.        , 0.66666667]), array([0.5, 1. , 1. ]))
     """
-    correct, uncertainty = check_labels(correct, uncertainty)
-    n_answerable = correct.size if n_answerable is None else int(n_answerable)
-    if n_answerable <= 0 or n_answerable < correct.sum():
-        raise ValueError(
-            f"n_answerable must be >= the {int(correct.sum())} correct answers and > 0, got {n_answerable}"
-        )
-    order = np.argsort(uncertainty, kind="stable")
-    sorted_uncertainty = uncertainty[order]
-    correct_accepted = np.cumsum(correct[order])
-    # The last query of each group of tied uncertainties marks one threshold.
-    group_ends = np.flatnonzero(np.diff(sorted_uncertainty, append=np.inf) > 0)
-    accepted = group_ends + 1
-    return RejectionCurve(
-        thresholds=sorted_uncertainty[group_ends],
-        precision=correct_accepted[group_ends] / accepted,
-        recall=correct_accepted[group_ends] / n_answerable,
-        coverage=accepted / correct.size,
-    )
+    return rank_queries(correct, uncertainty).rejection_curve(n_answerable=n_answerable)
 
 
 def recall_at_full_precision(curve: RejectionCurve) -> float:
@@ -294,10 +471,7 @@ def aurc(correct: object, uncertainty: object) -> float:
     >>> aurc([True, False], [0.1, 0.9])  # coverage 1/2: risk 0; coverage 1: risk 1/2
     0.25
     """
-    curve = rejection_curve(correct, uncertainty)
-    risk = 1.0 - curve.precision
-    coverage_gained = np.diff(curve.coverage, prepend=0.0)
-    return float(np.sum(coverage_gained * risk))
+    return rank_queries(correct, uncertainty).aurc()
 
 
 @dataclass(frozen=True)

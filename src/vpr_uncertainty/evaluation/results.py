@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
+from vpr_uncertainty.evaluation.metrics import RejectionCurve, rank_queries
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas
@@ -42,6 +42,11 @@ class MethodEvaluation:
     labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`). ``details`` holds
     what the method reported about its run (a cascade's ``verified_fraction`` and ``verified_queries``). Its
     ``repr`` shows the numbers, not the arrays.
+
+    ``n_distinct`` (number of distinct uncertainty values; 1: every query tied) and ``tied_share`` (share of the
+    queries whose uncertainty equals that of at least one other query; 0: no ties) are counted once, when it is
+    built: given by the caller that has them (:func:`~vpr_uncertainty.evaluate` reads them off its one sort of the
+    uncertainties), otherwise from ``uncertainty``.
     """
 
     name: str
@@ -64,21 +69,23 @@ class MethodEvaluation:
     #: Numbers the method reported about its own run (:data:`DETAIL_KEYS`), written as keys of :meth:`to_dict`.
     details: dict[str, Any] = field(default_factory=dict)
 
+    #: Number of distinct uncertainty values (1: every query tied); counted from ``uncertainty`` when not given.
+    n_distinct: int | None = None
+    #: Share of the queries whose uncertainty equals that of at least one other query (0: no ties); counted from
+    #: ``uncertainty`` when not given.
+    tied_share: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.n_distinct is None or self.tied_share is None:
+            _, counts = np.unique(self.uncertainty, return_counts=True)
+            if self.n_distinct is None:
+                self.n_distinct = int(counts.size)
+            if self.tied_share is None:
+                size = np.size(self.uncertainty)
+                self.tied_share = float(counts[counts > 1].sum() / size) if size else 0.0
+
     def __repr__(self) -> str:
         return method_summary(self)
-
-    @property
-    def n_distinct(self) -> int:
-        """Number of distinct uncertainty values (1: every query tied)."""
-        return int(np.unique(self.uncertainty).size)
-
-    @property
-    def tied_share(self) -> float:
-        """Share of the queries whose uncertainty equals that of at least one other query (0: no ties)."""
-        if self.uncertainty.size == 0:
-            return 0.0
-        _, counts = np.unique(self.uncertainty, return_counts=True)
-        return float(counts[counts > 1].sum() / self.uncertainty.size)
 
     @property
     def informative(self) -> bool:
@@ -135,7 +142,8 @@ class MethodEvaluation:
         """
         uncertainty = np.asarray(uncertainty)
         labels = correct if own_correct is None else np.asarray(own_correct, dtype=bool)
-        curve = rejection_curve(labels, uncertainty, n_answerable=n_answerable)
+        ranking = rank_queries(labels, uncertainty)  # one sort: the curve and the ties
+        curve = ranking.rejection_curve(n_answerable=n_answerable)
         return cls(
             name=name,
             uncertainty=uncertainty,
@@ -152,6 +160,8 @@ class MethodEvaluation:
             vs_reference=dict(data["vs_reference"]) if data.get("vs_reference") is not None else None,
             timings={key: data[key] for key in TIMING_KEYS if data.get(key) is not None},
             details={key: data[key] for key in DETAIL_KEYS if key in data},
+            n_distinct=ranking.n_distinct,
+            tied_share=ranking.tied_share,
         )
 
 
