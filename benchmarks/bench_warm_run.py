@@ -1,4 +1,4 @@
-"""A warm rerun of ``vpr-uncertainty run`` beside a cold run, on the real corridor dataset (issue 22: warm <= 0.5x cold).
+"""A warm rerun of ``vpr-uncertainty run`` beside a cold run on the real corridor dataset (issue 22: warm <= 0.5x cold).
 
     VPR_UNCERTAINTY_DATA=../shared/data python benchmarks/bench_warm_run.py [--rounds 3] [--data DIR]
 

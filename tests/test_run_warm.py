@@ -161,3 +161,26 @@ def test_an_unchanged_table_is_not_rewritten(tmp_path):
     assert table.stat().st_mtime_ns == stamp
     cache.write_text(table, "# other\n", keep_unchanged=True)
     assert table.read_text() == "# other\n"
+
+
+def test_a_figure_is_current_only_with_its_inputs_and_intact_bytes(tmp_path):
+    from vpr_uncertainty.reports.display import pyplot
+
+    plt = pyplot()
+    figure, axes = plt.subplots(figsize=(2, 2))
+    axes.plot([0, 1], [1, 0])
+    try:
+        stamped = cache.write_figure(figure, tmp_path / "a.png", inputs="abc", dpi=50)
+        plain = cache.write_figure(figure, tmp_path / "b.png", dpi=50)
+        with pytest.raises(ValueError, match="only a PNG"):
+            cache.write_figure(figure, tmp_path / "a.pdf", inputs="abc")
+    finally:
+        plt.close(figure)
+    assert cache.figure_is_current(stamped, "abc")
+    assert not cache.figure_is_current(stamped, "abd")  # other inputs
+    assert not cache.figure_is_current(plain, "abc")  # no stamp: drawn by another writer
+    assert not cache.figure_is_current(tmp_path / "absent.png", "abc")
+    data = stamped.read_bytes()
+    for damaged in (data[:-1], data + b"\0", data[:40] + bytes([data[40] ^ 1]) + data[41:]):
+        stamped.write_bytes(damaged)
+        assert not cache.figure_is_current(stamped, "abc")
