@@ -13,6 +13,11 @@ and is reused only when it equals the one the current run computes; per-image st
 - :func:`payload_checksum`: ``"blake2b:"`` + :func:`array_digest` of what an artefact stores, verified on read
   (:func:`verify_checksum`; a mismatch is a :class:`ChecksumError`).
 
+A figure is reused when what it shows is unchanged: :func:`write_figure` given ``inputs`` (a fingerprint of the
+figure's data, title and drawing code) stores them in a PNG text chunk with the BLAKE2b checksum of every byte
+before it, and :func:`figure_is_current` reads them back (checking every chunk's CRC), so a deleted, truncated,
+corrupted or foreign figure, or one of other inputs, is drawn again.
+
 Writes are atomic (:func:`atomic_path`): a temporary file beside the target, fsynced, then :func:`os.replace` d over
 it, so an interrupted write leaves the previous artefact or none; a failed write raises an :class:`OSError` naming
 the target (``No space left on device: PATH``). An unusable cache is rebuilt with a one-line :class:`CacheWarning`.
@@ -34,11 +39,13 @@ from __future__ import annotations
 import contextlib
 import errno
 import hashlib
+import io
 import json
 import os
 import re
 import tempfile
 import warnings
+import zlib
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any, TypeVar
@@ -56,6 +63,7 @@ __all__ = [
     "atomic_write",
     "check_dataset",
     "content_key",
+    "figure_is_current",
     "file_digest",
     "fingerprint",
     "hard_links",
@@ -452,8 +460,16 @@ def atomic_write(path: str | Path, mode: str = "w", **open_options: Any) -> Iter
         yield handle
 
 
-def write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8) to ``path`` atomically and return the path."""
+def write_text(path: str | Path, text: str, *, keep_unchanged: bool = False) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically and return the path.
+
+    With ``keep_unchanged``, a regular file that already holds exactly these bytes is left as it is (its
+    modification time too).
+    """
+    if keep_unchanged:
+        with contextlib.suppress(OSError):
+            if Path(path).is_file() and Path(path).read_bytes() == text.encode("utf-8"):
+                return Path(path)
     with atomic_write(path) as handle:
         handle.write(text)
     return Path(path)
@@ -464,12 +480,98 @@ def write_json(path: str | Path, document: Any) -> Path:
     return write_text(path, json.dumps(document, indent=2, default=str) + "\n")
 
 
-def write_figure(figure: Any, path: str | Path, **savefig_options: Any) -> Path:
-    """Save a matplotlib ``figure`` to ``path`` atomically, in the format of its suffix (PNG without one)."""
+def write_figure(figure: Any, path: str | Path, *, inputs: str | None = None, **savefig_options: Any) -> Path:
+    """Save a matplotlib ``figure`` to ``path`` atomically, in the format of its suffix (PNG without one).
+
+    ``inputs``: a fingerprint of what the figure shows, stored in the PNG (see :func:`figure_is_current`); PNG only.
+    """
     path = Path(path)
+    kind = path.suffix.lstrip(".").lower() or "png"
+    if inputs is not None and kind != "png":
+        raise ValueError(f"only a PNG figure can store its inputs, got {path.name!r}")
     with atomic_path(path) as temporary:
-        figure.savefig(temporary, format=path.suffix.lstrip(".") or "png", **savefig_options)
+        if inputs is None:
+            figure.savefig(temporary, format=kind, **savefig_options)
+        else:
+            drawn = io.BytesIO()
+            figure.savefig(drawn, format="png", **savefig_options)
+            temporary.write_bytes(stamp_png(drawn.getvalue(), inputs))
     return path
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: Keyword of the PNG text chunk holding a figure's inputs and checksum.
+FIGURE_STAMP = b"vpr-uncertainty inputs"
+
+
+def _png_chunks(data: bytes) -> list[tuple[int, bytes, bytes]] | None:
+    """``(offset, type, body)`` of each chunk of a whole PNG, every CRC checked; None for anything else."""
+    if not data.startswith(_PNG_SIGNATURE):
+        return None
+    chunks, offset = [], len(_PNG_SIGNATURE)
+    while offset + 12 <= len(data):
+        length = int.from_bytes(data[offset : offset + 4], "big")
+        end = offset + 12 + length
+        if end > len(data):
+            return None
+        kind, body = data[offset + 4 : offset + 8], data[offset + 8 : end - 4]
+        if zlib.crc32(kind + body) != int.from_bytes(data[end - 4 : end], "big"):
+            return None
+        chunks.append((offset, kind, body))
+        offset = end
+        if kind == b"IEND":
+            return chunks if offset == len(data) else None
+    return None
+
+
+def _png_chunk(kind: bytes, body: bytes) -> bytes:
+    return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
+
+
+def _head_checksum(head: bytes) -> str:
+    return "blake2b:" + hashlib.blake2b(head, digest_size=16).hexdigest()
+
+
+def stamp_png(data: bytes, inputs: str) -> bytes:
+    """The PNG ``data`` with a text chunk before its end: ``inputs`` and the checksum of every byte before it."""
+    chunks = _png_chunks(data)
+    if chunks is None:
+        raise ValueError("not a whole PNG file")
+    head = data[: chunks[-1][0]]
+    stamp = json.dumps({"inputs": str(inputs), "checksum": _head_checksum(head)}, sort_keys=True)
+    return head + _png_chunk(b"tEXt", FIGURE_STAMP + b"\0" + stamp.encode("latin-1")) + data[len(head) :]
+
+
+def figure_is_current(path: str | Path, inputs: str) -> bool:
+    """Whether the PNG at ``path`` was written by :func:`write_figure` from these ``inputs`` and is intact.
+
+    False for a missing, unreadable, truncated or corrupted file (a chunk's CRC or the stored checksum of the bytes
+    before the stamp fails), one without a stamp (another writer) or one stamped with other inputs.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> figure = Path(tempfile.mkdtemp()) / "f.png"
+    >>> figure_is_current(figure, "abc")
+    False
+    """
+    try:
+        data = Path(path).read_bytes()
+    except OSError:
+        return False
+    chunks = _png_chunks(data)
+    if chunks is None or len(chunks) < 2:
+        return False
+    offset, kind, body = chunks[-2]
+    if kind != b"tEXt" or not body.startswith(FIGURE_STAMP + b"\0"):
+        return False
+    try:
+        stamp = json.loads(body[len(FIGURE_STAMP) + 1 :].decode("latin-1"))
+    except ValueError:
+        return False
+    if not isinstance(stamp, dict):
+        return False
+    return stamp.get("inputs") == inputs and stamp.get("checksum") == _head_checksum(data[:offset])
 
 
 # --- HDF5 inputs that hold their own data ---

@@ -286,6 +286,59 @@ def read_descriptors(
     return np.array(list(names), dtype=str), descriptors[rows]
 
 
+def read_complete(
+    path: str | Path, config: dict[str, Any], split: str, names: Sequence[str], keys: Sequence[str], *, dtype: str
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The descriptors of ``names`` when the cache at ``path`` holds exactly those rows, ready to use; else None.
+
+    "Ready" is what a rerun of the extraction would find with nothing to compute and nothing to rewrite: the
+    file's fingerprint is that of ``config`` (the model's :attr:`~.models.DescriptorModel.fingerprint`) and
+    ``dtype``; the split is complete and sealed, with no image left out; its rows are ``names`` in this order, each
+    computed from the file of content key ``keys[i]``; its checksum verifies and every value is finite. Anything
+    else returns None, and the extraction then opens the cache (:class:`DescriptorCache`), which says why it cannot
+    be used and computes what is missing. This only reads (no lock held, nothing written, no warning), so it can be
+    asked before the model is loaded.
+
+    Returns
+    -------
+    names : ndarray of shape (N,), str
+    descriptors : ndarray of shape (N, D), float32
+    """
+    import h5py
+
+    _check_split(split)
+    path = Path(path)
+    names, keys = [str(name) for name in names], [str(key) for key in keys]
+    if not path.is_file() or len(keys) != len(names) or not all(keys):
+        return None
+    expected = DescriptorCache(path, config, dtype=dtype).fingerprint  # computed, not opened
+    try:
+        with h5py.File(path, "r") as handle:
+            attrs = handle.attrs
+            if attrs.get("format") != FORMAT or int(attrs.get("format_version", 0)) != FORMAT_VERSION:
+                return None
+            if attrs.get("fingerprint") != expected or split not in handle:
+                return None
+            datasets = open_present(handle, tuple(f"{split}/{key}" for key in _DATASETS), path)
+            group = handle[split]
+            if len(datasets) != len(_DATASETS) or not group.attrs.get("complete", False):
+                return None
+            if "checksum" not in group.attrs or group.attrs.get("failed") != json.dumps([]):
+                return None
+            count = len(names)
+            if any(group[key].shape[0] != count for key in _DATASETS):
+                return None
+            if list(group["names"].asstr()[:]) != names or list(group["keys"].asstr()[:]) != keys:
+                return None
+            stored = np.asarray(group["descriptors"][:])
+            verify_split(path, group, split, count, stored)
+    except (OSError, ValueError, KeyError):  # unreadable, foreign, corrupted (ChecksumError), in use
+        return None
+    if _non_finite(_StoredRows(stored, count)).size:
+        return None
+    return np.array(names, dtype=str), stored.astype(np.float32, copy=False)
+
+
 def cache_info(path: str | Path) -> dict[str, Any]:
     """Summary of a descriptor file: fingerprint, dtype, and per split the row count, size D, completeness."""
     import h5py

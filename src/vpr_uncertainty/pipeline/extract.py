@@ -34,7 +34,17 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = ["Descriptors", "ExtractConf", "add_cli", "compute", "default_conf", "main", "model_of"]
+__all__ = [
+    "Descriptors",
+    "ExtractConf",
+    "add_cli",
+    "cached",
+    "compute",
+    "default_conf",
+    "fingerprint_of",
+    "main",
+    "model_of",
+]
 
 SPLITS = ("database", "queries")
 #: Image files a dataset folder scan picks up (case-insensitive).
@@ -109,17 +119,60 @@ class Descriptors:
         return self.names[split], self.descriptors[split]
 
 
+def _preprocessing_changes(conf: ExtractConf) -> dict[str, Any]:
+    return {
+        key: value for key, value in (("image_size", conf.image_size), ("max_side", conf.max_side)) if value is not None
+    }
+
+
 def model_of(conf: ExtractConf) -> Any:
     """The descriptor model of ``conf``, with its preprocessing overrides applied."""
     from vpr_uncertainty.descriptors.models import load_model
 
     model = load_model(conf.model, device=conf.device)
-    changes = {
-        key: value for key, value in (("image_size", conf.image_size), ("max_side", conf.max_side)) if value is not None
-    }
+    changes = _preprocessing_changes(conf)
     if changes:
         model.preprocessing = model.preprocessing.replace(**changes)
     return model
+
+
+def fingerprint_of(conf: ExtractConf) -> dict[str, Any] | None:
+    """``model_of(conf).fingerprint``, found without loading the model (no torch); None when only loading it can
+    tell (:func:`~vpr_uncertainty.descriptors.models.model_identity`)."""
+    from vpr_uncertainty.descriptors.models import fingerprint_of as model_fingerprint
+    from vpr_uncertainty.descriptors.models import model_identity
+
+    identity = model_identity(conf.model)
+    if identity is None:
+        return None
+    name, weights_id, preprocessing = identity
+    changes = _preprocessing_changes(conf)
+    return model_fingerprint(name, weights_id, preprocessing.replace(**changes) if changes else preprocessing)
+
+
+def cached(
+    conf: ExtractConf, images: Mapping[str, tuple[Sequence[str | Path], Sequence[str]]], path: str | Path
+) -> Descriptors | None:
+    """The :class:`Descriptors` that :func:`compute` would return when ``path`` already holds every image of
+    ``images`` for the model and preprocessing of ``conf``, found without loading the model; None when anything
+    must be computed, repaired or rebuilt, or when the model cannot be identified without loading it."""
+    from vpr_uncertainty.descriptors.extract import cached_descriptors
+
+    path = Path(path)
+    config = fingerprint_of(conf) if path.is_file() and not conf.overwrite else None
+    if config is None:
+        return None
+    result = Descriptors(path=path, model_name=config["model"], names={}, descriptors={})
+    for split in SPLITS:
+        if split not in images:
+            continue
+        paths, names = images[split]
+        found = cached_descriptors(config, paths, names, path, split, half=conf.half)
+        if found is None:
+            return None
+        result.names[split], result.descriptors[split] = found
+        result.failed[split] = []
+    return result
 
 
 def compute(
@@ -140,7 +193,8 @@ def compute(
     path : str or Path
         The HDF5 file.
     model : DescriptorModel, optional
-        An already loaded model (default: :func:`model_of` of ``conf``).
+        An already loaded model (default: :func:`model_of` of ``conf``, loaded only when a descriptor must be
+        computed: when ``path`` holds them all, :func:`cached` returns them without importing torch).
     executor : LocalExecutor or RayExecutor, optional
         Where the model runs (default: in this process); with Ray, each actor loads the model of ``conf`` once
         and this process writes the same file as a local run.
@@ -150,6 +204,11 @@ def compute(
     unknown = set(images) - set(SPLITS)
     if unknown:
         raise ValueError(f"images must be keyed by {SPLITS}, got {sorted(unknown)}")
+    if model is None:
+        # a warm rerun: every descriptor cached for this model and preprocessing; the model is not loaded
+        found = cached(conf, images, path)
+        if found is not None:
+            return found
     factory = None
     if model is None and executor is not None and executor.name != "local":
         factory = partial(model_of, conf)

@@ -1,7 +1,10 @@
 """Stage 4, ``report``: an evaluation -> ``results.md``, ``pr_curves.png`` and, last, ``results.json``.
 
-Every file is written atomically and exactly once; ``results.json`` comes after the table and the plot, so the time
-it records for this stage includes them.
+Every file is written atomically and at most once; ``results.json`` comes after the table and the plot, so the time
+it records for this stage includes them. A rerun redraws nothing whose inputs are unchanged: ``results.md`` is kept
+when it holds exactly the new text, ``pr_curves.png`` when the fingerprint of its inputs stored in it (with a
+checksum) is the new one (matplotlib is then not imported). ``results.json`` is always written: it records the
+time of this run's stages.
 """
 
 from __future__ import annotations
@@ -62,8 +65,8 @@ def main(
     text = f"# {dataset} with {model}\n\n" + format_table(evaluation, markdown=True) + "\n"
     if reranking:
         text += "\n" + format_reranking(reranking) + "\n"
-    table = cache.write_text(out / "results.md", text)
-    plot = plot_rejection_curves(evaluation, out / "pr_curves.png", title=f"{dataset} · {model}")
+    table = cache.write_text(out / "results.md", text, keep_unchanged=True)
+    plot = plot_rejection_curves(evaluation, out / "pr_curves.png", title=f"{dataset} · {model}", reuse=True)
     stage_seconds["reports"] = time.perf_counter() - start
     content = {
         **evaluation.to_dict(),

@@ -9,13 +9,15 @@ write atomically: a 300-dpi PNG for ``report.html`` and a vector PDF beside it.
 
 from __future__ import annotations
 
+import functools
+import hashlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty.cache import write_figure
+from vpr_uncertainty.cache import array_digest, figure_is_current, fingerprint, write_figure
 from vpr_uncertainty.calibration.quality import Reliability, reliability_diagram
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
 
@@ -36,6 +38,7 @@ __all__ = [
     "plot_rejection_curves",
     "plot_reliability",
     "pyplot",
+    "rejection_curves_inputs",
     "save_figure",
     "write_rejection_curves",
 ]
@@ -436,7 +439,37 @@ def draw_rejection_curves(evaluation: Evaluation, *, title: str | None = None) -
     return figure
 
 
-def plot_rejection_curves(evaluation: Evaluation, path: str | Path, *, title: str | None = None) -> Path:
+@functools.lru_cache(maxsize=1)
+def _drawing_code() -> str:
+    """A hash of this module's source: the code that draws the figures (a change of it draws them again)."""
+    return hashlib.blake2b(Path(__file__).read_bytes(), digest_size=16).hexdigest()
+
+
+def rejection_curves_inputs(evaluation: Evaluation, *, title: str | None = None) -> str:
+    """The fingerprint of what :func:`plot_rejection_curves` draws, without drawing it (nor importing matplotlib).
+
+    Hashed: each method's name (in order), AUC-PR and curve (recall and precision), the share of correct answers,
+    the number of queries, recall@1, the title, the resolution and the source of this module.
+    """
+    methods = [
+        [name, method.auc_pr, array_digest(method.curve.recall, method.curve.precision)]
+        for name, method in evaluation.methods.items()
+    ]
+    return fingerprint(
+        "figure",
+        {"figure": "rejection_curves", "title": title, "dpi": DPI, "code": _drawing_code()},
+        {
+            "methods": methods,
+            "accept_all": float(np.mean(evaluation.correct)),
+            "n_queries": evaluation.n_queries,
+            "recall_at_1": evaluation.recall_at_n.get(1),
+        },
+    )
+
+
+def plot_rejection_curves(
+    evaluation: Evaluation, path: str | Path, *, title: str | None = None, reuse: bool = False
+) -> Path:
     """Draw the end-to-end precision-recall curves of all methods in one figure and save it.
 
     Each curve is the VPR system's precision and recall as the uncertainty threshold for accepting an answer is
@@ -450,11 +483,20 @@ def plot_rejection_curves(evaluation: Evaluation, path: str | Path, *, title: st
         Output file; the format follows its suffix (``.png`` at 300 dpi, ``.pdf``, ``.svg``).
     title : str, optional
         Figure title.
+    reuse : bool, default=False
+        Keep a PNG at ``path`` already drawn from the same inputs (:func:`rejection_curves_inputs`, stored in the
+        PNG with a checksum: :func:`~vpr_uncertainty.cache.figure_is_current`) instead of drawing it again; a
+        missing, corrupted or outdated figure is drawn.
     """
+    path = Path(path)
+    png = (path.suffix.lower() or ".png") == ".png"
+    inputs = rejection_curves_inputs(evaluation, title=title) if png else None
+    if reuse and inputs is not None and figure_is_current(path, inputs):
+        return path
     plt = pyplot()
     figure = draw_rejection_curves(evaluation, title=title)
     try:
-        return write_figure(figure, path, dpi=DPI, bbox_inches="tight")
+        return write_figure(figure, path, inputs=inputs, dpi=DPI, bbox_inches="tight")
     finally:
         plt.close(figure)
 
