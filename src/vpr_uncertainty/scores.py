@@ -49,10 +49,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from vpr_uncertainty import _fast
+from vpr_uncertainty._onepass import block_rows, check_order, scan
 from vpr_uncertainty._validation import (
     as_score_array,
     check_best_scores,
-    check_block,
     check_fraction,
     check_k,
     check_rows,
@@ -126,58 +126,6 @@ def _divide_by_best(numerator: np.ndarray, best: np.ndarray, on_nonpositive: str
     return result
 
 
-#: Scores per block of the fused passes below: small enough for a block (and its comparison) to stay in cache.
-_SCAN_ELEMENTS = 262_144
-
-
-def _block_rows(n_columns: int) -> int:
-    return max(1, _SCAN_ELEMENTS // n_columns)
-
-
-def _rows_in_order(block: np.ndarray, buffer: np.ndarray) -> bool:
-    """Whether every row of ``block`` (C-contiguous, >= 2 columns) is sorted descending and NaN-free.
-
-    One comparison over the flattened block (NaN fails it) and one count; the comparisons across row boundaries are
-    set to True instead of being counted apart (a strided count is slow). ``check_block`` words the error when this
-    is False.
-    """
-    n_columns = block.shape[1]
-    flat = block.ravel()
-    in_order = np.less_equal(flat[1:], flat[:-1], out=buffer[: flat.size - 1])
-    in_order[n_columns - 1 :: n_columns] = True
-    return np.count_nonzero(in_order) == in_order.size
-
-
-def _check_order(block: np.ndarray, buffer: np.ndarray, offset: int) -> None:
-    """Raise ``check_block``'s error for an unsorted or NaN row of ``block`` (first column: the caller checks +inf)."""
-    if not _rows_in_order(block, buffer):
-        check_block(block, offset=offset, check_first_column=False)
-
-
-def _scan(scores: np.ndarray, compute) -> tuple[np.ndarray, float, float]:
-    """One pass over ``scores`` (from ``as_score_array``, >= 1 row, >= 2 columns), block by block in cache: check
-    the order of every row, then ``compute(block, out_block)`` while the block is in cache. Returns ``out`` and the
-    smallest and largest of the values that ``compute`` returns (None: no values) for its range check.
-
-    The order check is the only value check made here; NaN and unsorted rows raise ``check_block``'s message. The
-    callers then check the few values their formula reads (±inf, range) on the result or on those extremes, and
-    redo the whole input on the reference path when anything is unusual, so that its messages are raised unchanged.
-    """
-    n_rows, n_columns = scores.shape
-    rows = _block_rows(n_columns)
-    buffer = np.empty(min(rows, n_rows) * n_columns, dtype=bool)
-    out = np.empty(n_rows, dtype=scores.dtype)
-    low, high = math.inf, -math.inf
-    with np.errstate(all="ignore"):  # ±inf and overflow send the caller to the reference path
-        for start in range(0, n_rows, rows):
-            block = scores[start : start + rows]
-            _check_order(block, buffer, start)
-            values = compute(block, out[start : start + rows])
-            if values is not None:  # contiguous, so these reductions are cheap
-                low, high = min(low, float(values.min())), max(high, float(values.max()))
-    return out, low, high
-
-
 def _ratio_metric(
     scores: object, k: object, rs_weight: float, sd_weight: float, sort: bool, on_nonpositive: str
 ) -> np.ndarray:
@@ -213,12 +161,12 @@ def _ratio_metric(
     if flag_row:
         weights[2] = 1
     sums = np.empty((weights.shape[0], n_queries), dtype=scores.dtype)  # each result is a contiguous row
-    rows = _block_rows(n_columns)
+    rows = block_rows(n_columns)
     buffer = np.empty(min(rows, n_queries) * n_columns, dtype=bool)
     with np.errstate(invalid="ignore", over="ignore"):  # ±inf rows are redone below
         for start in range(0, n_queries, rows):
             block = scores[start : start + rows]
-            _check_order(block, buffer, start)
+            check_order(block, buffer, start)
             np.matmul(weights, block[:, :n].T, out=sums[:, start : start + rows])
     top = scores[:, :n]
     numerator, best = sums[0], sums[1]
@@ -556,7 +504,7 @@ def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
 
 
 def _fused_baseline(scores: object, k: object, sort: bool, columns: int, compute) -> np.ndarray | None:
-    """A baseline's result in one pass over the scores (:func:`_scan`), or None for the reference path.
+    """A baseline's result in one pass over the scores (:func:`~vpr_uncertainty._onepass.scan`), or None (reference).
 
     ``compute(block, out_block)`` writes the result of a block of sorted, NaN-free rows and returns None or, for
     the baselines that convert similarities to distances, the values 2 − 2s of the columns it read. The result is
@@ -570,7 +518,7 @@ def _fused_baseline(scores: object, k: object, sort: bool, columns: int, compute
     scores = as_score_array(scores, sort=sort)
     if scores.shape[0] == 0 or scores.shape[1] < max(columns, 2):
         return None
-    out, low, high = _scan(scores, compute)
+    out, low, high = scan(scores, compute)
     if low <= high and not (-COSINE_TOLERANCE <= low and high <= 4 + COSINE_TOLERANCE):  # s in [-1, 1] ± tol / 2
         return None
     if not np.isfinite(out).all():
