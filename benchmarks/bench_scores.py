@@ -1,21 +1,29 @@
-"""Throughput and latency of Statistical Uncertainty, next to the plain numpy formula measured in the same run.
+"""Throughput and latency of Statistical Uncertainty and the score baselines, next to plain numpy in the same run.
 
 Targets (issue 2): at least 15x the plain formula's throughput on 1,000,000 x 10 float32 scores, and at most
 3 microseconds for a single-query call (the paper reports 0.03 ms per query).
+Targets (issue 22), on 1,000,000 x 10 float32 and float64 scores: SU (with the numba kernel of the ``fast`` extra)
+at least 20x the plain formula and at most 3x a single streaming read of the scores; margin and PA at most 1.5x
+their one-line numpy formulas (validation included).
 
-    python benchmarks/bench_scores.py [--queries 1000000] [--repeats 15]
+Throughput rows are timed in rounds: each round runs every contender once, in turn, so that a ratio compares
+times taken moments apart (the machine may be shared); the table gives each contender's median time and the
+median over rounds of its ratio to the reference named.
+
+    python benchmarks/bench_scores.py [--queries 1000000] [--repeats 15] [--rounds 9]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 import timeit
 
 import numpy as np
 
-from vpr_uncertainty import StatisticalUncertainty, statistical_uncertainty
+from vpr_uncertainty import StatisticalUncertainty, _fast, margin, perceptual_aliasing, statistical_uncertainty
 
 
 def plain_formula(scores: np.ndarray, alpha: float = 0.5) -> np.ndarray:
@@ -23,6 +31,59 @@ def plain_formula(scores: np.ndarray, alpha: float = 0.5) -> np.ndarray:
     ratio_spread = np.mean(scores[:, 1:] / scores[:, :1], axis=1)
     similarity_distribution = np.median(scores, axis=1) / scores[:, 0]
     return alpha * ratio_spread + (1 - alpha) * similarity_distribution
+
+
+def streaming_read(scores: np.ndarray) -> float:
+    """One pass over every score, the least any validated metric must do."""
+    return scores.max()
+
+
+def margin_one_line(scores: np.ndarray) -> np.ndarray:
+    return scores[:, 1] - scores[:, 0]
+
+
+def perceptual_aliasing_one_line(scores: np.ndarray) -> np.ndarray:
+    return np.sqrt(2 - 2 * scores[:, 0]) / np.sqrt(2 - 2 * scores[:, 1])
+
+
+def with_numba(mode: str, function):
+    """``function`` run with VPR_UNCERTAINTY_NUMBA=mode ("1": the kernel at every size, "0": numpy only)."""
+
+    def run():
+        previous = os.environ.get(_fast.ENVIRONMENT_VARIABLE)
+        os.environ[_fast.ENVIRONMENT_VARIABLE] = mode
+        try:
+            return function()
+        finally:
+            if previous is None:
+                del os.environ[_fast.ENVIRONMENT_VARIABLE]
+            else:
+                os.environ[_fast.ENVIRONMENT_VARIABLE] = previous
+
+    return run
+
+
+def paired_rounds(contenders: dict, rounds: int) -> dict[str, list[float]]:
+    """Seconds of every contender in every round; each round runs them all once, in turn (after one warm-up)."""
+    for function in contenders.values():
+        function()
+    times: dict[str, list[float]] = {name: [] for name in contenders}
+    for _ in range(rounds):
+        for name, function in contenders.items():
+            start = time.perf_counter()
+            function()
+            times[name].append(time.perf_counter() - start)
+    return times
+
+
+def print_table(title: str, times: dict[str, list[float]], n_queries: int, ratios: list[tuple]) -> None:
+    """Median ns/query of each contender, then each (name, reference, target text) ratio's median over rounds."""
+    print(title)
+    for name, seconds in times.items():
+        print(f"  {name:<36} {statistics.median(seconds) / n_queries * 1e9:8.2f} ns/query")
+    for name, reference, target in ratios:
+        ratio = statistics.median(a / b for a, b in zip(times[name], times[reference], strict=True))
+        print(f"  {name + ' / ' + reference:<58} {ratio:7.2f}   ({target})")
 
 
 def median_seconds(function, repeats: int) -> float:
@@ -43,10 +104,58 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--queries", type=int, default=1_000_000, help="rows of the throughput test")
     parser.add_argument("--repeats", type=int, default=15, help="timed runs per measurement (median reported)")
+
+    parser.add_argument("--rounds", type=int, default=9, help="paired rounds of the issue-22 table (median reported)")
     args = parser.parse_args()
 
     rng = np.random.default_rng(0)
     scores = -np.sort(-rng.uniform(0.05, 1.0, size=(args.queries, 10)).astype(np.float32), axis=1)
+    kernel = _fast._load()
+    print(f"numba kernel: {'available' if kernel else 'not installed (numba on = numpy path)'}")
+    for dtype in (np.float32, np.float64):
+        typed = scores.astype(dtype)
+        name = np.dtype(dtype).name
+        numba_on = with_numba("1", lambda typed=typed: statistical_uncertainty(typed))
+        numba_off = with_numba("0", lambda typed=typed: statistical_uncertainty(typed))
+        np.testing.assert_allclose(numba_on(), plain_formula(typed), rtol=1e-5)
+        np.testing.assert_allclose(numba_off(), plain_formula(typed), rtol=1e-5)
+        su = {
+            "SU toolkit, numba on": numba_on,
+            "SU toolkit, numba off": numba_off,
+            "SU plain numpy formula": lambda typed=typed: plain_formula(typed),
+            "streaming read S.max()": lambda typed=typed: streaming_read(typed),
+            "streaming read S.sum()": lambda typed=typed: typed.sum(),
+        }
+        print_table(
+            f"SU on {args.queries:,} x 10 {name}, median of {args.rounds} paired rounds:",
+            paired_rounds(su, args.rounds),
+            args.queries,
+            [
+                ("SU plain numpy formula", "SU toolkit, numba on", "target >= 20"),
+                ("SU plain numpy formula", "SU toolkit, numba off", "numpy path"),
+                ("SU toolkit, numba on", "streaming read S.max()", "target <= 3"),
+                ("SU toolkit, numba on", "streaming read S.sum()", "target <= 3"),
+                ("SU toolkit, numba off", "streaming read S.max()", "numpy path"),
+            ],
+        )
+        np.testing.assert_allclose(margin(typed), margin_one_line(typed))
+        np.testing.assert_allclose(perceptual_aliasing(typed), perceptual_aliasing_one_line(typed), rtol=1e-6)
+        baselines = {
+            "margin toolkit": lambda typed=typed: margin(typed),
+            "margin one-line": lambda typed=typed: margin_one_line(typed),
+            "PA toolkit": lambda typed=typed: perceptual_aliasing(typed),
+            "PA one-line": lambda typed=typed: perceptual_aliasing_one_line(typed),
+        }
+        print_table(
+            f"margin and PA on {args.queries:,} x 10 {name}, median of {args.rounds} paired rounds:",
+            paired_rounds(baselines, args.rounds),
+            args.queries,
+            [
+                ("margin toolkit", "margin one-line", "target <= 1.5"),
+                ("PA toolkit", "PA one-line", "target <= 1.5"),
+            ],
+        )
+
     np.testing.assert_allclose(statistical_uncertainty(scores), plain_formula(scores), rtol=1e-5)
 
     ours = median_seconds(lambda: statistical_uncertainty(scores), args.repeats)

@@ -9,7 +9,7 @@ import pytest
 
 import vpr_uncertainty
 
-HEAVY = ("scipy", "sklearn", "matplotlib", "h5py", "faiss", "torch", "pandas", "cv2")
+HEAVY = ("scipy", "sklearn", "matplotlib", "h5py", "faiss", "torch", "pandas", "cv2", "numba")
 
 
 def test_importing_the_package_and_scoring_loads_no_heavy_library():

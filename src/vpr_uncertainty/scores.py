@@ -48,6 +48,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from vpr_uncertainty import _fast
+from vpr_uncertainty._onepass import block_rows, check_order, scan
 from vpr_uncertainty._validation import (
     as_score_array,
     check_best_scores,
@@ -129,23 +131,27 @@ def _ratio_metric(
 ) -> np.ndarray:
     """(rs_weight·RS + sd_weight·SD) for every row, computed as one weighted sum divided by s_1.
 
-    With sorted rows the mean of the runners-up and the median are fixed linear combinations of the columns, so no
-    per-row sort or median is needed. One pass checks the order of every row (block by block, in cache); one matrix
-    product then gives every row's weighted sum and s_1. These are finite unless the row holds ±inf or overflows,
-    so they flag, without another pass, the rows with missing candidates (-inf), +inf or overflow, which are
-    redone one by one.
+    Large inputs go to the optional numba kernel (:mod:`vpr_uncertainty._fast`: one pass per row) when numba is
+    installed; this numpy path is the reference, and the kernel hands every row it does not score the ordinary way
+    back to it. With sorted rows the mean of the runners-up and the median are fixed linear combinations of the
+    columns, so no per-row sort or median is needed. One pass, block by block in cache, checks the order of every
+    row and multiplies the block by the weights, giving every row's weighted sum and s_1. These are finite unless
+    the row holds ±inf or overflows, so they flag, without another pass, the rows with missing candidates (-inf),
+    +inf or overflow, which are redone one by one.
     """
     k = check_k(k)
     _check_policy(on_nonpositive)
     scores = as_score_array(scores, sort=sort)
-    n_queries = scores.shape[0]
-    check_rows(scores, check_first_column=False)
+    n_queries, n_columns = scores.shape
     if n_queries == 0:
         return np.empty(0, dtype=scores.dtype)
-    n = min(k, scores.shape[1])
+    n = min(k, n_columns)
     if n < 2:
+        check_rows(scores, check_first_column=False)
         raise_for_short_rows(np.full(n_queries, n))
-    top = scores[:, :n]
+    fast = _fast.ratio_metric(scores, n, rs_weight, sd_weight, on_nonpositive == "most_uncertain")
+    if fast is not None:
+        return fast
     # With rs_weight > 0 every column after the first has a positive weight, so ±inf anywhere already makes the
     # weighted sum or s_1 non-finite; pure SD weighs only the middle columns and needs the plain sum as a flag.
     flag_row = rs_weight == 0
@@ -154,8 +160,15 @@ def _ratio_metric(
     weights[1, 0] = 1
     if flag_row:
         weights[2] = 1
+    sums = np.empty((weights.shape[0], n_queries), dtype=scores.dtype)  # each result is a contiguous row
+    rows = block_rows(n_columns)
+    buffer = np.empty(min(rows, n_queries) * n_columns, dtype=bool)
     with np.errstate(invalid="ignore", over="ignore"):  # ±inf rows are redone below
-        sums = weights @ top.T  # each result is a contiguous row
+        for start in range(0, n_queries, rows):
+            block = scores[start : start + rows]
+            check_order(block, buffer, start)
+            np.matmul(weights, block[:, :n].T, out=sums[:, start : start + rows])
+    top = scores[:, :n]
     numerator, best = sums[0], sums[1]
     finite = np.isfinite(sums[2]) if flag_row else np.isfinite(numerator) & np.isfinite(best)
     unusual = np.flatnonzero(~finite)
@@ -480,6 +493,7 @@ def _top_distances(scores: np.ndarray, distances: object, n: int, method: str) -
 
 
 def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
+    """The reference validation of the baselines: every row sorted, NaN-free, its first ``columns`` finite."""
     check_k(k)
     scores = check_top_k_scores(scores, sort=sort)
     if scores.shape[0] and scores.shape[1] < columns:
@@ -487,6 +501,52 @@ def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
     if scores.shape[0] and not np.isfinite(scores[:, :columns]).all():
         raise_for_short_rows(np.isfinite(scores[:, :columns]).sum(axis=1), needed=columns)
     return scores
+
+
+def _fused_baseline(scores: object, k: object, sort: bool, columns: int, compute) -> np.ndarray | None:
+    """A baseline's result in one pass over the scores (:func:`~vpr_uncertainty._onepass.scan`), or None (reference).
+
+    ``compute(block, out_block)`` writes the result of a block of sorted, NaN-free rows and returns None or, for
+    the baselines that convert similarities to distances, the values 2 − 2s of the columns it read. The result is
+    returned only if it is finite and those values are clearly those of cosine similarities (a margin of half
+    :data:`COSINE_TOLERANCE` inside the accepted range, so that rounding never lets through what the reference
+    rejects); otherwise (±inf, a short row, a range error, values at the edge of the range, or nothing wrong but an
+    overflow) None sends the caller to the reference path, which raises its message or returns what it always
+    returned.
+    """
+    check_k(k)
+    scores = as_score_array(scores, sort=sort)
+    if scores.shape[0] == 0 or scores.shape[1] < max(columns, 2):
+        return None
+    out, low, high = scan(scores, compute)
+    if low <= high and not (-COSINE_TOLERANCE <= low and high <= 4 + COSINE_TOLERANCE):  # s in [-1, 1] ± tol / 2
+        return None
+    if not np.isfinite(out).all():
+        return None
+    return out
+
+
+def _negated_first(block: np.ndarray, out: np.ndarray) -> None:
+    np.negative(block[:, 0], out=out)
+
+
+def _distance_first(block: np.ndarray, out: np.ndarray) -> np.ndarray:
+    squared = 2 - 2 * block[:, 0]
+    np.sqrt(np.maximum(squared, 0), out=out)
+    return squared
+
+
+def _distance_ratio(block: np.ndarray, out: np.ndarray) -> np.ndarray:
+    squared = 2 - 2 * block[:, :2]
+    top2 = np.sqrt(np.maximum(squared, 0))
+    first, second = top2[:, 0], top2[:, 1]
+    out[:] = 1
+    np.divide(first, second, out=out, where=second != 0)
+    return squared
+
+
+def _difference_of_first_two(block: np.ndarray, out: np.ndarray) -> None:
+    np.subtract(block[:, 1], block[:, 0], out=out)
 
 
 def best_match(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
@@ -511,6 +571,9 @@ def best_match(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray
     >>> best_match(np.array([[0.8, 0.4], [0.3, 0.1]]))
     array([-0.8, -0.3])
     """
+    fast = _fused_baseline(scores, k, sort, 1, _negated_first)
+    if fast is not None:
+        return fast
     return -_prepare(scores, k, sort, 1)[:, 0]
 
 
@@ -540,6 +603,10 @@ def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: 
     >>> l2_distance(np.array([[0.5, 0.0]]))
     array([1.])
     """
+    if distances is None:
+        fast = _fused_baseline(scores, k, sort, 1, _distance_first)
+        if fast is not None:
+            return fast
     scores = _prepare(scores, k, sort, 1)
     if distances is not None and sort:
         distances = np.sort(np.asarray(distances), axis=1)
@@ -573,6 +640,10 @@ def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None
     >>> perceptual_aliasing(np.array([[0.5, -1.0], [1.0, 1.0]]))
     array([0.5, 1. ])
     """
+    if distances is None:
+        fast = _fused_baseline(scores, k, sort, 2, _distance_ratio)
+        if fast is not None:
+            return fast
     scores = _prepare(scores, k, sort, 2)
     if distances is not None and sort:
         distances = np.sort(np.asarray(distances), axis=1)
@@ -604,6 +675,9 @@ def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
     >>> margin(np.array([[0.9, 0.5], [0.6, 0.6]]))
     array([-0.4,  0. ])
     """
+    fast = _fused_baseline(scores, k, sort, 2, _difference_of_first_two)
+    if fast is not None:
+        return fast
     scores = _prepare(scores, k, sort, 2)
     return scores[:, 1] - scores[:, 0]
 

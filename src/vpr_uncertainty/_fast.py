@@ -1,0 +1,76 @@
+"""Optional numba kernel of RS, SD and SU: one pass over each row (order, finiteness, mean, median, ratio).
+
+The numpy path in :mod:`vpr_uncertainty.scores` is the reference; this kernel only speeds up large inputs and never
+decides an error. A row it cannot score the ordinary way (NaN, unsorted, +inf, fewer than 2 candidates, s_1 <= 0
+under ``on_nonpositive="raise"``, overflow) makes it give up, and the numpy path then scores the whole input or
+raises its own message. Rows with missing candidates (trailing ``-inf``) and rows with s_1 <= 0 under
+``"most_uncertain"`` are scored here as the numpy path scores them.
+
+numba is imported on first use only (``import vpr_uncertainty`` and a gate never load it), and only for inputs
+large enough to repay its import and the load of the cached machine code (:data:`LOAD_ELEMENTS`); once loaded,
+the kernel serves every input of at least :data:`MIN_ELEMENTS` scores. Without numba, or with the environment
+variable ``VPR_UNCERTAINTY_NUMBA=0``, everything runs on numpy; ``VPR_UNCERTAINTY_NUMBA=1`` uses the kernel for
+every size (tests, debugging). Install numba with the ``fast`` extra: ``pip install vpr-uncertainty[fast]``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+
+__all__ = ["ENVIRONMENT_VARIABLE", "LOAD_ELEMENTS", "MIN_ELEMENTS", "ratio_metric"]
+
+ENVIRONMENT_VARIABLE = "VPR_UNCERTAINTY_NUMBA"
+
+#: Scores (rows x columns) from which a loaded kernel beats the numpy path (measured: benchmarks/bench_scores.py).
+MIN_ELEMENTS = 100_000
+#: Scores from which one call repays importing numba and loading the kernel (about 0.3-0.5 s once per process)
+#: unless numba is already imported.
+LOAD_ELEMENTS = 20_000_000
+
+_kernel = None  # the compiled kernel once loaded; False when numba is missing or failed
+
+
+def _load():
+    global _kernel
+    if _kernel is None:
+        try:
+            from vpr_uncertainty._fast_kernel import ratio_kernel
+        except ImportError:  # numba is not installed (or not importable here): the numpy path
+            _kernel = False
+        else:
+            _kernel = ratio_kernel
+    return _kernel
+
+
+def _kernel_for(n_elements: int):
+    """The kernel to use for an input of ``n_elements`` scores, or None for the numpy path."""
+    mode = os.environ.get(ENVIRONMENT_VARIABLE, "")
+    if mode == "0":
+        return None
+    if mode != "1":
+        if n_elements < MIN_ELEMENTS:
+            return None
+        if _kernel is None and n_elements < LOAD_ELEMENTS and "numba" not in sys.modules:
+            return None
+    return _load() or None
+
+
+def ratio_metric(
+    scores: np.ndarray, n: int, rs_weight: float, sd_weight: float, most_uncertain: bool
+) -> np.ndarray | None:
+    """(rs_weight·RS + sd_weight·SD) of each row of ``scores`` on its first ``n`` columns, or None.
+
+    ``scores`` comes from ``as_score_array`` (C-contiguous float32 or float64, at least one row, ``n >= 2``
+    columns). None means: the numpy path decides (numba absent, disabled, input too small, or a row the kernel does
+    not score: the numpy path then raises its message or scores it).
+    """
+    kernel = _kernel_for(scores.size)
+    if kernel is None:
+        return None
+    out = np.empty(scores.shape[0], dtype=scores.dtype)
+    if kernel(scores, n, float(rs_weight), float(sd_weight), most_uncertain, out) != 0:
+        return None
+    return out
