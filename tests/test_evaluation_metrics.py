@@ -255,3 +255,14 @@ def test_first_positive_rank_answers_every_n_from_one_look_up():
     assert given == {n: float(correct_at_n(indices, mask, n)[answerable].mean()) for n in (1, 2, 5, 10)}
     with pytest.raises(ValueError, match="between 1 and"):
         recall_at_n(indices, mask, ns=(0, 1))
+
+
+def test_auc_pr_is_scikit_learns_trapezoid_bit_for_bit(labels):
+    """AUC-PR is computed without importing scikit-learn, with sklearn.metrics.auc's arithmetic."""
+    from sklearn.metrics import auc
+
+    correct, uncertainty = labels
+    for values in (uncertainty, np.round(uncertainty, 1)):
+        ranking = rank_queries(correct, values)
+        precision, recall = ranking.precision_recall()
+        assert ranking.auc_pr() == auc(recall, precision)

@@ -54,3 +54,21 @@ def test_a_saved_gate_loads_and_decides_without_a_heavy_library(tmp_path):
     )
     printed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
     assert printed.split("\n")[:2] == ["True", ""]
+
+
+def test_the_evaluate_command_loads_only_what_it_computes_with(data_dir):
+    """`vpr-uncertainty evaluate` on a matrix: numpy and scipy.sparse (the ground truth), not scikit-learn (whose
+    import pulled pandas and pyarrow: 1-2 s), scipy.stats (the gate's guarantee, via the CAL plugin) or
+    scipy.spatial (positives from positions); the command line also builds only the evaluate parser."""
+    root = data_dir / "vprbench"
+    matrix = root / "precomputed_matches" / "corridor" / "NetVLAD" / "precomputed_data_corrected.npy"
+    script = (
+        "import sys\n"
+        "from vpr_uncertainty.cli import main\n"
+        f"status = main(['evaluate', {str(matrix)!r}, '--gt', {str(root / 'corridor' / 'ground_truth_new.npy')!r}])\n"
+        "heavy = ('sklearn', 'scipy.stats', 'scipy.spatial', 'pandas', 'pyarrow', 'matplotlib', 'h5py', 'faiss',\n"
+        "         'torch', 'cv2', 'numba', 'PIL')\n"
+        "print(status, ' '.join(m for m in heavy if m in sys.modules))\n"
+    )
+    printed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    assert printed.splitlines()[-1].strip() == "0"

@@ -17,7 +17,6 @@ import numpy as np
 
 from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import stratified_split
-from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.evaluation import correct_at_n, evaluate
 from vpr_uncertainty.evaluation.metrics import check_labels
@@ -230,6 +229,8 @@ def evaluate_held_out(
         Further method options (as :func:`vpr_uncertainty.evaluate`); ``query_paths`` (one per query) is cut to
         the held-out queries of each split.
     """
+    from vpr_uncertainty.calibration.fit import calibrate_arrays  # scipy.stats: only when CAL is fitted
+
     if retrieval.positives is None:
         raise ValueError("the held-out evaluation needs the ground truth (argument ground_truth)")
     if not 0.0 < calibration_fraction < 1.0:
