@@ -197,7 +197,7 @@ def test_the_command_line_unwinds_on_sigterm(monkeypatch):
         return 0
 
     parser = cli.build_parser()
-    monkeypatch.setattr(cli, "build_parser", lambda plugins=(): parser)
+    monkeypatch.setattr(cli, "build_parser", lambda plugins=(), command=None: parser)
     monkeypatch.setattr(parser, "parse_args", lambda argv: argparse.Namespace(command="x", handler=handler))
     before = signal.getsignal(signal.SIGTERM)
     assert cli.main(["x"]) == 0
