@@ -236,3 +236,81 @@ def test_margin_overflow_is_returned_as_before():
     array = np.array([[3e38, -3e38]], dtype=np.float32)
     with np.errstate(over="ignore"):
         assert margin(array)[0] == -np.inf
+
+
+# --- the kernels compiled for one row length, and the margin and PA kernels -----------------------------------------
+
+
+@needs_numba
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("n", _fast.SPECIALISED)
+def test_specialised_kernel_matches_the_numpy_path(n, dtype, monkeypatch):
+    rng = np.random.default_rng(n)
+    array = -np.sort(-rng.uniform(-0.2, 1, size=(3000, n)), axis=1).astype(dtype)
+    clean = array[array[:, 0] > 0]
+    for alpha in (0.0, 0.3, 1.0):
+        for values in (clean, array):  # s_1 <= 0 rows make the specialised kernel hand over to the general one
+            fast = run(statistical_uncertainty, values, "1", monkeypatch, k=n, alpha=alpha)
+            reference = run(statistical_uncertainty, values, "0", monkeypatch, k=n, alpha=alpha)
+            assert fast.dtype == dtype
+            assert_close(fast, reference, atol=1e-6 if dtype == np.float32 else 1e-14)
+
+
+def _with_bad_row(case: str, n_columns: int, dtype) -> np.ndarray:
+    array = np.tile(np.linspace(0.9, 0.1, n_columns), (50, 1)).astype(dtype)
+    row = {
+        "NaN": [0.9, np.nan],
+        "+inf": [np.inf],
+        "unsorted": [0.1, 0.5],
+        "unsorted at the end": [0.9] * (n_columns - 1) + [0.95],
+        "missing": [0.9, 0.5] + [-np.inf] * (n_columns - 2),
+        "short": [0.9] + [-np.inf] * (n_columns - 1),
+        "nonpositive": [0.0] + [-0.1] * (n_columns - 1),
+        "not cosine": [1.5, 0.5],
+        "edge of cosine": [1.0004, 0.5],
+        "overflow": [1e-38, -3e38] if dtype == np.float32 else [1e-300, -1e300],
+    }[case]
+    array[37, : len(row)] = row
+    return array
+
+
+BAD_CASES = ["NaN", "+inf", "unsorted", "unsorted at the end", "missing", "short", "nonpositive", "not cosine"]
+
+
+@needs_numba
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("n_columns", [10, 7])  # specialised and general
+@pytest.mark.parametrize("case", [*BAD_CASES, "edge of cosine", "overflow"])
+@pytest.mark.parametrize("metric", [*RATIO_METRICS, margin, perceptual_aliasing])
+def test_kernels_hand_unusual_rows_to_the_numpy_path(metric, case, n_columns, dtype, monkeypatch):
+    array = _with_bad_row(case, n_columns, dtype)
+    k = {"k": n_columns}
+    with np.errstate(all="ignore"):
+        try:
+            reference = run(metric, array, "0", monkeypatch, **k)
+        except (ValueError, TypeError):
+            assert error_of(metric, array, "1", monkeypatch, **k) == error_of(metric, array, "0", monkeypatch, **k)
+        else:
+            fast = run(metric, array, "1", monkeypatch, **k)
+            assert fast.dtype == reference.dtype
+            assert_close(fast, reference, atol=1e-6 if dtype == np.float32 else 1e-14)
+
+
+@needs_numba
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("n_columns", [2, 3, 10, 20])
+def test_margin_and_pa_kernels_match_the_formulas(n_columns, dtype, monkeypatch):
+    monkeypatch.setenv(_fast.ENVIRONMENT_VARIABLE, "1")
+    rng = np.random.default_rng(n_columns)
+    array = -np.sort(-rng.uniform(-1, 1, size=(2000, n_columns)), axis=1).astype(dtype)
+    array[5] = np.minimum(array[5], 0.5)
+    array[5, :2] = 0.5  # a tie
+    array[6, :2] = 1.0  # a tie at distance 0: PA's 0 / 0 is 1
+    for kind in ("margin", "PA"):
+        fast = _fast.two_column(kind, array, scores.COSINE_TOLERANCE)
+        assert fast is not None and fast.dtype == dtype
+        distances = np.sqrt(np.maximum(2 - 2 * array[:, :2].astype(np.float64), 0))
+        with np.errstate(invalid="ignore"):
+            expected = array[:, 1] - array[:, 0] if kind == "margin" else distances[:, 0] / distances[:, 1]
+        expected[6] = expected[6] if kind == "margin" else 1.0
+        assert_close(fast, expected, atol=1e-6)

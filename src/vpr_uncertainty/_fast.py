@@ -1,10 +1,15 @@
-"""Optional numba kernel of RS, SD and SU: one pass over each row (order, finiteness, mean, median, ratio).
+"""Optional numba kernels of RS, SD and SU, margin and PA: one pass over each row (order, finiteness, formula).
 
 The numpy path in :mod:`vpr_uncertainty.scores` is the reference; this kernel only speeds up large inputs and never
 decides an error. A row it cannot score the ordinary way (NaN, unsorted, +inf, fewer than 2 candidates, s_1 <= 0
 under ``on_nonpositive="raise"``, overflow) makes it give up, and the numpy path then scores the whole input or
 raises its own message. Rows with missing candidates (trailing ``-inf``) and rows with s_1 <= 0 under
 ``"most_uncertain"`` are scored here as the numpy path scores them.
+
+Rows of a length in :data:`SPECIALISED` (k = 10 above all) first go through a kernel compiled for that length
+(unrolled, without branches, a count of rows needing a closer look); only when that count is not zero does the
+general kernel redo the input. The margin and PA kernels (:func:`two_column`) give up on any unusual row, and the
+one-pass numpy path of :mod:`vpr_uncertainty.scores` then answers.
 
 numba is imported on first use only (``import vpr_uncertainty`` and a gate never load it), and only for inputs
 large enough to repay its import and the load of the cached machine code (:data:`LOAD_ELEMENTS`); once loaded,
@@ -20,7 +25,7 @@ import sys
 
 import numpy as np
 
-__all__ = ["ENVIRONMENT_VARIABLE", "LOAD_ELEMENTS", "MIN_ELEMENTS", "ratio_metric"]
+__all__ = ["ENVIRONMENT_VARIABLE", "LOAD_ELEMENTS", "MIN_ELEMENTS", "SPECIALISED", "ratio_metric", "two_column"]
 
 ENVIRONMENT_VARIABLE = "VPR_UNCERTAINTY_NUMBA"
 
@@ -30,7 +35,11 @@ MIN_ELEMENTS = 100_000
 #: unless numba is already imported.
 LOAD_ELEMENTS = 20_000_000
 
+#: Row lengths (k = number of columns) with kernels compiled for that length (several times faster).
+SPECIALISED = (5, 10, 20, 25)
+
 _kernel = None  # the compiled kernel once loaded; False when numba is missing or failed
+_made: dict = {}  # (kind, row length) -> kernel made by _fast_kernel.make_*, compiled (or loaded) on first call
 
 
 def _load():
@@ -58,6 +67,18 @@ def _kernel_for(n_elements: int):
     return _load() or None
 
 
+def _made_kernel(kind: str, n_columns: int):
+    key = (kind, n_columns)
+    if key not in _made:
+        from vpr_uncertainty import _fast_kernel
+
+        if kind == "ratio":
+            _made[key] = _fast_kernel.make_ratio(n_columns)
+        else:
+            _made[key] = _fast_kernel.make_two_column(n_columns, kind == "PA")
+    return _made[key]
+
+
 def ratio_metric(
     scores: np.ndarray, n: int, rs_weight: float, sd_weight: float, most_uncertain: bool
 ) -> np.ndarray | None:
@@ -71,6 +92,27 @@ def ratio_metric(
     if kernel is None:
         return None
     out = np.empty(scores.shape[0], dtype=scores.dtype)
+    limit = float(np.finfo(scores.dtype).max)
+    if n == scores.shape[1] and n in SPECIALISED:
+        if _made_kernel("ratio", n)(scores, float(rs_weight), float(sd_weight), limit, out) == 0:
+            return out
     if kernel(scores, n, float(rs_weight), float(sd_weight), most_uncertain, out) != 0:
+        return None
+    return out
+
+
+def two_column(kind: str, scores: np.ndarray, tolerance: float) -> np.ndarray | None:
+    """The margin (``kind="margin"``) or PA (``kind="PA"``, from d² = 2 − 2s) of every row, or None.
+
+    ``scores`` comes from ``as_score_array`` (>= 1 row, >= 2 columns). None: the numpy path decides (as for
+    :func:`ratio_metric`, or a row that is unsorted, NaN, +inf, short, overflows or, for PA, has a squared distance
+    outside [−``tolerance``, 4 + ``tolerance``]).
+    """
+    if _kernel_for(scores.size) is None:
+        return None
+    n_columns = scores.shape[1]
+    kernel = _made_kernel(kind, n_columns if n_columns in SPECIALISED else 0)
+    out = np.empty(scores.shape[0], dtype=scores.dtype)
+    if kernel(scores, float(tolerance), float(np.finfo(scores.dtype).max), out) != 0:
         return None
     return out

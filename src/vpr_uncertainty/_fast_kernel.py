@@ -1,4 +1,12 @@
-"""The numba kernel behind :mod:`vpr_uncertainty._fast`; importing this module imports numba (ImportError without)."""
+"""The numba kernels behind :mod:`vpr_uncertainty._fast`; importing this module imports numba (ImportError without).
+
+Speed comes from what LLVM sees, not from the source: ``error_model="numpy"`` (no zero-division branch in the row
+loop), loops of a trip count known at compile time (the kernels made by :func:`make_ratio` and
+:func:`make_two_column` are closures over the row length, so each length gets its own fully unrolled machine code,
+cached on disk like the others: numba keys its cache on the closure's values) and no data-dependent branch in the
+row loop: each row is computed unconditionally and counted as "bad" when it needs a closer look, which the caller
+then gives to the general kernel or to the numpy path.
+"""
 
 from __future__ import annotations
 
@@ -7,10 +15,12 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["ratio_kernel"]
+__all__ = ["make_ratio", "make_two_column", "ratio_kernel"]
+
+_OPTIONS = {"cache": True, "nogil": True, "boundscheck": False, "error_model": "numpy"}
 
 
-@numba.njit(cache=True, nogil=True, boundscheck=False)
+@numba.njit(**_OPTIONS)
 def ratio_kernel(scores, n, rs_weight, sd_weight, most_uncertain, out):  # pragma: no cover - compiled
     """Write (rs_weight·RS + sd_weight·SD) of every row of ``scores`` (sorted descending) into ``out``.
 
@@ -56,3 +66,76 @@ def ratio_kernel(scores, n, rs_weight, sd_weight, most_uncertain, out):  # pragm
         if not abs(out[q]) < math.inf:  # overflow of out's dtype
             return q + 1
     return 0
+
+
+def make_ratio(n: int):
+    """A kernel of (rs_weight·RS + sd_weight·SD) for rows of exactly ``n`` scores (``n`` a compile-time constant).
+
+    ``kernel(scores, rs_weight, sd_weight, limit, out)`` writes every row's value into ``out`` and returns how many
+    rows are bad: unsorted, NaN, +inf, a missing candidate, s_1 <= 0, or a result beyond ``limit`` (the largest
+    finite value of ``out``'s dtype). Bad rows are left to :func:`ratio_kernel`; their values here are garbage.
+    """
+    low, high = (n - 1) // 2, n // 2
+
+    @numba.njit(**_OPTIONS)
+    def kernel(scores, rs_weight, sd_weight, limit, out):  # pragma: no cover - compiled
+        flat = scores.ravel()
+        rs_weight = rs_weight / (n - 1)
+        sd_weight = sd_weight * 0.5
+        bad = 0
+        for q in range(scores.shape[0]):
+            row = q * n
+            ok = True
+            for j in range(1, n):
+                ok &= flat[row + j] <= flat[row + j - 1]  # False for NaN
+            best = flat[row]
+            total = 0.0
+            for j in range(1, n):
+                total += flat[row + j]
+            ok &= (best < math.inf) & (flat[row + n - 1] > -math.inf) & (best > 0)
+            value = (rs_weight * total + sd_weight * (np.float64(flat[row + low]) + flat[row + high])) / best
+            out[q] = value
+            ok &= abs(value) <= limit
+            bad += not ok
+        return bad
+
+    return kernel
+
+
+def make_two_column(n_columns: int, distance_ratio: bool):
+    """A kernel of the margin s_2 − s_1 or, with ``distance_ratio``, of PA = d_1 / d_2 (d² = 2 − 2s).
+
+    ``n_columns`` is the row length as a compile-time constant, or 0 to read it from the input (slower).
+    ``kernel(scores, tolerance, limit, out)`` writes every row's value into ``out`` and returns how many rows are
+    bad: unsorted (over the whole row), NaN, +inf, fewer than 2 candidates, a result beyond ``limit`` (the largest
+    finite value of ``out``'s dtype), or for PA a squared
+    distance outside [−tolerance, 4 + tolerance]. The caller then redoes the input on the numpy path.
+    """
+
+    @numba.njit(**_OPTIONS)
+    def kernel(scores, tolerance, limit, out):  # pragma: no cover - compiled
+        m = n_columns if n_columns else scores.shape[1]
+        flat = scores.ravel()
+        bad = 0
+        for q in range(scores.shape[0]):
+            row = q * m
+            ok = True
+            for j in range(1, m):
+                ok &= flat[row + j] <= flat[row + j - 1]  # False for NaN
+            first, second = flat[row], flat[row + 1]
+            ok &= (first < math.inf) & (second > -math.inf)
+            if distance_ratio:
+                squared_first = 2.0 - 2.0 * np.float64(first)
+                squared_second = 2.0 - 2.0 * np.float64(second)
+                ok &= (squared_first >= -tolerance) & (squared_second <= 4.0 + tolerance)  # sorted: the extremes
+                d_first = math.sqrt(max(squared_first, 0.0))
+                d_second = math.sqrt(max(squared_second, 0.0))
+                value = d_first / d_second if d_second != 0 else 1.0
+            else:
+                value = second - first
+            out[q] = value
+            ok &= abs(value) <= limit
+            bad += not ok
+        return bad
+
+    return kernel

@@ -503,7 +503,9 @@ def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
     return scores
 
 
-def _fused_baseline(scores: object, k: object, sort: bool, columns: int, compute) -> np.ndarray | None:
+def _fused_baseline(
+    scores: object, k: object, sort: bool, columns: int, compute, kernel: str | None = None
+) -> np.ndarray | None:
     """A baseline's result in one pass over the scores (:func:`~vpr_uncertainty._onepass.scan`), or None (reference).
 
     ``compute(block, out_block)`` writes the result of a block of sorted, NaN-free rows and returns None or, for
@@ -512,12 +514,17 @@ def _fused_baseline(scores: object, k: object, sort: bool, columns: int, compute
     :data:`COSINE_TOLERANCE` inside the accepted range, so that rounding never lets through what the reference
     rejects); otherwise (±inf, a short row, a range error, values at the edge of the range, or nothing wrong but an
     overflow) None sends the caller to the reference path, which raises its message or returns what it always
-    returned.
+    returned. ``kernel`` names the numba kernel (:func:`vpr_uncertainty._fast.two_column`) tried first, which gives
+    up on the same inputs (the same range of the squared distances).
     """
     check_k(k)
     scores = as_score_array(scores, sort=sort)
     if scores.shape[0] == 0 or scores.shape[1] < max(columns, 2):
         return None
+    if kernel is not None:
+        fast = _fast.two_column(kernel, scores, COSINE_TOLERANCE)
+        if fast is not None:
+            return fast
     out, low, high = scan(scores, compute)
     if low <= high and not (-COSINE_TOLERANCE <= low and high <= 4 + COSINE_TOLERANCE):  # s in [-1, 1] ± tol / 2
         return None
@@ -641,7 +648,7 @@ def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None
     array([0.5, 1. ])
     """
     if distances is None:
-        fast = _fused_baseline(scores, k, sort, 2, _distance_ratio)
+        fast = _fused_baseline(scores, k, sort, 2, _distance_ratio, "PA")
         if fast is not None:
             return fast
     scores = _prepare(scores, k, sort, 2)
@@ -675,7 +682,7 @@ def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
     >>> margin(np.array([[0.9, 0.5], [0.6, 0.6]]))
     array([-0.4,  0. ])
     """
-    fast = _fused_baseline(scores, k, sort, 2, _difference_of_first_two)
+    fast = _fused_baseline(scores, k, sort, 2, _difference_of_first_two, "margin")
     if fast is not None:
         return fast
     scores = _prepare(scores, k, sort, 2)
