@@ -127,8 +127,8 @@ def compute(
     copy : bool
         Leave the descriptor arrays untouched (False normalises them in place).
     """
-    from vpr_uncertainty.data.dataset import attach_ground_truth
     from vpr_uncertainty.retrieval import load_retrieval, retrieve, save_retrieval
+    from vpr_uncertainty.retrieval.ground_truth import attach_ground_truth
 
     path = Path(path)
     (database_names, database_array), (query_names, query_array) = database, queries
@@ -274,8 +274,8 @@ def _load_positions(path: Path | None, expected: int, what: str) -> np.ndarray |
 
 def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.data import load_descriptors, open_descriptors
-    from vpr_uncertainty.data.dataset import ground_truth_fields
     from vpr_uncertainty.evaluation import recall_at_n
+    from vpr_uncertainty.retrieval.ground_truth import ground_truth_fields
 
     if args.out.suffix.lower() != ".npz":
         raise ValueError(f"--out must name a .npz file, got {args.out}")
