@@ -10,6 +10,7 @@ from scipy import sparse
 
 from conftest import assert_close
 from vpr_uncertainty.evaluation.metrics import (
+    FewerCandidatesWarning,
     auc_pr,
     aurc,
     average_precision,
@@ -156,8 +157,9 @@ def test_correct_and_recall_at_n_match_loop():
         expected = np.array([any(i >= 0 and mask[q, i] for i in indices[q, :n]) for q in range(n_queries)])
         np.testing.assert_array_equal(correct_at_n(indices, mask, n), expected)
         np.testing.assert_array_equal(correct_at_n(indices, sparse.csr_array(mask), n), expected)
-    recalls = recall_at_n(indices, mask, ns=(1, 5, 25))
-    assert set(recalls) == {1, 5}  # 25 > k is left out
+    with pytest.warns(FewerCandidatesWarning, match="recall@25 needs 25 candidates"):
+        recalls = recall_at_n(indices, mask, ns=(1, 5, 25))
+    assert recalls[25] is None  # 25 > k (< the database): unknown, said so, never left out silently
     assert_close(recalls[5], correct_at_n(indices, mask, 5)[answerable].mean())
     with pytest.raises(ValueError, match="between 1 and"):
         correct_at_n(indices, mask, 21)
@@ -253,7 +255,7 @@ def test_first_positive_rank_answers_every_n_from_one_look_up():
     given = recall_at_n(indices, mask, ns=(1, 2, 5, 10), first_rank=rank, answerable=answerable)
     assert given == recall_at_n(indices, mask, ns=(1, 2, 5, 10))
     assert given == {n: float(correct_at_n(indices, mask, n)[answerable].mean()) for n in (1, 2, 5, 10)}
-    with pytest.raises(ValueError, match="between 1 and"):
+    with pytest.raises(ValueError, match="must be >= 1"):
         recall_at_n(indices, mask, ns=(0, 1))
 
 

@@ -65,7 +65,8 @@ def test_a_significant_best_is_marked_alone_and_tied_leaders_together():
     assert rows["BM"]["best_for"].startswith("close") and rows["BM"]["significant_best_for"] == ""
     low, high = float(rows["BM"]["clear_ci_low"]), float(rows["BM"]["clear_ci_high"])
     assert low <= float(rows["BM"]["clear"]) <= high
-    assert r"\textbf{" in table1_latex(table) and r"{\scriptsize [" in table1_latex(table)
+    assert r"\textbf{" in table1_latex(table) and r"{\scriptsize [" in table1_latex(table, intervals=True)
+    assert r"{\scriptsize [" not in table1_latex(table)  # intervals are an option, off by default
 
 
 def test_a_one_dataset_column_has_the_intervals_of_its_cell():

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import scores as _scores
+from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty._validation import check_k, check_top_k_scores
 
 __all__ = [
@@ -88,6 +89,8 @@ class Calibrator:
         What the confidence ranks by: a fixed score (``"SU"``, ``"margin"``, …; one feature, Platt-scaled) or
         ``"CAL"`` (the fitted model); None when not recorded.
     """
+
+    __repr__ = compact_repr
 
     model: str
     features: tuple[str, ...]

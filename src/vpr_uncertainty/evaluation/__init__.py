@@ -1,10 +1,11 @@
 """How good is an uncertainty? Correctness, AUC-PR, rejection curves, recall@N, AURC, time per query and bootstrap
 intervals, paired comparisons (:func:`compare`) (conventions: :mod:`~vpr_uncertainty.evaluation.metrics`)."""
 
-from vpr_uncertainty.evaluation._evaluate import RECALL_LEVELS, FewerCandidatesWarning, evaluate, time_per_query
+from vpr_uncertainty.evaluation._evaluate import RECALL_LEVELS, evaluate, time_per_query
 from vpr_uncertainty.evaluation.compare import Comparison, Difference, McNemar, compare, mcnemar
 from vpr_uncertainty.evaluation.metrics import (
     RECALL_NS,
+    FewerCandidatesWarning,
     RejectionCurve,
     ThresholdChoice,
     auc_pr,

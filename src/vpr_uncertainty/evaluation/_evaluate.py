@@ -16,13 +16,17 @@ import numpy as np
 
 from vpr_uncertainty.evaluation.bootstrap import add_bootstrap, check_bootstrap, resolve_reference
 from vpr_uncertainty.evaluation.metrics import (
+    RECALL_NS,
+    FewerCandidatesWarning,
     answerable_queries,
+    check_recall_ns,
     correct_at_n,
     first_positive_rank,
     precision_at_recall,
     rank_queries,
     recall_at_full_precision,
     recall_at_n,
+    recall_candidates_note,
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 from vpr_uncertainty.methods import (
@@ -80,6 +84,7 @@ def evaluate(
     k: int = 10,
     alpha: float = 0.5,
     recall_levels: Sequence[float] = RECALL_LEVELS,
+    recall_at: Sequence[int] | None = None,
     timing_repeats: int = 5,
     bootstrap: int = 0,
     seed: int = 0,
@@ -103,6 +108,12 @@ def evaluate(
         so, and ``Evaluation.k`` records the k used.
     recall_levels : sequence of float
         Recall levels at which the end-to-end precision is reported.
+    recall_at : sequence of int, optional
+        The N of the retrieval's recall@N (``Evaluation.recall_at_n``), any N >= 1. An N above the candidates per
+        query is unknown unless they cover the whole database: it is reported as None, with a
+        :class:`FewerCandidatesWarning` and a note ("recall@100 needs 100 candidates per query, the retrieval holds
+        20: reported as None; ..."), never capped under its name. By default, those of
+        :data:`~vpr_uncertainty.evaluation.metrics.RECALL_NS` (1, 5, 10, 20) that the retrieval can answer.
     timing_repeats : int
         Calls per method for the time per query (median; fewer when a call is slow). A geometric method's
         ``time_per_query_ms`` is its cold figure (every local feature extracted); its ``timings`` hold
@@ -137,6 +148,10 @@ def evaluate(
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work
     check_options(entries, options)  # and so do options that no selected method takes
+    if recall_at is None:
+        answerable_n = retrieval.positives is None or retrieval.k >= retrieval.positives.shape[1]
+        recall_at = [n for n in RECALL_NS if n <= retrieval.k or answerable_n] or [1]
+    recall_at = check_recall_ns(recall_at)
     check_bootstrap(bootstrap, seed)
     if bootstrap:
         resolve_reference(reference, [entry.name for entry in entries])
@@ -144,14 +159,21 @@ def evaluate(
     answerable = answerable_queries(positives)
     first_rank = first_positive_rank(retrieval.indices, positives)  # one look-up for correct and every recall@N
     correct = first_rank < 1
+    recall_note = recall_candidates_note(recall_at, retrieval.k, positives.shape[1])
+    with warnings.catch_warnings():  # the note below says it once, pointing at the caller
+        warnings.simplefilter("ignore", FewerCandidatesWarning)
+        recalls = recall_at_n(retrieval.indices, positives, recall_at, first_rank=first_rank, answerable=answerable)
     evaluation = Evaluation(
         n_queries=retrieval.n_queries,
         n_answerable=int(answerable.sum()),
         correct=correct,
-        recall_at_n=recall_at_n(retrieval.indices, positives, first_rank=first_rank, answerable=answerable),
+        recall_at_n=recalls,
         k=min(int(k), retrieval.k),
         k_requested=int(k),
     )
+    if recall_note:
+        evaluation.notes.append(recall_note)
+        warnings.warn(recall_note, FewerCandidatesWarning, stacklevel=2)
     if (~answerable).any():
         evaluation.notes.append(
             f"{int((~answerable).sum())} queries have no positive in the database; they count as wrong answers "
@@ -237,10 +259,6 @@ def evaluate(
 _RATIO_METHODS: tuple[str, ...] = ("RS", "SD", "SU")
 #: Where the s_1 <= 0 rule is written down.
 _NONPOSITIVE_RULE_DOCS = "README.md, Conventions; vpr_uncertainty.scores"
-
-
-class FewerCandidatesWarning(UserWarning):
-    """The retrieval holds fewer candidates per query than the k asked for; the methods used those it has."""
 
 
 def _is_ratio(entry: UncertaintyMethod) -> bool:

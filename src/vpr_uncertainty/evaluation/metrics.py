@@ -15,7 +15,8 @@ Conventions
   Precision = correct accepted / accepted; recall = correct accepted / queries with at least one positive in
   the database. Each distinct uncertainty value is one threshold (tied queries are accepted together).
 * **recall@N** is the share of queries with at least one positive that have one among their first N
-  candidates.
+  candidates, for any N; with N larger than the candidates retrieved (and fewer candidates than database images)
+  it is unknown: None, with a :class:`FewerCandidatesWarning`.
 * **AURC** is the area under the risk-coverage curve: Σ over thresholds of (coverage gained) × (error rate among
   the accepted queries), with coverage in steps of tied groups; lower is better.
 
@@ -36,8 +37,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
+from vpr_uncertainty._repr import compact_repr
+
 __all__ = [
     "RECALL_NS",
+    "FewerCandidatesWarning",
     "RejectionCurve",
     "ThresholdChoice",
     "UncertaintyRanking",
@@ -46,18 +50,20 @@ __all__ = [
     "aurc",
     "average_precision",
     "check_labels",
+    "check_recall_ns",
     "correct_at_n",
     "first_positive_rank",
     "precision_at_recall",
     "rank_queries",
     "recall_at_full_precision",
     "recall_at_n",
+    "recall_candidates_note",
     "rejection_curve",
     "threshold_at_precision",
 ]
 
-#: The N of recall@N reported by :func:`vpr_uncertainty.evaluate`; the largest one sets how many candidates a
-#: retrieval needs.
+#: The N of recall@N reported by :func:`vpr_uncertainty.evaluate` by default (its ``recall_at`` takes any N); the
+#: largest one sets how many candidates a retrieval needs.
 RECALL_NS: tuple[int, ...] = (1, 5, 10, 20)
 
 
@@ -144,6 +150,57 @@ def answerable_queries(positives: object) -> np.ndarray:
     return np.asarray(sparse.csr_array(positives, dtype=bool).sum(axis=1)).ravel() > 0
 
 
+class FewerCandidatesWarning(UserWarning):
+    """The retrieval holds fewer candidates per query than asked for: a method's k, or the N of a recall@N."""
+
+
+def check_recall_ns(ns: object) -> tuple[int, ...]:
+    """The N of recall@N as a sorted tuple of distinct ints >= 1; else TypeError or ValueError naming what was wrong.
+
+    Examples
+    --------
+    >>> check_recall_ns([10, 1, 100, 5, 10])
+    (1, 5, 10, 100)
+    """
+    if isinstance(ns, (str, bytes)) or not isinstance(ns, Sequence):
+        raise TypeError(f"the N of recall@N must be a sequence of ints such as (1, 5, 10, 100), got {ns!r}")
+    if not ns:
+        raise ValueError("the N of recall@N must not be empty; give e.g. (1, 5, 10)")
+    for n in ns:
+        if isinstance(n, bool) or not isinstance(n, numbers.Integral):
+            raise TypeError(f"each N of recall@N must be an int, got {n!r}")
+        if n < 1:
+            raise ValueError(f"each N of recall@N must be >= 1, got {n}")
+    return tuple(sorted({int(n) for n in ns}))
+
+
+def recall_candidates_note(ns: Sequence[int], k: int, n_database: int | None = None) -> str | None:
+    """Why some recall@N are not reported: N exceeds the ``k`` candidates per query of a retrieval that does not
+    hold the whole database (``n_database``; None: unknown). None when every N can be answered.
+
+    recall@N with N > k is unknown (a positive may rank between k + 1 and N), so it is reported as None rather than
+    as recall@k under the name recall@N; when the retrieval holds every database image (``k >= n_database``) it is
+    exact and no note is needed.
+
+    Examples
+    --------
+    >>> recall_candidates_note((1, 5, 100), 20)
+    'recall@100 needs 100 candidates per query, the retrieval holds 20: reported as None; retrieve at least 100'
+    >>> recall_candidates_note((1, 5, 100), 20, n_database=20) is None
+    True
+    """
+    if n_database is not None and k >= n_database:
+        return None
+    missing = [int(n) for n in ns if n > k]
+    if not missing:
+        return None
+    names = ", ".join(f"recall@{n}" for n in missing)
+    return (
+        f"{names} need{'s' if len(missing) == 1 else ''} {max(missing)} candidates per query, the retrieval holds "
+        f"{k}: reported as None; retrieve at least {max(missing)}"
+    )
+
+
 def recall_at_n(
     indices: object,
     positives: object,
@@ -151,8 +208,12 @@ def recall_at_n(
     *,
     first_rank: np.ndarray | None = None,
     answerable: np.ndarray | None = None,
-) -> dict[int, float]:
-    """recall@N over the queries that have at least one positive; N larger than K is left out.
+) -> dict[int, float | None]:
+    """recall@N over the queries that have at least one positive, for any N.
+
+    An N larger than the K candidates per query is reported as None, with a :class:`FewerCandidatesWarning`
+    (:func:`recall_candidates_note`), unless the K candidates cover the whole database (K >= D, the columns of
+    ``positives``): then recall@N = recall@K exactly.
 
     Parameters
     ----------
@@ -161,37 +222,44 @@ def recall_at_n(
     positives : sparse or dense bool matrix of shape (Q, D)
         Ground truth.
     ns : sequence of int, default=RECALL_NS
-        The N to report.
+        The N to report, each >= 1 (sorted and deduplicated).
     first_rank, answerable : ndarray of shape (Q,), optional
         :func:`first_positive_rank` over all K candidates and :func:`answerable_queries` of these inputs, when the
         caller has them already (otherwise computed here; every N is answered from one look-up either way).
 
     Returns
     -------
-    dict of int to float
-        N -> share of the answerable queries with a positive among their first N candidates.
+    dict of int to float or None
+        N -> share of the answerable queries with a positive among their first N candidates (None: unknown, N > K).
 
     Examples
     --------
-    >>> recall_at_n(np.array([[2, 0], [1, 0]]), np.array([[1, 0, 0], [1, 0, 0]], bool), ns=(1, 2, 5))
+    >>> recall_at_n(np.array([[2, 0], [1, 0]]), np.array([[1, 0, 0], [1, 0, 0]], bool), ns=(1, 2))
     {1: 0.0, 2: 1.0}
+    >>> recall_at_n(np.array([[2, 0], [1, 0]]), np.array([[1, 0, 0, 0], [1, 0, 0, 0]], bool), ns=(1, 100))
+    ... # doctest: +SKIP
+    FewerCandidatesWarning: recall@100 needs 100 candidates per query, the retrieval holds 2: reported as None; ...
+    {1: 0.0, 100: None}
     """
     indices = np.asarray(indices)
+    if indices.ndim != 2:
+        raise ValueError(f"indices must be 2-D (n_queries, k), got shape {indices.shape}")
+    ns = check_recall_ns(ns)
+    positives = _check_positives(indices, positives)
     if answerable is None:
-        positives = _check_positives(indices, positives)
         answerable = answerable_queries(positives)
     if not answerable.any():
         raise ValueError("no query has a positive in the database; recall@N is undefined")
-    for n in ns:
-        if n < 1:
-            raise ValueError(f"n must be between 1 and the {indices.shape[1]} candidates per query, got {n}")
-    ns = [int(n) for n in ns if n <= indices.shape[1]]
-    if not ns:
-        return {}
-    if first_rank is None:
-        first_rank = first_positive_rank(indices, positives, max(ns))
-    ranks = first_rank[answerable]
-    return {n: float((ranks < n).mean()) for n in ns}
+    k, n_database = indices.shape[1], positives.shape[1]
+    note = recall_candidates_note(ns, k, n_database)
+    if note:
+        warnings.warn(note, FewerCandidatesWarning, stacklevel=2)
+    known = [n for n in ns if n <= k or k >= n_database]
+    if known and first_rank is None:
+        first_rank = first_positive_rank(indices, positives, min(max(known), k))
+    ranks = first_rank[answerable] if known else None
+    # N > K is known only when the K candidates cover the database: then it is recall@K, whatever the ranks hold.
+    return {n: float((ranks < min(n, k)).mean()) if n in known else None for n in ns}
 
 
 def check_labels(correct: object, uncertainty: object, *, name: str = "uncertainty") -> tuple[np.ndarray, np.ndarray]:
@@ -241,6 +309,8 @@ class RejectionCurve:
         all queries.
     """
 
+    __repr__ = compact_repr
+
     thresholds: np.ndarray
     precision: np.ndarray
     recall: np.ndarray
@@ -263,6 +333,8 @@ class UncertaintyRanking:
     correct_accepted : ndarray of shape (T,), int64
         Correct answers among them.
     """
+
+    __repr__ = compact_repr
 
     thresholds: np.ndarray
     accepted: np.ndarray

@@ -180,7 +180,7 @@ class Evaluation:
     n_queries: int
     n_answerable: int
     correct: np.ndarray
-    recall_at_n: dict[int, float]
+    recall_at_n: dict[int, float | None]
     methods: dict[str, MethodEvaluation] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     k: int | None = None
@@ -274,7 +274,7 @@ class Evaluation:
         recalls = {
             int(key[len("recall@") :]): value
             for key, value in data.items()
-            if key.startswith("recall@") and value is not None
+            if key.startswith("recall@") and (value is not None or key != "recall@1")  # None: N > the candidates
         }
         return cls(
             n_queries=n_queries,
@@ -392,7 +392,7 @@ def method_summary(method: MethodEvaluation) -> str:
 
 def evaluation_summary(evaluation: Evaluation) -> str:
     """A few lines: the retrieval's size and recall@N, then one line per method (AUC-PR, AP, AURC, R@100%P, ms)."""
-    recalls = ", ".join(f"recall@{n}={value:.3f}" for n, value in evaluation.recall_at_n.items())
+    recalls = ", ".join(f"recall@{n}={_number(value, 3)}" for n, value in evaluation.recall_at_n.items())
     head = f"Evaluation(n_queries={evaluation.n_queries}, n_answerable={evaluation.n_answerable}, k={evaluation.k}"
     lines = [f"{head}{', ' + recalls if recalls else ''}, methods=["]
     width = max((len(name) for name in evaluation.methods), default=0)

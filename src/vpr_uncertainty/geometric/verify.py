@@ -32,6 +32,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.data.images import check_image_counts
 from vpr_uncertainty.evaluation import recall_at_n
 from vpr_uncertainty.geometric.cache import ExtractionStats, extract_features, image_names, read_features, split_chunks
@@ -260,6 +261,8 @@ class VerificationResult:
         Images extracted and read from the cache, and the seconds spent.
     matching_seconds, ransac_seconds : float
     """
+
+    __repr__ = compact_repr
 
     inliers: np.ndarray
     matches: np.ndarray
@@ -573,6 +576,8 @@ class Reranking:
     recall : dict
         ``{"global": {N: recall}, "reranked": {N: recall}}`` when the retrieval has positives, else empty.
     """
+
+    __repr__ = compact_repr
 
     indices: np.ndarray
     inliers: np.ndarray

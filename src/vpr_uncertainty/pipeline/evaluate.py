@@ -18,7 +18,9 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.data import DEFAULT_TOP_K
+from vpr_uncertainty.evaluation.metrics import RECALL_NS, check_recall_ns
 from vpr_uncertainty.methods import default_method_names
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
@@ -39,12 +41,23 @@ from vpr_uncertainty.pipeline.options import (
     output_file,
     positive_int,
     write_json,
+    write_output,
 )
 from vpr_uncertainty.scores import check_alpha
 
 __all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "compute", "default_conf", "main", "method_list"]
 
 STAGE = "uncertainty"
+
+
+def recall_list(text: str) -> tuple[int, ...]:
+    """Comma-separated N of recall@N (``1,5,10,100``), each an int >= 1; sorted, without repeats."""
+    try:
+        return check_recall_ns([int(part) for part in text.split(",") if part.strip()])
+    except (TypeError, ValueError) as error:
+        raise argparse.ArgumentTypeError(
+            f"expected a comma-separated list of ints >= 1 such as 1,5,10,100, got {text!r}"
+        ) from error
 
 
 def method_list(text: str) -> list[str]:
@@ -98,10 +111,25 @@ class EvaluateConf:
         "the method every other one is tested against (default: SU when evaluated, else the first method)",
         metavar="NAME",
     )
+    recall_at: tuple[int, ...] | None = option(
+        None,
+        "comma-separated N of the retrieval's recall@N, any N; a full matrix is read with enough candidates, and an "
+        "N above those of a retrieval file is reported as n/a (null in --json) with a warning (default: those of "
+        f"{','.join(map(str, RECALL_NS))} the retrieval holds)",
+        type=recall_list,
+        metavar="N,N,...",
+    )
     options: Mapping[str, Any] = field(default_factory=dict)  # further method options (btl_head, verify_fraction)
 
     def __post_init__(self) -> None:
         check_alpha(self.alpha)  # before any work (run extracts descriptors first)
+        if self.recall_at is not None:
+            object.__setattr__(self, "recall_at", check_recall_ns(self.recall_at))
+
+    @property
+    def candidates(self) -> int:
+        """Candidates per query to read from a full matrix: enough for k, the largest recall@N and 50."""
+        return max(DEFAULT_TOP_K, self.k, *(self.recall_at or ()))
 
     def method_names(self, retrieval: Any) -> list[str]:
         """``methods``, else the registry's defaults (with SUE when the retrieval's positions are metric), less those
@@ -120,6 +148,8 @@ default_conf = EvaluateConf()
 @dataclass
 class Evaluated:
     """What :func:`compute` produced: the evaluation in memory, and the file when one was written."""
+
+    __repr__ = compact_repr
 
     evaluation: Any
     fingerprint: str
@@ -161,6 +191,7 @@ def compute(
         methods,
         k=conf.k,
         alpha=conf.alpha,
+        recall_at=conf.recall_at,
         bootstrap=conf.bootstrap,
         seed=conf.seed,
         reference=conf.reference,
@@ -181,7 +212,7 @@ def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_tru
     """Evaluate the uncertainties of ``results`` (any file :func:`vpr_uncertainty.read_results` reads) into ``out``."""
     from vpr_uncertainty.data import read_results
 
-    retrieval = read_results(results, ground_truth=ground_truth, top_k=max(DEFAULT_TOP_K, conf.k))
+    retrieval = read_results(results, ground_truth=ground_truth, top_k=conf.candidates)
     return compute(conf, retrieval, out).path  # type: ignore[return-value]
 
 
@@ -211,7 +242,7 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
     from vpr_uncertainty.data import read_results
     from vpr_uncertainty.data.results import read_vpr_methods_evaluation
 
-    top_k = max(DEFAULT_TOP_K, conf.k)  # a full matrix gives as many candidates as k asks, and enough for recall@20
+    top_k = conf.candidates  # a full matrix gives as many candidates as k and the largest recall@N ask
     notes: list[str] = []
     log_paths: tuple[Any, Any] = (None, None)
     higher_is_better = args.score_kind == "similarity"
@@ -306,7 +337,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "--format", choices=input_formats(), default="auto", help="how to read SCORES (default: from its name)"
     )
     add_score_kind_option(parser)
-    add_options(parser, EvaluateConf, only=("methods", "k", "alpha"))
+    add_options(parser, EvaluateConf, only=("methods", "k", "alpha", "recall_at"))
     parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
     group = parser.add_argument_group(
         "images, for the methods that verify them (GV-*): query i and database image j are the i-th and j-th "
@@ -334,6 +365,23 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
     )
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    parser.add_argument(
+        "--csv",
+        type=output_file,
+        metavar="FILE",
+        help="write the table as CSV to FILE: one row per method, the numbers of --json at full precision",
+    )
+    parser.add_argument(
+        "--latex",
+        type=output_file,
+        metavar="FILE",
+        help="write the table as a LaTeX float to FILE (booktabs, graphicx; fits \\columnwidth, label tab:uncertainty)",
+    )
+    parser.add_argument(
+        "--latex-intervals",
+        action="store_true",
+        help="--latex: show the bootstrap intervals (with --bootstrap N) beside the numbers",
+    )
     parser.add_argument(
         "--latency",
         action="store_true",
@@ -393,6 +441,7 @@ def method_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.reports import format_table, plot_rejection_curves
+    from vpr_uncertainty.reports.tables import evaluation_csv, evaluation_latex
 
     conf = conf_from_args(EvaluateConf, args, options=method_options(args))
     executor_options(args)  # bad executor options fail before any work
@@ -419,6 +468,10 @@ def _handle(args: argparse.Namespace) -> int:
         print(_latency_line(evaluation))
     if args.json:
         write_json(args.json, evaluation.to_dict())
+    if args.csv:
+        write_output(args.csv, evaluation_csv(evaluation))
+    if args.latex:
+        write_output(args.latex, evaluation_latex(evaluation, intervals=args.latex_intervals))
     if args.plot:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)
         print(f"wrote {args.plot}")

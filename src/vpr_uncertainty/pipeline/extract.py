@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.descriptors import DEFAULT_MODEL
 from vpr_uncertainty.pipeline.options import (
     DECODING_THREADS,
@@ -107,6 +108,8 @@ class Descriptors:
     failed : dict of str to list of dict
         Per split, the images left out (``{"name", "path", "error"}``), with ``on_error="skip"``.
     """
+
+    __repr__ = compact_repr
 
     path: Path
     model_name: str

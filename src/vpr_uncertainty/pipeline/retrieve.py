@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.pipeline.options import (
     add_options,
     add_progress_options,
@@ -71,6 +72,8 @@ default_conf = RetrieveConf()
 @dataclass
 class Retrieved:
     """What :func:`compute` produced: the file, the retrieval in memory, its fingerprint, whether it was reused."""
+
+    __repr__ = compact_repr
 
     path: Path
     retrieval: Any
@@ -127,8 +130,8 @@ def compute(
     copy : bool
         Leave the descriptor arrays untouched (False normalises them in place).
     """
-    from vpr_uncertainty.data.dataset import attach_ground_truth
     from vpr_uncertainty.retrieval import load_retrieval, retrieve, save_retrieval
+    from vpr_uncertainty.retrieval.ground_truth import attach_ground_truth
 
     path = Path(path)
     (database_names, database_array), (query_names, query_array) = database, queries
@@ -274,8 +277,8 @@ def _load_positions(path: Path | None, expected: int, what: str) -> np.ndarray |
 
 def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.data import load_descriptors, open_descriptors
-    from vpr_uncertainty.data.dataset import ground_truth_fields
     from vpr_uncertainty.evaluation import recall_at_n
+    from vpr_uncertainty.retrieval.ground_truth import ground_truth_fields
 
     if args.out.suffix.lower() != ".npz":
         raise ValueError(f"--out must name a .npz file, got {args.out}")
@@ -317,7 +320,7 @@ def _handle(args: argparse.Namespace) -> int:
     if result.positives is not None:
         answerable = int((result.positives.sum(axis=1) > 0).sum())
         if answerable:
-            recalls = recall_at_n(result.indices, result.positives, ns=(1, 5, 10))
+            recalls = recall_at_n(result.indices, result.positives, ns=[n for n in (1, 5, 10) if n <= result.k])
             shown = ", ".join(f"recall@{n} {value:.3f}" for n, value in recalls.items())
             print(f"{shown} ({result.n_queries - answerable} queries without a positive)")
         else:

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.pipeline import evaluate, extract, report, retrieve, verify
 from vpr_uncertainty.pipeline.evaluate import METHOD_SPEC_HELP, EvaluateConf, method_options
 from vpr_uncertainty.pipeline.extract import ExtractConf, add_threads_option
@@ -106,6 +107,8 @@ class RunResult:
     notes : list of str
         Remarks for the user (e.g. a search moved from the GPU to the CPU).
     """
+
+    __repr__ = compact_repr
 
     evaluation: Any
     retrieval: Any

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.pipeline.options import (
     add_executor_options,
     add_options,
@@ -51,6 +52,8 @@ default_conf = VerifyConf()
 @dataclass
 class Verified:
     """What :func:`compute` produced: the file and the re-ranking (inliers, re-ranked indices, recall@N)."""
+
+    __repr__ = compact_repr
 
     path: Path
     reranking: Any

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import csv
 import io
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from html import escape
@@ -22,8 +21,10 @@ import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation
 from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders, percentile_interval
+from vpr_uncertainty.reports.latex import LATEX_PACKAGES, latex_escape, latex_float
 
 __all__ = [
+    "LATEX_PACKAGES",
     "METRIC_NAMES",
     "HeldOutCell",
     "Table1",
@@ -32,6 +33,8 @@ __all__ = [
     "build_table1",
     "build_ties_table",
     "column_distributions",
+    "evaluation_csv",
+    "evaluation_latex",
     "format_table",
     "markdown_cell",
     "marks_note",
@@ -170,7 +173,7 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
             row.append(_vs_reference(method, reference))
         rows.append(row)
     header = [name for name, _ in _COLUMNS] + ([f"vs {reference}"] if reference is not None else [])
-    recalls = "  ".join(f"R@{n} {value:.3f}" for n, value in evaluation.recall_at_n.items())
+    recalls = "  ".join(f"R@{n} {_fmt('{:.3f}', value)}" for n, value in evaluation.recall_at_n.items())
     summary = f"{evaluation.n_queries} queries, {recalls}"
     lines = [title] if title else []
     if markdown:
@@ -329,10 +332,10 @@ def build_table1(
 
 
 def _rows(
-    table: Table1, bold: tuple[str, str], dagger: str, around: tuple[str, str] = ("", "")
+    table: Table1, bold: tuple[str, str], dagger: str, around: tuple[str, str] = ("", ""), *, intervals: bool = True
 ) -> list[tuple[str, list[str], str]]:
     """(method, value texts, ms/query text) per row: marked values between ``bold``, ``dagger`` after an
-    uninformative value, a bootstrap interval between ``around``."""
+    uninformative value, a bootstrap interval between ``around`` (when ``intervals``)."""
     marks = table.marks()
     rows = []
     for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
@@ -342,7 +345,7 @@ def _rows(
                 texts.append("–")
                 continue
             text = f"{bold[0]}{value:.3f}{bold[1]}" if marks[i][j] else f"{value:.3f}{_dagger(table, i, j, dagger)}"
-            interval = None if table.intervals is None else table.intervals[i][j]
+            interval = None if table.intervals is None or not intervals else table.intervals[i][j]
             if interval is not None:
                 text += f" {around[0]}[{interval[0]:.2f}, {interval[1]:.2f}]{around[1]}"
             texts.append(text)
@@ -420,51 +423,139 @@ def table1_csv(table: Table1) -> str:
     return buffer.getvalue()
 
 
-_LATEX_SPECIAL = {
-    "\\": r"\textbackslash{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
-}
+def table1_latex(
+    table: Table1,
+    *,
+    caption: str | None = None,
+    label: str | None = None,
+    intervals: bool = False,
+    width: str | None = r"\columnwidth",
+) -> str:
+    """A booktabs ``table`` float that fits a column of a two-column paper; the marked values per column in bold.
 
+    Uncertainty methods are rows and VPR methods columns (plus Mean and ms/query), the layout of the published
+    tables; since the grid sets how many columns there are, the tabular is shrunk to ``width`` when it is wider
+    (never enlarged), rather than dropping columns. Needs :data:`LATEX_PACKAGES` in the preamble.
 
-def _latex_escape(text: str) -> str:
-    """``text`` with LaTeX's ten special characters escaped, in one pass (so no escape is escaped again).
-
-    Examples
-    --------
-    >>> print(_latex_escape("SU$^2$ ~ {50%} & A_b"))
-    SU\\$\\textasciicircum{}2\\$ \\textasciitilde{} \\{50\\%\\} \\& A\\_b
+    Parameters
+    ----------
+    table : Table1
+    caption : str, optional
+        Default: the metric, and what the marks mean.
+    label : str, optional
+        The ``\\label``; default ``tab:<metric>`` (``tab:auc-pr``).
+    intervals : bool, default=False
+        Show each value's bootstrap interval (when the table has them); they double the width, so off by default.
+    width : str or None, default=r"\\columnwidth"
+        The most the table may take (``\\textwidth`` in a ``table*``); None: its natural width.
     """
-    return re.sub(r"[\\&%$#_{}~^]", lambda match: _LATEX_SPECIAL[match.group()], text)
-
-
-def table1_latex(table: Table1, *, caption: str | None = None) -> str:
-    """A booktabs ``table`` environment (needs ``\\usepackage{booktabs}``); the marked values per column in bold."""
     if caption is None:
         caption = f"{METRIC_NAMES[table.metric][0]} of each uncertainty method, averaged over datasets. "
-        caption += marks_note(table)
-    header = " & ".join(["Method", *(_latex_escape(c) for c in table.columns), "ms/query"])
-    lines = [
-        r"\begin{table}[t]",
-        r"\centering",
-        rf"\caption{{{_latex_escape(caption)}}}",
-        r"\begin{tabular}{l" + "r" * (len(table.columns) + 1) + "}",
-        r"\toprule",
-        header + r" \\",
-        r"\midrule",
+        caption += marks_note(table) if intervals or table.bootstrap is None else marks_note(table).split(" [low")[0]
+    label = label or f"tab:{METRIC_NAMES[table.metric][0].lower()}"
+    header = ["Method", *(latex_escape(c) for c in table.columns), "ms/query"]
+    rows = [
+        [latex_escape(name), *(text.replace("–", "--") for text in [*texts, time_text])]
+        for name, texts, time_text in _rows(
+            table, (r"\textbf{", "}"), r"$^\dagger$", (r"{\scriptsize ", "}"), intervals=intervals
+        )
     ]
-    for name, texts, time_text in _rows(table, (r"\textbf{", "}"), r"$^\dagger$", (r"{\scriptsize ", "}")):
-        cells = [text.replace("–", "--") for text in [*texts, time_text]]
-        lines.append(" & ".join([_latex_escape(name), *cells]) + r" \\")
-    lines += [r"\bottomrule", r"\end{tabular}"]
+    lines = latex_float(caption, label, "l" + "r" * (len(table.columns) + 1), header, rows, width)
     if _any_uninformative(table):
+        lines.append(r"\par\smallskip{\footnotesize $^\dagger$ uninformative: constant uncertainty (chance level).}")
+    lines.append(r"\end{table}")
+    return "\n".join(lines) + "\n"
+
+
+#: Columns of :func:`evaluation_csv` and :func:`evaluation_latex`: key of ``MethodEvaluation.to_dict``, LaTeX header,
+#: decimals.
+_EVALUATION_COLUMNS = (
+    ("auc_pr", "AUC-PR", 4),
+    ("average_precision", "AP", 4),
+    ("aurc", "AURC", 4),
+    ("recall_at_100_precision", "R@100\\%P", 3),
+    ("time_per_query_ms", "ms/query", 5),
+)
+
+
+def evaluation_csv(evaluation: Evaluation) -> str:
+    """One row per uncertainty method, the numbers of ``evaluate --json`` at full precision (empty: undefined).
+
+    Columns: ``method``, ``auc_pr``, ``average_precision``, ``aurc``, ``recall_at_100_precision``,
+    ``time_per_query_ms``, ``informative``, ``best`` (marked as in :func:`format_table`), with a bootstrap
+    ``<metric>_ci_low``/``_ci_high`` of AUC-PR, AP and AURC; a ``recall@N`` row-independent header is left to the
+    JSON.
+    """
+    marked = _marked(evaluation)
+    with_ci = evaluation.bootstrap is not None
+    metrics = [key for key, _, _ in _EVALUATION_COLUMNS]
+    intervals = [f"{key}_ci_{end}" for key in ("auc_pr", "average_precision", "aurc") for end in ("low", "high")]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["method", *metrics, "informative", "best", *(intervals if with_ci else [])])
+    for name, method in evaluation.methods.items():
+        numbers = method.to_dict()
+        row = [name, *("" if numbers[key] is None else repr(float(numbers[key])) for key in metrics)]
+        row += [str(method.informative).lower(), str(name in marked and method.informative).lower()]
+        if with_ci:
+            for key in ("auc_pr", "average_precision", "aurc"):
+                interval = getattr(method, f"{key}_ci")
+                row += ["", ""] if interval is None else [repr(float(interval[0])), repr(float(interval[1]))]
+        writer.writerow(row)
+    return buffer.getvalue()
+
+
+def evaluation_latex(
+    evaluation: Evaluation,
+    *,
+    caption: str | None = None,
+    label: str = "tab:uncertainty",
+    intervals: bool = False,
+    width: str | None = r"\columnwidth",
+) -> str:
+    """One evaluation as a booktabs ``table`` float for a paper: uncertainty methods as rows, five metric columns.
+
+    Six columns fit ``\\columnwidth`` at the body font; the tabular is still shrunk to ``width`` if it is wider
+    (long method names, intervals), never enlarged. The best AUC-PR is bold (as starred by :func:`format_table`);
+    ``$^\\dagger$`` marks an uninformative method. Needs :data:`LATEX_PACKAGES`.
+
+    Parameters
+    ----------
+    evaluation : Evaluation
+    caption : str, optional
+        Default: the queries, recall@1 and what the marks mean.
+    label : str, default="tab:uncertainty"
+    intervals : bool, default=False
+        Show the 95 % bootstrap intervals of AUC-PR, AP and AURC (when computed).
+    width : str or None, default=r"\\columnwidth"
+        The most the table may take; None: its natural width.
+    """
+    marked = _marked(evaluation)
+    if caption is None:
+        recall = evaluation.recall_at_n.get(1)
+        caption = f"Uncertainty methods on {evaluation.n_queries} queries"
+        caption += f" (recall@1 {recall:.3f})" if recall is not None else ""
+        caption += ". AUC-PR, AP: higher is better; AURC: lower is better. Bold: "
+        caption += "best AUC-PR." if evaluation.bootstrap is None else "AUC-PR leaders (none significantly worse)."
+        if intervals and evaluation.bootstrap is not None:
+            caption += f" [low, high]: {evaluation.bootstrap['confidence']:.0%} bootstrap interval."
+    rows = []
+    for name, method in evaluation.methods.items():
+        numbers = method.to_dict()
+        cells = [latex_escape(name) + ("" if method.informative else r"$^\dagger$")]
+        for key, _, digits in _EVALUATION_COLUMNS:
+            value = numbers[key]
+            text = "--" if value is None else f"{value:.{digits}f}"
+            if key == "auc_pr" and value is not None and name in marked and method.informative:
+                text = rf"\textbf{{{text}}}"
+            interval = getattr(method, f"{key}_ci", None) if intervals else None
+            if interval is not None:
+                text += rf" {{\scriptsize [{interval[0]:.3f}, {interval[1]:.3f}]}}"
+            cells.append(text)
+        rows.append(cells)
+    header = ["Method", *(title for _, title, _ in _EVALUATION_COLUMNS)]
+    lines = latex_float(caption, label, "l" + "r" * len(_EVALUATION_COLUMNS), header, rows, width)
+    if any(not m.informative for m in evaluation.methods.values()):
         lines.append(r"\par\smallskip{\footnotesize $^\dagger$ uninformative: constant uncertainty (chance level).}")
     lines.append(r"\end{table}")
     return "\n".join(lines) + "\n"

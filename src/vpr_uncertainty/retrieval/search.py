@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, default_block_rows
+from vpr_uncertainty.retrieval.ground_truth import DEFAULT_RADIUS, attach_ground_truth, ground_truth_fields
 from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
 from vpr_uncertainty.scores import squared_distances_from_similarities
 
@@ -271,10 +272,19 @@ def retrieve(
     copy: bool = True,
     progress: bool | None = None,
     database_block: int | None = None,
+    database_positions: object = None,
+    query_positions: object = None,
+    radius: float = DEFAULT_RADIUS,
+    positives: object = None,
+    position_kind: str | None = None,
 ) -> Retrieval:
     """Search the database descriptors for every query and return the result as a :class:`Retrieval`.
 
-    The result has no ground truth, names or positions: :func:`vpr_uncertainty.data.attach_ground_truth` adds them.
+    With positions (or explicit ``positives``) the result carries its ground truth, ready for
+    :func:`vpr_uncertainty.evaluate`: the same fields as the ``retrieve`` command writes with ``--database-positions``,
+    ``--query-positions`` and ``--radius`` (one implementation:
+    :func:`~vpr_uncertainty.retrieval.ground_truth.ground_truth_fields`, checked before the search). Without them it
+    has no ground truth; :func:`~vpr_uncertainty.retrieval.ground_truth.attach_ground_truth` adds it later.
 
     Parameters
     ----------
@@ -286,13 +296,23 @@ def retrieve(
         Options of :func:`search_descriptors`.
     config : dict, optional
         Extra JSON-serialisable entries for ``Retrieval.config``; they take precedence over the search settings.
+    database_positions, query_positions : array-like of shape (D, 2) and (Q, 2), optional
+        Positions of the images, e.g. UTM metres; with both (and no ``positives``) the positives of each query are
+        the database images within ``radius`` (inclusive), and the positions are kept (SUE reads them).
+    radius : float, default=25.0
+        Positive radius, in the unit of the positions.
+    positives : sparse or dense bool matrix of shape (Q, D), optional
+        Explicit ground truth instead of the radius.
+    position_kind : {"metres", "frames", "placeholder"}, optional
+        What the positions are; detected when not given.
 
     Returns
     -------
     Retrieval
         ``scores``, ``indices`` and ``distances`` of shape (Q, top_k); ``config`` holds ``source`` ("faiss"),
         ``metric`` ("cosine"), ``k``, ``index``, ``device``, ``search_params`` (when given), ``n_database``,
-        ``n_queries`` and ``dimension``.
+        ``n_queries`` and ``dimension`` (and ``radius``, ``position_kind`` with positions). ``positives``,
+        ``query_positions`` and ``database_positions`` are set when given (or derived), else None.
 
     Examples
     --------
@@ -303,8 +323,24 @@ def retrieve(
            [0, 1]])
     >>> result.config["n_database"], result.config["dimension"]
     (3, 3)
+    >>> located = retrieve(database, database[[2, 0]], top_k=2, database_positions=[[0, 0], [50, 0], [100, 0]],
+    ...                    query_positions=[[95, 0], [10, 0]], radius=25)
+    >>> located.positives.toarray()
+    array([[False, False,  True],
+           [ True, False, False]])
     """
     k, index = check_positive_int(top_k, "top_k"), _check_index_string(index)
+    ground_truth = None
+    if positives is not None or database_positions is not None or query_positions is not None:
+        ground_truth = ground_truth_fields(  # checked before the search, the slow part
+            int(np.shape(queries)[0]),
+            int(np.shape(database)[0]),
+            positives=positives,
+            database_positions=database_positions,
+            query_positions=query_positions,
+            radius=radius,
+            position_kind=position_kind,
+        )
     scores, indices, distances = search_descriptors(
         database,
         queries,
@@ -331,7 +367,8 @@ def retrieve(
         settings["search_params"] = search_params
     settings["dimension"] = dimension
     settings.update(config or {})
-    return Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
+    result = Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
+    return result if ground_truth is None else attach_ground_truth(result, ground_truth)
 
 
 def _as_rows(database: object) -> DescriptorRows:
