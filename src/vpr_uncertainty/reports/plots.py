@@ -501,10 +501,11 @@ def plot_cascade(cells: Sequence[Any], out_dir: str | Path, *, width: str = "pag
                         curves.append(curve)
                         axis.plot(FRACTIONS, curve, zorder=1, **_ONE_VPR)
                     axis.plot(FRACTIONS, np.nanmean(np.array(curves), axis=0), markersize=3, **_MEAN)
+                    run_methods = [c.evaluation.methods[name] for c in here if name in c.evaluation.methods]
                     measured = [
-                        (c.evaluation.methods[name].details.get("verified_fraction"), c.evaluation.methods[name].auc_pr)
-                        for c in here
-                        if name in c.evaluation.methods and c.evaluation.methods[name].auc_pr is not None
+                        (m.details["verified_fraction"], m.auc_pr)
+                        for m in run_methods
+                        if m.auc_pr is not None and m.details.get("verified_fraction") is not None
                     ]
                     if measured:
                         x = float(np.mean([m[0] for m in measured]))
