@@ -381,7 +381,7 @@ def cascade_caption(cells: Sequence[Any], config: Any, path: Path, **options: An
     return ""
 
 
-def cascade_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+def cascade_section(cells: Sequence[Any], config: Any, written: list[Path], **options: Any) -> str:
     """Each cascade's measured fraction verified, AUC-PR and time per query beside its two methods, as a table."""
     rows = []
     for name, score, gv in cascades(cells):
@@ -452,7 +452,7 @@ def _mean_std(mean: float | None, std: float | None) -> str:
     return f"{mean:.3f}" if std is None else f"{mean:.3f} ± {std:.3f}"
 
 
-def reliability_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+def reliability_section(cells: Sequence[Any], config: Any, written: list[Path], **options: Any) -> str:
     """An HTML table: per cell, CAL's held-out AUC-PR, ECE and Brier (mean ± std over the splits) and the split."""
     head = "".join(
         f"<th>{name}</th>"
