@@ -62,13 +62,13 @@ def test_alpha_figure_has_one_panel_per_vpr_method_with_its_best_alpha_starred(t
     assert _png_size(path) == (round(width * plots.DPI), round(height * plots.DPI))
 
 
-def test_alpha_figure_wraps_ten_methods_in_two_rows_and_draws_one_line_per_dataset(tmp_path, figures):
+def test_alpha_figure_wraps_ten_methods_in_three_rows_and_draws_one_line_per_dataset(tmp_path, figures):
     cells = [_cell(f"M{i}", dataset, i / 10) for i in range(10) for dataset in ("corridor", "CALC")]
     plots.plot_alpha_ablation(cells, tmp_path / "alpha.png")
     (figure,) = figures
     panels = [axis for axis in figure.axes if axis.get_visible()]
     assert len(panels) == 10
-    assert {round(axis.get_position().y0, 3) for axis in panels}.__len__() == 2  # two rows
+    assert {round(axis.get_position().y0, 3) for axis in panels}.__len__() == 3  # rows of 4 in a page width
     for axis in panels:
         curves = [line for line in axis.get_lines() if line.get_marker() != "*"]
         assert [line.get_label() for line in curves] == ["corridor", "CALC"]

@@ -36,7 +36,11 @@ def test_rejection_curves_on_a_given_axis(retrieval):
     assert list(display.lines_) == ["BM", "SU"] and not left.lines
     np.testing.assert_array_equal(display.lines_["SU"].get_xdata(), evaluation.methods["SU"].curve.recall)
     np.testing.assert_array_equal(display.lines_["SU"].get_ydata(), evaluation.methods["SU"].curve.precision)
-    assert display.lines_["SU"].get_label() == f"SU (AUC-PR {evaluation.methods['SU'].auc_pr:.3f})"
+    # the legend's number is the area under the curve drawn, unless asked for the uncertainty's AUC-PR
+    curve = evaluation.methods["SU"].curve
+    assert display.lines_["SU"].get_label() == f"SU (area {np.trapezoid(curve.precision, curve.recall):.3f})"
+    other = RejectionCurveDisplay.from_evaluation(evaluation, methods=["SU"], number="auc_pr")
+    assert other.lines_["SU"].get_label() == f"SU (AUC-PR of the uncertainty {evaluation.methods['SU'].auc_pr:.3f})"
     assert right.get_title() == "mine"
     again = display.plot(left)  # the same data drawn again elsewhere
     assert again is display and display.ax_ is left and len(left.lines) == 3  # two curves + accept-all line

@@ -8,7 +8,13 @@ from pathlib import Path
 import numpy as np
 
 from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
-from vpr_uncertainty.pipeline.options import candidate_count, command_wording, open_fraction, output_file
+from vpr_uncertainty.pipeline.options import (
+    add_figure_width_option,
+    candidate_count,
+    command_wording,
+    open_fraction,
+    output_file,
+)
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = ["add_cli"]
@@ -79,6 +85,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         help="estimate how many labelled queries certify --target-precision at a useful recall; writes no gate",
     )
     parser.add_argument("--plot", type=output_file, metavar="FILE", help="write the reliability diagram")
+    add_figure_width_option(parser)
     parser.set_defaults(handler=_handle)
 
 
@@ -115,7 +122,9 @@ def _handle(args: argparse.Namespace) -> int:
     if args.plot:  # first: a plot that fails leaves an existing gate file as it was
         from vpr_uncertainty.reports.display import plot_reliability
 
-        plot_reliability(reliability_diagram(probability, correct), args.plot, title="in-sample reliability")
+        plot_reliability(
+            reliability_diagram(probability, correct), args.plot, title="in-sample reliability", width=args.figure_width
+        )
     gate.save(args.out)
     calibration = gate.info["calibration"]
     print(

@@ -25,6 +25,7 @@ from vpr_uncertainty.methods import default_method_names
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
+    add_figure_width_option,
     add_options,
     add_score_kind_option,
     candidate_count,
@@ -364,6 +365,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
     )
+    add_figure_width_option(parser)
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     parser.add_argument(
         "--csv",
@@ -473,7 +475,7 @@ def _handle(args: argparse.Namespace) -> int:
     if args.latex:
         write_output(args.latex, evaluation_latex(evaluation, intervals=args.latex_intervals))
     if args.plot:
-        plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None)
+        plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None, width=args.figure_width)
         print(f"wrote {args.plot}")
     return 0
 
@@ -534,6 +536,11 @@ def _held_out(args: argparse.Namespace, conf: EvaluateConf, retrieval: Any, inpu
         from vpr_uncertainty.calibration.quality import Reliability
         from vpr_uncertainty.reports.display import plot_reliability
 
-        plot_reliability(Reliability(**result.quality["CAL"]["reliability"]), args.plot, title="held-out reliability")
+        plot_reliability(
+            Reliability(**result.quality["CAL"]["reliability"]),
+            args.plot,
+            title="held-out reliability",
+            width=args.figure_width,
+        )
         print(f"wrote {args.plot}")
     return 0

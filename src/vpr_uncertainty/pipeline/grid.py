@@ -36,6 +36,7 @@ from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_bootstrap_options,
     add_executor_options,
+    add_figure_width_option,
     executor_from_args,
     executor_options,
     fraction,
@@ -107,6 +108,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "from every cell (positions, images, a head), all problems listed at once",
     )
     parser.add_argument("--no-report", action="store_true", help="write results.json/csv only (no tables, figures)")
+    add_figure_width_option(parser)
     add_bootstrap_options(parser, defaults_from_config=True)
     parser.add_argument(
         "--verify-fraction",
@@ -152,7 +154,7 @@ def _handle(args: argparse.Namespace) -> int:
         print(f"{cached} of {len(results)} cells read from the cache")
     paths = write_results(results, config)
     if not args.no_report:
-        paths.update(write_reports(results, config))
+        paths.update(write_reports(results, config, width=args.figure_width))
         if "table1_md" in paths:
             print(paths["table1_md"].read_text(), end="")
     for name in ("results_json", "results_csv", "report_html"):

@@ -221,7 +221,12 @@ def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
 
 
 def write_reports(
-    cells: Sequence[Cell], config: GridConfig, *, html: bool = True, figures: Sequence[str] | None = None
+    cells: Sequence[Cell],
+    config: GridConfig,
+    *,
+    html: bool = True,
+    figures: Sequence[str] | None = None,
+    width: str | None = None,
 ) -> dict[str, Any]:
     """Every selected report figure (:data:`~vpr_uncertainty.reports.figures.REPORT_FIGURES`), then ``report.html``.
 
@@ -241,6 +246,9 @@ def write_reports(
         Also write ``report.html``.
     figures : sequence of str, optional
         Figure names or specs (``"qualitative:rank_by=RS"``) to write instead of ``config.report``.
+    width : {"page", "column"}, optional
+        The width of every figure that has a ``width`` option and whose spec sets none (``reproduce
+        --figure-width``); by default each figure's own (page: 7.16 in).
 
     Returns
     -------
@@ -258,8 +266,12 @@ def write_reports(
     """
     from html import escape
 
+    from vpr_uncertainty.reports.display import figure_width
     from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
-    from vpr_uncertainty.reports.html import Section, figure_caption, settings_table, write_report
+    from vpr_uncertainty.reports.html import Section, settings_table, write_report
+
+    if width is not None:
+        figure_width(width)  # a bad width fails before any figure is drawn
 
     specs = figures if figures is not None else config.report
     selected = [parse_figure_spec(spec) for spec in (REPORT_FIGURES.names() if specs is None else specs)]
@@ -269,6 +281,8 @@ def write_reports(
     sections = []
     for name, options in selected:
         entry = REPORT_FIGURES.get(name)
+        if width is not None and "width" in entry.options and "width" not in options:
+            options = {**options, "width": width}
         note = unmet_figure_needs(entry, available)
         written = [] if note else entry.write(cells, config, out, **options)
         paths[name] = written
@@ -281,7 +295,11 @@ def write_reports(
             body = f'<p class="note">{escape(entry.description)}</p>' + body
         if note:
             body += f'<p class="note">Not written: {escape(note)}.</p>'
-        pngs = [(figure_caption(name, path, cells), path) for path in written if path.suffix.lower() == ".png"]
+        pngs = [
+            (entry.caption_of(cells, config, path, **options), path)
+            for path in written
+            if path.suffix.lower() == ".png"
+        ]
         sections.append(Section(entry.heading, body, figures=pngs))
     if html:
         intro = settings_table(cells, config)

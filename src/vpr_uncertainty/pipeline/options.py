@@ -21,9 +21,12 @@ from typing import Any
 from vpr_uncertainty.executors import CONNECT_TIMEOUT
 
 __all__ = [
+    "FIGURE_WIDTHS",
+    "FIGURE_WIDTH_HELP",
     "VERIFY_FRACTION_HELP",
     "add_bootstrap_options",
     "add_executor_options",
+    "add_figure_width_option",
     "add_options",
     "add_progress_options",
     "add_score_kind_option",
@@ -481,3 +484,21 @@ def executor_from_args(args: argparse.Namespace) -> Any:
 
     options = executor_options(args)
     return get_executor(options.pop("name"), **options)
+
+
+# --- figure width (reproduce, run, demo, evaluate --plot, calibrate --plot) ------------------------------------
+
+#: The widths a figure is drawn at (the inches: :data:`vpr_uncertainty.reports.display.FIGURE_WIDTHS`).
+FIGURE_WIDTHS = ("page", "column")
+#: Help of ``--figure-width``.
+FIGURE_WIDTH_HELP = (
+    "width of the figures: page (7.16 in, the text width of a two-column paper) or column (3.5 in); fonts 8 pt, "
+    "height from the content"
+)
+
+
+def add_figure_width_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--figure-width page|column`` (default page), read back as ``args.figure_width``."""
+    parser.add_argument(
+        "--figure-width", choices=FIGURE_WIDTHS, default="page", help=FIGURE_WIDTH_HELP + " (default page)"
+    )

@@ -36,6 +36,7 @@ def main(
     document: Mapping[str, Any],
     stage_seconds: dict[str, float],
     reranking: Mapping[str, Any] | None = None,
+    width: str = "page",
 ) -> dict[str, Path]:
     """Write the table, the precision-recall plot and ``results.json`` into the folder ``out``.
 
@@ -52,6 +53,8 @@ def main(
         Seconds of the earlier stages; this stage adds ``"reports"`` (in place).
     reranking : mapping, optional
         The re-ranking summary, reported in the table and in ``results.json``.
+    width : {"page", "column"}, default="page"
+        The width of the plot (7.16 or 3.5 in, ``--figure-width``).
 
     Returns
     -------
@@ -66,7 +69,9 @@ def main(
     if reranking:
         text += "\n" + format_reranking(reranking) + "\n"
     table = cache.write_text(out / "results.md", text, keep_unchanged=True)
-    plot = plot_rejection_curves(evaluation, out / "pr_curves.png", title=f"{dataset} · {model}", reuse=True)
+    plot = plot_rejection_curves(
+        evaluation, out / "pr_curves.png", title=f"{dataset} · {model}", reuse=True, width=width
+    )
     stage_seconds["reports"] = time.perf_counter() - start
     content = {
         **evaluation.to_dict(),

@@ -38,6 +38,8 @@ from vpr_uncertainty.pipeline.evaluate import METHOD_SPEC_HELP, EvaluateConf, me
 from vpr_uncertainty.pipeline.extract import ExtractConf, add_threads_option
 from vpr_uncertainty.pipeline.options import (
     DECODING_THREADS,
+    FIGURE_WIDTH_HELP,
+    FIGURE_WIDTHS,
     VERIFY_FRACTION_HELP,
     add_executor_options,
     add_options,
@@ -72,6 +74,7 @@ class RunConf:
         "re-ranked recall@N beside the global one",
         metavar="GV-METHOD",
     )
+    figure_width: str = option("page", FIGURE_WIDTH_HELP, choices=FIGURE_WIDTHS)
 
     def to_dict(self) -> dict[str, Any]:
         return json_ready(dataclasses.asdict(self))
@@ -301,6 +304,7 @@ def run(conf: RunConf, dataset: Any, out: str | Path, *, executor: Any = None) -
         },
         stage_seconds=seconds,
         reranking=reranking,
+        width=conf.figure_width,
     )
     paths.update(uncertainties=evaluated.path, descriptors=descriptors.path, retrieval=found.path)
     return RunResult(
@@ -355,6 +359,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     demo.add_argument("--no-download", action="store_true", help="never download; fail if the data are missing")
     _add_common_options(demo, default_out=Path("runs/demo"))
+    add_options(demo, RunConf, only=("figure_width",))
     demo.set_defaults(handler=_handle_demo)
 
     parser = subparsers.add_parser(

@@ -1,6 +1,8 @@
 """Tables, figures and ``report.html`` of evaluation results; report figures are plugins (:data:`REPORT_FIGURES`)."""
 
 from vpr_uncertainty.reports.display import (
+    FigureSpec,
+    RecallAtNDisplay,
     RejectionCurveDisplay,
     ReliabilityDisplay,
     plot_rejection_curves,
@@ -13,6 +15,8 @@ from vpr_uncertainty.reports.tables import build_table1, format_table, table1_cs
 
 __all__ = [
     "REPORT_FIGURES",
+    "FigureSpec",
+    "RecallAtNDisplay",
     "RejectionCurveDisplay",
     "ReliabilityDisplay",
     "ReportFigure",

@@ -7,7 +7,12 @@ that writes it::
     write(cells, config, out_dir, **options) -> list[Path]
 
 ``cells`` are the grid's typed results (``Cell``, with their stored uncertainties), ``config`` its ``GridConfig``,
-``out_dir`` the output folder (figures go to ``out_dir / "figures"``). ``reproduce`` calls every selected figure in
+``out_dir`` the output folder (figures go to ``out_dir / "figures"``). A figure that declares the option ``width``
+(every built-in figure: ``"page"``, 7.16 in, or ``"column"``, 3.5 in) is drawn at the width ``reproduce
+--figure-width`` gives, unless its spec sets one (``"ablations:width=column"``). A ``caption(cells, config, path,
+**options) -> str`` hook writes the caption of each file in ``report.html``; the built-in ones are the
+``caption()`` of the :class:`~vpr_uncertainty.reports.display.FigureSpec` the figure is drawn from.
+``reproduce`` calls every selected figure in
 registration order and gives each a section of ``report.html``. A figure is selected by name, optionally with options
 as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
 
@@ -32,15 +37,25 @@ from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.calibration.quality import Reliability
 from vpr_uncertainty.methods import typed_option
 from vpr_uncertainty.plugins import Registry, load_target, merge_options
-from vpr_uncertainty.reports.display import VECTOR_SUFFIX, plot_reliability, write_rejection_curves
-from vpr_uncertainty.reports.html import cell_stem
+from vpr_uncertainty.reports.display import (
+    VECTOR_SUFFIX,
+    plot_reliability,
+    rejection_curves_spec,
+    write_rejection_curves,
+)
+from vpr_uncertainty.reports.html import cell_stem, figure_caption
 from vpr_uncertainty.reports.plots import (
+    alpha_ablation_spec,
+    cascade_spec,
     cascades,
+    heatmap_spec,
+    k_ablation_spec,
     plot_alpha_ablation,
     plot_cascade,
     plot_delta_heatmaps,
     plot_k_ablation,
     plot_qualitative,
+    qualitative_spec,
 )
 from vpr_uncertainty.reports.tables import (
     build_table1,
@@ -91,6 +106,7 @@ class ReportFigure:
     options: Mapping[str, Any] = field(default_factory=dict)
     section: Callable[..., str] | str | None = field(default=None, repr=False)
     extra: str | None = None
+    caption: Callable[..., str] | str | None = field(default=None, repr=False)
 
     @property
     def heading(self) -> str:
@@ -112,6 +128,17 @@ class ReportFigure:
         hook = load_target(self.section, what=f"report figure {self.name!r}", extra=self.extra)
         return hook(cells, config, written, **merge_options(self.options, options, what=f"report figure {self.name!r}"))
 
+    def caption_of(self, cells: Any, config: Any, path: Path, **options: Any) -> str:
+        """The caption of the file ``path`` it wrote: its ``caption`` hook's, else a generic one."""
+        if self.caption is not None:
+            hook = load_target(self.caption, what=f"report figure {self.name!r}", extra=self.extra)
+            text = hook(
+                cells, config, Path(path), **merge_options(self.options, options, what=f"report figure {self.name!r}")
+            )
+            if text:
+                return text
+        return figure_caption(self.name, Path(path), cells)
+
     def unmet_needs(self, available: Collection[str]) -> list[str]:
         """The entries of ``requires`` not in ``available``."""
         return [need for need in self.requires if need not in available]
@@ -131,6 +158,7 @@ def register_report_figure(
     options: Mapping[str, Any] | None = None,
     section: Callable[..., str] | str | None = None,
     extra: str | None = None,
+    caption: Callable[..., str] | str | None = None,
     overwrite: bool = False,
 ) -> ReportFigure:
     """Add a report figure (shown after those registered before it) and return its entry.
@@ -156,6 +184,9 @@ def register_report_figure(
         ``section(cells, config, written, **options) -> str``: HTML above the figures (e.g. a table), or its path.
     extra : str, optional
         The pip extra its dependencies come from.
+    caption : callable or str, optional
+        ``caption(cells, config, path, **options) -> str``: the caption of the file ``path`` in ``report.html``, or
+        its path (default: a generic one).
     overwrite : bool
         Replace an existing entry of that name.
     """
@@ -175,6 +206,7 @@ def register_report_figure(
         options=dict(options or {}),
         section=section,
         extra=extra,
+        caption=caption,
     )
     return REPORT_FIGURES.register(entry, overwrite=overwrite)
 
@@ -287,23 +319,36 @@ def ties_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
     return f"<pre>{escape(ties_markdown(build_ties_table(cells)))}</pre>"
 
 
-def write_heatmaps(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+def write_heatmaps(cells: Sequence[Any], config: Any, out_dir: Path, *, width: str = "page") -> list[Path]:
     """``figures/delta_<RS|SD|SU>.png`` (and ``.pdf``): ΔAUC-PR against each baseline."""
-    return _with_vectors(plot_delta_heatmaps(cells, out_dir / "figures"))
+    return _with_vectors(plot_delta_heatmaps(cells, out_dir / "figures", width=width))
 
 
-def write_ablations(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+def heatmaps_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
+    return heatmap_spec(cells, path.stem.removeprefix("delta_")).caption()
+
+
+def write_ablations(cells: Sequence[Any], config: Any, out_dir: Path, *, width: str = "page") -> list[Path]:
     """``figures/ablation_alpha.png`` and ``figures/ablation_k.png`` (and ``.pdf``), for the ablations the cells
     hold."""
     paths = []
     if any(cell.ablation_alpha for cell in cells):
-        paths.append(plot_alpha_ablation(cells, out_dir / "figures" / "ablation_alpha.png"))
+        paths.append(plot_alpha_ablation(cells, out_dir / "figures" / "ablation_alpha.png", width=width))
     if any(curve for cell in cells for curve in cell.ablation_k.values()):
-        paths.append(plot_k_ablation(cells, out_dir / "figures" / "ablation_k.png"))
+        paths.append(plot_k_ablation(cells, out_dir / "figures" / "ablation_k.png", width=width))
     return _with_vectors(paths)
 
 
-def write_pr_curves(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+def ablations_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
+    spec = alpha_ablation_spec(cells) if path.stem == "ablation_alpha" else k_ablation_spec(cells)
+    return spec.caption()
+
+
+def _pr_title(cell: Any) -> str:
+    return f"{cell.vpr_method} on {cell.dataset}"
+
+
+def write_pr_curves(cells: Sequence[Any], config: Any, out_dir: Path, *, width: str = "page") -> list[Path]:
     """``figures/pr/<vpr method>__<dataset>.png`` (and ``.pdf``) for every cell."""
     return [
         path
@@ -311,27 +356,32 @@ def write_pr_curves(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Pa
         for path in write_rejection_curves(
             cell.evaluation,
             out_dir / "figures" / "pr" / f"{cell_stem(cell)}.png",
-            title=f"{cell.vpr_method} on {cell.dataset} ({cell.evaluation.n_queries} queries)",
+            title=f"{_pr_title(cell)} ({cell.evaluation.n_queries} queries)",
+            width=width,
         )
     ]
 
 
-def pr_curves_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
-    """The note under the PR curves: what their axes and their area are."""
-    return (
-        '<p class="note">x: recall = correct answers accepted / answerable queries; y: precision = correct '
-        "answers / accepted answers, as the most uncertain answers are rejected. The area under a curve is not "
-        "the AUC-PR of the legend (which is over the correct answers only): the x axis is shrunk by recall@1. "
-        "Methods that rank the queries identically share one line (e.g. “BM = L2”).</p>"
-    )
+def pr_curves_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
+    cell = next((c for c in cells if cell_stem(c) == path.stem), None)
+    return "" if cell is None else rejection_curves_spec(cell.evaluation, title=_pr_title(cell)).caption()
 
 
-def write_cascade(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+def write_cascade(cells: Sequence[Any], config: Any, out_dir: Path, *, width: str = "page") -> list[Path]:
     """``figures/cascade__<SCORE>_<GV>.png`` (and ``.pdf``): AUC-PR against the fraction verified."""
-    return plot_cascade(cells, out_dir / "figures")
+    return plot_cascade(cells, out_dir / "figures", width=width)
 
 
-def cascade_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+def cascade_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
+    from vpr_uncertainty.cache import slug
+
+    for name, score, gv in cascades(cells):
+        if path.stem == f"cascade__{slug(score)}_{slug(gv)}":
+            return cascade_spec(cells, name, score, gv).caption()
+    return ""
+
+
+def cascade_section(cells: Sequence[Any], config: Any, written: list[Path], **options: Any) -> str:
     """Each cascade's measured fraction verified, AUC-PR and time per query beside its two methods, as a table."""
     rows = []
     for name, score, gv in cascades(cells):
@@ -356,7 +406,9 @@ def cascade_section(cells: Sequence[Any], config: Any, written: list[Path]) -> s
     return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
 
 
-def write_qualitative(cells: Sequence[Any], config: Any, out_dir: Path, *, rank_by: str = "SU") -> list[Path]:
+def write_qualitative(
+    cells: Sequence[Any], config: Any, out_dir: Path, *, rank_by: str = "SU", width: str = "page"
+) -> list[Path]:
     """``figures/qualitative__<vpr method>__<dataset>.png`` for the cells of ``config.qualitative`` (default: the
     first cell with images); queries chosen by the uncertainties of ``rank_by``."""
     chosen = [c for c in cells if c.query_paths and (config.qualitative is None or c.vpr_method in config.qualitative)]
@@ -365,17 +417,23 @@ def write_qualitative(cells: Sequence[Any], config: Any, out_dir: Path, *, rank_
     paths = []
     for cell in chosen:
         path = out_dir / "figures" / f"qualitative__{cell_stem(cell)}.png"
-        written = plot_qualitative(cell, path, rank_by=rank_by, alpha=config.alpha)
+        written = plot_qualitative(cell, path, rank_by=rank_by, alpha=config.alpha, width=width)
         if written is not None:
             paths.append(written)
     return _with_vectors(paths)
+
+
+def qualitative_caption(cells: Sequence[Any], config: Any, path: Path, *, rank_by: str = "SU", **options: Any) -> str:
+    cell = next((c for c in cells if path.stem == f"qualitative__{cell_stem(c)}"), None)
+    spec = None if cell is None else qualitative_spec(cell, rank_by=rank_by, alpha=config.alpha)
+    return "" if spec is None else spec.caption()
 
 
 def _quality(cell: Any) -> dict[str, Any] | None:
     return (cell.held_out or {}).get("calibration_quality", {}).get("CAL")
 
 
-def write_reliability(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
+def write_reliability(cells: Sequence[Any], config: Any, out_dir: Path, *, width: str = "page") -> list[Path]:
     """``figures/reliability/<vpr method>__<dataset>.png``: CAL's held-out reliability diagram of each cell."""
     paths = []
     for cell in cells:
@@ -384,7 +442,7 @@ def write_reliability(cells: Sequence[Any], config: Any, out_dir: Path) -> list[
             continue
         title = f"{cell.vpr_method} on {cell.dataset}: ECE {quality['ece']:.3f}, Brier {quality['brier']:.3f}"
         path = out_dir / "figures" / "reliability" / f"{cell_stem(cell)}.png"
-        paths.append(plot_reliability(Reliability(**quality["reliability"]), path, title=title))
+        paths.append(plot_reliability(Reliability(**quality["reliability"]), path, title=title, width=width))
     return paths
 
 
@@ -394,7 +452,7 @@ def _mean_std(mean: float | None, std: float | None) -> str:
     return f"{mean:.3f}" if std is None else f"{mean:.3f} ± {std:.3f}"
 
 
-def reliability_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
+def reliability_section(cells: Sequence[Any], config: Any, written: list[Path], **options: Any) -> str:
     """An HTML table: per cell, CAL's held-out AUC-PR, ECE and Brier (mean ± std over the splits) and the split."""
     head = "".join(
         f"<th>{name}</th>"
@@ -439,6 +497,8 @@ register_report_figure(
     title="ΔAUC-PR of RS, SD and SU against each baseline",
     description="AUC-PR of RS, SD and SU minus that of each baseline, per VPR method and dataset",
     requires=("evaluation",),
+    options={"width": "page"},
+    caption=heatmaps_caption,
 )
 register_report_figure(
     "ablations",
@@ -446,6 +506,8 @@ register_report_figure(
     title="Ablations",
     description="mean AUC-PR of SU for each α, and of RS and SD for each k",
     requires=("ablations",),
+    options={"width": "page"},
+    caption=ablations_caption,
 )
 register_report_figure(
     "pr_curves",
@@ -453,16 +515,19 @@ register_report_figure(
     title="End-to-end precision-recall with rejection",
     description="precision against recall when the most uncertain answers are rejected, one figure per cell",
     requires=("evaluation",),
-    section=pr_curves_section,
+    options={"width": "page"},
+    caption=pr_curves_caption,
 )
 register_report_figure(
     "cascade",
     write_cascade,
     title="Cascade: geometric verification of the most uncertain queries only",
     description="AUC-PR of each cascade SCORE+GV against the fraction of queries verified (0: SCORE alone, 1: GV "
-    "on every query); grey: one VPR method, blue: their mean, red: the cascade as run",
+    "on every query)",
     requires=("evaluation", "uncertainties", "cascade"),
+    options={"width": "page"},
     section=cascade_section,
+    caption=cascade_caption,
 )
 register_report_figure(
     "qualitative",
@@ -471,7 +536,8 @@ register_report_figure(
     description="confident/uncertain × correct/wrong queries with their top-4 answers and RS/SD/SU "
     "(cells of config.qualitative, default: the first cell with images)",
     requires=("images", "uncertainties"),
-    options={"rank_by": "SU"},
+    options={"rank_by": "SU", "width": "page"},
+    caption=qualitative_caption,
 )
 register_report_figure(
     "table1_ap",
@@ -504,5 +570,6 @@ register_report_figure(
     description="reliability diagram of CAL (held-out predictions of all splits, count per bin), ECE and Brier, "
     "per cell",
     requires=("calibration",),
+    options={"width": "page"},
     section=reliability_section,
 )

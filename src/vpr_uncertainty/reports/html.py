@@ -115,55 +115,12 @@ def cell_stem(cell: Any) -> str:
     return f"{slug(cell.vpr_method)}__{slug(cell.dataset)}"
 
 
-def _cell_of(path: Path, cells: Sequence[Any]) -> Any:
-    for cell in cells:
-        if path.stem.endswith(cell_stem(cell)):
-            return cell
-    return None
-
-
 def figure_caption(name: str, path: Path, cells: Sequence[Any]) -> str:
-    """The caption of the figure file ``path`` written by the report figure ``name``."""
+    """A generic caption of the figure file ``path`` written by the report figure ``name``: for a figure without a
+    ``caption`` hook (the built-in figures caption themselves from the spec they are drawn from,
+    :meth:`~vpr_uncertainty.reports.display.FigureSpec.caption`)."""
     datasets = _names([cell.dataset for cell in cells]) if cells else "no dataset"
-    n_vpr = len({cell.vpr_method for cell in cells})
-    cell = _cell_of(path, cells)
-    stem = path.stem
-    if name == "heatmaps" and stem.startswith("delta_"):
-        method = stem[len("delta_") :]
-        return (
-            f"ΔAUC-PR of {method} against each baseline (one panel per baseline) on {datasets}: rows are the "
-            f"{n_vpr} VPR methods, columns the datasets; blue (> 0): {method} predicts correct answers better."
-        )
-    if name == "ablations" and stem == "ablation_alpha":
-        return (
-            f"AUC-PR of SU against α (0 = SD, 1 = RS), averaged over the {n_vpr} VPR methods, one line per dataset "
-            f"({datasets})."
-        )
-    if name == "ablations" and stem == "ablation_k":
-        return (
-            f"AUC-PR of RS (solid) and SD (dashed) against k, the candidates used, averaged over the {n_vpr} VPR "
-            f"methods, one colour per dataset ({datasets})."
-        )
-    if name == "pr_curves" and cell is not None:
-        return (
-            f"{cell.vpr_method} on {cell.dataset} ({cell.evaluation.n_queries} queries): end-to-end precision "
-            "against recall as the most uncertain answers are rejected, one line per uncertainty method (methods "
-            "with the same ranking share a line, e.g. “BM = L2”). The area under a line is not the AUC-PR of the "
-            "legend (see the note under the plot)."
-        )
-    if name == "cascade" and stem.startswith("cascade__"):
-        return (
-            f"AUC-PR of the cascade against the fraction of queries geometrically verified on {datasets}: 0 is the "
-            "score method alone, 1 geometric verification on every query; grey: one VPR method, blue: their mean, "
-            "red diamond: the cascade as run (its verified fraction and AUC-PR)."
-        )
-    if name == "qualitative" and cell is not None:
-        return (
-            f"{cell.vpr_method} on {cell.dataset}: a confident and an uncertain query, each with a correct and a "
-            "wrong top-1 answer; each row shows the query and its top-4 answers (green frame: correct, red: wrong) "
-            "with their similarities and the query's uncertainties."
-        )
-    return f"{name}: {stem.replace('__', ' on ').replace('_', ' ')} ({datasets})"
+    return f"{name}: {path.stem.replace('__', ' on ').replace('_', ' ')} ({datasets})"
 
 
 def settings_table(cells: Sequence[Any], config: Any) -> str:

@@ -1,9 +1,10 @@
 """The figures of a grid: ablations (the paper's Figures 5 and 6), ΔAUC-PR heatmaps (Figure 3), the cascade, and
 qualitative examples (Figures 2 and 4). Each reads the cells' stored results and recomputes no uncertainty.
 
-- Ablations: AUC-PR of SU versus α (α = 1 is RS, α = 0 is SD) with one panel per VPR method (each with its own y
-  range: the preference for RS or SD depends on the VPR method, and an average hides it), one line per dataset, a
-  star on each line's best α; RS and SD versus k with one panel per (dataset, method), one line per VPR method.
+- Ablations: AUC-PR of SU versus α (α = 1 is RS, α = 0 is SD) with one panel per VPR method (one y range shared by
+  all panels, so that a difference of 0.002 looks as small as it is; the best α of each line is starred and given
+  in its panel's title), one line per dataset; RS and SD versus k with one panel per (dataset, RS or SD), one line
+  per VPR method, one shared y range.
 - Heatmaps: Δ = AUC-PR(RS, SD or SU) − AUC-PR(baseline), > 0 (blue) when the proposed method is better; one panel
   per baseline (baselines with the same Δ everywhere, such as BM and L2, share one), rows = VPR methods, columns =
   datasets.
@@ -11,7 +12,11 @@ qualitative examples (Figures 2 and 4). Each reads the cells' stored results and
   the stored uncertainties of SCORE and GV (verifying a pair gives the same inliers whichever other queries are
   verified), with the cascade's measured point marked.
 - Qualitative: the most confident and most uncertain correct and wrong queries (by SU), each with its top-4 answers
-  (green frame: positive, red: not) and RS, SD, SU.
+  (✓ and a green frame: positive; ✗ and a dashed red frame: not) and RS, SD, SU.
+
+Every figure takes ``width="page"`` (7.16 in) or ``"column"`` (3.5 in); its height follows from its panels, its
+fonts are 8 pt (:func:`~vpr_uncertainty.reports.display.figure_rc`). Each has a ``*_spec`` function returning the
+:class:`~vpr_uncertainty.reports.display.FigureSpec` it is drawn from, whose ``caption()`` is its caption.
 """
 
 from __future__ import annotations
@@ -26,23 +31,37 @@ import numpy as np
 from vpr_uncertainty.cache import slug
 from vpr_uncertainty.evaluation import auc_pr
 from vpr_uncertainty.methods.cascade import combine_cascade, most_uncertain, split_cascade_name
-from vpr_uncertainty.reports.display import DPI, legend_outside, method_styles, pyplot, save_figure
+from vpr_uncertainty.reports.display import (
+    DPI,
+    OKABE_ITO,
+    FigureSpec,
+    SeriesSpec,
+    capped_height,
+    figure_rc,
+    figure_width,
+    method_styles,
+    pyplot,
+    save_figure,
+)
 
 __all__ = [
     "CATEGORIES",
     "FRACTIONS",
-    "PANEL_SIZE",
     "PROPOSED",
     "SHOWN",
     "TOP",
     "ablation_figsize",
+    "alpha_ablation_spec",
     "alpha_panels",
     "best_alpha",
     "cascade_curve",
+    "cascade_spec",
     "cascades",
     "choose_queries",
     "delta_matrix",
     "heatmap_figsize",
+    "heatmap_spec",
+    "k_ablation_spec",
     "k_panels",
     "plot_alpha_ablation",
     "plot_cascade",
@@ -50,15 +69,17 @@ __all__ = [
     "plot_k_ablation",
     "plot_qualitative",
     "qualitative_figsize",
+    "qualitative_spec",
 ]
 
 # --- ablations ---
 
-#: Size in inches of one panel of the small multiples.
-PANEL_SIZE: tuple[float, float] = (2.8, 2.3)
 #: Room in inches for the title above the panels, and for each row of the legend below them.
-_TITLE_HEIGHT, _LEGEND_ROW = 0.55, 0.22
-_MAX_COLUMNS = 5
+_TITLE_HEIGHT, _LEGEND_ROW = 0.35, 0.17
+#: Most panels per row, by figure width.
+_MAX_COLUMNS = {"column": 2, "page": 4}
+#: Panel height / panel width.
+_PANEL_ASPECT = 0.8
 
 
 def _defined(curve: dict) -> dict:
@@ -111,52 +132,57 @@ def k_panels(cells: Sequence) -> dict[tuple[str, str], dict[str, dict[int, float
     return panels
 
 
-def _layout(n_panels: int, columns: int | None = None) -> tuple[int, int]:
-    columns = min(max(n_panels, 1), _MAX_COLUMNS) if columns is None else columns
+def _layout(n_panels: int, columns: int | None = None, width: str = "page") -> tuple[int, int]:
+    columns = min(max(n_panels, 1), _MAX_COLUMNS[width]) if columns is None else columns
     return math.ceil(max(n_panels, 1) / columns), columns
 
 
-def _legend_columns(n_entries: int, columns: int) -> int:
-    """Legend entries per row: about two per panel column, at most five."""
-    return max(1, min(n_entries, 2 * columns, 5))
+def _legend_columns(n_entries: int, columns: int, width: str = "page") -> int:
+    """Legend entries per row: two (column width) or four (page width), fewer when there are fewer."""
+    return max(1, min(n_entries, 2 if width == "column" else 4))
 
 
-def ablation_figsize(n_panels: int, columns: int | None = None, legend_entries: int = 1) -> tuple[float, float]:
-    """Size in inches of a figure of ``n_panels`` small multiples (at most five per row, or ``columns`` per row),
-    with room for the title above and a legend of ``legend_entries`` entries below.
+def ablation_figsize(
+    n_panels: int, columns: int | None = None, legend_entries: int = 1, *, width: str = "page"
+) -> tuple[float, float]:
+    """Size in inches of a figure of ``n_panels`` small multiples (at most 2 per row in a column, 4 in a page, or
+    ``columns`` per row), ``width`` wide, with room for the title above and a legend of ``legend_entries`` entries
+    below; at most :data:`~vpr_uncertainty.reports.display.MAX_HEIGHTS` tall.
 
     Examples
     --------
     >>> ablation_figsize(10)
-    (14.0, 5.57)
+    (7.16, 6.42)
+    >>> ablation_figsize(10, width="column")
+    (3.5, 7.0)
     """
-    rows, columns = _layout(n_panels, columns)
-    legend_rows = math.ceil(max(legend_entries, 1) / _legend_columns(legend_entries, columns))
-    return (
-        round(PANEL_SIZE[0] * columns, 2),
-        round(PANEL_SIZE[1] * rows + _TITLE_HEIGHT + _LEGEND_ROW * legend_rows + 0.2, 2),
-    )
+    inches = figure_width(width)
+    rows, columns = _layout(n_panels, columns, width)
+    legend_rows = math.ceil(max(legend_entries, 1) / _legend_columns(legend_entries, columns, width))
+    panel_height = max(1.3, _PANEL_ASPECT * inches / columns) + 0.45  # + a two-line title and the tick labels
+    return inches, capped_height(panel_height * rows + _TITLE_HEIGHT + _LEGEND_ROW * legend_rows + 0.25, width)
 
 
-def _subplots(plt, n_panels: int, columns: int | None, legend_entries: int):
-    """Constrained-layout small multiples, each panel with its own y range."""
-    rows, columns = _layout(n_panels, columns)
-    size = ablation_figsize(n_panels, columns, legend_entries)
-    figure, axes = plt.subplots(rows, columns, figsize=size, dpi=DPI, squeeze=False, layout="constrained")
+def _subplots(plt, n_panels: int, columns: int | None, legend_entries: int, width: str):
+    """Constrained-layout small multiples sharing one y range (call inside :func:`figure_rc`)."""
+    rows, columns = _layout(n_panels, columns, width)
+    size = ablation_figsize(n_panels, columns, legend_entries, width=width)
+    figure, axes = plt.subplots(rows, columns, figsize=size, dpi=DPI, squeeze=False, sharey=True, layout="constrained")
     for axis in axes.ravel()[n_panels:]:
         axis.set_visible(False)
+    for axis in axes.ravel()[:n_panels]:
+        axis.tick_params(labelleft=True)  # each panel keeps its labels: panels may wrap unevenly
     return figure, axes
 
 
-def _legend_below(figure, handles: dict, columns: int) -> None:
+def _legend_below(figure, handles: dict, columns: int, width: str) -> None:
     """One legend for the whole figure, below the panels (outside the data)."""
     if handles:
         figure.legend(
             list(handles.values()),
             list(handles),
             loc="outside lower center",
-            ncol=_legend_columns(len(handles), columns),
-            fontsize="small",
+            ncol=_legend_columns(len(handles), columns, width),
             frameon=False,
         )
 
@@ -167,81 +193,113 @@ def _save(figure, path: Path) -> Path:
     return path
 
 
-def plot_alpha_ablation(cells: Sequence, path: str | Path) -> Path:
-    """AUC-PR of SU versus α: one panel per VPR method, one line per dataset, a star on each line's best α."""
-    plt = pyplot()
-    path = Path(path)
+_STAR = {"marker": "*", "linestyle": "none", "color": "0.3"}
+
+
+def alpha_ablation_spec(cells: Sequence) -> FigureSpec:
+    """What :func:`plot_alpha_ablation` draws: its panels (one per VPR method), its legend and its axes."""
     panels = alpha_panels(cells)
     datasets = list(dict.fromkeys(d for lines in panels.values() for d in lines))
-    entries = 1 + (len(datasets) if len(datasets) > 1 else 0)
-    figure, axes = _subplots(plt, len(panels), None, entries)
     styles = method_styles(datasets)
-    try:
-        handles: dict = {}
-        for axis, (vpr_method, lines) in zip(axes.ravel(), panels.items(), strict=False):
-            bests = []
-            for dataset, curve in lines.items():
-                style = styles[dataset]
-                (line,) = axis.plot(list(curve), list(curve.values()), markersize=3, label=dataset, **style)
-                handles.setdefault(dataset, line)
-                best = best_alpha(curve)
-                axis.plot([best], [curve[best]], marker="*", markersize=12, color=style["color"], linestyle="none")
-                bests.append(f"{best:g} ({curve[best]:.3f})")
-            best_text = bests[0] if len(bests) == 1 else ", ".join(bests)
-            axis.set_title(f"{vpr_method}\nbest α = {best_text}", fontsize="small")
-            axis.set_xlim(-0.05, 1.05)
-            axis.set_xticks([0, 0.5, 1], ["0\nSD", "0.5", "1\nRS"])
-            axis.tick_params(labelsize="small")
-            axis.grid(alpha=0.3)
-        for axis in axes[:, 0]:
-            axis.set_ylabel("AUC-PR of SU", fontsize="small")
-        star = plt.Line2D([], [], marker="*", markersize=10, color="0.3", linestyle="none")
-        shown = dict(handles) if len(datasets) > 1 else {}
-        _legend_below(figure, {**shown, "best α (star)": star}, axes.shape[1])
-        where = f" on {datasets[0]}" if len(datasets) == 1 else ""
-        figure.suptitle(f"SU = α·RS + (1−α)·SD: AUC-PR versus α, per VPR method{where}", fontsize="medium")
-        return _save(figure, path)
-    finally:
-        plt.close(figure)
+    titles = []
+    for vpr_method, lines in panels.items():
+        bests = [f"{best:g} ({curve[best]:.3f})" for curve in lines.values() if (best := best_alpha(curve)) is not None]
+        titles.append(f"{vpr_method}\nbest α = {', '.join(bests)}")
+    series = [SeriesSpec(d, "dataset", styles[d]) for d in datasets] if len(datasets) > 1 else []
+    series.append(SeriesSpec("best α (star)", "the highest AUC-PR of each line", _STAR))
+    where = f" on {datasets[0]}" if len(datasets) == 1 else f" on {', '.join(datasets)}"
+    return FigureSpec(
+        what=f"SU = α·RS + (1−α)·SD: AUC-PR of SU against α{where}",
+        panels=tuple(titles),
+        panel_rule="one per VPR method, with its best α and that AUC-PR",
+        series=tuple(series),
+        x="α (0: SD, 1: RS)",
+        y="AUC-PR of SU",
+        shared_y=True,
+    )
 
 
-def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
-    """AUC-PR of RS and SD versus k: per dataset a panel for RS and one for SD, one line per VPR method."""
+def plot_alpha_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -> Path:
+    """AUC-PR of SU versus α: one panel per VPR method (one shared y range), one line per dataset, a star on each
+    line's best α; ``width`` "page" (7.16 in) or "column" (3.5 in). Described by :func:`alpha_ablation_spec`."""
+    plt = pyplot()
+    path = Path(path)
+    spec = alpha_ablation_spec(cells)
+    panels = alpha_panels(cells)
+    datasets = list(dict.fromkeys(d for lines in panels.values() for d in lines))
+    styles = method_styles(datasets)
+    with figure_rc(width):
+        figure, axes = _subplots(plt, len(panels), None, len(spec.series), width)
+        try:
+            for axis, title, lines in zip(axes.ravel(), spec.panels, panels.values(), strict=False):
+                for dataset, curve in lines.items():
+                    style = styles[dataset]
+                    axis.plot(list(curve), list(curve.values()), label=dataset, **style)
+                    best = best_alpha(curve)
+                    axis.plot([best], [curve[best]], markersize=10, **{**_STAR, "color": style["color"]})
+                axis.set_title(title)
+                axis.set_xlim(-0.05, 1.05)
+                axis.set_xticks([0, 0.5, 1], ["0\nSD", "0.5", "1\nRS"])
+                axis.grid(alpha=0.3)
+            for axis in axes[:, 0]:
+                axis.set_ylabel(spec.y)
+            handles = {
+                s.label: plt.Line2D([], [], markersize=8 if s.style is _STAR else 4, **s.style) for s in spec.series
+            }
+            _legend_below(figure, handles, axes.shape[1], width)
+            figure.suptitle(spec.what)
+            return _save(figure, path)
+        finally:
+            plt.close(figure)
+
+
+def k_ablation_spec(cells: Sequence) -> FigureSpec:
+    """What :func:`plot_k_ablation` draws: a panel per (dataset, RS or SD), a line per VPR method."""
+    panels = k_panels(cells)
+    methods = list(dict.fromkeys(m for lines in panels.values() for m in lines))
+    styles = method_styles(methods)
+    return FigureSpec(
+        what="RS and SD: AUC-PR against k, the candidates used, per VPR method",
+        panels=tuple(f"{name} · {dataset}" for dataset, name in panels),
+        panel_rule="one per dataset and method, RS or SD",
+        series=tuple(SeriesSpec(m, "VPR method", styles[m]) for m in methods),
+        x="k (candidates used)",
+        y="AUC-PR",
+        shared_y=True,
+    )
+
+
+def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -> Path:
+    """AUC-PR of RS and SD versus k: per dataset a panel for RS and one for SD (one shared y range), one line per VPR
+    method; ``width`` "page" or "column". Described by :func:`k_ablation_spec`."""
     import matplotlib.ticker
 
     plt = pyplot()
     path = Path(path)
+    spec = k_ablation_spec(cells)
     panels = k_panels(cells)
-    methods = list(dict.fromkeys(m for lines in panels.values() for m in lines))
-    figure, axes = _subplots(plt, len(panels), min(max(len(panels), 1), 2), len(methods))
-    styles = method_styles(methods)
-    try:
-        handles: dict = {}
-        ticks = sorted({k for lines in panels.values() for curve in lines.values() for k in curve})
-        for axis, ((dataset, name), lines) in zip(axes.ravel(), panels.items(), strict=False):
-            for vpr_method, curve in lines.items():
-                (line,) = axis.plot(
-                    list(curve),
-                    list(curve.values()),
-                    markersize=3,
-                    label=vpr_method,
-                    **styles[vpr_method],
-                )
-                handles.setdefault(vpr_method, line)
-            axis.set_xscale("log")
-            axis.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
-            axis.set_xticks(ticks, [str(t) for t in ticks])
-            axis.tick_params(labelsize="small")
-            axis.set_xlabel("k (candidates used)", fontsize="small")
-            axis.set_title(f"{name} · {dataset}", fontsize="small")
-            axis.grid(alpha=0.3)
-        for axis in axes[:, 0]:
-            axis.set_ylabel("AUC-PR", fontsize="small")
-        _legend_below(figure, handles, axes.shape[1])
-        figure.suptitle("RS and SD: AUC-PR versus k, per VPR method", fontsize="medium")
-        return _save(figure, path)
-    finally:
-        plt.close(figure)
+    styles = {s.label: s.style for s in spec.series}
+    with figure_rc(width):
+        figure, axes = _subplots(plt, len(panels), min(max(len(panels), 1), 2), len(spec.series), width)
+        try:
+            ticks = sorted({k for lines in panels.values() for curve in lines.values() for k in curve})
+            for axis, title, lines in zip(axes.ravel(), spec.panels, panels.values(), strict=False):
+                for vpr_method, curve in lines.items():
+                    axis.plot(list(curve), list(curve.values()), label=vpr_method, **styles[vpr_method])
+                axis.set_xscale("log")
+                axis.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+                axis.set_xticks(ticks, [str(t) for t in ticks], rotation=90 if width == "column" else 0)
+                axis.set_xlabel(spec.x)
+                axis.set_title(title)
+                axis.grid(alpha=0.3)
+            for axis in axes[:, 0]:
+                axis.set_ylabel(spec.y)
+            handles = {s.label: plt.Line2D([], [], **s.style) for s in spec.series}
+            _legend_below(figure, handles, axes.shape[1], width)
+            figure.suptitle(spec.what)
+            return _save(figure, path)
+        finally:
+            plt.close(figure)
 
 
 # --- ΔAUC-PR heatmaps ---
@@ -249,10 +307,16 @@ def plot_k_ablation(cells: Sequence, path: str | Path) -> Path:
 PROPOSED: tuple[str, ...] = ("RS", "SD", "SU")
 
 
-def heatmap_figsize(n_vpr: int, n_datasets: int, n_baselines: int) -> tuple[float, float]:
-    """Figure size in inches (the PNG is ``DPI`` times larger, in pixels)."""
-    # At least 6 inches wide so that the title and the method names fit beside a single column.
-    return (max(6.0, 2.2 + n_baselines * (1.2 + 0.7 * n_datasets)), 1.6 + 0.35 * n_vpr)
+def heatmap_figsize(n_vpr: int, n_datasets: int, n_baselines: int, *, width: str = "page") -> tuple[float, float]:
+    """Figure size in inches (the PNG is ``DPI`` times larger, in pixels): ``width`` wide, 0.2 in per VPR method
+    (one row of 8-pt text) plus room for the titles, the dataset names and the colour bar.
+
+    Examples
+    --------
+    >>> heatmap_figsize(10, 1, 2), heatmap_figsize(10, 1, 2, width="column")
+    ((7.16, 3.5), (3.5, 3.5))
+    """
+    return figure_width(width), capped_height(1.5 + 0.2 * n_vpr, width)
 
 
 def delta_matrix(cells: Sequence, proposed: str, baseline: str) -> tuple[list[str], list[str], np.ndarray]:
@@ -269,53 +333,83 @@ def delta_matrix(cells: Sequence, proposed: str, baseline: str) -> tuple[list[st
     return vpr_methods, datasets, delta
 
 
-def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path) -> list[Path]:
-    """Write ``delta_<RS|SD|SU>.png`` for each proposed method present with at least one baseline."""
+def _heatmap_panels(cells: Sequence, proposed: str) -> tuple[list[str], list[tuple[list[str], list[str], np.ndarray]]]:
+    """(panel titles, Δ matrices): one panel per baseline; baselines with the same Δ everywhere share one."""
+    names = list(dict.fromkeys(name for c in cells for name in c.evaluation.methods))
+    matrices: list[tuple[list[str], list[str], np.ndarray]] = []
+    titles: list[str] = []
+    for baseline in (n for n in names if n not in PROPOSED):
+        matrix = delta_matrix(cells, proposed, baseline)
+        same = [i for i, m in enumerate(matrices) if np.array_equal(m[2], matrix[2], equal_nan=True)]
+        if same:
+            titles[same[0]] += f" = {baseline}"
+        else:
+            matrices.append(matrix)
+            titles.append(f"vs {baseline}")
+    return titles, matrices
+
+
+def heatmap_spec(cells: Sequence, proposed: str) -> FigureSpec:
+    """What the heatmap of ``proposed`` (RS, SD or SU) draws: one panel per baseline, rows VPR methods, columns
+    datasets."""
+    titles, matrices = _heatmap_panels(cells, proposed)
+    n_vpr = len(matrices[0][0]) if matrices else 0
+    datasets = ", ".join(matrices[0][1]) if matrices else "no dataset"
+    return FigureSpec(
+        what=f"{proposed}: Δ AUC-PR against each baseline (> 0: {proposed} better) on {datasets}",
+        panels=tuple(titles),
+        panel_rule="one per baseline; baselines with the same Δ in every cell share one, e.g. “vs BM = L2”",
+        x="dataset",
+        y=f"VPR method ({n_vpr})",
+        notes=(
+            f"Each cell is AUC-PR({proposed}) − AUC-PR(baseline), printed in the cell and coloured on one diverging "
+            f"scale for all panels: blue > 0 ({proposed} predicts correct answers better), red < 0",
+        ),
+    )
+
+
+def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "page") -> list[Path]:
+    """Write ``delta_<RS|SD|SU>.png`` for each proposed method present with at least one baseline; ``width``
+    "page" (7.16 in) or "column" (3.5 in). Described by :func:`heatmap_spec`."""
     plt = pyplot()
+    figure_width(width)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     names = list(dict.fromkeys(name for c in cells for name in c.evaluation.methods))
-    baselines = [n for n in names if n not in PROPOSED]
     paths = []
     for proposed in (p for p in PROPOSED if p in names):
-        if not baselines:
+        _, matrices = _heatmap_panels(cells, proposed)
+        if not matrices:
             break
-        matrices, titles = [], []
-        for baseline in baselines:  # baselines with the same Δ everywhere (BM and L2) share one panel
-            matrix = delta_matrix(cells, proposed, baseline)
-            same = [i for i, m in enumerate(matrices) if np.array_equal(m[2], matrix[2], equal_nan=True)]
-            if same:
-                titles[same[0]] += f" = {baseline}"
-            else:
-                matrices.append(matrix)
-                titles.append(baseline)
+        spec = heatmap_spec(cells, proposed)
         vpr_methods, datasets = matrices[0][0], matrices[0][1]
         finite = np.concatenate([m[2][np.isfinite(m[2])] for m in matrices])
         limit = max(float(np.abs(finite).max()) if finite.size else 0.0, 1e-3)
-        figure, axes = plt.subplots(
-            1,
-            len(matrices),
-            figsize=heatmap_figsize(len(vpr_methods), len(datasets), len(matrices)),
-            dpi=DPI,
-            squeeze=False,
-            layout="constrained",
-        )
-        try:
-            for axis, baseline, (_, _, delta) in zip(axes[0], titles, matrices, strict=True):
-                image = axis.imshow(delta, cmap="RdBu", vmin=-limit, vmax=limit, aspect="auto")
-                for (i, j), value in np.ndenumerate(delta):
-                    if np.isfinite(value):
-                        colour = "white" if abs(value) > 0.6 * limit else "black"
-                        axis.text(j, i, f"{value:+.2f}", ha="center", va="center", fontsize=7, color=colour)
-                axis.set_xticks(range(len(datasets)), datasets, rotation=30, ha="right", fontsize=8)
-                axis.set_yticks(range(len(vpr_methods)), vpr_methods if axis is axes[0][0] else [], fontsize=8)
-                axis.set_title(f"vs {baseline}", fontsize=9)
-            figure.colorbar(image, ax=list(axes[0]), shrink=0.8, label="Δ AUC-PR")
-            figure.suptitle(f"{proposed}: Δ AUC-PR against each baseline (> 0: {proposed} better)", fontsize=10)
-            path = out_dir / f"delta_{proposed}.png"
-            save_figure(figure, path, tight=False)  # and a PDF beside it
-        finally:
-            plt.close(figure)
+        with figure_rc(width):
+            figure, axes = plt.subplots(
+                1,
+                len(matrices),
+                figsize=heatmap_figsize(len(vpr_methods), len(datasets), len(matrices), width=width),
+                dpi=DPI,
+                squeeze=False,
+                layout="constrained",
+            )
+            try:
+                for axis, title, (_, _, delta) in zip(axes[0], spec.panels, matrices, strict=True):
+                    image = axis.imshow(delta, cmap="RdBu", vmin=-limit, vmax=limit, aspect="auto")
+                    for (i, j), value in np.ndenumerate(delta):
+                        if np.isfinite(value):
+                            colour = "white" if abs(value) > 0.6 * limit else "black"
+                            axis.text(j, i, f"{value:+.2f}", ha="center", va="center", color=colour)
+                    axis.set_xticks(range(len(datasets)), datasets, rotation=30, ha="right")
+                    axis.set_yticks(range(len(vpr_methods)), vpr_methods if axis is axes[0][0] else [])
+                    axis.set_title(title)
+                figure.colorbar(image, ax=list(axes[0]), shrink=0.8, label="Δ AUC-PR")
+                figure.suptitle(spec.what.split(" on ")[0])
+                path = out_dir / f"delta_{proposed}.png"
+                save_figure(figure, path, tight=False)  # and a PDF beside it
+            finally:
+                plt.close(figure)
         paths.append(path)
     return paths
 
@@ -348,49 +442,88 @@ def cascade_curve(correct: np.ndarray, score: np.ndarray, gv: np.ndarray, fracti
     return np.array(values)
 
 
-def plot_cascade(cells: Sequence[Any], out_dir: str | Path) -> list[Path]:
-    """``cascade__<SCORE>_<GV>.png`` (and ``.pdf``) for each cascade of :func:`cascades`."""
+_ONE_VPR = {"color": "0.7", "linestyle": "-", "marker": "None", "linewidth": 0.8}
+_MEAN = {"color": OKABE_ITO[0], "linestyle": "-", "marker": "o", "linewidth": 1.6}
+_AS_RUN = {"color": OKABE_ITO[1], "linestyle": "None", "marker": "D", "markersize": 6}
+
+
+def _cascade_datasets(cells: Sequence[Any], score: str, gv: str) -> tuple[list[Any], list[str]]:
+    usable = [c for c in cells if {score, gv} <= set(c.evaluation.methods)]
+    return usable, list(dict.fromkeys(c.dataset for c in usable))
+
+
+def cascade_spec(cells: Sequence[Any], name: str, score: str, gv: str) -> FigureSpec:
+    """What the cascade figure of ``name`` (= ``score`` + ``gv``) draws: one panel per dataset."""
+    usable, datasets = _cascade_datasets(cells, score, gv)
+    counts = {d: sum(c.dataset == d for c in usable) for d in datasets}
+    return FigureSpec(
+        what=f"{score}+{gv}: AUC-PR of the cascade against the fraction of queries verified (0 = {score} alone, "
+        f"1 = {gv} on every query)",
+        panels=tuple(f"{d} ({counts[d]} VPR methods)" for d in datasets),
+        panel_rule="one per dataset",
+        series=(
+            SeriesSpec("one VPR method", "grey, thin", _ONE_VPR),
+            SeriesSpec("mean over VPR methods", "", _MEAN),
+            SeriesSpec(f"{name} as run (mean)", "its measured fraction verified and AUC-PR", _AS_RUN),
+        ),
+        x=f"fraction verified by {gv} (most uncertain by {score} first)",
+        y="AUC-PR of the cascade",
+        shared_y=True,
+    )
+
+
+def plot_cascade(cells: Sequence[Any], out_dir: str | Path, *, width: str = "page") -> list[Path]:
+    """``cascade__<SCORE>_<GV>.png`` (and ``.pdf``) for each cascade of :func:`cascades`; one panel per dataset
+    (one shared y range), ``width`` "page" or "column". Described by :func:`cascade_spec`."""
     plt = pyplot()
+    figure_width(width)
     paths = []
     for name, score, gv in cascades(cells):
-        usable = [c for c in cells if {score, gv} <= set(c.evaluation.methods)]
-        datasets = list(dict.fromkeys(c.dataset for c in usable))
-        figure, axes = plt.subplots(1, len(datasets), figsize=(4.2 * len(datasets) + 2.2, 3.6), squeeze=False)
-        try:
-            for axis, dataset in zip(axes[0], datasets, strict=True):
-                here = [c for c in usable if c.dataset == dataset]
-                curves = []
-                for cell in here:
-                    methods = cell.evaluation.methods
-                    curve = cascade_curve(
-                        cell.evaluation.correct, methods[score].uncertainty, methods[gv].uncertainty, FRACTIONS
-                    )
-                    curves.append(curve)
-                    axis.plot(FRACTIONS, curve, color="0.75", linewidth=0.8, zorder=1)
-                mean = np.nanmean(np.array(curves), axis=0)
-                axis.plot(
-                    FRACTIONS, mean, color="C0", linewidth=2, marker="o", markersize=3, label="mean over VPR methods"
-                )
-                measured = [
-                    (c.evaluation.methods[name].details.get("verified_fraction"), c.evaluation.methods[name].auc_pr)
-                    for c in here
-                    if name in c.evaluation.methods and c.evaluation.methods[name].auc_pr is not None
-                ]
-                if measured:
-                    x = float(np.mean([m[0] for m in measured]))
-                    y = float(np.mean([m[1] for m in measured]))
-                    axis.plot([x], [y], "D", color="C3", markersize=7, zorder=3, label=f"{name} as run (mean)")
-                axis.plot([], [], color="0.75", linewidth=0.8, label="one VPR method")
-                axis.set_title(f"{dataset} ({len(here)} VPR methods)", fontsize=10)
-                axis.set_xlabel(f"fraction of queries verified by {gv} (most uncertain by {score} first)")
-                axis.set_xlim(0, 1)
-                axis.grid(alpha=0.3)
-            axes[0][0].set_ylabel("AUC-PR of the cascade")
-            legend_outside(axes[0][-1])
-            figure.suptitle(f"{score}+{gv}: 0 = {score} alone, 1 = {gv} on every query", fontsize=10)
-            paths += save_figure(figure, Path(out_dir) / f"cascade__{slug(score)}_{slug(gv)}.png")
-        finally:
-            plt.close(figure)
+        spec = cascade_spec(cells, name, score, gv)
+        usable, datasets = _cascade_datasets(cells, score, gv)
+        size = ablation_figsize(len(datasets), None, len(spec.series), width=width)
+        rows, columns = _layout(len(datasets), None, width)
+        with figure_rc(width):
+            figure, axes = plt.subplots(
+                rows, columns, figsize=size, dpi=DPI, squeeze=False, sharey=True, layout="constrained"
+            )
+            try:
+                for axis in axes.ravel()[len(datasets) :]:
+                    axis.set_visible(False)
+                for axis, title, dataset in zip(axes.ravel(), spec.panels, datasets, strict=False):
+                    here = [c for c in usable if c.dataset == dataset]
+                    curves = []
+                    for cell in here:
+                        methods = cell.evaluation.methods
+                        curve = cascade_curve(
+                            cell.evaluation.correct, methods[score].uncertainty, methods[gv].uncertainty, FRACTIONS
+                        )
+                        curves.append(curve)
+                        axis.plot(FRACTIONS, curve, zorder=1, **_ONE_VPR)
+                    axis.plot(FRACTIONS, np.nanmean(np.array(curves), axis=0), markersize=3, **_MEAN)
+                    run_methods = [c.evaluation.methods[name] for c in here if name in c.evaluation.methods]
+                    measured = [
+                        (m.details["verified_fraction"], m.auc_pr)
+                        for m in run_methods
+                        if m.auc_pr is not None and m.details.get("verified_fraction") is not None
+                    ]
+                    if measured:
+                        x = float(np.mean([m[0] for m in measured]))
+                        y = float(np.mean([m[1] for m in measured]))
+                        axis.plot([x], [y], zorder=3, **_AS_RUN)
+                    axis.set_title(title)
+                    axis.set_xlabel(spec.x if width == "page" else f"fraction verified by {gv}")
+                    axis.set_xlim(0, 1)
+                    axis.tick_params(labelleft=True)
+                    axis.grid(alpha=0.3)
+                for axis in axes[:, 0]:
+                    axis.set_ylabel(spec.y)
+                handles = {s.label: plt.Line2D([], [], **s.style) for s in spec.series}
+                _legend_below(figure, handles, columns, width)
+                figure.suptitle(spec.what.split(": ")[0] + f": 0 = {score} alone, 1 = {gv} on every query")
+                paths += save_figure(figure, Path(out_dir) / f"cascade__{slug(score)}_{slug(gv)}.png", tight=False)
+            finally:
+                plt.close(figure)
     return paths
 
 
@@ -402,9 +535,18 @@ TOP = 4
 SHOWN: tuple[str, ...] = ("RS", "SD", "SU")
 
 
-def qualitative_figsize(n_rows: int) -> tuple[float, float]:
-    """Figure size in inches for ``n_rows`` queries (``DPI`` pixels per inch)."""
-    return (2.0 * (TOP + 1), 2.2 * n_rows)
+def qualitative_figsize(n_rows: int, *, width: str = "page") -> tuple[float, float]:
+    """Figure size in inches for ``n_rows`` queries (``DPI`` pixels per inch): ``width`` wide, each row as tall as
+    its images (4:3) plus two lines of 8-pt text.
+
+    Examples
+    --------
+    >>> qualitative_figsize(4), qualitative_figsize(4, width="column")
+    ((7.16, 6.43), (3.5, 4.39))
+    """
+    inches = figure_width(width)
+    image = inches / (TOP + 1.4)  # the query's column is 1.4 times wider: its label is longer
+    return inches, capped_height(n_rows * (0.75 * image + 0.5) + 0.45, width)
 
 
 def choose_queries(correct: np.ndarray, uncertainty: np.ndarray) -> dict[str, int]:
@@ -433,6 +575,48 @@ def _image(path: str) -> np.ndarray:
     return imread(path)
 
 
+#: How an answer's correctness is drawn: a symbol in its title, a frame colour and a frame dash.
+_HIT = {True: ("✓", OKABE_ITO[2], "-"), False: ("✗", OKABE_ITO[1], "--")}
+
+
+def _qualitative_rank_by(cell: Any, rank_by: str, shown: Sequence[str]) -> tuple[str | None, list[str]]:
+    names = list(cell.evaluation.methods)
+    labels = [name for name in shown if name in names]
+    if rank_by not in names:
+        rank_by = next(iter(labels or names), None)
+    return rank_by, labels or ([rank_by] if rank_by else [])
+
+
+def qualitative_spec(
+    cell: Any, *, rank_by: str = "SU", shown: Sequence[str] = SHOWN, alpha: float | None = None
+) -> FigureSpec | None:
+    """What :func:`plot_qualitative` draws for ``cell``: one row per category (its panels are the query images),
+    or None when it draws nothing."""
+    rank_by, labels = _qualitative_rank_by(cell, rank_by, shown)
+    if rank_by is None:
+        return None
+    chosen = choose_queries(np.asarray(cell.evaluation.correct, bool), cell.evaluation.methods[rank_by].uncertainty)
+    if not chosen:
+        return None
+    settings = [f"k={cell.evaluation.k}"] if cell.evaluation.k is not None else []
+    settings += [f"α={alpha:g}"] if alpha is not None and rank_by.startswith("SU") else []
+    suffix = f" ({', '.join(settings)})" if settings else ""
+    return FigureSpec(
+        what=f"{cell.vpr_method} on {cell.dataset}: answers ranked by {rank_by}{suffix}",
+        panels=tuple(f"{category.replace(' ', chr(10), 1)}, q{query}" for category, query in chosen.items()),
+        panel_rule=f"one row per query: the most confident and the most uncertain by {rank_by}, with a correct and "
+        f"with a wrong top-1 answer; the query, then its top-{TOP} answers",
+        series=(
+            SeriesSpec("✓", "a positive: solid green frame", {"linestyle": "-"}),
+            SeriesSpec("✗", "not a positive: dashed red frame", {"linestyle": "--"}),
+        ),
+        notes=(
+            "Above each answer: its rank, ✓ or ✗, and its similarity s; under each query: its uncertainties by "
+            + ", ".join(labels),
+        ),
+    )
+
+
 def plot_qualitative(
     cell: Any,
     path: str | Path,
@@ -440,8 +624,9 @@ def plot_qualitative(
     rank_by: str = "SU",
     shown: Sequence[str] = SHOWN,
     alpha: float | None = None,
+    width: str = "page",
 ) -> Path | None:
-    """Draw the figure for one grid cell from its stored uncertainties.
+    """Draw the figure for one grid cell from its stored uncertainties (described by :func:`qualitative_spec`).
 
     Parameters
     ----------
@@ -456,6 +641,8 @@ def plot_qualitative(
         The methods whose uncertainties are written under each query (those the cell has).
     alpha : float, optional
         The α of SU, for the title.
+    width : {"page", "column"}, default="page"
+        7.16 or 3.5 inches wide, 8-pt fonts.
 
     Returns
     -------
@@ -464,51 +651,50 @@ def plot_qualitative(
     """
     if not cell.query_paths or not cell.database_paths:
         return None
-    uncertainties = {name: np.asarray(m.uncertainty, dtype=np.float64) for name, m in cell.evaluation.methods.items()}
-    labels = [name for name in shown if name in uncertainties]
-    if rank_by not in uncertainties:
-        rank_by = next(iter(labels or uncertainties), None)
-    if rank_by is None:
+    spec = qualitative_spec(cell, rank_by=rank_by, shown=shown, alpha=alpha)
+    if spec is None:
         return None
-    labels = labels or [rank_by]
+    rank_by, labels = _qualitative_rank_by(cell, rank_by, shown)
+    uncertainties = {name: np.asarray(m.uncertainty, dtype=np.float64) for name, m in cell.evaluation.methods.items()}
     plt = pyplot()
     scores = np.asarray(cell.scores, dtype=np.float64)
-    correct = np.asarray(cell.evaluation.correct, dtype=bool)
-    chosen = choose_queries(correct, uncertainties[rank_by])
-    if not chosen:
-        return None
+    chosen = choose_queries(np.asarray(cell.evaluation.correct, dtype=bool), uncertainties[rank_by])
     path = Path(path)
-    figure, axes = plt.subplots(len(chosen), TOP + 1, figsize=qualitative_figsize(len(chosen)), dpi=DPI, squeeze=False)
-    try:
-        for row, (category, query) in enumerate(chosen.items()):
-            axis = axes[row][0]
-            axis.imshow(_image(cell.query_paths[query]))
-            axis.set_title(f"{category}\nquery {query}", fontsize=8)
-            values = [f"{name} {uncertainties[name][query]:.3f}" for name in labels]
-            axis.set_xlabel("  ".join(values[:2]) + ("\n" + "  ".join(values[2:]) if values[2:] else ""), fontsize=8)
-            for column in range(1, TOP + 1):
-                axis = axes[row][column]
-                rank = column - 1
-                index = int(cell.indices[query, rank]) if rank < cell.indices.shape[1] else -1
-                if index < 0:
-                    axis.set_axis_off()
-                    continue
-                axis.imshow(_image(cell.database_paths[index]))
-                hit = bool(cell.hits[query, rank])
-                colour = "tab:green" if hit else "tab:red"
-                for spine in axis.spines.values():
-                    spine.set_edgecolor(colour)
-                    spine.set_linewidth(4)
-                axis.set_title(f"#{rank + 1}  db {index}  s={scores[query, rank]:.3f}", fontsize=8)
-            for axis in axes[row]:
-                axis.set_xticks([])
-                axis.set_yticks([])
-        settings = [f"k={cell.evaluation.k}"] if cell.evaluation.k is not None else []
-        settings += [f"α={alpha:g}"] if alpha is not None and rank_by.startswith("SU") else []
-        suffix = f" ({', '.join(settings)})" if settings else ""
-        figure.suptitle(f"{cell.vpr_method} on {cell.dataset}: answers ranked by {rank_by}{suffix}", fontsize=10)
-        figure.tight_layout()
-        save_figure(figure, path, tight=False)  # and a PDF beside it
-    finally:
-        plt.close(figure)
+    with figure_rc(width):
+        figure, axes = plt.subplots(
+            len(chosen),
+            TOP + 1,
+            figsize=qualitative_figsize(len(chosen), width=width),
+            dpi=DPI,
+            squeeze=False,
+            layout="constrained",
+            gridspec_kw={"width_ratios": [1.4] + [1] * TOP},
+        )
+        try:
+            for row, (title, query) in enumerate(zip(spec.panels, chosen.values(), strict=True)):
+                axis = axes[row][0]
+                axis.imshow(_image(cell.query_paths[query]))
+                axis.set_title(title)
+                axis.set_xlabel("\n".join(f"{name} {uncertainties[name][query]:.3f}" for name in labels))
+                for column in range(1, TOP + 1):
+                    axis = axes[row][column]
+                    rank = column - 1
+                    index = int(cell.indices[query, rank]) if rank < cell.indices.shape[1] else -1
+                    if index < 0:
+                        axis.set_axis_off()
+                        continue
+                    axis.imshow(_image(cell.database_paths[index]))
+                    symbol, colour, dash = _HIT[bool(cell.hits[query, rank])]
+                    for spine in axis.spines.values():
+                        spine.set_edgecolor(colour)
+                        spine.set_linewidth(3)
+                        spine.set_linestyle(dash)
+                    axis.set_title(f"#{rank + 1} {symbol}\ns={scores[query, rank]:.3f}", color=colour)
+                for axis in axes[row]:
+                    axis.set_xticks([])
+                    axis.set_yticks([])
+            figure.suptitle(spec.what)
+            save_figure(figure, path, tight=False)  # and a PDF beside it
+        finally:
+            plt.close(figure)
     return path

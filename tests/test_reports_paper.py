@@ -1,0 +1,281 @@
+"""Figures a paper can take (issue 23): at column (3.5 in) and page (7.16 in) width every figure has that width,
+fonts of at least 8 pt, a marker or dash per legend entry (not colour alone), one y range across compared panels,
+and a caption made from the same FigureSpec that draws it (every panel and legend entry named, nothing else)."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+from types import SimpleNamespace
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+from matplotlib.text import Text
+
+from vpr_uncertainty import Retrieval, evaluate
+from vpr_uncertainty.reports import display, plots
+from vpr_uncertainty.reports.display import (
+    FIGURE_WIDTHS,
+    MAX_HEIGHTS,
+    RecallAtNDisplay,
+    draw_rejection_curves,
+    rejection_curves_spec,
+)
+
+WIDTHS = ("column", "page")
+ALPHAS = [0.0, 0.25, 0.5, 0.75, 1.0]
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The matplotlib figures the plot functions close, in order (still inspectable)."""
+    closed = []
+    close = plt.close
+
+    def record(figure=None):
+        closed.append(figure)
+        close(figure)
+
+    monkeypatch.setattr(plt, "close", record)
+    return closed
+
+
+def _retrieval(n_queries: int = 40, seed: int = 0) -> Retrieval:
+    rng = np.random.default_rng(seed)
+    scores = np.sort(rng.uniform(0.2, 1.0, (n_queries, 10)), axis=1)[:, ::-1]
+    positives = np.zeros((n_queries, 10), dtype=bool)
+    positives[np.arange(n_queries), np.where(rng.random(n_queries) < 0.6, 0, 1)] = True
+    return Retrieval(
+        scores=scores, indices=np.tile(np.arange(10), (n_queries, 1)), positives=positives, distances=2 - 2 * scores
+    )
+
+
+def _cell(vpr_method: str, dataset: str, seed: int, *, images: tuple[list[str], list[str]] | None = None):
+    """A stand-in for a grid Cell with a real evaluation (SU, RS, SD, BM, L2, PA, GV stand-in) and ablations."""
+    retrieval = _retrieval(seed=seed)
+    evaluation = evaluate(retrieval, ["RS", "SD", "SU", "BM", "L2", "PA"], k=5)
+    peak = seed / 10
+    return SimpleNamespace(
+        vpr_method=vpr_method,
+        dataset=dataset,
+        evaluation=evaluation,
+        scores=retrieval.scores,
+        indices=retrieval.indices,
+        hits=retrieval.positives[:, :4],
+        query_paths=images[0] if images else None,
+        database_paths=images[1] if images else None,
+        ablation_alpha={a: 0.8 - 0.001 * (a - peak) ** 2 for a in ALPHAS},  # differences of ~0.001
+        ablation_k={name: {k: 0.5 + 0.01 * k + seed * 0.001 for k in (2, 5, 10)} for name in ("RS", "SD")},
+    )
+
+
+def _cells(n_methods: int = 3, datasets: tuple[str, ...] = ("corridor", "CALC")):
+    return [_cell(f"M{i}", dataset, i) for i in range(n_methods) for dataset in datasets]
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    return struct.unpack(">II", Path(path).read_bytes()[16:24])
+
+
+def _texts(figure) -> list[Text]:
+    return [t for t in figure.findobj(Text) if t.get_visible() and t.get_text().strip()]
+
+
+def _panels(figure) -> list:
+    """The visible data axes (not colour bars)."""
+    return [a for a in figure.axes if a.get_visible() and a.get_label() != "<colorbar>"]
+
+
+def _legend_entries(figure) -> list[tuple[str, object]]:
+    legends = list(figure.legends) + [a.get_legend() for a in figure.axes if a.get_legend() is not None]
+    return [
+        (text.get_text(), handle)
+        for legend in legends
+        for text, handle in zip(legend.get_texts(), legend.legend_handles, strict=True)
+    ]
+
+
+def _check_paper_figure(figure, png: Path, width: str) -> None:
+    inches = figure.get_size_inches()
+    assert inches[0] == pytest.approx(FIGURE_WIDTHS[width])
+    assert 1.5 <= inches[1] <= MAX_HEIGHTS[width]
+    assert _png_size(png) == (round(inches[0] * display.DPI), round(inches[1] * display.DPI))
+    small = [(t.get_text(), t.get_fontsize()) for t in _texts(figure) if t.get_fontsize() < 8]
+    assert not small, f"texts under 8 pt: {small[:5]}"
+    shapes = [(h.get_marker(), str(h.get_linestyle())) for _, h in _legend_entries(figure)]
+    assert len(set(shapes)) == len(shapes), f"legend entries told apart by colour only: {shapes}"
+
+
+def _check_caption(figure, spec: display.FigureSpec, caption: str) -> None:
+    titles = [a.get_title() for a in _panels(figure)]
+    if spec.panels:
+        assert titles == list(spec.panels)
+        assert ("Panels" in caption) and "; ".join(spec.panels).replace("\n", " ") in caption
+    assert [label for label, _ in _legend_entries(figure)] == spec.labels
+    for label in spec.labels:
+        assert label in caption
+    assert caption.count("Legend:") == (1 if spec.series else 0)
+    if spec.shared_y and len(titles) > 1:
+        assert "the same y range in every panel" in caption
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_alpha_ablation_at_paper_width_shares_one_y_range_and_matches_its_caption(tmp_path, figures, width):
+    cells = _cells(5)
+    path = plots.plot_alpha_ablation(cells, tmp_path / "alpha.png", width=width)
+    (figure,) = figures
+    _check_paper_figure(figure, path, width)
+    panels = _panels(figure)
+    assert len(panels) == 5 and len({a.get_ylim() for a in panels}) == 1  # a 0.001 difference looks small
+    spec = plots.alpha_ablation_spec(cells)
+    _check_caption(figure, spec, spec.caption())
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_k_ablation_at_paper_width(tmp_path, figures, width):
+    cells = _cells(4)
+    path = plots.plot_k_ablation(cells, tmp_path / "k.png", width=width)
+    (figure,) = figures
+    _check_paper_figure(figure, path, width)
+    assert len({a.get_ylim() for a in _panels(figure)}) == 1
+    spec = plots.k_ablation_spec(cells)
+    _check_caption(figure, spec, spec.caption())
+    assert spec.panels == ("RS · corridor", "SD · corridor", "RS · CALC", "SD · CALC")
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_heatmaps_at_paper_width_name_their_panels(tmp_path, figures, width):
+    cells = _cells(10, ("corridor",))
+    paths = plots.plot_delta_heatmaps(cells, tmp_path, width=width)
+    assert [p.name for p in paths] == ["delta_RS.png", "delta_SD.png", "delta_SU.png"]
+    for figure, path in zip(figures, paths, strict=True):
+        _check_paper_figure(figure, path, width)
+        spec = plots.heatmap_spec(cells, path.stem.removeprefix("delta_"))
+        assert spec.panels == ("vs BM = L2", "vs PA")  # BM and L2 have the same Δ everywhere
+        _check_caption(figure, spec, spec.caption())
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_pr_curves_at_paper_width_legend_the_area_of_the_curve_drawn(tmp_path, width):
+    evaluation = evaluate(_retrieval(), ["SU", "BM", "L2", "PA"], k=5)
+    figure = draw_rejection_curves(evaluation, title="t", width=width)
+    try:
+        png, _ = display.save_figure(figure, tmp_path / "pr.png", tight=False)
+        _check_paper_figure(figure, png, width)
+        spec = rejection_curves_spec(evaluation, title="t")
+        caption = spec.caption()
+        _check_caption(figure, spec, caption)
+        su = evaluation.methods["SU"].curve
+        assert f"SU (area {np.trapezoid(su.precision, su.recall):.3f})" in spec.labels
+        assert "area under the curve drawn" in caption and "not the AUC-PR of the uncertainty" in caption
+        assert not figure.axes[0].texts  # no footnote inside the figure
+    finally:
+        plt.close(figure)
+
+
+def test_reliability_and_cascade_at_column_width(tmp_path, figures):
+    from vpr_uncertainty.calibration.quality import reliability_diagram
+
+    rng = np.random.default_rng(0)
+    p = rng.random(200)
+    path = display.plot_reliability(reliability_diagram(p, rng.random(200) < p), tmp_path / "r.png", width="column")
+    _check_paper_figure(figures[-1], path, "column")
+    cells = []
+    for i, dataset in enumerate(("corridor", "CALC", "corridor")):
+        cell = _cell(f"M{i}", dataset, i)
+        methods = cell.evaluation.methods
+        methods["GV"] = methods["BM"]  # a stand-in GV: any uncertainty of the cell
+        cells.append(cell)
+    cell = cells[0]
+    import dataclasses
+
+    su = cell.evaluation.methods["SU"]
+    cell.evaluation.methods["SU+GV"] = dataclasses.replace(su, name="SU+GV", details={"verified_fraction": 0.3})
+    paths = plots.plot_cascade(cells, tmp_path, width="column")
+    figure = figures[-1]
+    _check_paper_figure(figure, paths[0], "column")
+    assert len({a.get_ylim() for a in _panels(figure)}) == 1
+    spec = plots.cascade_spec(cells, "SU+GV", "SU", "GV")
+    _check_caption(figure, spec, spec.caption())
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+def test_qualitative_marks_answers_by_symbol_and_dash_not_colour_only(tmp_path, figures, width):
+    images = []
+    for i in range(10):
+        image = np.full((30, 40, 3), i / 10)
+        plt.imsave(tmp_path / f"{i}.png", image)
+        images.append(str(tmp_path / f"{i}.png"))
+    cell = _cell("NetVLAD", "corridor", 0, images=(images * 4, images))
+    cell.query_paths = [images[i % 10] for i in range(40)]
+    path = plots.plot_qualitative(cell, tmp_path / "q.png", width=width)
+    figure = figures[-1]
+    _check_paper_figure(figure, path, width)
+    spec = plots.qualitative_spec(cell)
+    query_axes = [row[0] for row in np.array(figure.axes).reshape(-1, plots.TOP + 1)]
+    assert [a.get_title() for a in query_axes] == list(spec.panels)
+    answers = [a for row in np.array(figure.axes).reshape(-1, plots.TOP + 1) for a in row[1:]]
+    for axis in answers:
+        hit = "✓" in axis.get_title()
+        assert hit != ("✗" in axis.get_title())
+        dash = axis.spines["top"].get_linestyle()
+        assert (dash == "-") == hit  # a wrong answer's frame is dashed
+    caption = spec.caption()
+    assert "✓" in caption and "✗" in caption and "dashed" in caption
+
+
+def test_recall_at_n_display_draws_the_hand_computed_points():
+    scores = np.sort(np.random.default_rng(0).uniform(0.2, 1, (4, 10)), axis=1)[:, ::-1]
+    positives = np.zeros((4, 10), dtype=bool)
+    positives[0, 0] = positives[1, 1] = positives[2, 4] = True  # query 3 has no positive: not answerable
+    retrieval = Retrieval(
+        scores=scores, indices=np.tile(np.arange(10), (4, 1)), positives=positives, distances=2 - 2 * scores
+    )
+    evaluation = evaluate(retrieval, ["SU"], k=5)
+    other = {1: 0.5, 5: 0.9, 10: 1.0}
+    figure, ax = plt.subplots(figsize=(3.5, 2.5))
+    try:
+        shown = RecallAtNDisplay.from_evaluation({"A": evaluation, "B": SimpleNamespace(recall_at_n=other)}, ax=ax)
+        assert shown.ax_ is ax and shown.figure_ is figure
+        assert shown.lines_["A"].get_xdata().tolist() == [1, 5, 10]
+        np.testing.assert_allclose(shown.lines_["A"].get_ydata(), [1 / 3, 1.0, 1.0], rtol=1e-12)
+        assert shown.lines_["B"].get_ydata().tolist() == [0.5, 0.9, 1.0]
+        assert ax.get_xscale() == "log" and ax.get_ylabel() == "recall@N"
+        assert [t.get_text() for t in ax.get_legend().get_texts()] == ["A", "B"]
+        a, b = shown.lines_["A"], shown.lines_["B"]
+        assert (a.get_marker(), a.get_linestyle()) != (b.get_marker(), b.get_linestyle())
+        single = RecallAtNDisplay.from_evaluation(evaluation, name="NetVLAD")
+        assert list(single.lines_) == ["NetVLAD"]
+        plt.close(single.figure_)
+    finally:
+        plt.close(figure)
+    with pytest.raises(ValueError, match="empty"):
+        RecallAtNDisplay({})
+
+
+def test_figure_width_is_checked_and_rc_is_not_changed_globally(tmp_path):
+    before = dict(matplotlib.rcParams)
+    with pytest.raises(ValueError, match="must be one of"):
+        plots.plot_alpha_ablation(_cells(1), tmp_path / "a.png", width="a4")
+    plots.plot_alpha_ablation(_cells(1), tmp_path / "a.png", width="column")
+    assert matplotlib.rcParams["font.size"] == before["font.size"]
+
+
+def test_figure_width_option_reaches_the_commands():
+    import argparse
+
+    from vpr_uncertainty.pipeline import calibrate, grid, run
+    from vpr_uncertainty.pipeline import evaluate as evaluate_stage
+
+    subparsers = argparse.ArgumentParser().add_subparsers()
+    for module in (calibrate, evaluate_stage, grid, run):
+        module.add_cli(subparsers)
+    for name in ("reproduce", "run", "demo", "evaluate", "calibrate"):
+        parser = subparsers.choices[name]
+        flags = {flag: action for action in parser._actions for flag in action.option_strings}
+        assert flags["--figure-width"].choices is not None and set(flags["--figure-width"].choices) == set(WIDTHS)
+        assert flags["--figure-width"].default == "page"
