@@ -17,14 +17,9 @@ import pytest
 from matplotlib.text import Text
 
 from vpr_uncertainty import Retrieval, evaluate
-from vpr_uncertainty.reports import display, plots
-from vpr_uncertainty.reports.display import (
-    FIGURE_WIDTHS,
-    MAX_HEIGHTS,
-    RecallAtNDisplay,
-    draw_rejection_curves,
-    rejection_curves_spec,
-)
+from vpr_uncertainty.reports import display, plots, style
+from vpr_uncertainty.reports.display import RecallAtNDisplay, draw_rejection_curves, rejection_curves_spec
+from vpr_uncertainty.reports.style import FIGURE_WIDTHS, MAX_HEIGHTS
 
 WIDTHS = ("column", "page")
 ALPHAS = [0.0, 0.25, 0.5, 0.75, 1.0]
@@ -103,14 +98,14 @@ def _check_paper_figure(figure, png: Path, width: str) -> None:
     inches = figure.get_size_inches()
     assert inches[0] == pytest.approx(FIGURE_WIDTHS[width])
     assert 1.5 <= inches[1] <= MAX_HEIGHTS[width]
-    assert _png_size(png) == (round(inches[0] * display.DPI), round(inches[1] * display.DPI))
+    assert _png_size(png) == (round(inches[0] * style.DPI), round(inches[1] * style.DPI))
     small = [(t.get_text(), t.get_fontsize()) for t in _texts(figure) if t.get_fontsize() < 8]
     assert not small, f"texts under 8 pt: {small[:5]}"
     shapes = [(h.get_marker(), str(h.get_linestyle())) for _, h in _legend_entries(figure)]
     assert len(set(shapes)) == len(shapes), f"legend entries told apart by colour only: {shapes}"
 
 
-def _check_caption(figure, spec: display.FigureSpec, caption: str) -> None:
+def _check_caption(figure, spec: style.FigureSpec, caption: str) -> None:
     titles = [a.get_title() for a in _panels(figure)]
     if spec.panels:
         assert titles == list(spec.panels)
@@ -164,7 +159,7 @@ def test_pr_curves_at_paper_width_legend_the_area_of_the_curve_drawn(tmp_path, w
     evaluation = evaluate(_retrieval(), ["SU", "BM", "L2", "PA"], k=5)
     figure = draw_rejection_curves(evaluation, title="t", width=width)
     try:
-        png, _ = display.save_figure(figure, tmp_path / "pr.png", tight=False)
+        png, _ = style.save_figure(figure, tmp_path / "pr.png", tight=False)
         _check_paper_figure(figure, png, width)
         spec = rejection_curves_spec(evaluation, title="t")
         caption = spec.caption()
@@ -241,8 +236,9 @@ def test_recall_at_n_display_draws_the_hand_computed_points():
     try:
         shown = RecallAtNDisplay.from_evaluation({"A": evaluation, "B": SimpleNamespace(recall_at_n=other)}, ax=ax)
         assert shown.ax_ is ax and shown.figure_ is figure
-        assert shown.lines_["A"].get_xdata().tolist() == [1, 5, 10]
-        np.testing.assert_allclose(shown.lines_["A"].get_ydata(), [1 / 3, 1.0, 1.0], rtol=1e-12)
+        # the retrieval's 10 candidates are the whole database: recall@20 is exact, so the evaluation holds it
+        assert shown.lines_["A"].get_xdata().tolist() == [1, 5, 10, 20]
+        np.testing.assert_allclose(shown.lines_["A"].get_ydata(), [1 / 3, 1.0, 1.0, 1.0], rtol=1e-12)
         assert shown.lines_["B"].get_ydata().tolist() == [0.5, 0.9, 1.0]
         assert ax.get_xscale() == "log" and ax.get_ylabel() == "recall@N"
         assert [t.get_text() for t in ax.get_legend().get_texts()] == ["A", "B"]

@@ -11,18 +11,10 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty import Retrieval, evaluate
-from vpr_uncertainty.reports.display import (
-    DPI,
-    coinciding,
-    draw_rejection_curves,
-    legend_outside,
-    method_styles,
-    pyplot,
-    save_figure,
-    write_rejection_curves,
-)
+from vpr_uncertainty.reports.display import draw_rejection_curves, write_rejection_curves
 from vpr_uncertainty.reports.html import Section, png_display_width, render_report
 from vpr_uncertainty.reports.plots import FRACTIONS, cascade_curve
+from vpr_uncertainty.reports.style import DPI, coinciding, legend_outside, method_styles, pyplot, save_figure
 
 
 def _dpi(path: Path) -> float:

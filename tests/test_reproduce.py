@@ -22,8 +22,8 @@ from vpr_uncertainty import evaluate
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.pipeline import grid as reproduce_command
 from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports, write_results
-from vpr_uncertainty.reports.display import DPI
 from vpr_uncertainty.reports.plots import ablation_figsize, heatmap_figsize, qualitative_figsize
+from vpr_uncertainty.reports.style import DPI
 
 METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]
 CHROMIUM = Path("/usr/bin/chromium")

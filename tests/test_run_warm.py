@@ -164,7 +164,7 @@ def test_an_unchanged_table_is_not_rewritten(tmp_path):
 
 
 def test_a_figure_is_current_only_with_its_inputs_and_intact_bytes(tmp_path):
-    from vpr_uncertainty.reports.display import pyplot
+    from vpr_uncertainty.reports.style import pyplot
 
     plt = pyplot()
     figure, axes = plt.subplots(figsize=(2, 2))

@@ -12,12 +12,14 @@ __all__ = ["compact_repr", "describe_value"]
 
 def describe_value(value: Any) -> str:
     """One short text for one field: an array as ``<(Q, K) float32>``, a float to 4 significant digits, a mapping or
-    sequence by its size, a path or string as is (cut at 60 characters).
+    sequence by its size when it is long or holds arrays (else as is), a path or string as is (cut at 60 characters).
 
     Examples
     --------
-    >>> describe_value(np.zeros((3, 2), np.float32)), describe_value(0.123456), describe_value({"a": 1, "b": 2})
-    ('<(3, 2) float32>', '0.1235', '{2 entries}')
+    >>> describe_value(np.zeros((3, 2), np.float32)), describe_value(0.123456), describe_value({"a": np.zeros(2)})
+    ('<(3, 2) float32>', '0.1235', '{1 entries}')
+    >>> describe_value({"a": 1, "b": 2}), describe_value(list(range(9)))
+    ("{'a': 1, 'b': 2}", '[9 items]')
     """
     shape = getattr(value, "shape", None)
     if shape is not None and not np.isscalar(value) and hasattr(value, "dtype"):

@@ -266,9 +266,9 @@ def write_reports(
     """
     from html import escape
 
-    from vpr_uncertainty.reports.display import figure_width
     from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
     from vpr_uncertainty.reports.html import Section, settings_table, write_report
+    from vpr_uncertainty.reports.style import figure_width
 
     if width is not None:
         figure_width(width)  # a bad width fails before any figure is drawn

@@ -488,7 +488,7 @@ def executor_from_args(args: argparse.Namespace) -> Any:
 
 # --- figure width (reproduce, run, demo, evaluate --plot, calibrate --plot) ------------------------------------
 
-#: The widths a figure is drawn at (the inches: :data:`vpr_uncertainty.reports.display.FIGURE_WIDTHS`).
+#: The widths a figure is drawn at (the inches: :data:`vpr_uncertainty.reports.style.FIGURE_WIDTHS`).
 FIGURE_WIDTHS = ("page", "column")
 #: Help of ``--figure-width``.
 FIGURE_WIDTH_HELP = (

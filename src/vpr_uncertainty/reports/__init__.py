@@ -1,7 +1,6 @@
 """Tables, figures and ``report.html`` of evaluation results; report figures are plugins (:data:`REPORT_FIGURES`)."""
 
 from vpr_uncertainty.reports.display import (
-    FigureSpec,
     RecallAtNDisplay,
     RejectionCurveDisplay,
     ReliabilityDisplay,
@@ -11,6 +10,7 @@ from vpr_uncertainty.reports.display import (
 from vpr_uncertainty.reports.figures import REPORT_FIGURES, ReportFigure, register_report_figure
 from vpr_uncertainty.reports.html import write_report
 from vpr_uncertainty.reports.plots import plot_alpha_ablation, plot_delta_heatmaps, plot_k_ablation, plot_qualitative
+from vpr_uncertainty.reports.style import FigureSpec
 from vpr_uncertainty.reports.tables import build_table1, format_table, table1_csv, table1_latex, table1_markdown
 
 __all__ = [

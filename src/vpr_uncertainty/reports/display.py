@@ -1,4 +1,4 @@
-"""How report figures look and are drawn: styles, atomic saving, and Display objects in scikit-learn's style.
+"""How report figures are drawn: Display objects in scikit-learn's style.
 
 Like :class:`sklearn.metrics.PrecisionRecallDisplay`, each Display is made by a ``from_*`` class method that draws at
 once on the ``ax`` given (or a new figure) and keeps ``ax_``, ``figure_`` and its artists (``lines_`` by method
@@ -6,24 +6,14 @@ name, or ``line_``); ``plot(ax=None)`` draws the same data again. Displays pick 
 file writers (:func:`plot_rejection_curves`, :func:`plot_reliability`, :func:`save_figure`) draw off-screen and
 write atomically: a 300-dpi PNG for ``report.html`` and a vector PDF beside it.
 
-Paper sizes: every figure function takes ``width="column"`` (3.5 in, one column of a two-column paper) or
-``"page"`` (7.16 in, the text width); its height follows from its content, and its fonts are 8 pt (9 pt titles),
-set for that figure only (:func:`figure_rc`, a ``matplotlib.rc_context``; the global rcParams are left alone).
-Colours are Okabe and Ito's colour-blind-safe palette and every series also has its own marker and dash
-(:func:`method_styles`), so a figure printed in grey still tells them apart.
-
-Captions: a figure is described by a :class:`FigureSpec` (its panels, its series with their styles, its axes,
-its notes) from which the drawing code takes its titles, legend labels and styles and from which
-:meth:`FigureSpec.caption` writes the caption of ``report.html``.
+Sizes, fonts, palette and the figure specs that captions come from: :mod:`vpr_uncertainty.reports.style`.
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import hashlib
-from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -32,6 +22,20 @@ import numpy as np
 from vpr_uncertainty.cache import array_digest, figure_is_current, fingerprint, write_figure
 from vpr_uncertainty.calibration.quality import Reliability, reliability_diagram
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
+from vpr_uncertainty.reports.style import (
+    DPI,
+    FONT_SIZE,
+    FigureSpec,
+    SeriesSpec,
+    capped_height,
+    coinciding,
+    figure_rc,
+    figure_width,
+    legend_outside,
+    method_styles,
+    pyplot,
+    save_figure,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from vpr_uncertainty.calibration.gate import Gate
@@ -39,268 +43,17 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "AREA_NOTE",
-    "DPI",
-    "FIGURE_WIDTHS",
-    "FONT_SIZE",
-    "OKABE_ITO",
-    "VECTOR_SUFFIX",
-    "FigureSpec",
     "RecallAtNDisplay",
     "RejectionCurveDisplay",
     "ReliabilityDisplay",
-    "SeriesSpec",
-    "capped_height",
-    "coinciding",
     "curve_area",
-    "describe_style",
     "draw_rejection_curves",
-    "figure_rc",
-    "figure_width",
-    "legend_outside",
-    "method_styles",
     "plot_rejection_curves",
     "plot_reliability",
-    "pyplot",
     "rejection_curves_inputs",
     "rejection_curves_spec",
-    "save_figure",
     "write_rejection_curves",
 ]
-
-#: Resolution of every PNG a report writes.
-DPI = 300
-#: The vector format written beside each PNG.
-VECTOR_SUFFIX = ".pdf"
-#: Okabe and Ito's colour-blind-safe palette (yellow last: faint on white), as hex.
-OKABE_ITO: tuple[str, ...] = (
-    "#0072B2",  # blue
-    "#D55E00",  # vermillion
-    "#009E73",  # bluish green
-    "#CC79A7",  # reddish purple
-    "#E69F00",  # orange
-    "#56B4E9",  # sky blue
-    "#000000",  # black
-    "#F0E442",  # yellow
-)
-_COLOURS = OKABE_ITO
-_DASHES: tuple[Any, ...] = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
-_MARKERS = ("o", "s", "^", "v", "D", "P", "X")
-#: How a caption names a marker and a dash.
-_MARKER_WORDS = {
-    "o": "circles",
-    "s": "squares",
-    "^": "triangles up",
-    "v": "triangles down",
-    "D": "diamonds",
-    "P": "plus signs",
-    "X": "crosses",
-    "*": "stars",
-}
-_DASH_WORDS = {"-": "solid", "--": "dashed", "-.": "dash-dot", ":": "dotted", "None": "no line", "none": "no line"}
-
-#: Figure widths in inches: one column of a two-column paper, and the text width of a page.
-FIGURE_WIDTHS: dict[str, float] = {"column": 3.5, "page": 7.16}
-#: Tallest figure in inches per width (the panels shrink to fit).
-MAX_HEIGHTS: dict[str, float] = {"column": 7.0, "page": 9.0}
-#: Font size in points of every text (titles one point larger).
-FONT_SIZE = 8.0
-TITLE_SIZE = 9.0
-
-
-def figure_width(width: str = "page") -> float:
-    """The width in inches of ``"column"`` (3.5) or ``"page"`` (7.16); anything else is a ValueError.
-
-    Examples
-    --------
-    >>> figure_width("column"), figure_width("page")
-    (3.5, 7.16)
-    """
-    if width not in FIGURE_WIDTHS:
-        raise ValueError(f"figure width must be one of {', '.join(FIGURE_WIDTHS)}, got {width!r}")
-    return FIGURE_WIDTHS[width]
-
-
-def capped_height(height: float, width: str = "page") -> float:
-    """``height`` rounded to 0.01 in, at most :data:`MAX_HEIGHTS` of ``width`` and at least 1.5 in."""
-    return round(min(max(height, 1.5), MAX_HEIGHTS[width]), 2)
-
-
-@contextlib.contextmanager
-def figure_rc(width: str = "page") -> Iterator[None]:
-    """Fonts, line widths and colours of a paper figure, for the figures made and saved inside this block only."""
-    import matplotlib
-
-    figure_width(width)
-    rc = {
-        "font.size": FONT_SIZE,
-        "axes.titlesize": TITLE_SIZE,
-        "axes.labelsize": FONT_SIZE,
-        "xtick.labelsize": FONT_SIZE,
-        "ytick.labelsize": FONT_SIZE,
-        "legend.fontsize": FONT_SIZE,
-        "legend.title_fontsize": FONT_SIZE,
-        "figure.titlesize": TITLE_SIZE,
-        "figure.labelsize": FONT_SIZE,
-        "axes.linewidth": 0.6,
-        "grid.linewidth": 0.4,
-        "lines.linewidth": 1.2,
-        "lines.markersize": 4,
-        "xtick.major.width": 0.6,
-        "ytick.major.width": 0.6,
-        "axes.prop_cycle": matplotlib.cycler(color=list(OKABE_ITO)),
-        "pdf.fonttype": 42,  # TrueType in the PDF: editable text, accepted by publishers
-    }
-    with matplotlib.rc_context(rc):
-        yield
-
-
-def describe_style(style: Mapping[str, Any]) -> str:
-    """How a caption names a series' marker and dash ("circles, dashed"), for readers without colour.
-
-    Examples
-    --------
-    >>> describe_style({"marker": "s", "linestyle": "--"})
-    'squares, dashed'
-    """
-    marker = _MARKER_WORDS.get(str(style.get("marker", "")))
-    dash = style.get("linestyle", "-")
-    dash_word = _DASH_WORDS.get(dash, "dash-dot-dot") if isinstance(dash, str) else "dash-dot-dot"
-    return ", ".join(word for word in (marker, dash_word) if word)
-
-
-@dataclass(frozen=True)
-class SeriesSpec:
-    """One series of a figure: its legend label, what it is (for the caption) and its style."""
-
-    label: str
-    meaning: str = ""
-    style: Mapping[str, Any] | None = None
-
-
-@dataclass(frozen=True)
-class FigureSpec:
-    """What a figure draws, from which the drawing code and the caption are both made.
-
-    Attributes
-    ----------
-    what : str
-        One sentence: what the figure shows, on which data.
-    panels : tuple of str
-        The title of each panel drawn, in order (empty for a single unnamed axis).
-    panel_rule : str
-        How the panels are chosen ("one panel per VPR method").
-    series : tuple of SeriesSpec
-        The legend entries, in order.
-    x, y : str
-        The axis labels drawn.
-    shared_y : bool
-        Whether every panel has the same y range.
-    notes : tuple of str
-        Further sentences of the caption (what a number means, what a colour means).
-    """
-
-    what: str
-    panels: tuple[str, ...] = ()
-    panel_rule: str = ""
-    series: tuple[SeriesSpec, ...] = ()
-    x: str = ""
-    y: str = ""
-    shared_y: bool = False
-    notes: tuple[str, ...] = ()
-
-    @property
-    def labels(self) -> list[str]:
-        """The legend labels, in order."""
-        return [series.label for series in self.series]
-
-    def caption(self) -> str:
-        """The caption: what it shows, its panels, its series (label, style, meaning), its axes and notes."""
-        parts = [self.what.rstrip(".") + "."]
-        if self.panels:
-            rule = f" ({self.panel_rule})" if self.panel_rule else ""
-            shared = "; the same y range in every panel" if self.shared_y and len(self.panels) > 1 else ""
-            parts.append(f"Panels{rule}: " + "; ".join(self.panels).replace("\n", " ") + f"{shared}.")
-        if self.series:
-            items = []
-            for series in self.series:
-                style = describe_style(series.style) if series.style else ""
-                inside = ", ".join(t for t in (style, series.meaning) if t)
-                items.append(f"{series.label} ({inside})" if inside else series.label)
-            parts.append("Legend: " + "; ".join(items) + ".")
-        if self.x or self.y:
-            parts.append("; ".join(f"{axis}: {text}" for axis, text in (("x", self.x), ("y", self.y)) if text) + ".")
-        parts.extend(note.rstrip(".") + "." for note in self.notes)
-        return " ".join(parts).replace("\n", " ")
-
-
-def pyplot() -> Any:
-    """``matplotlib.pyplot`` with the off-screen backend."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def method_styles(names: Sequence[str]) -> dict[str, dict[str, Any]]:
-    """``{name: {"color", "linestyle", "marker"}}``: a colour-blind-safe colour (:data:`OKABE_ITO`), a dash and a
-    marker; no two of the first 35 names share a (marker, dash), no two of the first 280 all three.
-
-    Examples
-    --------
-    >>> styles = method_styles(["RS", "SD", "SU"])
-    >>> styles["SD"]
-    {'color': '#D55E00', 'linestyle': '--', 'marker': 's'}
-    """
-    return {
-        name: {
-            "color": _COLOURS[index % len(_COLOURS)],
-            "linestyle": _DASHES[index % len(_DASHES)],
-            "marker": _MARKERS[index % len(_MARKERS)],
-        }
-        for index, name in enumerate(names)
-    }
-
-
-def coinciding(curves: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> list[list[str]]:
-    """Groups of names whose curves (x, y) are identical, in the order of ``curves`` (singletons included).
-
-    Examples
-    --------
-    >>> x = np.array([0.0, 0.5, 1.0])
-    >>> coinciding({"BM": (x, x), "SU": (x, x**2), "L2": (x, x.copy())})
-    [['BM', 'L2'], ['SU']]
-    """
-    groups: list[list[str]] = []
-    for name, (x, y) in curves.items():
-        for group in groups:
-            gx, gy = curves[group[0]]
-            if np.shape(gx) == np.shape(x) and np.array_equal(gx, x) and np.array_equal(gy, y):
-                group.append(name)
-                break
-        else:
-            groups.append([name])
-    return groups
-
-
-def legend_outside(axis: Any, **options: Any) -> Any:
-    """A legend to the right of ``axis``, outside the data (save with :func:`save_figure`, which keeps it)."""
-    options = {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "borderaxespad": 0.0, **options}
-    return axis.legend(**options)
-
-
-def save_figure(figure: Any, path: str | Path, *, tight: bool = True) -> list[Path]:
-    """Write ``path`` (a ``.png`` at :data:`DPI`) and the same figure as a PDF beside it; returns both paths.
-
-    ``tight`` crops to the drawn content (legends outside the axes included); False keeps the figure's size.
-    """
-    path = Path(path)
-    if path.suffix.lower() != ".png":
-        raise ValueError(f"save_figure writes a .png and a {VECTOR_SUFFIX} beside it, got {path}")
-    options = {"bbox_inches": "tight", "pad_inches": 0.05} if tight else {}
-    return [write_figure(figure, target, dpi=DPI, **options) for target in (path, path.with_suffix(VECTOR_SUFFIX))]
-
 
 #: Why the area under an end-to-end curve is not the uncertainty's AUC-PR (said in the caption; drawn under the
 #: axes only with ``note=True``).

@@ -11,7 +11,7 @@ that writes it::
 (every built-in figure: ``"page"``, 7.16 in, or ``"column"``, 3.5 in) is drawn at the width ``reproduce
 --figure-width`` gives, unless its spec sets one (``"ablations:width=column"``). A ``caption(cells, config, path,
 **options) -> str`` hook writes the caption of each file in ``report.html``; the built-in ones are the
-``caption()`` of the :class:`~vpr_uncertainty.reports.display.FigureSpec` the figure is drawn from.
+``caption()`` of the :class:`~vpr_uncertainty.reports.style.FigureSpec` the figure is drawn from.
 ``reproduce`` calls every selected figure in
 registration order and gives each a section of ``report.html``. A figure is selected by name, optionally with options
 as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
@@ -37,12 +37,7 @@ from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.calibration.quality import Reliability
 from vpr_uncertainty.methods import typed_option
 from vpr_uncertainty.plugins import Registry, load_target, merge_options
-from vpr_uncertainty.reports.display import (
-    VECTOR_SUFFIX,
-    plot_reliability,
-    rejection_curves_spec,
-    write_rejection_curves,
-)
+from vpr_uncertainty.reports.display import plot_reliability, rejection_curves_spec, write_rejection_curves
 from vpr_uncertainty.reports.html import cell_stem, figure_caption
 from vpr_uncertainty.reports.plots import (
     alpha_ablation_spec,
@@ -57,6 +52,7 @@ from vpr_uncertainty.reports.plots import (
     plot_qualitative,
     qualitative_spec,
 )
+from vpr_uncertainty.reports.style import VECTOR_SUFFIX
 from vpr_uncertainty.reports.tables import (
     build_table1,
     build_ties_table,

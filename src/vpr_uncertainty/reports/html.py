@@ -118,7 +118,7 @@ def cell_stem(cell: Any) -> str:
 def figure_caption(name: str, path: Path, cells: Sequence[Any]) -> str:
     """A generic caption of the figure file ``path`` written by the report figure ``name``: for a figure without a
     ``caption`` hook (the built-in figures caption themselves from the spec they are drawn from,
-    :meth:`~vpr_uncertainty.reports.display.FigureSpec.caption`)."""
+    :meth:`~vpr_uncertainty.reports.style.FigureSpec.caption`)."""
     datasets = _names([cell.dataset for cell in cells]) if cells else "no dataset"
     return f"{name}: {path.stem.replace('__', ' on ').replace('_', ' ')} ({datasets})"
 

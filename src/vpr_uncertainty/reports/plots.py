@@ -15,8 +15,8 @@ qualitative examples (Figures 2 and 4). Each reads the cells' stored results and
   (✓ and a green frame: positive; ✗ and a dashed red frame: not) and RS, SD, SU.
 
 Every figure takes ``width="page"`` (7.16 in) or ``"column"`` (3.5 in); its height follows from its panels, its
-fonts are 8 pt (:func:`~vpr_uncertainty.reports.display.figure_rc`). Each has a ``*_spec`` function returning the
-:class:`~vpr_uncertainty.reports.display.FigureSpec` it is drawn from, whose ``caption()`` is its caption.
+fonts are 8 pt (:func:`~vpr_uncertainty.reports.style.figure_rc`). Each has a ``*_spec`` function returning the
+:class:`~vpr_uncertainty.reports.style.FigureSpec` it is drawn from, whose ``caption()`` is its caption.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 from vpr_uncertainty.cache import slug
 from vpr_uncertainty.evaluation import auc_pr
 from vpr_uncertainty.methods.cascade import combine_cascade, most_uncertain, split_cascade_name
-from vpr_uncertainty.reports.display import (
+from vpr_uncertainty.reports.style import (
     DPI,
     OKABE_ITO,
     FigureSpec,
@@ -147,7 +147,7 @@ def ablation_figsize(
 ) -> tuple[float, float]:
     """Size in inches of a figure of ``n_panels`` small multiples (at most 2 per row in a column, 4 in a page, or
     ``columns`` per row), ``width`` wide, with room for the title above and a legend of ``legend_entries`` entries
-    below; at most :data:`~vpr_uncertainty.reports.display.MAX_HEIGHTS` tall.
+    below; at most :data:`~vpr_uncertainty.reports.style.MAX_HEIGHTS` tall.
 
     Examples
     --------
