@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
 import pytest
 
 import vpr_uncertainty
+
+# VPR_UNCERTAINTY_NUMBA=1 (a debugging switch) makes every score call load numba: the children run without it.
+ENVIRONMENT = {key: value for key, value in os.environ.items() if key != "VPR_UNCERTAINTY_NUMBA"}
+
+
+def _run(script: str) -> str:
+    """The standard output of a fresh interpreter that runs ``script``."""
+    command = [sys.executable, "-c", script]
+    return subprocess.run(command, capture_output=True, text=True, check=True, env=ENVIRONMENT).stdout
+
 
 HEAVY = ("scipy", "sklearn", "matplotlib", "h5py", "faiss", "torch", "pandas", "cv2", "numba")
 
@@ -20,7 +31,7 @@ def test_importing_the_package_and_scoring_loads_no_heavy_library():
         "v.statistical_uncertainty(np.array([[0.9, 0.5, 0.4]]), k=3)\n"
         f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))\n"
     )
-    loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    loaded = _run(script)
     assert loaded.strip() == ""
 
 
@@ -52,7 +63,7 @@ def test_a_saved_gate_loads_and_decides_without_a_heavy_library(tmp_path):
         "print(gate([0.9, 0.5, 0.4, 0.3, 0.3, 0.2, 0.2, 0.1, 0.1, 0.1]) in (True, False))\n"
         f"print(' '.join(m for m in {HEAVY!r} if m in sys.modules))\n"
     )
-    printed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    printed = _run(script)
     assert printed.split("\n")[:2] == ["True", ""]
 
 
@@ -70,5 +81,5 @@ def test_the_evaluate_command_loads_only_what_it_computes_with(data_dir):
         "         'torch', 'cv2', 'numba', 'PIL')\n"
         "print(status, ' '.join(m for m in heavy if m in sys.modules))\n"
     )
-    printed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    printed = _run(script)
     assert printed.splitlines()[-1].strip() == "0"
