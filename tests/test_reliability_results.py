@@ -509,7 +509,7 @@ def test_queries_with_nonpositive_best_similarity_are_counted_in_the_notes():
     evaluation = evaluate(retrieval, ["SU", "BM"], timing_repeats=1)
     (note,) = [note for note in evaluation.to_dict()["notes"] if "s_1 <= 0" in note]
     assert note.startswith("3 of 12 queries have a best similarity s_1 <= 0: SU rank them as the most uncertain")
-    assert "README.md, Conventions" in note
+    assert "docs/explanation/conventions.md" in note
     lines = [line for line in format_table(evaluation).splitlines() if "s_1 <= 0" in line]
     assert len(lines) == 1 and lines[0].startswith("note: 3 of 12 queries")
 

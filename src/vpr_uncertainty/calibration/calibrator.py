@@ -338,7 +338,7 @@ def _objective(design: np.ndarray, target: np.ndarray, theta: np.ndarray, penalt
 #: Every feature :func:`feature_matrix` can build, in a fixed order.
 FEATURES: tuple[str, ...] = ("s1", "gap", "ratio", "RS", "SD", "SU", "zscore", "PA")
 #: The features of the fitted calibrator: the best match, the margin, the perceptual-aliasing ratio and SU (the
-#: signals that win on some VPR method; see README "Calibration"). Without cosine similarities PA is left out.
+#: signals that win on some VPR method; see docs/evidence/calibration.md). Without cosine similarities PA is left out.
 DEFAULT_FEATURES: tuple[str, ...] = ("s1", "gap", "PA", "SU")
 
 

@@ -241,7 +241,7 @@ def calibrate(
         Further queries without labels (e.g. the rest of the traversal): the candidate cuts are quantiles over
         these and the labelled ones. Their labels are never read. The cuts then accept a random number of
         labelled queries, sometimes fewer than the test needs: on the corridor simulations this lowered the
-        certified recall (README "Calibration"), so the default places the cuts on the labelled queries' scores.
+        certified recall (docs/evidence/calibration.md), so the default places the cuts on the labelled queries' scores.
     folds : int, default=5
         Cross-fitting folds of the model.
 

@@ -302,7 +302,7 @@ def certify_threshold(
 
 
 #: From this many labelled queries on, the gate also tests the cross-fitted model (at δ/2 beside SU at δ/2);
-#: below it, splitting δ costs more than the model gains (corridor simulations, README "Calibration").
+#: below it, splitting δ costs more than the model gains (corridor simulations, docs/evidence/calibration.md).
 CAL_MIN_LABELLED = 150
 
 

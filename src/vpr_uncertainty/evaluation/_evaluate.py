@@ -258,7 +258,7 @@ def evaluate(
 #: Methods that divide by the best similarity s_1 and rank s_1 <= 0 as the most uncertain.
 _RATIO_METHODS: tuple[str, ...] = ("RS", "SD", "SU")
 #: Where the s_1 <= 0 rule is written down.
-_NONPOSITIVE_RULE_DOCS = "README.md, Conventions; vpr_uncertainty.scores"
+_NONPOSITIVE_RULE_DOCS = "docs/explanation/conventions.md; vpr_uncertainty.scores"
 
 
 def _is_ratio(entry: UncertaintyMethod) -> bool:

@@ -4,7 +4,7 @@ The score method (any registered method that is not geometric verification) rank
 verification (any ``GV-*`` method) then runs only on the ``verify_fraction`` of the queries it doubts most, and the
 two are combined by :func:`combine_cascade`. ``verify_fraction=0`` gives exactly the score method's uncertainties,
 ``verify_fraction=1`` the ranking of geometric verification alone. On the ten VPR-Bench corridor matrices this
-combination was at least as good as the alternatives measured (README, cascade section), and it needs no threshold
+combination was at least as good as the alternatives measured (docs/evidence/cascade.md), and it needs no threshold
 on inlier counts, whose scale differs between local features. A cascade's time per query counts the score method
 on every query and geometric verification on the verified ones only.
 """
