@@ -143,14 +143,20 @@ def test_k_ablation_at_paper_width(tmp_path, figures, width):
 
 
 @pytest.mark.parametrize("width", WIDTHS)
-def test_heatmaps_at_paper_width_name_their_panels(tmp_path, figures, width):
-    cells = _cells(10, ("corridor",))
+@pytest.mark.parametrize("datasets", [("corridor",), ("corridor", "CALC")], ids=["one_dataset", "two_datasets"])
+def test_heatmaps_at_paper_width_name_their_panels(tmp_path, figures, width, datasets):
+    cells = _cells(10, datasets)
     paths = plots.plot_delta_heatmaps(cells, tmp_path, width=width)
     assert [p.name for p in paths] == ["delta_RS.png", "delta_SD.png", "delta_SU.png"]
     for figure, path in zip(figures, paths, strict=True):
         _check_paper_figure(figure, path, width)
         spec = plots.heatmap_spec(cells, path.stem.removeprefix("delta_"))
-        assert spec.panels == ("vs BM = L2", "vs PA")  # BM and L2 have the same Δ everywhere
+        if len(datasets) == 1:  # one panel whose columns are the baselines: a one-cell-wide panel per baseline
+            assert spec.panels == ("corridor",)  # would not fit a paper's column
+            (axis,) = _panels(figure)
+            assert [label.get_text() for label in axis.get_xticklabels()] == ["BM = L2", "PA"]
+        else:
+            assert spec.panels == ("vs BM = L2", "vs PA")  # BM and L2 have the same Δ everywhere
         _check_caption(figure, spec, spec.caption())
 
 

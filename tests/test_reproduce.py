@@ -22,7 +22,7 @@ from vpr_uncertainty import evaluate
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.pipeline import grid as reproduce_command
 from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports, write_results
-from vpr_uncertainty.reports.plots import ablation_figsize, heatmap_figsize, qualitative_figsize
+from vpr_uncertainty.reports.plots import ablation_figsize, heatmap_figure_size, heatmap_spec, qualitative_figsize
 from vpr_uncertainty.reports.style import DPI
 
 METHODS = ["RS", "SD", "SU", "PA", "L2", "BM"]
@@ -151,7 +151,9 @@ def test_alpha_ablation_ends_at_sd_and_rs(grid):
 @pytest.mark.realdata
 def test_figures_are_pngs_of_the_expected_size(grid):
     _, cells, paths = grid
-    heatmap = heatmap_figsize(10, 1, 2)  # PA, and BM = L2 in one panel (the same Δ everywhere)
+    # one dataset: one panel whose columns are the baselines (PA, and BM = L2: the same Δ everywhere)
+    assert heatmap_spec(cells, "RS").panels == ("corridor",)
+    heatmap = heatmap_figure_size(cells, "RS")
     pngs = {name: [p for p in paths[name] if p.suffix == ".png"] for name in ("heatmaps", "ablations", "pr_curves")}
     assert [p.name for p in pngs["heatmaps"]] == ["delta_RS.png", "delta_SD.png", "delta_SU.png"]
     for path in pngs["heatmaps"]:

@@ -714,8 +714,9 @@ def adaptive_alpha(scores: object, k: int = 10, *, sort: bool = False) -> np.nda
     homogeneous cohort of wrong candidates (mean = median) gives RS, one whose mean is pulled a standard deviation
     away from its median (a revisit, an aliasing candidate) gives SD, the robust estimate (Hogg 1974's adaptive
     estimators). Invariant to the location and scale of the scores. A cohort without spread gets
-    :data:`NO_EVIDENCE_ALPHA` = 1/2. Evidence (docs/evidence/adaptive-alpha.md): mean AUC-PR 0.8145 against 0.8116 for α = 0.5
-    on the corridor matrices, mostly from a shift towards RS; hence ``SU-adaptive`` is not a default method.
+    :data:`NO_EVIDENCE_ALPHA` = 1/2. Evidence (docs/evidence/adaptive-alpha.md): mean AUC-PR 0.8145 against
+    0.8116 for α = 0.5 on the corridor matrices, mostly from a shift towards RS; hence ``SU-adaptive`` is not a
+    default method.
 
     Parameters
     ----------

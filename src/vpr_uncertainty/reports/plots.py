@@ -22,6 +22,7 @@ fonts are 8 pt (:func:`~vpr_uncertainty.reports.style.figure_rc`). Each has a ``
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -59,7 +60,8 @@ __all__ = [
     "cascades",
     "choose_queries",
     "delta_matrix",
-    "heatmap_figsize",
+    "heatmap_figure_size",
+    "heatmap_layout",
     "heatmap_spec",
     "k_ablation_spec",
     "k_panels",
@@ -307,16 +309,38 @@ def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -
 PROPOSED: tuple[str, ...] = ("RS", "SD", "SU")
 
 
-def heatmap_figsize(n_vpr: int, n_datasets: int, n_baselines: int, *, width: str = "page") -> tuple[float, float]:
-    """Figure size in inches (the PNG is ``DPI`` times larger, in pixels): ``width`` wide, 0.2 in per VPR method
-    (one row of 8-pt text) plus room for the titles, the dataset names and the colour bar.
+def heatmap_layout(
+    vpr_methods: Sequence[str], column_labels: Sequence[str], titles: Sequence[str], *, width: str = "page"
+) -> tuple[int, int, tuple[float, float]]:
+    """(rows, columns) of the panel grid and the figure size in inches: as many panels side by side as fit
+    ``width`` at 8 pt (the VPR-method names on the left; the colour bar on the right, or below in a column), the
+    others wrapped below. ``column_labels``: the columns of one panel (the datasets, or the baselines).
 
     Examples
     --------
-    >>> heatmap_figsize(10, 1, 2), heatmap_figsize(10, 1, 2, width="column")
-    ((7.16, 3.5), (3.5, 3.5))
+    >>> names, titles = ["NetVLAD"] * 10, ["vs BM = L2", "vs PA", "vs margin", "vs GV-SIFT"]
+    >>> heatmap_layout(names, ["corridor"], titles), heatmap_layout(names, ["corridor"], titles, width="column")
+    ((1, 4, (7.16, 3.04)), (2, 3, (3.5, 6.48)))
     """
-    return figure_width(width), capped_height(1.5 + 0.2 * n_vpr, width)
+    total = figure_width(width)
+    bar = 0.8 if _colour_bar_side(width) == "right" else 0.0
+    names = max((len(name) for name in vpr_methods), default=4) * _CHARACTER_INCHES + 0.25
+    title = max((len(text) for text in titles), default=4) * _CHARACTER_INCHES + 0.15
+    panel = max(0.45 * len(column_labels), title, 0.5)
+    columns = max(1, min(len(titles), int((total - names - bar) // panel)))
+    rows = -(-len(titles) // columns)
+    labels = 0.15 + 0.5 * _CHARACTER_INCHES * max((len(name) for name in column_labels), default=4)  # rotated 30°
+    panel_height = 0.2 * len(vpr_methods) + 0.25 + labels  # cells, title, column labels
+    return rows, columns, (total, capped_height(0.4 + rows * panel_height + (0.8 if not bar else 0.0), width))
+
+
+def _colour_bar_side(width: str) -> str:
+    """Where a heatmap's colour bar goes: below the panels in a column (the width is for the cells), else right."""
+    return "bottom" if width == "column" else "right"
+
+
+#: Width of one character of 8-pt text, in inches (about 0.55 of the point size).
+_CHARACTER_INCHES = 0.06
 
 
 def delta_matrix(cells: Sequence, proposed: str, baseline: str) -> tuple[list[str], list[str], np.ndarray]:
@@ -351,21 +375,54 @@ def _heatmap_panels(cells: Sequence, proposed: str) -> tuple[list[str], list[tup
 
 def heatmap_spec(cells: Sequence, proposed: str) -> FigureSpec:
     """What the heatmap of ``proposed`` (RS, SD or SU) draws: one panel per baseline, rows VPR methods, columns
-    datasets."""
+    datasets; with a single dataset, one panel whose columns are the baselines (a column of one cell per panel
+    would not fit a paper's column)."""
     titles, matrices = _heatmap_panels(cells, proposed)
     n_vpr = len(matrices[0][0]) if matrices else 0
-    datasets = ", ".join(matrices[0][1]) if matrices else "no dataset"
+    datasets = matrices[0][1] if matrices else []
+    notes = (
+        f"Each cell is AUC-PR({proposed}) − AUC-PR(baseline), printed in the cell and coloured on one diverging "
+        f"scale{' for all panels' if len(datasets) > 1 else ''}: blue > 0 ({proposed} predicts correct answers "
+        "better), red < 0",
+    )
+    what = (
+        f"{proposed}: Δ AUC-PR against each baseline (> 0: {proposed} better) on {', '.join(datasets) or 'no dataset'}"
+    )
+    if len(datasets) == 1:
+        return FigureSpec(
+            what=what,
+            panels=(datasets[0],),
+            panel_rule="one panel (one dataset); one column per baseline, baselines with the same Δ in every cell "
+            "sharing one, e.g. “BM = L2”",
+            x="baseline (" + ", ".join(title.removeprefix("vs ") for title in titles) + ")",
+            y=f"VPR method ({n_vpr})",
+            notes=notes,
+        )
     return FigureSpec(
-        what=f"{proposed}: Δ AUC-PR against each baseline (> 0: {proposed} better) on {datasets}",
+        what=what,
         panels=tuple(titles),
         panel_rule="one per baseline; baselines with the same Δ in every cell share one, e.g. “vs BM = L2”",
         x="dataset",
         y=f"VPR method ({n_vpr})",
-        notes=(
-            f"Each cell is AUC-PR({proposed}) − AUC-PR(baseline), printed in the cell and coloured on one diverging "
-            f"scale for all panels: blue > 0 ({proposed} predicts correct answers better), red < 0",
-        ),
+        notes=notes,
     )
+
+
+def _heatmap_grid(cells: Sequence, proposed: str) -> list[tuple[list[str], np.ndarray]]:
+    """(column labels, Δ of shape (VPR methods, columns)) of each panel :func:`heatmap_spec` names."""
+    titles, matrices = _heatmap_panels(cells, proposed)
+    datasets = matrices[0][1]
+    if len(datasets) == 1:  # one panel: rows VPR methods, columns the baselines
+        columns = [title.removeprefix("vs ") for title in titles]
+        return [(columns, np.column_stack([delta[:, 0] for _, _, delta in matrices]))]
+    return [(datasets, delta) for _, _, delta in matrices]  # one panel per baseline, columns the datasets
+
+
+def heatmap_figure_size(cells: Sequence, proposed: str, *, width: str = "page") -> tuple[float, float]:
+    """The size in inches of the heatmap :func:`plot_delta_heatmaps` draws for ``proposed``."""
+    vpr_methods = list(dict.fromkeys(c.vpr_method for c in cells))
+    grid = _heatmap_grid(cells, proposed)
+    return heatmap_layout(vpr_methods, grid[0][0], heatmap_spec(cells, proposed).panels, width=width)[2]
 
 
 def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "page") -> list[Path]:
@@ -382,30 +439,28 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "p
         if not matrices:
             break
         spec = heatmap_spec(cells, proposed)
-        vpr_methods, datasets = matrices[0][0], matrices[0][1]
+        vpr_methods = matrices[0][0]
         finite = np.concatenate([m[2][np.isfinite(m[2])] for m in matrices])
         limit = max(float(np.abs(finite).max()) if finite.size else 0.0, 1e-3)
+        panels = _heatmap_grid(cells, proposed)
+        rows, columns, size = heatmap_layout(vpr_methods, panels[0][0], spec.panels, width=width)
         with figure_rc(width):
-            figure, axes = plt.subplots(
-                1,
-                len(matrices),
-                figsize=heatmap_figsize(len(vpr_methods), len(datasets), len(matrices), width=width),
-                dpi=DPI,
-                squeeze=False,
-                layout="constrained",
-            )
+            figure, grid = plt.subplots(rows, columns, figsize=size, dpi=DPI, squeeze=False, layout="constrained")
+            axes = [axis for row in grid for axis in row]
             try:
-                for axis, title, (_, _, delta) in zip(axes[0], spec.panels, matrices, strict=True):
+                for axis in axes[len(panels) :]:  # the last row's unused places
+                    axis.set_axis_off()
+                for position, (axis, title, (labels, delta)) in enumerate(zip(axes, spec.panels, panels, strict=False)):
                     image = axis.imshow(delta, cmap="RdBu", vmin=-limit, vmax=limit, aspect="auto")
                     for (i, j), value in np.ndenumerate(delta):
                         if np.isfinite(value):
                             colour = "white" if abs(value) > 0.6 * limit else "black"
                             axis.text(j, i, f"{value:+.2f}", ha="center", va="center", color=colour)
-                    axis.set_xticks(range(len(datasets)), datasets, rotation=30, ha="right")
-                    axis.set_yticks(range(len(vpr_methods)), vpr_methods if axis is axes[0][0] else [])
+                    axis.set_xticks(range(len(labels)), labels, rotation=30, ha="right")
+                    axis.set_yticks(range(len(vpr_methods)), vpr_methods if position % columns == 0 else [])
                     axis.set_title(title)
-                figure.colorbar(image, ax=list(axes[0]), shrink=0.8, label="Δ AUC-PR")
-                figure.suptitle(spec.what.split(" on ")[0])
+                figure.colorbar(image, ax=axes, shrink=0.8, label="Δ AUC-PR", location=_colour_bar_side(width))
+                figure.suptitle(textwrap.fill(spec.what.split(" on ")[0], int(size[0] / (1.4 * _CHARACTER_INCHES))))
                 path = out_dir / f"delta_{proposed}.png"
                 save_figure(figure, path, tight=False)  # and a PDF beside it
             finally:
