@@ -139,9 +139,12 @@ def _layout(n_panels: int, columns: int | None = None, width: str = "page") -> t
     return math.ceil(max(n_panels, 1) / columns), columns
 
 
-def _legend_columns(n_entries: int, columns: int, width: str = "page") -> int:
-    """Legend entries per row: two (column width) or four (page width), fewer when there are fewer."""
-    return max(1, min(n_entries, 2 if width == "column" else 4))
+def _legend_columns(n_entries: int, columns: int, width: str = "page", labels: Sequence[str] = ()) -> int:
+    """Legend entries per row: two (column width) or four (page width), fewer when there are fewer or when the
+    longest label would not fit that many side by side (a handle and 8-pt text, :data:`_CHARACTER_INCHES` each)."""
+    entry = 0.55 + _CHARACTER_INCHES * max((len(label) for label in labels), default=0)
+    fitting = max(1, int(figure_width(width) // entry))
+    return max(1, min(n_entries, 2 if width == "column" else 4, fitting))
 
 
 def ablation_figsize(
@@ -184,7 +187,7 @@ def _legend_below(figure, handles: dict, columns: int, width: str) -> None:
             list(handles.values()),
             list(handles),
             loc="outside lower center",
-            ncol=_legend_columns(len(handles), columns, width),
+            ncol=_legend_columns(len(handles), columns, width, labels=list(handles)),
             frameon=False,
         )
 
@@ -249,7 +252,7 @@ def plot_alpha_ablation(cells: Sequence, path: str | Path, *, width: str = "page
                 s.label: plt.Line2D([], [], markersize=8 if s.style is _STAR else 4, **s.style) for s in spec.series
             }
             _legend_below(figure, handles, axes.shape[1], width)
-            figure.suptitle(spec.what)
+            figure.suptitle(_fitted(spec.what, figure))
             return _save(figure, path)
         finally:
             plt.close(figure)
@@ -298,7 +301,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -
                 axis.set_ylabel(spec.y)
             handles = {s.label: plt.Line2D([], [], **s.style) for s in spec.series}
             _legend_below(figure, handles, axes.shape[1], width)
-            figure.suptitle(spec.what)
+            figure.suptitle(_fitted(spec.what, figure))
             return _save(figure, path)
         finally:
             plt.close(figure)
@@ -332,6 +335,11 @@ def heatmap_layout(
     labels = 0.15 + 0.5 * _CHARACTER_INCHES * max((len(name) for name in column_labels), default=4)  # rotated 30°
     panel_height = 0.2 * len(vpr_methods) + 0.25 + labels  # cells, title, column labels
     return rows, columns, (total, capped_height(0.4 + rows * panel_height + (0.8 if not bar else 0.0), width))
+
+
+def _fitted(title: str, figure: Any) -> str:
+    """``title`` wrapped onto as many lines as the figure's width needs at 9 pt (suptitles are not clipped)."""
+    return textwrap.fill(title, max(20, int(figure.get_figwidth() / (1.25 * _CHARACTER_INCHES))))
 
 
 def _colour_bar_side(width: str) -> str:
@@ -460,7 +468,7 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "p
                     axis.set_yticks(range(len(vpr_methods)), vpr_methods if position % columns == 0 else [])
                     axis.set_title(title)
                 figure.colorbar(image, ax=axes, shrink=0.8, label="Δ AUC-PR", location=_colour_bar_side(width))
-                figure.suptitle(textwrap.fill(spec.what.split(" on ")[0], int(size[0] / (1.4 * _CHARACTER_INCHES))))
+                figure.suptitle(_fitted(spec.what.split(" on ")[0], figure))
                 path = out_dir / f"delta_{proposed}.png"
                 save_figure(figure, path, tight=False)  # and a PDF beside it
             finally:
@@ -575,7 +583,8 @@ def plot_cascade(cells: Sequence[Any], out_dir: str | Path, *, width: str = "pag
                     axis.set_ylabel(spec.y)
                 handles = {s.label: plt.Line2D([], [], **s.style) for s in spec.series}
                 _legend_below(figure, handles, columns, width)
-                figure.suptitle(spec.what.split(": ")[0] + f": 0 = {score} alone, 1 = {gv} on every query")
+                title = spec.what.split(": ")[0] + f": 0 = {score} alone, 1 = {gv} on every query"
+                figure.suptitle(_fitted(title, figure))
                 paths += save_figure(figure, Path(out_dir) / f"cascade__{slug(score)}_{slug(gv)}.png", tight=False)
             finally:
                 plt.close(figure)
@@ -592,16 +601,17 @@ SHOWN: tuple[str, ...] = ("RS", "SD", "SU")
 
 def qualitative_figsize(n_rows: int, *, width: str = "page") -> tuple[float, float]:
     """Figure size in inches for ``n_rows`` queries (``DPI`` pixels per inch): ``width`` wide, each row as tall as
-    its images (4:3) plus two lines of 8-pt text.
+    the query's image (4:3) plus five lines of 8-pt text (two above the images, the query's RS, SD and SU below).
 
     Examples
     --------
     >>> qualitative_figsize(4), qualitative_figsize(4, width="column")
-    ((7.16, 6.43), (3.5, 4.39))
+    ((7.16, 9.0), (3.5, 6.37))
     """
     inches = figure_width(width)
     image = inches / (TOP + 1.4)  # the query's column is 1.4 times wider: its label is longer
-    return inches, capped_height(n_rows * (0.75 * image + 0.5) + 0.45, width)
+    # the query's image, 1.4 times wider, sets the row's height (4:3)
+    return inches, capped_height(n_rows * (0.75 * 1.4 * image + 0.8) + 0.45, width)
 
 
 def choose_queries(correct: np.ndarray, uncertainty: np.ndarray) -> dict[str, int]:
@@ -748,7 +758,7 @@ def plot_qualitative(
                 for axis in axes[row]:
                     axis.set_xticks([])
                     axis.set_yticks([])
-            figure.suptitle(spec.what)
+            figure.suptitle(_fitted(spec.what, figure))
             save_figure(figure, path, tight=False)  # and a PDF beside it
         finally:
             plt.close(figure)
