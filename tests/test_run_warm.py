@@ -184,3 +184,19 @@ def test_a_figure_is_current_only_with_its_inputs_and_intact_bytes(tmp_path):
     for damaged in (data[:-1], data + b"\0", data[:40] + bytes([data[40] ^ 1]) + data[41:]):
         stamped.write_bytes(damaged)
         assert not cache.figure_is_current(stamped, "abc")
+
+
+def test_a_change_of_the_figure_style_draws_the_figure_again(tmp_path, monkeypatch):
+    """The PR figure's stamp covers the style module too (sizes, fonts, palette moved out of display.py)."""
+    from vpr_uncertainty.reports import display, style
+
+    display._drawing_code.cache_clear()  # computed once per process
+    before = display._drawing_code()
+    changed = tmp_path / "style.py"
+    changed.write_bytes(open(style.__file__, "rb").read() + b"\n# another palette\n")
+    monkeypatch.setattr(style, "__file__", str(changed))
+    display._drawing_code.cache_clear()
+    try:
+        assert display._drawing_code() != before
+    finally:
+        display._drawing_code.cache_clear()

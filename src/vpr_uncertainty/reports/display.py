@@ -575,8 +575,14 @@ def draw_rejection_curves(
 
 @functools.lru_cache(maxsize=1)
 def _drawing_code() -> str:
-    """A hash of this module's source: the code that draws the figures (a change of it draws them again)."""
-    return hashlib.blake2b(Path(__file__).read_bytes(), digest_size=16).hexdigest()
+    """A hash of the code that draws the figures, this module and :mod:`~vpr_uncertainty.reports.style` (its sizes,
+    fonts and palette): a change of either draws them again."""
+    from vpr_uncertainty.reports import style
+
+    digest = hashlib.blake2b(digest_size=16)
+    for source in (Path(__file__), Path(style.__file__)):
+        digest.update(source.read_bytes())
+    return digest.hexdigest()
 
 
 def rejection_curves_inputs(evaluation: Evaluation, *, title: str | None = None, width: str = "page") -> str:
