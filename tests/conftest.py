@@ -107,3 +107,22 @@ def results_numbers(document):
     if isinstance(document, list):
         return [results_numbers(v) for v in document]
     return document
+
+
+@pytest.fixture
+def figures(monkeypatch):
+    """The matplotlib figures the plot functions close, in order (still inspectable after ``plt.close``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    closed = []
+    close = plt.close
+
+    def record(figure=None):
+        closed.append(figure)
+        close(figure)
+
+    monkeypatch.setattr(plt, "close", record)
+    return closed

@@ -514,6 +514,15 @@ def test_queries_with_nonpositive_best_similarity_are_counted_in_the_notes():
     assert len(lines) == 1 and lines[0].startswith("note: 3 of 12 queries")
 
 
+def test_the_nonpositive_note_names_every_method_that_divides_by_the_best_similarity():
+    """SU-adaptive divides by s_1 as RS, SD and SU do (its entry says scores="similarity"): it is named too."""
+    retrieval = _retrieval(n_queries=12, k=5, n_database=20)
+    retrieval.scores[[2, 7]] -= 1.0
+    evaluation = evaluate(retrieval, ["SU", "SU-adaptive", "BM"], k=5, timing_repeats=1)
+    (note,) = [note for note in evaluation.notes if "s_1 <= 0" in note]
+    assert note.startswith("2 of 12 queries have a best similarity s_1 <= 0: SU, SU-adaptive rank them")
+
+
 def test_no_nonpositive_note_without_ratio_methods_or_without_such_queries():
     retrieval = _retrieval(n_queries=12, k=5, n_database=20)
     assert not any("s_1" in note for note in evaluate(retrieval, ["SU"], timing_repeats=1).notes)

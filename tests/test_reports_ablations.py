@@ -10,8 +10,6 @@ from types import SimpleNamespace
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt
-import pytest
 
 from vpr_uncertainty.reports import plots
 
@@ -25,20 +23,6 @@ def _cell(vpr_method: str, dataset: str, alpha_peak: float, k_shift: float = 0.0
         name: {k: 0.5 + k_shift + 0.01 * k + offset for k in (2, 5, 10)} for name, offset in (("RS", 0), ("SD", 0.1))
     }
     return SimpleNamespace(vpr_method=vpr_method, dataset=dataset, ablation_alpha=alpha_curve, ablation_k=k_curve)
-
-
-@pytest.fixture
-def figures(monkeypatch):
-    """The matplotlib figures the plot functions close, in order."""
-    closed = []
-    close = plt.close
-
-    def record(figure=None):
-        closed.append(figure)
-        close(figure)
-
-    monkeypatch.setattr(plt, "close", record)
-    return closed
 
 
 def _png_size(path: Path) -> tuple[int, int]:

@@ -25,20 +25,6 @@ WIDTHS = ("column", "page")
 ALPHAS = [0.0, 0.25, 0.5, 0.75, 1.0]
 
 
-@pytest.fixture
-def figures(monkeypatch):
-    """The matplotlib figures the plot functions close, in order (still inspectable)."""
-    closed = []
-    close = plt.close
-
-    def record(figure=None):
-        closed.append(figure)
-        close(figure)
-
-    monkeypatch.setattr(plt, "close", record)
-    return closed
-
-
 def _retrieval(n_queries: int = 40, seed: int = 0) -> Retrieval:
     rng = np.random.default_rng(seed)
     scores = np.sort(rng.uniform(0.2, 1.0, (n_queries, 10)), axis=1)[:, ::-1]

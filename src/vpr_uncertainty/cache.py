@@ -75,6 +75,7 @@ __all__ = [
     "read_if_fresh",
     "slug",
     "stale_notice",
+    "user_cache_dir",
     "verify_checksum",
     "write_figure",
     "write_json",
@@ -296,6 +297,11 @@ def fingerprint(stage: str, config: Mapping[str, Any], inputs: Mapping[str, Any]
     document = {"protocol": PROTOCOL, "stage": stage, "config": _canonical(config), "inputs": _canonical(inputs or {})}
     text = json.dumps(document, sort_keys=True, separators=(",", ":"), allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def user_cache_dir() -> Path:
+    """The toolkit's per-user cache folder: ``$XDG_CACHE_HOME/vpr-uncertainty`` (``~/.cache`` without it)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "vpr-uncertainty"
 
 
 def slug(text: str) -> str:

@@ -44,8 +44,9 @@ def default_data_root() -> Path:
     """``VPR_UNCERTAINTY_DATA`` if set, else a per-user cache directory (``$XDG_CACHE_HOME/vpr-uncertainty``)."""
     if os.environ.get("VPR_UNCERTAINTY_DATA"):
         return Path(os.environ["VPR_UNCERTAINTY_DATA"])
-    cache = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(cache) / "vpr-uncertainty"
+    from vpr_uncertainty.cache import user_cache_dir
+
+    return user_cache_dir()
 
 
 def corridor_files() -> dict[str, str]:

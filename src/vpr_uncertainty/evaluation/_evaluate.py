@@ -255,14 +255,14 @@ def evaluate(
     return evaluation
 
 
-#: Methods that divide by the best similarity s_1 and rank s_1 <= 0 as the most uncertain.
-_RATIO_METHODS: tuple[str, ...] = ("RS", "SD", "SU")
 #: Where the s_1 <= 0 rule is written down.
 _NONPOSITIVE_RULE_DOCS = "docs/explanation/conventions.md; vpr_uncertainty.scores"
 
 
 def _is_ratio(entry: UncertaintyMethod) -> bool:
-    return (entry.base or entry.name) in _RATIO_METHODS
+    """Whether the method divides by the best similarity s_1 (RS, SD, SU, SU-adaptive: ``scores="similarity"``),
+    and so ranks s_1 <= 0 as the most uncertain and reads k of the candidates."""
+    return entry.scores == "similarity"
 
 
 def _candidates_note(k: int, available: int, entries: Sequence[UncertaintyMethod], source: object) -> str | None:
@@ -278,7 +278,7 @@ def _candidates_note(k: int, available: int, entries: Sequence[UncertaintyMethod
 
 
 def _nonpositive_note(scores: np.ndarray, entries: Sequence[UncertaintyMethod]) -> str | None:
-    """A note counting the queries whose best similarity s_1 <= 0, when a ratio method (RS, SD, SU) is asked."""
+    """A note counting the queries whose best similarity s_1 <= 0, when a ratio method (RS, SD, SU, ...) is asked."""
     ratio = [entry.name for entry in entries if _is_ratio(entry)]
     if not ratio or scores.shape[0] == 0 or scores.shape[1] == 0:
         return None

@@ -13,6 +13,7 @@ import dataclasses
 import functools
 import inspect
 import math
+import warnings
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -546,8 +547,6 @@ def default_method_names(*, metric_positions: bool = False, retrieval: Retrieval
         if reason is not None:
             reasons.setdefault(reason, []).append(name)
     if reasons:
-        import warnings
-
         left_out = "; ".join(f"{', '.join(group)}: {reason}" for reason, group in reasons.items())
         warnings.warn(
             f"left out of the default methods ({left_out}); name one explicitly to run it anyway",

@@ -442,10 +442,11 @@ def add_score_kind_option(parser: argparse.ArgumentParser) -> None:
 
 
 def ray_log_file() -> Path:
-    """Where the command line sends Ray's log lines without ``--verbose``: ``$XDG_CACHE_HOME/vpr-uncertainty/
-    logs/ray.log`` (``~/.cache`` without XDG_CACHE_HOME)."""
-    cache = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(cache) / "vpr-uncertainty" / "logs" / "ray.log"
+    """Where the command line sends Ray's log lines without ``--verbose``: ``logs/ray.log`` in the toolkit's cache
+    folder (:func:`~vpr_uncertainty.cache.user_cache_dir`, ``$XDG_CACHE_HOME/vpr-uncertainty``)."""
+    from vpr_uncertainty.cache import user_cache_dir
+
+    return user_cache_dir() / "logs" / "ray.log"
 
 
 def executor_options(args: argparse.Namespace) -> dict[str, Any]:

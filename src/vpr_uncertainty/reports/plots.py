@@ -385,7 +385,12 @@ def heatmap_spec(cells: Sequence, proposed: str) -> FigureSpec:
     """What the heatmap of ``proposed`` (RS, SD or SU) draws: one panel per baseline, rows VPR methods, columns
     datasets; with a single dataset, one panel whose columns are the baselines (a column of one cell per panel
     would not fit a paper's column)."""
-    titles, matrices = _heatmap_panels(cells, proposed)
+    return _heatmap_spec(proposed, *_heatmap_panels(cells, proposed))
+
+
+def _heatmap_spec(
+    proposed: str, titles: list[str], matrices: list[tuple[list[str], list[str], np.ndarray]]
+) -> FigureSpec:
     n_vpr = len(matrices[0][0]) if matrices else 0
     datasets = matrices[0][1] if matrices else []
     notes = (
@@ -416,21 +421,29 @@ def heatmap_spec(cells: Sequence, proposed: str) -> FigureSpec:
     )
 
 
-def _heatmap_grid(cells: Sequence, proposed: str) -> list[tuple[list[str], np.ndarray]]:
-    """(column labels, Δ of shape (VPR methods, columns)) of each panel :func:`heatmap_spec` names."""
+def _heatmap(cells: Sequence, proposed: str) -> tuple[FigureSpec, list[str], list[tuple[list[str], np.ndarray]]] | None:
+    """The spec, the VPR methods (rows) and, per panel, (column labels, Δ of shape (rows, columns)) of the heatmap
+    of ``proposed``, from one computation of the Δ matrices; None without a baseline."""
     titles, matrices = _heatmap_panels(cells, proposed)
+    if not matrices:
+        return None
+    spec = _heatmap_spec(proposed, titles, matrices)
     datasets = matrices[0][1]
     if len(datasets) == 1:  # one panel: rows VPR methods, columns the baselines
         columns = [title.removeprefix("vs ") for title in titles]
-        return [(columns, np.column_stack([delta[:, 0] for _, _, delta in matrices]))]
-    return [(datasets, delta) for _, _, delta in matrices]  # one panel per baseline, columns the datasets
+        panels = [(columns, np.column_stack([delta[:, 0] for _, _, delta in matrices]))]
+    else:  # one panel per baseline, columns the datasets
+        panels = [(datasets, delta) for _, _, delta in matrices]
+    return spec, matrices[0][0], panels
 
 
 def heatmap_figure_size(cells: Sequence, proposed: str, *, width: str = "page") -> tuple[float, float]:
     """The size in inches of the heatmap :func:`plot_delta_heatmaps` draws for ``proposed``."""
-    vpr_methods = list(dict.fromkeys(c.vpr_method for c in cells))
-    grid = _heatmap_grid(cells, proposed)
-    return heatmap_layout(vpr_methods, grid[0][0], heatmap_spec(cells, proposed).panels, width=width)[2]
+    found = _heatmap(cells, proposed)
+    if found is None:
+        raise ValueError(f"no heatmap of {proposed}: the cells hold no baseline beside it")
+    spec, vpr_methods, panels = found
+    return heatmap_layout(vpr_methods, panels[0][0], spec.panels, width=width)[2]
 
 
 def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "page") -> list[Path]:
@@ -443,14 +456,12 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "p
     names = list(dict.fromkeys(name for c in cells for name in c.evaluation.methods))
     paths = []
     for proposed in (p for p in PROPOSED if p in names):
-        _, matrices = _heatmap_panels(cells, proposed)
-        if not matrices:
+        found = _heatmap(cells, proposed)
+        if found is None:
             break
-        spec = heatmap_spec(cells, proposed)
-        vpr_methods = matrices[0][0]
-        finite = np.concatenate([m[2][np.isfinite(m[2])] for m in matrices])
+        spec, vpr_methods, panels = found
+        finite = np.concatenate([delta[np.isfinite(delta)] for _, delta in panels])
         limit = max(float(np.abs(finite).max()) if finite.size else 0.0, 1e-3)
-        panels = _heatmap_grid(cells, proposed)
         rows, columns, size = heatmap_layout(vpr_methods, panels[0][0], spec.panels, width=width)
         with figure_rc(width):
             figure, grid = plt.subplots(rows, columns, figsize=size, dpi=DPI, squeeze=False, layout="constrained")
