@@ -36,13 +36,18 @@ False
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import errno
+import functools
 import hashlib
+import importlib.machinery
 import io
 import json
 import os
 import re
+import sys
+import sysconfig
 import tempfile
 import warnings
 import zlib
@@ -62,6 +67,7 @@ __all__ = [
     "atomic_path",
     "atomic_write",
     "check_dataset",
+    "code_identity",
     "content_key",
     "figure_is_current",
     "file_digest",
@@ -297,6 +303,92 @@ def fingerprint(stage: str, config: Mapping[str, Any], inputs: Mapping[str, Any]
     document = {"protocol": PROTOCOL, "stage": stage, "config": _canonical(config), "inputs": _canonical(inputs or {})}
     text = json.dumps(document, sort_keys=True, separators=(",", ":"), allow_nan=True)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.lru_cache(maxsize=4096)
+def _source(path: str, stamp: tuple[int, int]) -> tuple[str, tuple[tuple[str, int], ...]]:
+    """The BLAKE2b of a source file and its imports as ``(name, level)`` (re-read when size or mtime change)."""
+    data = Path(path).read_bytes()
+    imports: list[tuple[str, int]] = []
+    with contextlib.suppress(SyntaxError, ValueError):
+        for node in ast.walk(ast.parse(data)):  # every level: function-level imports run the same tree
+            if isinstance(node, ast.Import):
+                imports += [(alias.name, 0) for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                imports += [(base, node.level)] + [(f"{base}.{a.name}".lstrip("."), node.level) for a in node.names]
+    return hashlib.blake2b(data, digest_size=16).hexdigest(), tuple(imports)
+
+
+def _installed_roots() -> tuple[str, ...]:
+    paths = sysconfig.get_paths()
+    return tuple({os.path.realpath(paths[key]) + os.sep for key in ("stdlib", "platstdlib", "purelib", "platlib")})
+
+
+def _module_file(name: str) -> str | None:
+    """The source file of module ``name``: its loaded module's, else found on the path without importing it."""
+    module = sys.modules.get(name)
+    if module is None:
+        parent, _, _ = name.rpartition(".")
+        search = getattr(sys.modules.get(parent), "__path__", None) if parent else None
+        if parent and search is None:
+            return None
+        try:
+            spec = importlib.machinery.PathFinder.find_spec(name, search)
+        except (ImportError, ValueError):
+            return None
+        origin = spec.origin if spec is not None else None
+    else:
+        origin = getattr(module, "__file__", None)
+    return origin if origin and origin.endswith(".py") and os.path.isfile(origin) else None
+
+
+def code_identity(module: str) -> str:
+    """A digest of the code a module runs, for the fingerprints of what it computes.
+
+    Hashed: the bytes of the module's source file and of every module it imports (at any level, transitively) from
+    the same tree: for the toolkit's own modules, the toolkit's modules it imports, with the toolkit's version; for
+    a user's module (a ``--plugin``), every imported module that is neither the toolkit nor installed (standard
+    library, site-packages), i.e. the user's own files. A module without a Python source file counts by its name.
+
+    Examples
+    --------
+    >>> code_identity("vpr_uncertainty.scores") == code_identity("vpr_uncertainty.scores")
+    True
+    >>> code_identity("vpr_uncertainty.scores") == code_identity("vpr_uncertainty.spatial")
+    False
+    """
+    own = module.split(".")[0] == "vpr_uncertainty"
+    roots = _installed_roots()
+    hasher = hashlib.blake2b(digest_size=16)
+    if own:
+        from vpr_uncertainty import __version__
+
+        hasher.update(f"vpr-uncertainty {__version__};".encode())
+    seen: set[str] = set()
+    pending = [module]
+    while pending:
+        name = pending.pop()
+        if name in seen or not name:
+            continue
+        seen.add(name)
+        path = _module_file(name)
+        if path is None:
+            hasher.update(f"{name}:?;".encode())
+            continue
+        stat = os.stat(path)
+        digest, imports = _source(path, (stat.st_size, stat.st_mtime_ns))
+        hasher.update(f"{name}:{digest};".encode())
+        package = name if path.endswith("__init__.py") else name.rpartition(".")[0]
+        for target, level in imports:
+            if level:
+                target = ".".join([*package.split(".")[: len(package.split(".")) - level + 1], target]).strip(".")
+            if (target.split(".")[0] == "vpr_uncertainty") != own:
+                continue
+            found = _module_file(target)
+            if found is not None and (own or not os.path.realpath(found).startswith(roots)):
+                pending.append(target)
+    return "code:" + hasher.hexdigest()
 
 
 def user_cache_dir() -> Path:
