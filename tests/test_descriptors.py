@@ -523,7 +523,7 @@ class GeM(torch.nn.Module):
 
 def test_the_cache_key_covers_code_parameters_buffers_and_plain_attributes(images, tmp_path):
     """Changing GeM's plain p, a weight, or a function's code reused the old descriptors (issue 20, row 6)."""
-    from vpr_uncertainty.descriptors.identity import UnfingerprintableModel, callable_identity
+    from vpr_uncertainty.identity import UnfingerprintableModel, callable_identity
 
     paths, names = images
     path = tmp_path / "d.h5"

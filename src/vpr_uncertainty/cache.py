@@ -36,18 +36,15 @@ False
 
 from __future__ import annotations
 
-import ast
 import contextlib
 import errno
-import functools
+import glob
 import hashlib
-import importlib.machinery
 import io
 import json
 import os
 import re
-import sys
-import sysconfig
+import socket
 import tempfile
 import warnings
 import zlib
@@ -67,7 +64,6 @@ __all__ = [
     "atomic_path",
     "atomic_write",
     "check_dataset",
-    "code_identity",
     "content_key",
     "figure_is_current",
     "file_digest",
@@ -305,92 +301,6 @@ def fingerprint(stage: str, config: Mapping[str, Any], inputs: Mapping[str, Any]
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-@functools.lru_cache(maxsize=4096)
-def _source(path: str, stamp: tuple[int, int]) -> tuple[str, tuple[tuple[str, int], ...]]:
-    """The BLAKE2b of a source file and its imports as ``(name, level)`` (re-read when size or mtime change)."""
-    data = Path(path).read_bytes()
-    imports: list[tuple[str, int]] = []
-    with contextlib.suppress(SyntaxError, ValueError):
-        for node in ast.walk(ast.parse(data)):  # every level: function-level imports run the same tree
-            if isinstance(node, ast.Import):
-                imports += [(alias.name, 0) for alias in node.names]
-            elif isinstance(node, ast.ImportFrom):
-                base = node.module or ""
-                imports += [(base, node.level)] + [(f"{base}.{a.name}".lstrip("."), node.level) for a in node.names]
-    return hashlib.blake2b(data, digest_size=16).hexdigest(), tuple(imports)
-
-
-def _installed_roots() -> tuple[str, ...]:
-    paths = sysconfig.get_paths()
-    return tuple({os.path.realpath(paths[key]) + os.sep for key in ("stdlib", "platstdlib", "purelib", "platlib")})
-
-
-def _module_file(name: str) -> str | None:
-    """The source file of module ``name``: its loaded module's, else found on the path without importing it."""
-    module = sys.modules.get(name)
-    if module is None:
-        parent, _, _ = name.rpartition(".")
-        search = getattr(sys.modules.get(parent), "__path__", None) if parent else None
-        if parent and search is None:
-            return None
-        try:
-            spec = importlib.machinery.PathFinder.find_spec(name, search)
-        except (ImportError, ValueError):
-            return None
-        origin = spec.origin if spec is not None else None
-    else:
-        origin = getattr(module, "__file__", None)
-    return origin if origin and origin.endswith(".py") and os.path.isfile(origin) else None
-
-
-def code_identity(module: str) -> str:
-    """A digest of the code a module runs, for the fingerprints of what it computes.
-
-    Hashed: the bytes of the module's source file and of every module it imports (at any level, transitively) from
-    the same tree: for the toolkit's own modules, the toolkit's modules it imports, with the toolkit's version; for
-    a user's module (a ``--plugin``), every imported module that is neither the toolkit nor installed (standard
-    library, site-packages), i.e. the user's own files. A module without a Python source file counts by its name.
-
-    Examples
-    --------
-    >>> code_identity("vpr_uncertainty.scores") == code_identity("vpr_uncertainty.scores")
-    True
-    >>> code_identity("vpr_uncertainty.scores") == code_identity("vpr_uncertainty.spatial")
-    False
-    """
-    own = module.split(".")[0] == "vpr_uncertainty"
-    roots = _installed_roots()
-    hasher = hashlib.blake2b(digest_size=16)
-    if own:
-        from vpr_uncertainty import __version__
-
-        hasher.update(f"vpr-uncertainty {__version__};".encode())
-    seen: set[str] = set()
-    pending = [module]
-    while pending:
-        name = pending.pop()
-        if name in seen or not name:
-            continue
-        seen.add(name)
-        path = _module_file(name)
-        if path is None:
-            hasher.update(f"{name}:?;".encode())
-            continue
-        stat = os.stat(path)
-        digest, imports = _source(path, (stat.st_size, stat.st_mtime_ns))
-        hasher.update(f"{name}:{digest};".encode())
-        package = name if path.endswith("__init__.py") else name.rpartition(".")[0]
-        for target, level in imports:
-            if level:
-                target = ".".join([*package.split(".")[: len(package.split(".")) - level + 1], target]).strip(".")
-            if (target.split(".")[0] == "vpr_uncertainty") != own:
-                continue
-            found = _module_file(target)
-            if found is not None and (own or not os.path.realpath(found).startswith(roots)):
-                pending.append(target)
-    return "code:" + hasher.hexdigest()
-
-
 def user_cache_dir() -> Path:
     """The toolkit's per-user cache folder: ``$XDG_CACHE_HOME/vpr-uncertainty`` (``~/.cache`` without it)."""
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "vpr-uncertainty"
@@ -398,7 +308,7 @@ def user_cache_dir() -> Path:
 
 def slug(text: str) -> str:
     """``text`` as a file-name part: runs of characters other than letters, digits, ``_.-`` become ``_``."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_.") or "x"  # no hidden file: "../x" -> "x"
 
 
 def stale_notice(path: str | Path, reason: str, action: str = "rebuilding it", *, stacklevel: int = 3) -> None:
@@ -481,7 +391,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             raise named from error
         return
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=f".tmp{path.suffix}")
+    _remove_orphans(path)
+    owner = f"{socket.gethostname()}-{os.getpid()}"
+    handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{owner}.", suffix=f".tmp{path.suffix}")
     os.close(handle)
     temporary = Path(name)
     os.chmod(temporary, _file_mode(path))  # mkstemp makes 0600; give the file the mode open() would have
@@ -500,6 +412,20 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         temporary.unlink(missing_ok=True)
         raise
     _fsync_folder(path.parent)
+
+
+def _remove_orphans(path: Path) -> None:
+    """Remove the temporary files of ``path`` that a process of this machine left when it was killed (its name holds
+    the host and process id of its writer; a writer that still runs, or of another machine, is left alone)."""
+    host = socket.gethostname()
+    for orphan in path.parent.glob(f".{glob.escape(path.name)}.{glob.escape(host)}-*.tmp{glob.escape(path.suffix)}"):
+        pid = orphan.name[len(f".{path.name}.{host}-") :].split(".", 1)[0]
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            orphan.unlink(missing_ok=True)
+        except (ValueError, OSError):  # not our name, or a process we may not signal: alive
+            continue
 
 
 #: Errors of a write that say nothing of which file: named after the file being written when they carry no name.

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
-from vpr_uncertainty.btl.model import BTLHead, embed, load_btl_head, row_digests
+from vpr_uncertainty.btl.model import SKETCH_TOLERANCE, BTLHead, embed, load_btl_head, row_digests, row_sketches
 from vpr_uncertainty.btl.training import resolve_device, train_btl_head
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
 from vpr_uncertainty.retrieval import Retrieval, search_descriptors
@@ -318,13 +318,19 @@ def btl_retrieval(
 
 
 def trained_on(head: BTLHead, query_descriptors: np.ndarray) -> int | None:
-    """How many of ``query_descriptors`` (Q, dim) were the head's training anchors (None: the file does not say)."""
+    """How many of ``query_descriptors`` (Q, dim) were the head's training anchors (None: the file does not say):
+    identical rows (their digests), or the same images described again in another precision (their sketches)."""
     anchors = (head.metadata or {}).get("anchors") or {}
-    digests = anchors.get("digests")
+    digests, sketches = anchors.get("digests"), anchors.get("sketches")
     if not isinstance(digests, list):
         return None
-    seen = set(digests)
-    return sum(digest in seen for digest in row_digests(query_descriptors))
+    seen = np.isin(row_digests(query_descriptors), digests)
+    if isinstance(sketches, list) and sketches and len(query_descriptors):
+        from scipy.spatial import cKDTree
+
+        distances, _ = cKDTree(np.asarray(sketches, dtype=np.float64)).query(row_sketches(query_descriptors), k=1)
+        seen |= distances <= SKETCH_TOLERANCE
+    return int(seen.sum())
 
 
 def btl_uncertainty(

@@ -31,6 +31,7 @@ from vpr_uncertainty.btl.model import (
     BTLHead,
     bayesian_triplet_loss,
     row_digests,
+    row_sketches,
 )
 from vpr_uncertainty.cache import write_figure, write_json
 
@@ -481,6 +482,7 @@ def train_btl_head(
             "source": "database" if same_set else "queries",
             "count": len(queries),
             "digests": row_digests(queries),
+            "sketches": row_sketches(queries).tolist(),
         },
     }
     return head, history

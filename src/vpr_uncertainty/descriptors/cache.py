@@ -9,11 +9,14 @@ Layout (format version 2)::
         names           (N,) UTF-8 strings, unique once complete
         descriptors     (N, D) float32 or float16, L2-normalised, row i belongs to names[i]
         keys            (N,) content key of the image file row i was computed from
+        checksums       (N,) BLAKE2b of row i (name, key, descriptor as stored): a partial split proves its rows
     /queries            same as /database
 
 The checksum is :func:`vpr_uncertainty.cache.payload_checksum` of names, descriptors as stored, keys and
-``failed``, hashed one block of rows at a time. Rows are appended and flushed batch by batch; a rerun computes only
-the images whose name is missing or whose content key differs. A file of another fingerprint, of version 1, empty,
+``failed``, hashed one block of rows at a time. Rows are appended and flushed batch by batch, each with its row
+checksum; a rerun computes only the images whose name is missing, whose content key differs or, in a split not yet
+complete, whose row no longer matches its checksum (a file written before the row checksums recomputes every row
+of an incomplete split). A file of another fingerprint, of version 1, empty,
 truncated or failing its checksum is rebuilt with a one-line :class:`~vpr_uncertainty.cache.CacheWarning`; a file
 that is not ours is never overwritten, nor one another process holds open for writing. Rows holding NaN or
 infinite values are recomputed by the next extraction and refused by the readers.
@@ -23,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import json
 import os
 import re
@@ -60,6 +64,22 @@ def _parts(group: Any, count: int, descriptors: Any = None) -> tuple[Any, ...]:
     if descriptors is None and "descriptors" in group:
         descriptors = _StoredRows(group["descriptors"], count)
     return names, descriptors, keys, str(group.attrs.get("failed", "[]"))
+
+
+def row_checksums(names: Sequence[str], descriptors: Any, keys: Sequence[str]) -> list[str]:
+    """The checksum of each row: BLAKE2b of its name, content key and descriptor bytes as stored (block by block)."""
+    blocks = descriptors.row_blocks() if hasattr(descriptors, "row_blocks") else [np.asarray(descriptors)]
+    rows = (row for block in blocks for row in np.ascontiguousarray(block))
+    return [
+        hashlib.blake2b(f"{name}\0{key}\0".encode() + row.tobytes(), digest_size=8).hexdigest()
+        for name, key, row in zip(names, keys, rows, strict=True)
+    ]
+
+
+def _rows_of(group: Any, key: str, count: int) -> np.ndarray:
+    """The first ``count`` rows of dataset ``key`` of a split (strings as an object array)."""
+    dataset = group[key]
+    return np.asarray(dataset[:count]) if key == "descriptors" else np.asarray(dataset.asstr()[:count], dtype=object)
 
 
 def split_checksum(group: Any, count: int) -> str:
@@ -185,7 +205,7 @@ STAGE = "descriptors"
 
 SPLITS = ("database", "queries")
 
-_DATASETS = ("names", "descriptors", "keys")
+_DATASETS = ("names", "descriptors", "keys", "checksums")
 
 DTYPES = ("float32", "float16")
 
@@ -210,6 +230,18 @@ def _valid_length(group: Any) -> int:
         return 0
     lengths = [group[key].shape[0] for key in _DATASETS if key in group]
     return min(lengths)
+
+
+def is_whole(path: Path) -> bool:
+    """Whether ``path`` is a descriptor file whose every split is complete and sealed by its checksum."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as handle:
+            groups = [handle[split] for split in SPLITS if split in handle]
+            return bool(groups) and all(g.attrs.get("complete") and "checksum" in g.attrs for g in groups)
+    except (OSError, RuntimeError, KeyError):
+        return False
 
 
 def split_layout(path: Path, split: str, *, stacklevel: int = 2) -> tuple[np.ndarray, int, int]:
@@ -321,18 +353,18 @@ def read_complete(
                 return None
             datasets = open_present(handle, tuple(f"{split}/{key}" for key in _DATASETS), path)
             group = handle[split]
-            if len(datasets) != len(_DATASETS) or not group.attrs.get("complete", False):
+            if len(datasets) < len(_DATASETS) - 1 or not group.attrs.get("complete", False):  # checksums: optional
                 return None
             if "checksum" not in group.attrs or group.attrs.get("failed") != json.dumps([]):
                 return None
             count = len(names)
-            if any(group[key].shape[0] != count for key in _DATASETS):
+            if any(dataset.shape[0] != count for dataset in datasets.values()):
                 return None
             if list(group["names"].asstr()[:]) != names or list(group["keys"].asstr()[:]) != keys:
                 return None
             stored = np.asarray(group["descriptors"][:])
             verify_split(path, group, split, count, stored)
-    except (OSError, ValueError, KeyError):  # unreadable, foreign, corrupted (ChecksumError), in use
+    except (OSError, RuntimeError, ValueError, KeyError):  # unreadable, cut short, foreign, corrupted, in use
         return None
     if _non_finite(_StoredRows(stored, count)).size:
         return None
@@ -467,6 +499,8 @@ class DescriptorCache:
                         verify_split(self.path, handle[split], split, _valid_length(handle[split]))
         except protocol.ChecksumError as error:
             return f"corrupted ({str(error).removeprefix(f'{self.path}: ')})"
+        except (OSError, RuntimeError) as error:  # a write cut short (disk full, file size limit): its links dangle
+            return f"truncated or damaged HDF5 file ({first_line(error)})"
         return None
 
     def close(self) -> None:
@@ -497,7 +531,16 @@ class DescriptorCache:
         if not count:
             return {}
         names = group["names"].asstr()[:count]
-        keys = group["keys"].asstr()[:count] if "keys" in group else [""] * count
+        keys = list(group["keys"].asstr()[:count]) if "keys" in group else [""] * count
+        if not group.attrs.get("complete", False):  # no whole-split checksum yet: each row proves itself
+            stored = group["checksums"].asstr()[:count] if "checksums" in group else [""] * count
+            found = row_checksums(names, _StoredRows(group["descriptors"], count), keys)
+            changed = [row for row, (old, new) in enumerate(zip(stored, found, strict=True)) if old != new]
+            if changed:
+                reason = f"{len(changed)} {split!r} row(s) do not match their checksum (first: {names[changed[0]]!r})"
+                protocol.stale_notice(self.path, reason, "recomputing them", stacklevel=4)
+                for row in changed:
+                    keys[row] = ""
         keys = blank_non_finite(self.path, group, split, names, keys)  # rows holding NaN are recomputed
         return dict(zip(names, keys, strict=True))
 
@@ -531,6 +574,8 @@ class DescriptorCache:
             stored[start:stop] = descriptors.astype(self.dtype)
             group["keys"].resize((stop,))
             group["keys"][start:stop] = np.asarray(list(keys), dtype=object)
+            group["checksums"].resize((stop,))
+            group["checksums"][start:stop] = np.asarray(row_checksums(names, stored[start:stop], keys), dtype=object)
             group["names"].resize((stop,))
             group["names"][start:stop] = np.asarray(list(names), dtype=object)
             self._handle.flush()
@@ -544,7 +589,7 @@ class DescriptorCache:
         group.create_dataset(
             "descriptors", shape=(0, dim), maxshape=(None, dim), dtype=self.dtype, chunks=(_CHUNK_ROWS, dim)
         )
-        for key in ("names", "keys"):
+        for key in ("names", "keys", "checksums"):
             group.create_dataset(
                 key, shape=(0,), maxshape=(None,), dtype=h5py.string_dtype("utf-8"), chunks=(_CHUNK_ROWS,)
             )
@@ -568,15 +613,11 @@ class DescriptorCache:
             with self._writing():
                 if names:
                     rows = np.array([index[name] for name in names], dtype=np.int64)
-                    descriptors = np.asarray(group["descriptors"][:count])[rows]
-                    keys = np.asarray(group["keys"].asstr()[:count], dtype=object)[rows]
-                    self._create(group, descriptors.shape[1])
-                    group["descriptors"].resize((len(names), descriptors.shape[1]))
-                    group["descriptors"][:] = descriptors
-                    group["keys"].resize((len(names),))
-                    group["keys"][:] = keys
-                    group["names"].resize((len(names),))
-                    group["names"][:] = np.asarray(list(names), dtype=object)
+                    kept = {key: _rows_of(group, key, count)[rows] for key in _DATASETS if key in group}
+                    self._create(group, kept["descriptors"].shape[1])
+                    for key, values in kept.items():
+                        group[key].resize((len(names), *values.shape[1:]))
+                        group[key][:] = values
                 else:
                     for key in _DATASETS:
                         if key in group:

@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty.descriptors.images import DEFAULT_MIN_SIDE, TORCH_EXTRA_HINT, Preprocessing, require_torch
+from vpr_uncertainty.identity import target_identity
 from vpr_uncertainty.plugins import Registry, load_target
 
 #: The model that needs no download: ImageNet EfficientNet-Lite0 from PyPI, GeM pooling, L2 normalisation.
@@ -105,20 +106,21 @@ class DescriptorModel:
         self.descriptor_dim = descriptor_dim
         self._identity = identity
         self.device: Any = "cpu"
+        self.code: str | None = None  # the code identity of a registered model's loader (set by ModelSpec.load)
 
     def __repr__(self) -> str:
         return f"DescriptorModel({self.name!r}, descriptor_dim={self.descriptor_dim}, weights_id={self.weights_id!r})"
 
     @property
     def fingerprint(self) -> dict[str, Any]:
-        """What determines the descriptors: model name, weights identity and preprocessing.
+        """What determines the descriptors: model name, weights identity, preprocessing and a registered model's code.
 
         For a model made from Python (:func:`from_callable` without ``weights_id``) the identity is computed
-        again each time (:func:`~vpr_uncertainty.descriptors.identity.callable_identity`), so a changed
+        again each time (:func:`~vpr_uncertainty.identity.callable_identity`), so a changed
         attribute, parameter or line of code is seen even after wrapping.
         """
         weights = self.weights_id if self._identity is None else self._identity()
-        return fingerprint_of(self.name, weights, self.preprocessing)
+        return fingerprint_of(self.name, weights, self.preprocessing, self.code)
 
     def to(self, device: Any) -> DescriptorModel:
         """Move the network to ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, a ``torch.device``); returns self."""
@@ -169,9 +171,11 @@ class DescriptorModel:
             return torch.nn.functional.normalize(output, p=2, dim=1)
 
 
-def fingerprint_of(name: str, weights_id: str, preprocessing: Preprocessing) -> dict[str, Any]:
-    """:attr:`DescriptorModel.fingerprint` of a model of this name, weights identity and preprocessing."""
-    return {"model": str(name), "weights": str(weights_id), "preprocessing": preprocessing.to_dict()}
+def fingerprint_of(name: str, weights_id: str, preprocessing: Preprocessing, code: str | None = None) -> dict[str, Any]:
+    """:attr:`DescriptorModel.fingerprint` of a model of this name, weights identity, preprocessing and loader code
+    (:func:`~vpr_uncertainty.identity.target_identity` of a registered model's loader)."""
+    found = {"model": str(name), "weights": str(weights_id), "preprocessing": preprocessing.to_dict()}
+    return {**found, "code": code} if code else found
 
 
 @dataclass(frozen=True)
@@ -205,7 +209,14 @@ class ModelSpec:
     def load(self, *, device: Any = "cpu", **options: Any) -> DescriptorModel:
         """Load the model on ``device``."""
         loader = load_target(self.loader, what=f"descriptor model {self.name!r}", extra=self.extra)
-        return loader(self, device=device, **options)
+        model = loader(self, device=device, **options)
+        model.code = self.code
+        return model
+
+    @property
+    def code(self) -> str:
+        """The code identity of the loader and of ``identify`` (:func:`~vpr_uncertainty.identity.target_identity`)."""
+        return "+".join(target_identity(hook) for hook in (self.loader, self.identify) if hook is not None)
 
 
 def _file_sha256(path: Path) -> str:
@@ -251,13 +262,13 @@ def from_callable(
     """A model from a Python callable or ``torch.nn.Module``.
 
     Without ``weights_id`` the model's identity is a digest of its code, parameters, buffers and plain
-    attributes (:func:`~vpr_uncertainty.descriptors.identity.callable_identity`), computed again whenever the cache
+    attributes (:func:`~vpr_uncertainty.identity.callable_identity`), computed again whenever the cache
     checks it; a model holding something that cannot be hashed is refused (UnfingerprintableModel) unless
     ``weights_id`` names it.
     """
     identity = None
     if weights_id is None:
-        from vpr_uncertainty.descriptors.identity import callable_identity
+        from vpr_uncertainty.identity import callable_identity
 
         weights_id = callable_identity(network)  # refuses an unfingerprintable model now, not at first use
         identity = functools.partial(callable_identity, network)
@@ -649,8 +660,8 @@ def get_model_spec(name: str) -> ModelSpec:
         raise KeyError(f"{error.args[0]}, or a TorchScript file ({', '.join(TORCHSCRIPT_SUFFIXES)})") from None
 
 
-def model_identity(model: Any = DEFAULT_MODEL, **options: Any) -> tuple[str, str, Preprocessing] | None:
-    """``(name, weights_id, preprocessing)`` of ``load_model(model, **options)``, found without loading it.
+def model_identity(model: Any = DEFAULT_MODEL, **options: Any) -> tuple[str, str, Preprocessing, str | None] | None:
+    """``(name, weights_id, preprocessing, code)`` of ``load_model(model, **options)``, found without loading it.
 
     Reading a cache needs only the model's :attr:`~DescriptorModel.fingerprint`; this gives it without importing
     torch, for a registered model whose spec can name its weights (:attr:`ModelSpec.identify`: the offline default,
@@ -670,11 +681,11 @@ def model_identity(model: Any = DEFAULT_MODEL, **options: Any) -> tuple[str, str
         if path.suffix.lower() in TORCHSCRIPT_SUFFIXES or (str(model) not in MODELS and path.is_file()):
             if options or not path.is_file():
                 return None
-            return path.stem, f"torchscript-sha256:{_file_sha256(path)}", Preprocessing()
+            return path.stem, f"torchscript-sha256:{_file_sha256(path)}", Preprocessing(), None
         spec = get_model_spec(str(model))
         if spec.identify is None:
             return None
-        return spec.name, spec.identify(spec, **options), spec.preprocessing
+        return spec.name, spec.identify(spec, **options), spec.preprocessing, spec.code
     except (KeyError, TypeError, ValueError, ImportError, OSError):
         return None  # loading the model reports it
 

@@ -30,6 +30,7 @@ from vpr_uncertainty.evaluation.metrics import (
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 from vpr_uncertainty.methods import (
+    OVERRIDES,
     DetailedUncertainty,
     OwnRetrievalUncertainty,
     UncertaintyMethod,
@@ -190,6 +191,9 @@ def evaluate(
     nonpositive = _nonpositive_note(retrieval.scores, entries)
     if nonpositive:
         evaluation.notes.append(nonpositive)
+    replaced = [f"{entry.name} is {OVERRIDES[entry.name]}'s" for entry in entries if entry.name in OVERRIDES]
+    if replaced:
+        evaluation.notes.append(f"{', '.join(replaced)} method, a plugin's in place of the built-in of that name")
     for entry in entries:
         inputs = entry.resolve_inputs(retrieval, {"k": k, "alpha": alpha, **options})  # files read once
         timings: dict[str, float] = {}

@@ -8,6 +8,8 @@ from vpr_uncertainty.methods import builtin, cascade  # noqa: F401
 from vpr_uncertainty.methods.entries import (
     METHODS,
     NEEDS,
+    OVERRIDES,
+    PATH_OPTIONS,
     STAGE_INPUTS,
     DetailedUncertainty,
     OwnRetrievalUncertainty,
@@ -27,6 +29,8 @@ from vpr_uncertainty.methods.entries import (
 __all__ = [
     "METHODS",
     "NEEDS",
+    "OVERRIDES",
+    "PATH_OPTIONS",
     "STAGE_INPUTS",
     "DetailedUncertainty",
     "OwnRetrievalUncertainty",

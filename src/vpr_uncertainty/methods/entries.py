@@ -20,13 +20,17 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty import cache
 from vpr_uncertainty import scores as _scores
+from vpr_uncertainty.identity import target_identity
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
     "METHODS",
     "NEEDS",
+    "OVERRIDES",
+    "PATH_OPTIONS",
     "STAGE_INPUTS",
     "DetailedUncertainty",
     "OwnRetrievalUncertainty",
@@ -143,6 +147,10 @@ NEEDS: dict[str, tuple[tuple[str, ...], str]] = {
 }
 
 
+#: Options that name a file (relative to a grid's config file when given there).
+PATH_OPTIONS: frozenset[str] = frozenset({"btl_head", "features_path", "gate"})
+
+
 #: Inputs a stage offers every selected method: used by the methods that take them, ignored by the others
 #: (``executor``: where the geometric verification methods verify their pairs, from the command's ``--executor``).
 STAGE_INPUTS: frozenset[str] = frozenset(
@@ -214,6 +222,19 @@ class UncertaintyMethod:
     def __post_init__(self) -> None:
         if self.scores not in SCORE_ASSUMPTIONS:
             raise ValueError(f"scores must be one of {SCORE_ASSUMPTIONS}, got {self.scores!r}")
+
+    def identity(self) -> dict[str, Any]:
+        """What this method's output depends on besides its inputs, for the fingerprints of the caches: its name,
+        the content of every file its bound options name, and the code of its function and hooks (a cascade's
+        two methods included), by :func:`~vpr_uncertainty.identity.target_identity`."""
+        hooks = [hook for hook in (self.target, self.resolve, self.validate) if hook is not None]
+        closure = [cell.cell_contents for cell in getattr(self.target, "__closure__", None) or ()]
+        return {
+            "name": self.name,
+            "files": cache.named_files_key(self.bound.values()),
+            "code": [target_identity(hook) for hook in hooks]
+            + [part.identity() for part in closure if isinstance(part, UncertaintyMethod)],
+        }
 
     def unsuited_to(self, retrieval: Retrieval) -> str | None:
         """Why the retrieval's scores do not fit what this method assumes (:attr:`scores`), or None when they do."""
@@ -354,6 +375,8 @@ class _MethodRegistry(Registry[UncertaintyMethod]):
 
 #: The registered uncertainty methods.
 METHODS: Registry[UncertaintyMethod] = _MethodRegistry("uncertainty method", label="available")
+#: Built-in names a user's method replaced (``register_method(..., overwrite=True)``), with the module replacing them.
+OVERRIDES: dict[str, str] = {}
 
 
 def check_options(methods: Sequence[UncertaintyMethod], options: Collection[str]) -> None:
@@ -412,6 +435,10 @@ def register_method(
     """
     if name in METHODS and not overwrite:
         raise ValueError(f"an uncertainty method named {name!r} is already registered")
+    if name in METHODS and _is_builtin(METHODS.get(name).target) and not _is_builtin(target):
+        OVERRIDES[name] = f"{getattr(target, '__module__', target)}"
+    elif _is_builtin(target):
+        OVERRIDES.pop(name, None)
     if not name or any(character in name for character in ":,=+"):
         raise ValueError(f"a method name must be non-empty and hold no ':', ',', '=' or '+', got {name!r}")
     entry = UncertaintyMethod(
@@ -429,6 +456,11 @@ def register_method(
         scores=scores,
     )
     return METHODS.register(entry, overwrite=overwrite)
+
+
+def _is_builtin(target: Any) -> bool:
+    module = target.partition(":")[0] if isinstance(target, str) else getattr(target, "__module__", "")
+    return str(module).split(".")[0] == "vpr_uncertainty"
 
 
 def parse_method_spec(spec: str) -> tuple[str, dict[str, Any]]:

@@ -7,8 +7,10 @@ was computed from, so a rerun computes exactly the images that are new or change
 from __future__ import annotations
 
 import argparse
+import contextlib
+import shutil
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -16,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.descriptors import DEFAULT_MODEL
 from vpr_uncertainty.pipeline.options import (
@@ -148,9 +151,9 @@ def fingerprint_of(conf: ExtractConf) -> dict[str, Any] | None:
     identity = model_identity(conf.model)
     if identity is None:
         return None
-    name, weights_id, preprocessing = identity
+    name, weights_id, preprocessing, code = identity
     changes = _preprocessing_changes(conf)
-    return model_fingerprint(name, weights_id, preprocessing.replace(**changes) if changes else preprocessing)
+    return model_fingerprint(name, weights_id, preprocessing.replace(**changes) if changes else preprocessing, code)
 
 
 def cached(
@@ -218,30 +221,41 @@ def compute(
     model = model_of(conf) if model is None else model
     path = Path(path)
     result = Descriptors(path=path, model_name=model.name, names={}, descriptors={})
-    for split in SPLITS:
-        if split not in images:
-            continue
-        paths, names = images[split]
-        failed: list[dict[str, str]] = []
-        result.names[split], result.descriptors[split] = extract_descriptors(
-            model,
-            paths,
-            names,
-            path,
-            split,
-            batch_size=conf.batch_size,
-            device=conf.device,
-            half=conf.half,
-            on_error=conf.on_error,
-            workers=conf.workers,
-            overwrite=conf.overwrite and split == next(s for s in SPLITS if s in images),
-            progress=conf.progress,
-            failed=failed,
-            executor=executor,
-            model_factory=factory,
-        )
-        result.failed[split] = failed
+    with _whole_file_kept(path) as working:
+        for split in (split for split in SPLITS if split in images):
+            result.failed[split] = []
+            result.names[split], result.descriptors[split] = extract_descriptors(
+                model,
+                *images[split],
+                working,
+                split,
+                batch_size=conf.batch_size,
+                device=conf.device,
+                half=conf.half,
+                on_error=conf.on_error,
+                workers=conf.workers,
+                overwrite=conf.overwrite and split == next(s for s in SPLITS if s in images),
+                progress=conf.progress,
+                failed=result.failed[split],
+                executor=executor,
+                model_factory=factory,
+            )
     return result
+
+
+@contextlib.contextmanager
+def _whole_file_kept(path: Path) -> Iterator[Path]:
+    """``path``, or when it holds a whole descriptor file (every split complete), a copy of it that replaces it once
+    every split is written: a failed update or rebuild (disk full, a file size limit, an error) leaves it as it was.
+    A file still being extracted is resumed in place, so that an interrupted first extraction keeps its rows."""
+    from vpr_uncertainty.descriptors.cache import is_whole
+
+    if not path.is_file() or not is_whole(path):
+        yield path
+        return
+    with cache.atomic_path(path) as temporary:
+        shutil.copyfile(path, temporary)
+        yield temporary
 
 
 def main(conf: ExtractConf, dataset: str | Path, out: str | Path, *, executor: Any = None) -> Path:

@@ -197,11 +197,28 @@ def evaluate_conf(config: GridConfig) -> EvaluateConf:
     )
 
 
+def _run_conf(entry: InputEntry, config: GridConfig) -> Any:
+    """The :class:`~vpr_uncertainty.pipeline.run.RunConf` of a cell computed from images."""
+    from vpr_uncertainty.pipeline.extract import ExtractConf
+    from vpr_uncertainty.pipeline.retrieve import RetrieveConf
+    from vpr_uncertainty.pipeline.run import RunConf
+
+    options = dict(entry.run_options)
+    extract_options = {key: options.pop(key) for key in ("device", "batch_size") if key in options}
+    retrieve_options = {key: options.pop(key) for key in ("index",) if key in options}
+    return RunConf(
+        extract=ExtractConf(model=entry.model, **extract_options),
+        retrieve=RetrieveConf(top_k=candidates_needed(config), **retrieve_options),
+        evaluate=evaluate_conf(config),
+        **options,
+    )
+
+
 def _load_cell_input(
     entry: InputEntry, config: GridConfig, out: Path, dataset: Any = None, seconds: dict | None = None
-) -> tuple[Any, Evaluation | None, Any]:
-    """The cell's Retrieval, the pipeline's Evaluation when it ran one, and its image dataset (or None); the
-    pipeline's stage times are added to ``seconds`` (as ``pipeline_<stage>``)."""
+) -> tuple[Any, Evaluation | None]:
+    """The cell's Retrieval and the pipeline's Evaluation when it ran one; the pipeline's stage times are added to
+    ``seconds`` (as ``pipeline_<stage>``)."""
     if entry.model is None:
         from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
 
@@ -211,24 +228,13 @@ def _load_cell_input(
             file_format=entry.file_format,
             top_k=max(DEFAULT_TOP_K, candidates_needed(config)),
         )
-        return retrieval, None, None
-    from vpr_uncertainty.pipeline.extract import ExtractConf
-    from vpr_uncertainty.pipeline.retrieve import RetrieveConf
-    from vpr_uncertainty.pipeline.run import RunConf, run
+        return retrieval, None
+    from vpr_uncertainty.pipeline.run import run
 
-    options = dict(entry.run_options)
-    extract_options = {key: options.pop(key) for key in ("device", "batch_size") if key in options}
-    retrieve_options = {key: options.pop(key) for key in ("index",) if key in options}
-    conf = RunConf(
-        extract=ExtractConf(model=entry.model, **extract_options),
-        retrieve=RetrieveConf(top_k=candidates_needed(config), **retrieve_options),
-        evaluate=evaluate_conf(config),
-        **options,
-    )
-    result = run(conf, dataset if dataset is not None else entry.dataset_source, out / "runs" / entry.key)
+    result = run(_run_conf(entry, config), dataset, out / "runs" / entry.key)
     if seconds is not None:
         seconds.update({f"pipeline_{stage}": value for stage, value in result.stage_seconds.items()})
-    return result.retrieval, result.evaluation, dataset if dataset is not None else result.dataset
+    return result.retrieval, result.evaluation
 
 
 def positive_hits(retrieval: Any, n: int) -> np.ndarray:
@@ -240,9 +246,11 @@ def positive_hits(retrieval: Any, n: int) -> np.ndarray:
 
 
 def _image_dataset(entry: InputEntry) -> Any:
-    """The image dataset of a cell computed from images (None for a results file)."""
+    """The image dataset of a cell: its ``images`` folder, or the dataset a model runs on (None: no images)."""
     if entry.model is None:
-        return None
+        from vpr_uncertainty.data import load_vprbench_dataset
+
+        return None if entry.images is None else load_vprbench_dataset(entry.images)
     from vpr_uncertainty.data import load_dataset
 
     options = entry.run_options
@@ -250,32 +258,50 @@ def _image_dataset(entry: InputEntry) -> Any:
 
 
 def _images_key(dataset: Any) -> str | None:
-    """The content of a dataset's images and ground truth, for the fingerprint of a cell computed from images."""
+    """The names and content of a dataset's images, in order, and its ground truth."""
     if dataset is None or not dataset.has_images:
         return None
     from vpr_uncertainty.pipeline.retrieve import ground_truth_key
 
     keys = {
-        split: [cache.content_key(path) if Path(path).is_file() else "missing" for path in paths]
+        split: [[str(path), cache.content_key(path)] for path in paths]
         for split, paths in (("queries", dataset.query_paths), ("database", dataset.database_paths))
     }
     return cache.fingerprint("images", {}, {**keys, "ground_truth": ground_truth_key(dataset.retrieval_fields())})
 
 
+def _method_names(config: GridConfig) -> list[str]:
+    """Every method a cell runs: those of the evaluation and the held-out splits, and the ablations' RS, SD, SU."""
+    return list(dict.fromkeys([*evaluate_conf(config).methods, *config.methods, "RS", "SD", "SU"]))
+
+
 def _option_files(methods: list[str]) -> dict[str, str]:
     """The content key of every file the methods' options name (``CAL:gate=gate.json``), by resolved path."""
-    from vpr_uncertainty.methods import get_method
-
-    return cache.named_files_key(value for name in methods for value in get_method(name).bound.values())
+    return {path: key for name in methods for path, key in get_method(name).identity()["files"].items()}
 
 
-def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None) -> str:
-    settings = {**config.settings(), "candidates": candidates_needed(config)}
-    inputs = {"input": entry.fingerprint(), "images": _images_key(dataset)}
-    option_files = _option_files(config.methods)
-    if option_files:  # only then: the fingerprints of grids whose options name no file are unchanged
-        inputs["option_files"] = option_files
-    return cache.fingerprint(STAGE, settings, inputs)
+def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None) -> str | None:
+    """The one key of a cell: the grid's settings, the content of its inputs (files, images by name and content),
+    its model's identity, and the code of every method and of the toolkit and plugins that compute it; None when
+    the model can be identified only by loading it (the cell is recomputed, its run's stage caches still apply)."""
+    from vpr_uncertainty.identity import code_identity
+    from vpr_uncertainty.plugins import registered_code
+
+    model = None
+    if entry.model is not None:
+        from vpr_uncertainty.pipeline.extract import fingerprint_of
+
+        model = fingerprint_of(_run_conf(entry, config).extract)
+        if model is None:
+            return None
+    inputs = {
+        "input": entry.fingerprint(),
+        "images": _images_key(dataset),
+        "model": model,
+        "methods": [get_method(name).identity() for name in _method_names(config)],
+        "code": {"toolkit": code_identity(__name__), **registered_code()},
+    }
+    return cache.fingerprint(STAGE, {**config.settings(), "candidates": candidates_needed(config)}, inputs)
 
 
 def save_cell(
@@ -405,20 +431,16 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False, veri
     dataset = _image_dataset(entry)
     fingerprint = _cell_fingerprint(entry, config, dataset)
     large = _partly_hashed(entry, config)
-    if not force:
+    if not force and fingerprint is not None:
         cached = load_cell(json_path, npz_path, fingerprint, large if verify else ())
         if cached is not None:
             return cached
     input_digests = {str(path.resolve()): cache.file_digest(path) for path in large}
     seconds: dict[str, float] = {}
     start = time.perf_counter()
-    retrieval, evaluation, dataset = _load_cell_input(entry, config, out, dataset, seconds)
+    retrieval, evaluation = _load_cell_input(entry, config, out, dataset, seconds)
     seconds["input"] = time.perf_counter() - start
     query_paths = database_paths = None
-    if dataset is None and entry.images is not None:
-        from vpr_uncertainty.data import load_vprbench_dataset
-
-        dataset = load_vprbench_dataset(entry.images)
     if dataset is not None and dataset.has_images:
         query_paths = [str(p) for p in dataset.query_paths]
         database_paths = [str(p) for p in dataset.database_paths]
@@ -455,7 +477,8 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False, veri
         else held_out_evaluation(retrieval, config, cache_dir=out / "local_features", **options),
         stage_seconds=seconds,
     )
-    save_cell(cell, json_path, npz_path, fingerprint, input_digests)
+    if fingerprint is not None:
+        save_cell(cell, json_path, npz_path, fingerprint, input_digests)
     return cell
 
 

@@ -17,7 +17,14 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty.cache import slug
-from vpr_uncertainty.methods import STAGE_INPUTS, default_method_names, describe_needs, get_method, split_method_list
+from vpr_uncertainty.methods import (
+    PATH_OPTIONS,
+    STAGE_INPUTS,
+    default_method_names,
+    describe_needs,
+    get_method,
+    split_method_list,
+)
 from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
 from vpr_uncertainty.scores import check_alpha
 
@@ -439,8 +446,21 @@ def _numbers(data: dict, key: str, default: Any, kind: type, problems: list[str]
     return [kind(v) for v in values]
 
 
-def _methods(data: dict, problems: list[str]) -> list[str]:
-    """The method specs of ``methods`` (a list, or one comma-separated string), each checked."""
+def _config_relative(spec: str, base: Path) -> str:
+    """``spec`` with each option that names a file (:data:`~vpr_uncertainty.methods.PATH_OPTIONS`, or a value that
+    is a file beside the config) resolved against the config's folder ``base``: ``CAL:gate=gate.json``."""
+    name, colon, rest = spec.partition(":")
+    items = []
+    for item in rest.split(",") if colon else ():
+        key, equals, value = (part.strip() for part in item.partition("="))
+        path = base / Path(value).expanduser() if equals and value else None
+        items.append(f"{key}={path}" if path and (key in PATH_OPTIONS or path.is_file()) else item.strip())
+    return f"{name}:{','.join(items)}" if colon else spec
+
+
+def _methods(data: dict, problems: list[str], base: Path = Path()) -> list[str]:
+    """The method specs of ``methods`` (a list, or one comma-separated string), each checked, with the files
+    their options name resolved against the config's folder ``base``."""
     raw = data.get("methods") or default_method_names()
     try:
         specs = split_method_list(raw) if isinstance(raw, str) else raw
@@ -455,7 +475,7 @@ def _methods(data: dict, problems: list[str]) -> list[str]:
     names = []
     for spec in specs:
         try:
-            names.append(get_method(spec).name)
+            names.append(get_method(_config_relative(spec, base)).name)
         except (KeyError, ValueError, TypeError, ImportError) as error:
             problems.append(str(error.args[0]) if error.args else str(error))
     problems += [
@@ -531,7 +551,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
     problems += [
         f"unknown top-level key {key!r} (expected {sorted(_TOP_KEYS)})" for key in data if key not in _TOP_KEYS
     ]
-    methods = _methods(data, problems)
+    methods = _methods(data, problems, base)
     k = data.get("k", 10)
     alpha = data.get("alpha", 0.5)
     alphas = _numbers(data, "alphas", DEFAULT_ALPHAS, float, problems)

@@ -21,6 +21,7 @@ import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation
 from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders, percentile_interval
+from vpr_uncertainty.methods import OVERRIDES
 from vpr_uncertainty.reports.latex import LATEX_PACKAGES, latex_escape, latex_float
 
 __all__ = [
@@ -392,6 +393,9 @@ def table1_markdown(table: Table1) -> str:
     lines += ["", marks_note(table)]
     if _any_uninformative(table):
         lines += ["", _FOOTNOTE]
+    replaced = [f"{name} is {OVERRIDES[name]}'s method" for name in table.rows if name in OVERRIDES]
+    if replaced:
+        lines += ["", f"{'; '.join(replaced)}: a plugin's, in place of the built-in method of that name."]
     return "\n".join(lines) + "\n"
 
 
