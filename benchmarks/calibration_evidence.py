@@ -96,7 +96,7 @@ def loop_closure(retrievals: dict) -> None:
         gate = calibrate(retrieval.subset_queries(first), target_precision=0.9, delta=0.1)
         other = retrieval.subset_queries(second)
         correct = correct_at_n(other.indices, other.positives, 1)
-        accepted = gate.accept(other.scores)
+        accepted = gate.accept(other.scores[:, : gate.k])
         precision = correct[accepted].mean() if accepted.any() else float("nan")
         recall = (correct & accepted).sum() / correct.size
         su = statistical_uncertainty(other.scores, 10)

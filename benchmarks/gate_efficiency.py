@@ -187,7 +187,8 @@ def _toolkit(population: Population, rows: np.ndarray, draw: int, settings: Sett
         **extra,
     )
     ranking = (gate.info.get("certificate") or {}).get("ranking")
-    return np.asarray(gate.accept(population.scores), dtype=bool), None if ranking is None else str(ranking)
+    accepted = np.asarray(gate.accept(population.scores[:, : gate.k]), dtype=bool)
+    return accepted, None if ranking is None else str(ranking)
 
 
 def toolkit_default(population: Population, rows: np.ndarray, draw: int, settings: Settings) -> Outcome:

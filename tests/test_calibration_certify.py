@@ -54,7 +54,7 @@ def test_a_training_free_ranking_is_tested_on_every_label(corridor, method):
     assert certificate["n_test"] == 111 and gate.info["rankings"] == ["SU"]
     assert (certificate["accepted"], certificate["correct_accepted"]) == expected
     # the gate applies the certified rule itself
-    accepted = gate.accept(retrieval.scores)
+    accepted = gate.accept(retrieval.scores[:, : gate.k])
     assert accepted.sum() == expected[0] and (accepted & correct).sum() == expected[1]
     assert gate.precision_lower_bound >= 0.9
 
@@ -76,7 +76,7 @@ def test_rankings_share_delta_and_the_winner_is_reported(corridor):
 def test_cuts_come_from_unlabelled_scores_and_never_from_labels(corridor):
     retrieval, correct = corridor("HybridNet")
     labelled, pool = np.arange(0, 111, 2), np.arange(1, 111, 2)
-    scores = retrieval.scores
+    scores = retrieval.scores[:, :10]
     gate = calibrate_arrays(scores[labelled], correct[labelled], target_precision=0.8, unlabelled=scores[pool])
     certificate = gate.info["certificate"]
     assert certificate["certified"] and gate.info["calibration"]["n_unlabelled"] == pool.size
@@ -100,7 +100,7 @@ def test_cal_chooses_the_fixed_score_that_works(corridor):
     scores = gate.info["selection"]["average_precision"]
     assert scores["BM"] == max(scores.values()) and {"SU", "margin", "PA", "CAL"} <= set(scores)
     # the P of a fixed score is increasing in its confidence (Platt scaling)
-    p = gate.probability_correct(retrieval.scores)
+    p = gate.probability_correct(retrieval.scores[:, : gate.k])
     order = np.argsort(retrieval.scores[:, 0])
     assert (np.diff(p[order]) >= -1e-12).all()
 
@@ -161,12 +161,13 @@ def _outcome(call):
         [0.52, 0.40, 0.39, 0.38, 0.37, 0.36, 0.36, 0.35, 0.35, 0.34],
         [1e308, 1e307, *[1e306] * 8],
         [1e308] * 10,
-        [1e308, -1e308],
-        [-1e308] * 3,
-        ["0.5", "0.4"],
-        [0.5, None],
-        [0.4, 0.5],
-        [float("nan"), 0.1],
+        [1e308, *[-1e308] * 9],
+        [-1e308] * 10,
+        ["0.5"] * 10,
+        [0.5] * 9 + [None],
+        [0.4] * 9 + [0.5],
+        [float("nan")] + [0.1] * 9,
+        [0.5, 0.4, 0.3],  # a row of 3 on a gate of k = 10: refused by every path
     ],
 )
 @pytest.mark.parametrize("kind", ["certified", "model", "isotonic"])
@@ -220,7 +221,7 @@ def test_readme_loop_closure_example(corridor):
         scores = retrieval.scores
         for target in (0.9, 0.8):
             gate = calibrate_arrays(scores[:56], correct[:56], target_precision=target, unlabelled=scores[56:])
-            accepted = gate.accept(scores[56:])
+            accepted = gate.accept(scores[56:, : gate.k])
             found[method, target] = (int(accepted.sum()), int((accepted & correct[56:]).sum()))
     assert found["AMOSNet", 0.9] == found["HybridNet", 0.9] == found["AlexNet_VPR", 0.9] == (0, 0)
     assert found["AMOSNet", 0.8] == (39, 38) and found["HybridNet", 0.8] == (51, 48)

@@ -29,18 +29,19 @@ def _corridor(method, corridor_dir, corridor_matches_dir):
 def test_one_query_path_agrees_with_batch(method, model, target, corridor_dir, corridor_matches_dir, tmp_path):
     retrieval = _corridor(method, corridor_dir, corridor_matches_dir)
     gate = calibrate(retrieval, target_precision=target, model=model)
-    accepted = gate.accept(retrieval.scores)
-    assert accepted.tolist() == [gate(row) for row in retrieval.scores]
-    assert accepted.tolist() == [gate(row.tolist()) for row in retrieval.scores]
-    assert accepted.tolist() == [gate(row[None, :]) for row in retrieval.scores]
-    probability = gate.probability_correct(retrieval.scores)
+    scores = retrieval.scores[:, : gate.k]  # the gate decides rows of its k scores
+    accepted = gate.accept(scores)
+    assert accepted.tolist() == [gate(row) for row in scores]
+    assert accepted.tolist() == [gate(row.tolist()) for row in scores]
+    assert accepted.tolist() == [gate(row[None, :]) for row in scores]
+    probability = gate.probability_correct(scores)
     assert ((probability >= 0) & (probability <= 1)).all()
     if gate.cut != np.inf and model == "logistic":
         assert (accepted == (probability >= gate.threshold)).all()
     loaded = Gate.load(gate.save(tmp_path / "gate.json"))
-    assert loaded.accept(retrieval.scores).tolist() == accepted.tolist()
-    assert_close(loaded.probability_correct(retrieval.scores), probability, rtol=1e-12)
-    assert_close([loaded.probability_one(row) for row in retrieval.scores[:5]], probability[:5], rtol=1e-9)
+    assert loaded.accept(scores).tolist() == accepted.tolist()
+    assert_close(loaded.probability_correct(scores), probability, rtol=1e-12)
+    assert_close([loaded.probability_one(row) for row in scores[:5]], probability[:5], rtol=1e-9)
 
 
 @pytest.mark.filterwarnings("ignore:reading the legacy")
@@ -75,7 +76,13 @@ def test_too_few_queries_certify_nothing_and_say_how_many_are_needed():
 
 
 @pytest.mark.parametrize(
-    ("row", "message"), [(np.zeros((2, 3)), r"shape \(K,\) or \(1, K\)"), ([0.1, 0.5], "sorted"), ([0.5], "at least 2")]
+    ("row", "message"),
+    [
+        (np.zeros((2, 3)), r"shape \(K,\) or \(1, K\)"),
+        ([0.1, 0.5, *[0.0] * 8], "sorted"),
+        ([0.5, *[-np.inf] * 9], "at least 2"),
+        ([0.5, 0.1], "calibrated at k=10"),
+    ],
 )
 def test_one_query_errors(row, message):
     gate = Gate(Calibrator("logistic", ("s1", "SU"), [0.5, 0.9], [0.1, 0.1], [1.0, -1.0], 0.0), 10, 0.0)
@@ -88,7 +95,9 @@ def test_one_query_errors(row, message):
     [
         ("{", "not a JSON gate file"),
         ('{"format": "other"}', "not a gate file"),
-        ('{"format": "vpr-uncertainty gate", "format_version": 1, "k": 1}', "k must be an integer >= 2"),
+        ('{"format": "vpr-uncertainty gate", "format_version": 1, "k": 1}', "format_version 1 "),
+        ('{"format": "vpr-uncertainty gate", "format_version": 2, "k": 10}', "no digest"),
+        ('{"format": "vpr-uncertainty gate", "format_version": 2, "k": 1, "digest": {}}', "k must be >= 2"),
     ],
 )
 def test_load_errors_name_the_file(content, message, tmp_path):
@@ -109,6 +118,6 @@ def test_cal_method_needs_a_gate_and_uses_it(corridor_dir, corridor_matches_dir,
     path = gate.save(tmp_path / "gate.json")
     evaluation = evaluate(retrieval, ["SU", f"CAL:gate={path}"])
     cal = evaluation.methods[f"CAL:gate={path}"]
-    assert_close(cal.uncertainty, 1 - gate.probability_correct(retrieval.scores), rtol=1e-12)
+    assert_close(cal.uncertainty, 1 - gate.probability_correct(retrieval.scores[:, : gate.k]), rtol=1e-12)
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     assert correct.shape == cal.uncertainty.shape

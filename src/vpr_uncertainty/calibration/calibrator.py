@@ -148,6 +148,8 @@ class Calibrator:
     @classmethod
     def from_dict(cls, data: dict[str, Any], *, where: str = "calibrator") -> Calibrator:
         """The inverse of :meth:`to_dict`; a ValueError names the missing or malformed field."""
+        if not isinstance(data, dict):
+            raise ValueError(f"{where} must be an object of fields, got {data!r}")
         model = data.get("model")
         check_model(model, where=where)
         features = data.get("features")
@@ -170,7 +172,7 @@ class Calibrator:
             if (
                 not isinstance(value, list)
                 or not value
-                or not all(isinstance(v, (int, float)) and np.isfinite(v) for v in value)
+                or not all(_is_number(v) for v in value)
                 or (size is not None and len(value) != size)
             ):
                 expected = f"{size} finite numbers" if size else "a non-empty list of finite numbers"
@@ -178,23 +180,33 @@ class Calibrator:
             arrays[key] = [float(v) for v in value]
         if model == "logistic":
             intercept = data.get("intercept")
-            if not isinstance(intercept, (int, float)) or not np.isfinite(intercept):
+            if not _is_number(intercept):
                 raise ValueError(f"{where}: intercept must be a finite number, got {intercept!r}")
             if any(s <= 0 for s in arrays["scale"]):
                 raise ValueError(f"{where}: scale must be positive, got {arrays['scale']}")
+            regularisation = data.get("regularisation", 1.0)
+            if not (_is_number(regularisation) and regularisation > 0):
+                raise ValueError(f"{where}: regularisation must be a number > 0 (C), got {regularisation!r}")
             return cls(
                 model=model,
                 features=tuple(features),
                 intercept=float(intercept),
-                regularisation=float(data.get("regularisation", 1.0)),
+                regularisation=float(regularisation),
                 ranking=ranking,
                 **arrays,
             )
         if len(arrays["x"]) != len(arrays["y"]) or np.any(np.diff(arrays["x"]) < 0):
             raise ValueError(f"{where}: x must be non-decreasing and as long as y")
+        if np.any(np.diff(arrays["y"]) < 0) or not 0 <= min(arrays["y"]) <= max(arrays["y"]) <= 1:
+            raise ValueError(f"{where}: y must be non-decreasing probabilities in [0, 1], got {arrays['y']}")
         if features != ["SU"]:
             raise ValueError(f"{where}: the isotonic model reads the feature SU only, got {features}")
         return cls(model=model, features=("SU",), ranking=ranking, **arrays)
+
+
+def _is_number(value: object) -> bool:
+    """A finite int or float (not a bool): a number of a calibrator file."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _check_training(features: np.ndarray, correct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

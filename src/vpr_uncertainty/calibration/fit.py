@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty._validation import check_count
+from vpr_uncertainty._validation import check_count, check_k
 from vpr_uncertainty.calibration.calibrator import (
     DEFAULT_FEATURES,
     FOLDS,
@@ -94,15 +94,14 @@ def calibrate_arrays(
     if scores.ndim != 2 or correct.shape != (scores.shape[0],):
         raise ValueError(f"scores (Q, K) and correct (Q,) must match, got {scores.shape} and {correct.shape}")
     check_both_outcomes(correct)
+    k = min(check_k(k), scores.shape[1])  # the gate reads (and refuses rows other than) what the features read
     check_count(folds, "folds", 2)
     check_model(model)
     answerable = np.ones(correct.size, bool) if answerable is None else np.asarray(answerable, dtype=bool)
     if unlabelled is not None:
         unlabelled = np.asarray(unlabelled)
-        if unlabelled.ndim != 2 or unlabelled.shape[1] < min(k, scores.shape[1]):
-            raise ValueError(
-                f"unlabelled must be top-k scores of shape (U, >= {min(k, scores.shape[1])}), got {unlabelled.shape}"
-            )
+        if unlabelled.ndim != 2 or unlabelled.shape[1] < k:
+            raise ValueError(f"unlabelled must be top-k scores of shape (U, >= {k}), got {unlabelled.shape}")
     pool_scores = scores
     if unlabelled is not None and unlabelled.size:
         width = min(scores.shape[1], unlabelled.shape[1])
@@ -123,6 +122,7 @@ def calibrate_arrays(
             "n_correct": int(correct.sum()),
             "n_unlabelled": 0 if unlabelled is None else int(unlabelled.shape[0]),
             "fingerprint": fingerprint(scores[:, :k], correct),
+            "min_candidates": int(np.isfinite(pool_scores[:, :k]).sum(axis=1).min()),
             "seed": seed,
             "folds": folds,
         },
@@ -449,7 +449,7 @@ def plan_labels(
             )
             if gate.precision_lower_bound is None:
                 continue
-            recall = float(probability[gate.accept(scores)].sum() / scores.shape[0])
+            recall = float(probability[gate.accept(scores[:, : gate.k])].sum() / scores.shape[0])
             hits += 1
             recall_sum += recall
             good += recall >= useful_fraction * oracle
@@ -570,7 +570,7 @@ def simulate_guarantee(
             rankings=rankings,
             unlabelled=scores if unlabelled else None,
         )
-        accepted = gate.accept(scores)
+        accepted = gate.accept(scores[:, : gate.k])
         n_accepted = int(accepted.sum())
         good = int((accepted & correct).sum())
         precision[draw] = good / n_accepted if n_accepted else np.nan

@@ -7,11 +7,14 @@ folded into a few precomputed numbers: a couple of microseconds, like :class:`~v
 
 The JSON file holds numbers only (no pickle): the calibrator (features, scaling, coefficients), k, the cut and the
 threshold, the certificate, the toolkit version, the calibration set's size and a fingerprint of its scores and
-labels.
+labels; and a ``digest``, SHA-256 of each field (``cut``, ``calibrator.coef``, …), by which :meth:`Gate.load`
+refuses and names a field edited or written twice (against edits, not forgery). The gate refuses a row unlike its
+calibration rows: other than k scores, or fewer of them finite (not ``-inf``) than any calibration row held.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -21,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty._validation import check_k
+from vpr_uncertainty._validation import check_k, check_top_k_scores
 from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.calibration.calibrator import (
     FEATURES,
@@ -36,7 +39,8 @@ __all__ = ["FORMAT", "Gate"]
 
 #: The ``format`` field of a gate file.
 FORMAT = "vpr-uncertainty gate"
-_FORMAT_VERSION = 1
+_FORMAT_VERSION = 2  # 2: the digest
+_FIX = "; write the gate again with `vpr-uncertainty calibrate`"
 
 
 class Gate:
@@ -53,7 +57,8 @@ class Gate:
     info : dict, optional
         What :func:`~vpr_uncertainty.calibrate` recorded: ``target_precision``, ``delta``,
         ``precision_lower_bound``, ``expected_recall``, ``expected_coverage``, ``certificate``, ``calibration``
-        (size, fingerprint, seed) and ``toolkit_version``.
+        (size, fingerprint, seed, ``min_candidates``: the fewest finite scores of a calibration row, default k)
+        and ``toolkit_version``.
 
     Attributes
     ----------
@@ -69,6 +74,7 @@ class Gate:
         "_bias",
         "_cut",
         "_k",
+        "_least",
         "_w_aliasing",
         "_w_best",
         "_w_median",
@@ -93,6 +99,10 @@ class Gate:
             raise ValueError("cut must be a number or inf, got nan")
         self.cut = cut
         self.info = dict(info or {})
+        least = (self.info.get("calibration") or {}).get("min_candidates", self.k)
+        if isinstance(least, bool) or not isinstance(least, int) or not 2 <= least <= self.k:
+            raise ValueError(f"calibration.min_candidates must be an integer in [2, k={self.k}], got {least!r}")
+        self._least = least
         self._prepare()
 
     # --- the one-query fast path --------------------------------------------------------------------------------
@@ -122,13 +132,18 @@ class Gate:
     def __call__(self, scores: Sequence[float] | np.ndarray) -> bool:
         """Accept one query? ``scores``: its top-K similarities, sorted descending (a list, a (K,) or (1, K) array).
 
-        A malformed row (not numbers, NaN or ±inf at the top, unsorted, overflowing, another shape) raises, as
-        :meth:`accept` does: a robot that catches the error rejects the query.
+        A malformed row (not numbers, NaN or ±inf at the top, unsorted, overflowing, another shape, other than k
+        scores, fewer finite ones than the calibration rows held) raises, as :meth:`accept` does: a robot that
+        catches the error rejects the query.
         """
         return self._confidence_of(one_row(scores, shapes="(K,) or (1, K)")) >= self._cut
 
     def _confidence_of(self, values: list[float]) -> float:
-        best, second, runners, median, last, _ = row_statistics(values, self._k)
+        if len(values) != self._k:
+            self._refuse(f"a row of {len(values)} scores")
+        best, second, runners, median, last, n = row_statistics(values, self._k)
+        if n < self._least:
+            self._refuse(f"a row of {n} finite scores", finite=True)
         if best > 0:
             ratios = (self._w_ratio * second + self._w_runners * runners + self._w_median * median) / best
         else:
@@ -161,10 +176,23 @@ class Gate:
         confidence = self._confidence_of(one_row(scores, shapes="(K,) or (1, K)"))
         return float(self.calibrator.probability_from_confidence(np.array([confidence]))[0])
 
+    def _refuse(self, got: str, *, finite: bool = False) -> None:
+        """Raise: the gate's guarantee covers the top k scores, at least ``min_candidates`` of them finite."""
+        k = self._k
+        need = f"rows of at least {self._least} finite scores" if finite else f"each query's top {k} scores"
+        hint = " (as calibrated)" if finite else f" (scores[:, :{k}] of a longer retrieval)"
+        raise ValueError(f"the gate was calibrated at k={k}: its guarantee covers {need}{hint}, got {got}")
+
     # --- many queries -------------------------------------------------------------------------------------------
 
     def confidence(self, scores: object) -> np.ndarray:
-        """The calibrator's confidence of shape (Q,) (higher = more likely correct)."""
+        """The calibrator's confidence of shape (Q,) (higher = more likely correct), from scores of shape (Q, k)."""
+        scores = check_top_k_scores(scores)
+        if scores.shape[1] != self.k:
+            self._refuse(f"scores of shape {scores.shape}")
+        short = np.flatnonzero(np.isfinite(scores).sum(axis=1) < self._least)
+        if short.size:
+            self._refuse(f"fewer in {short.size} scores rows ({short[:10].tolist()} first)", finite=True)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked below
             features = feature_matrix(scores, k=self.k, features=self.calibrator.features)
             confidence = self.calibrator.confidence(features)
@@ -211,33 +239,48 @@ class Gate:
     # --- JSON -----------------------------------------------------------------------------------------------------
 
     def to_dict(self) -> dict[str, Any]:
-        """The gate as JSON types (the content of :meth:`save`)."""
-        return {
+        """The gate as JSON types (the content of :meth:`save`), with its ``digest``."""
+        data = {
             "format": FORMAT,
             "format_version": _FORMAT_VERSION,
             "k": self.k,
             "cut": None if math.isinf(self.cut) else self.cut,
             "threshold": self.threshold,
             "calibrator": self.calibrator.to_dict(),
-            **{key: value for key, value in self.info.items() if key not in {"k", "cut", "threshold"}},
+            **{key: value for key, value in self.info.items() if key not in {"k", "cut", "threshold", "digest"}},
         }
+        data = json.loads(json.dumps(data))  # as load reads it back (lists, string keys): the digest is of that
+        data["digest"] = _digest(data)
+        return data
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], *, where: str = "gate") -> Gate:
-        """The inverse of :meth:`to_dict`; a ValueError names the field that is wrong."""
+        """The inverse of :meth:`to_dict`; a ValueError names the field that is malformed or was edited (by its
+        digest). A dict without a digest is refused: build a gate in Python with ``Gate(calibrator, k, cut)``."""
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise ValueError(f'{where}: not a gate file (expected "format": "{FORMAT}")')
-        if data.get("format_version") != _FORMAT_VERSION:
-            raise ValueError(f"{where}: format_version {data.get('format_version')!r} is not {_FORMAT_VERSION}")
-        k = data.get("k")
-        if not isinstance(k, int) or isinstance(k, bool) or k < 2:
-            raise ValueError(f"{where}: k must be an integer >= 2, got {k!r}")
-        cut = data.get("cut")
-        if cut is not None and (not isinstance(cut, (int, float)) or not math.isfinite(cut)):
-            raise ValueError(f"{where}: cut must be a finite number or null (accept nothing), got {cut!r}")
-        calibrator = Calibrator.from_dict(data.get("calibrator") or {}, where=f"{where}: calibrator")
-        info = {key: value for key, value in data.items() if key not in {"format", "format_version", "calibrator"}}
-        return cls(calibrator, k, math.inf if cut is None else float(cut), info)
+        version, digest = data.get("format_version"), data.get("digest")
+        if version != _FORMAT_VERSION or not isinstance(digest, dict):
+            problem = "no digest" if version == _FORMAT_VERSION else f"format_version {version!r}"
+            raise ValueError(
+                f"{where}: {problem} (gate files carry a digest since format_version {_FORMAT_VERSION}){_FIX}"
+            )
+        found = _digest(data)
+        edited = ", ".join(sorted(name for name in found.keys() | digest if found.get(name) != digest.get(name)))
+        edited = f"{edited} changed since calibrate (the digest differs)" if edited else ""
+        try:
+            k, cut = check_k(data.get("k")), data.get("cut")
+            if cut is not None and (not isinstance(cut, (int, float)) or not math.isfinite(cut)):
+                raise ValueError(f"cut must be a finite number or null (accept nothing), got {cut!r}")
+            calibrator = Calibrator.from_dict(data.get("calibrator"))
+            info = {key: value for key, value in data.items() if key not in {"format", "format_version", "calibrator"}}
+            gate = cls(calibrator, k, math.inf if cut is None else float(cut), info)
+        # with the edited fields, which may be the cause (k edited: then min_candidates > k)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{where}: {error}{f'; {edited}' if edited else ''}{_FIX}") from None
+        if edited:
+            raise ValueError(f"{where}: {edited}{_FIX}")
+        return gate
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the gate as JSON (atomically: a temporary file, then a rename) and return the path."""
@@ -252,7 +295,31 @@ class Gate:
         if not path.is_file():
             raise FileNotFoundError(f"gate file not found: {path} (write one with `vpr-uncertainty calibrate`)")
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(path.read_text(), object_pairs_hook=_unique)
         except (json.JSONDecodeError, UnicodeDecodeError) as error:
             raise ValueError(f"{path}: not a JSON gate file: {error}") from None
+        except ValueError as error:  # a repeated field
+            raise ValueError(f"{path}: {error}{_FIX}") from None
         return cls.from_dict(data, where=str(path))
+
+
+def _digest(data: dict[str, Any]) -> dict[str, str]:
+    """SHA-256 (16 hex digits) of the canonical JSON of each field but ``digest``, an object's fields one by one."""
+    fields: dict[str, Any] = {}
+    for key, value in data.items():
+        if key != "digest":
+            nested = isinstance(value, dict) and value
+            fields.update({f"{key}.{name}": item for name, item in value.items()} if nested else {key: value})
+    return {
+        name: hashlib.sha256(json.dumps(value, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:16]
+        for name, value in sorted(fields.items())
+    }
+
+
+def _unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object's fields as a dict; a ValueError names a field written twice (JSON would keep the last)."""
+    data = dict(pairs)
+    if len(data) < len(pairs):
+        repeated = next(key for index, (key, _) in enumerate(pairs) if key in dict(pairs[:index]))
+        raise ValueError(f'field "{repeated}" is written twice')
+    return data

@@ -317,7 +317,7 @@ def cal_uncertainty(retrieval: Retrieval, *, gate: Gate | None = None) -> np.nda
             "uncertainty method 'CAL' needs a fitted gate (option gate=GATE.json, written by "
             "`vpr-uncertainty calibrate`), or a held-out evaluation that fits one per split"
         )
-    return 1.0 - gate.probability_correct(retrieval.scores)
+    return 1.0 - gate.probability_correct(retrieval.scores[:, : gate.k])
 
 
 register_method(

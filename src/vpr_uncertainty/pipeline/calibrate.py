@@ -118,7 +118,7 @@ def _handle(args: argparse.Namespace) -> int:
             unlabelled=unlabelled,
         )
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
-    probability = gate.probability_correct(retrieval.scores)
+    probability = gate.probability_correct(retrieval.scores[:, : gate.k])
     if args.plot:  # first: a plot that fails leaves an existing gate file as it was
         from vpr_uncertainty.reports.display import plot_reliability
 

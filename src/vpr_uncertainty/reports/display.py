@@ -446,7 +446,7 @@ class ReliabilityDisplay:
         ----------
         gate : Gate
             From :func:`vpr_uncertainty.calibrate` or :meth:`Gate.load`.
-        scores : array-like of shape (Q, K)
+        scores : array-like of shape (Q, gate.k)
             Top-k similarities of the labelled queries, sorted descending.
         correct : array-like of shape (Q,), bool
             Whether each query's top-1 answer is correct.
