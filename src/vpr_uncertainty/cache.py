@@ -57,6 +57,8 @@ from typing import IO, Any, TypeVar
 
 import numpy as np
 
+from vpr_uncertainty._files import open_regular
+
 __all__ = [
     "EDGE_BYTES",
     "FULL_HASH_BYTES",
@@ -111,7 +113,7 @@ def content_key(path: str | Path) -> str:
     """A key that changes when the content of the file changes: ``"size:mtime_ns:blake2b"``.
 
     A file larger than :data:`FULL_HASH_BYTES` gives ``"size:mtime_ns:ctime_ns:blake2b"`` of its two ends.
-    Symbolic links are followed.
+    Symbolic links are followed; a FIFO, device or socket is refused, never opened (:mod:`vpr_uncertainty._files`).
 
     Examples
     --------
@@ -123,19 +125,18 @@ def content_key(path: str | Path) -> str:
     >>> content_key(file) != first
     True
     """
-    path = Path(path)
-    stat = path.stat()
     hasher = hashlib.blake2b(digest_size=16)
-    with path.open("rb") as handle:
-        if stat.st_size <= FULL_HASH_BYTES:
+    with open_regular(path) as handle:
+        status = os.fstat(handle.fileno())
+        if status.st_size <= FULL_HASH_BYTES:
             while block := handle.read(_BLOCK):
                 hasher.update(block)
         else:
             hasher.update(handle.read(EDGE_BYTES))
             handle.seek(-EDGE_BYTES, os.SEEK_END)
             hasher.update(handle.read(EDGE_BYTES))
-            return f"{stat.st_size}:{stat.st_mtime_ns}:{_change_time(stat)}:{hasher.hexdigest()}"
-    return f"{stat.st_size}:{stat.st_mtime_ns}:{hasher.hexdigest()}"
+            return f"{status.st_size}:{status.st_mtime_ns}:{_change_time(status)}:{hasher.hexdigest()}"
+    return f"{status.st_size}:{status.st_mtime_ns}:{hasher.hexdigest()}"
 
 
 def _change_time(stat: os.stat_result) -> int:
@@ -159,7 +160,7 @@ def file_digest(path: str | Path) -> str:
     True
     """
     hasher = hashlib.blake2b(digest_size=16)
-    with Path(path).open("rb") as handle:
+    with open_regular(path) as handle:
         while block := handle.read(_BLOCK):
             hasher.update(block)
     return "blake2b:" + hasher.hexdigest()
