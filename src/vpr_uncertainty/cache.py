@@ -742,10 +742,10 @@ def open_present(group: Any, names: tuple[str, ...], path: str | Path) -> dict[s
 def hard_links(group: Any, path: str | Path) -> Iterator[tuple[str, Any]]:
     """Every object below ``group`` by its hard-link names, refusing every other kind of link.
 
-    Unlike ``visititems``, an object reachable by two names is yielded under both, and a soft or external link
-    is refused instead of being skipped (skipping it would silently leave an image out). A group is entered once
-    (a hard link back to a group already entered is yielded, not entered again). Datasets are checked with
-    :func:`check_dataset` before they are yielded.
+    Unlike ``visititems``, an object reachable by two names is yielded under both (a group entered under each), and a
+    soft or external link is refused instead of being skipped (skipping it would silently leave an image out). A hard
+    link back to an enclosing group is yielded, not entered (a cycle); a group reached by more names than it has hard
+    links (nested hard-linked groups: names that multiply) is refused. Datasets are checked with :func:`check_dataset`.
 
     Yields
     ------
@@ -755,10 +755,10 @@ def hard_links(group: Any, path: str | Path) -> Iterator[tuple[str, Any]]:
     """
     import h5py
 
-    stack: list[tuple[str, Any]] = [("", group)]
-    entered = {group.id}
+    stack: list[tuple[str, Any, frozenset[Any]]] = [("", group, frozenset({group.id}))]
+    entered: dict[Any, int] = {}
     while stack:
-        prefix, current = stack.pop()
+        prefix, current, enclosing = stack.pop()
         for key in current.keys():
             name = f"{prefix}{key}"
             _refuse_link(path, name, current.get(key, getlink=True))
@@ -766,6 +766,11 @@ def hard_links(group: Any, path: str | Path) -> Iterator[tuple[str, Any]]:
             if isinstance(item, h5py.Dataset):
                 check_dataset(item, path, name)
             yield name, item
-            if isinstance(item, h5py.Group) and item.id not in entered:
-                entered.add(item.id)
-                stack.append((f"{name}/", item))
+            if isinstance(item, h5py.Group) and item.id not in enclosing:
+                entered[item.id] = entered.get(item.id, 0) + 1
+                if entered[item.id] > 1 and entered[item.id] > h5py.h5o.get_info(item.id).rc:
+                    raise ValueError(
+                        f"{path}: group {name!r} is reached by more names than it has hard links (hard links inside "
+                        "a hard-linked group); refused: give each image one group of its own"
+                    )
+                stack.append((f"{name}/", item, enclosing | {item.id}))
