@@ -147,7 +147,7 @@ def read_folder(path: Path, *, split: str | None, radius: float | None, name: st
     )
 
 
-register_format(
+for _entry in (
     DatasetFormat(
         "poses",
         "positions of database and queries (utmQ, utmDb, posDistThr), as in the published .npz files",
@@ -155,11 +155,7 @@ register_format(
         read_poses,
         suffixes=(".npz",),
         provides=("positions",),
-    )
-)
-
-
-register_format(
+    ),
     DatasetFormat(
         "table",
         "a CSV/TSV table of image paths with positions (and an optional second table of queries)",
@@ -167,11 +163,7 @@ register_format(
         read_table,
         suffixes=(".csv", ".tsv", ".txt"),
         provides=("images", "positions"),
-    )
-)
-
-
-register_format(
+    ),
     DatasetFormat(
         "vprbench",
         "a VPR-Bench folder: query/, ref/ and ground_truth_new.npy (explicit positives)",
@@ -179,11 +171,7 @@ register_format(
         read_vprbench,
         detect=is_vprbench_folder,
         provides=("images", "positives"),
-    )
-)
-
-
-register_format(
+    ),
     DatasetFormat(
         "folder",
         "a VPR-datasets-downloader folder: images/<split>/database/ and queries/, positions in the image names",
@@ -191,22 +179,16 @@ register_format(
         read_folder,
         detect=_is_downloader_folder,
         provides=("images", "positions"),
-    )
-)
-
+    ),
+):
+    register_format(_entry)
 
 _PATH_COLUMNS = ("path", "image", "image_path", "file", "filename", "name")
 _ROLE_COLUMNS = ("role", "set", "split", "type")
-
-
 _METRIC_COLUMNS = (("x", "y"), ("easting", "northing"), ("utm_east", "utm_north"))
 _LAT_COLUMNS = ("lat", "latitude")
-
-
 _LON_COLUMNS = ("lon", "lng", "long", "longitude")
 _DATABASE_ROLES = frozenset({"database", "db", "reference", "ref", "map", "gallery"})
-
-
 _QUERY_ROLES = frozenset({"query", "queries", "q"})
 
 
