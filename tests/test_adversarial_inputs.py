@@ -109,6 +109,13 @@ def test_row8_reproduce_refuses_images_that_do_not_match_the_matrix(tmp_path, co
     with warnings.catch_warnings(), pytest.raises(ValueError) as error:
         warnings.simplefilter("ignore")
         run_grid(load_config(config), progress=False)
+    # Issue 28: the names are the ground truth's indices, and two of them say 0 (the count is checked after them).
+    assert "not fitting: 000000.jpg, 0000000.jpg; missing: 111" in str(error.value)
+    assert str(images / "ref") in str(error.value)
+    (images / "ref" / "000000.jpg").rename(images / "ref" / "0000111.jpg")  # names 0..111: one image too many
+    with warnings.catch_warnings(), pytest.raises(ValueError) as error:
+        warnings.simplefilter("ignore")
+        run_grid(load_config(config), progress=False)
     assert "holds 112 images but the results have 111 database images" in str(error.value)
     assert str(images / "ref") in str(error.value)
 

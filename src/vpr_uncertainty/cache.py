@@ -54,6 +54,8 @@ from typing import IO, Any, TypeVar
 
 import numpy as np
 
+from vpr_uncertainty._files import open_regular
+
 __all__ = [
     "EDGE_BYTES",
     "FULL_HASH_BYTES",
@@ -107,7 +109,7 @@ def content_key(path: str | Path) -> str:
     """A key that changes when the content of the file changes: ``"size:mtime_ns:blake2b"``.
 
     A file larger than :data:`FULL_HASH_BYTES` gives ``"size:mtime_ns:ctime_ns:blake2b"`` of its two ends.
-    Symbolic links are followed.
+    Symbolic links are followed; a FIFO, device or socket is refused, never opened (:mod:`vpr_uncertainty._files`).
 
     Examples
     --------
@@ -119,19 +121,18 @@ def content_key(path: str | Path) -> str:
     >>> content_key(file) != first
     True
     """
-    path = Path(path)
-    stat = path.stat()
     hasher = hashlib.blake2b(digest_size=16)
-    with path.open("rb") as handle:
-        if stat.st_size <= FULL_HASH_BYTES:
+    with open_regular(path) as handle:
+        status = os.fstat(handle.fileno())
+        if status.st_size <= FULL_HASH_BYTES:
             while block := handle.read(_BLOCK):
                 hasher.update(block)
         else:
             hasher.update(handle.read(EDGE_BYTES))
             handle.seek(-EDGE_BYTES, os.SEEK_END)
             hasher.update(handle.read(EDGE_BYTES))
-            return f"{stat.st_size}:{stat.st_mtime_ns}:{_change_time(stat)}:{hasher.hexdigest()}"
-    return f"{stat.st_size}:{stat.st_mtime_ns}:{hasher.hexdigest()}"
+            return f"{status.st_size}:{status.st_mtime_ns}:{_change_time(status)}:{hasher.hexdigest()}"
+    return f"{status.st_size}:{status.st_mtime_ns}:{hasher.hexdigest()}"
 
 
 def _change_time(stat: os.stat_result) -> int:
@@ -155,7 +156,7 @@ def file_digest(path: str | Path) -> str:
     True
     """
     hasher = hashlib.blake2b(digest_size=16)
-    with Path(path).open("rb") as handle:
+    with open_regular(path) as handle:
         while block := handle.read(_BLOCK):
             hasher.update(block)
     return "blake2b:" + hasher.hexdigest()
@@ -667,10 +668,10 @@ def open_present(group: Any, names: tuple[str, ...], path: str | Path) -> dict[s
 def hard_links(group: Any, path: str | Path) -> Iterator[tuple[str, Any]]:
     """Every object below ``group`` by its hard-link names, refusing every other kind of link.
 
-    Unlike ``visititems``, an object reachable by two names is yielded under both, and a soft or external link
-    is refused instead of being skipped (skipping it would silently leave an image out). A group is entered once
-    (a hard link back to a group already entered is yielded, not entered again). Datasets are checked with
-    :func:`check_dataset` before they are yielded.
+    Unlike ``visititems``, an object reachable by two names is yielded under both (a group entered under each), and a
+    soft or external link is refused instead of being skipped (skipping it would silently leave an image out). A hard
+    link back to an enclosing group is yielded, not entered (a cycle); a group reached by more names than it has hard
+    links (nested hard-linked groups: names that multiply) is refused. Datasets are checked with :func:`check_dataset`.
 
     Yields
     ------
@@ -680,10 +681,10 @@ def hard_links(group: Any, path: str | Path) -> Iterator[tuple[str, Any]]:
     """
     import h5py
 
-    stack: list[tuple[str, Any]] = [("", group)]
-    entered = {group.id}
+    stack: list[tuple[str, Any, frozenset[Any]]] = [("", group, frozenset({group.id}))]
+    entered: dict[Any, int] = {}
     while stack:
-        prefix, current = stack.pop()
+        prefix, current, enclosing = stack.pop()
         for key in current.keys():
             name = f"{prefix}{key}"
             _refuse_link(path, name, current.get(key, getlink=True))
@@ -691,6 +692,11 @@ def hard_links(group: Any, path: str | Path) -> Iterator[tuple[str, Any]]:
             if isinstance(item, h5py.Dataset):
                 check_dataset(item, path, name)
             yield name, item
-            if isinstance(item, h5py.Group) and item.id not in entered:
-                entered.add(item.id)
-                stack.append((f"{name}/", item))
+            if isinstance(item, h5py.Group) and item.id not in enclosing:
+                entered[item.id] = entered.get(item.id, 0) + 1
+                if entered[item.id] > 1 and entered[item.id] > h5py.h5o.get_info(item.id).rc:
+                    raise ValueError(
+                        f"{path}: group {name!r} is reached by more names than it has hard links (hard links inside "
+                        "a hard-linked group); refused: give each image one group of its own"
+                    )
+                stack.append((f"{name}/", item, enclosing | {item.id}))

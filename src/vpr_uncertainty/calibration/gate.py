@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty._validation import check_k, check_top_k_scores
 from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.calibration.calibrator import (
@@ -292,7 +293,7 @@ class Gate:
     def load(cls, path: str | os.PathLike) -> Gate:
         """Read a gate written by :meth:`save`."""
         path = Path(path)
-        if not path.is_file():
+        if not is_regular_file(path, "a gate file"):
             raise FileNotFoundError(f"gate file not found: {path} (write one with `vpr-uncertainty calibrate`)")
         try:
             data = json.loads(path.read_text(), object_pairs_hook=_unique)

@@ -47,17 +47,8 @@ class PlaceholderPositionsWarning(UserWarning):
     """Issued when a method that needs metric positions is given frame indices or placeholder ids."""
 
 
-def _relative_names(paths: list[Path], root: Path | None) -> list[str]:
-    names = []
-    for path in paths:
-        if root is not None:
-            try:
-                names.append(Path(path).relative_to(root).as_posix())
-                continue
-            except ValueError:
-                pass
-        names.append(Path(path).as_posix())
-    return names
+def _relative_name(path: Path, root: Path | None) -> str:
+    return (path.relative_to(root) if root is not None and path.is_relative_to(root) else path).as_posix()
 
 
 @dataclass
@@ -125,7 +116,7 @@ class Dataset:
                 setattr(self, f"{name}_paths", paths)
             names = getattr(self, f"{name}_names")
             if names is None and paths is not None:
-                names = _relative_names(paths, self.root)
+                names = [_relative_name(path, self.root) for path in paths]
             if names is not None:
                 names = [str(item) for item in names]
                 if len(names) != expected:

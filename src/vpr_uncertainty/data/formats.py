@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.data.dataset import (
     DEFAULT_RADIUS,
     Dataset,
@@ -28,6 +29,7 @@ from vpr_uncertainty.data.images import (
     find_split_folder,
     list_images,
     load_folder_dataset,
+    numbered_order,
 )
 from vpr_uncertainty.plugins import Registry, load_target
 
@@ -89,7 +91,7 @@ def detect_format(path: str | Path) -> str:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"no such file or folder: {path}")
-    if path.is_file():
+    if is_regular_file(path, "a dataset file"):
         suffix = path.suffix.lower()
         files = DATASET_FORMAT_REGISTRY.entries()
         for entry in files:
@@ -145,7 +147,7 @@ def read_folder(path: Path, *, split: str | None, radius: float | None, name: st
     )
 
 
-register_format(
+for _entry in (
     DatasetFormat(
         "poses",
         "positions of database and queries (utmQ, utmDb, posDistThr), as in the published .npz files",
@@ -153,11 +155,7 @@ register_format(
         read_poses,
         suffixes=(".npz",),
         provides=("positions",),
-    )
-)
-
-
-register_format(
+    ),
     DatasetFormat(
         "table",
         "a CSV/TSV table of image paths with positions (and an optional second table of queries)",
@@ -165,11 +163,7 @@ register_format(
         read_table,
         suffixes=(".csv", ".tsv", ".txt"),
         provides=("images", "positions"),
-    )
-)
-
-
-register_format(
+    ),
     DatasetFormat(
         "vprbench",
         "a VPR-Bench folder: query/, ref/ and ground_truth_new.npy (explicit positives)",
@@ -177,11 +171,7 @@ register_format(
         read_vprbench,
         detect=is_vprbench_folder,
         provides=("images", "positives"),
-    )
-)
-
-
-register_format(
+    ),
     DatasetFormat(
         "folder",
         "a VPR-datasets-downloader folder: images/<split>/database/ and queries/, positions in the image names",
@@ -189,22 +179,16 @@ register_format(
         read_folder,
         detect=_is_downloader_folder,
         provides=("images", "positions"),
-    )
-)
-
+    ),
+):
+    register_format(_entry)
 
 _PATH_COLUMNS = ("path", "image", "image_path", "file", "filename", "name")
 _ROLE_COLUMNS = ("role", "set", "split", "type")
-
-
 _METRIC_COLUMNS = (("x", "y"), ("easting", "northing"), ("utm_east", "utm_north"))
 _LAT_COLUMNS = ("lat", "latitude")
-
-
 _LON_COLUMNS = ("lon", "lng", "long", "longitude")
 _DATABASE_ROLES = frozenset({"database", "db", "reference", "ref", "map", "gallery"})
-
-
 _QUERY_ROLES = frozenset({"query", "queries", "q"})
 
 
@@ -234,7 +218,7 @@ def read_image_table(
     Errors name the file and line of the first bad row, or the columns that are missing.
     """
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, "an image table"):
         raise FileNotFoundError(f"image table not found: {path}")
     text = path.read_text(encoding="utf-8-sig")
     reader = csv.reader(io.StringIO(text, newline=""), delimiter=_delimiter(path, text, delimiter))
@@ -249,21 +233,15 @@ def read_image_table(
     path_column = _column(header, _PATH_COLUMNS)
     if path_column is None:
         raise ValueError(f"{path}: no image path column; expected one of {', '.join(_PATH_COLUMNS)} in the header")
-    coordinate_columns: tuple[int, int] | None = None
-    unit = "metres"
-    for x_name, y_name in _METRIC_COLUMNS:
-        if x_name in header and y_name in header:
-            coordinate_columns = (header[x_name], header[y_name])
-            break
-    if coordinate_columns is None:
-        lat, lon = _column(header, _LAT_COLUMNS), _column(header, _LON_COLUMNS)
-        if lat is not None and lon is not None:
-            coordinate_columns, unit = (lat, lon), "latlon"
-    if coordinate_columns is None:
+    lat, lon = _column(header, _LAT_COLUMNS), _column(header, _LON_COLUMNS)
+    pairs = [((header[x], header[y]), "metres") for x, y in _METRIC_COLUMNS if x in header and y in header]
+    pairs += [((lat, lon), "latlon")] if lat is not None and lon is not None else []
+    if not pairs:
         raise ValueError(
             f"{path}: no position columns; expected x,y or easting,northing (metres) or lat,lon (degrees), "
             f"found {', '.join(cell.strip() for cell in rows[0])}"
         )
+    coordinate_columns, unit = pairs[0]
     role_column = _column(header, _ROLE_COLUMNS)
     base = Path(root) if root is not None else path.parent
     paths: list[Path] = []
@@ -388,7 +366,7 @@ def load_poses_dataset(
     radius instead (Patch-NetVLAD's ±7 frames).
     """
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, "a position file"):
         raise FileNotFoundError(f"position file not found: {path}")
     with np.load(path, allow_pickle=False) as archive:
         missing = [key for key in ("utmQ", "utmDb") if key not in archive.files]
@@ -431,10 +409,10 @@ def load_poses_dataset(
 def load_vprbench_dataset(root: str | Path, *, name: str | None = None, n_database: int | None = None) -> Dataset:
     """Read a VPR-Bench image dataset: ``query/``, ``ref/`` and ``ground_truth_new.npy`` (explicit positives).
 
-    Images are sorted by name, hidden files left out, names relative to ``root``. ``n_database`` defaults to the
-    ground truth's own count (largest positive + 1), which ``ref/`` must match: give it only when the last reference
-    images are no query's positive. Raises FileNotFoundError for a missing folder or ground truth, ValueError when an
-    image count differs from the ground truth's (one stray image would shift every index after it).
+    Images are sorted by name (numbers: :func:`~vpr_uncertainty.data.images.numbered_order`), hidden files left out,
+    names relative to ``root``. ``n_database`` defaults to the ground truth's own count (largest positive + 1), which
+    ``ref/`` must match: give it only when the last reference images are no query's positive. Raises FileNotFoundError
+    for a missing folder or ground truth, ValueError when an image count or name disagrees with the ground truth.
     """
 
     root = Path(root)
@@ -446,7 +424,7 @@ def load_vprbench_dataset(root: str | Path, *, name: str | None = None, n_databa
         if not paths[folder]:
             raise FileNotFoundError(f"no image found under {root / folder}")
     ground_truth = root / "ground_truth_new.npy"
-    if not ground_truth.is_file():
+    if not is_regular_file(ground_truth, "ground truth"):
         raise FileNotFoundError(f"{root} is not a VPR-Bench dataset: no ground_truth_new.npy")
     positives = load_vprbench_ground_truth(ground_truth, n_database=n_database)
     if positives.shape[1] != len(paths["ref"]):
@@ -469,8 +447,8 @@ def load_vprbench_dataset(root: str | Path, *, name: str | None = None, n_databa
         name=name or root.name,
         root=root,
         positives=positives,
-        database_paths=paths["ref"],
-        query_paths=paths["query"],
+        database_paths=numbered_order(paths["ref"], root / "ref"),
+        query_paths=numbered_order(paths["query"], root / "query"),
         source_format="vprbench",
         info={"ground_truth": ground_truth.name},
     )

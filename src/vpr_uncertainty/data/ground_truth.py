@@ -15,6 +15,7 @@ import numpy as np
 from numpy.lib import format as npy_format
 from scipy import sparse
 
+from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.retrieval.result import check_n_database, is_index, positives_from_lists, positives_from_mask
 
 _INTEGER_FIELD = re.compile(r"[+-]?[0-9]+")
@@ -179,28 +180,26 @@ def load_ground_truth(
     FileNotFoundError
         When the file does not exist.
     ValueError
-        Naming the file (and the query and value at fault) when it cannot be read, holds anything but integer
+        Naming the file (and the query and value at fault) when it is empty or no regular file (a FIFO, a device),
+        cannot be read, holds anything but integer
         database indices in range (or a 0/1 mask), or does not match the expected shape.
     """
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, "ground truth"):
         raise FileNotFoundError(f"ground truth file not found: {path}")
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path} is empty (0 bytes); expected ground truth, one row of positives per query")
     if n_database is not None:
         n_database = check_n_database(n_database)
     suffix = path.suffix.lower()
-    if suffix == ".npy":
-        positives = _from_npy(path, n_database)
-    elif suffix == ".npz":
-        positives = _from_npz(path, n_database)
-    elif suffix == ".json":
-        positives = _from_json(path, n_database)
-    elif suffix in {".txt", ".csv", ".tsv"}:
-        positives = _from_text(path, n_database)
-    else:
+    text = dict.fromkeys((".txt", ".csv", ".tsv"), _from_text)
+    reader = {".npy": _from_npy, ".npz": _from_npz, ".json": _from_json, **text}.get(suffix)
+    if reader is None:
         raise ValueError(
             f"unknown ground truth format {suffix!r} for {path}; expected .npy (boolean mask or VPR-Bench), "
             ".npz, .json or .txt/.csv"
         )
+    positives = reader(path, n_database)
     if n_queries is not None and positives.shape[0] != n_queries:
         raise ValueError(f"ground truth {path} has {positives.shape[0]} queries, expected {n_queries}")
     if n_database is not None and positives.shape[1] != n_database:
@@ -247,7 +246,7 @@ def read_npy(path: str | Path, *, what: str, allow_objects: bool = False, mmap: 
     or address space (``ulimit -v``) raises a :class:`MemoryError` naming it and its size.
     """
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, what):
         raise FileNotFoundError(f"file not found: {path} (expected {what})")
     file_size = path.stat().st_size
     if file_size == 0:

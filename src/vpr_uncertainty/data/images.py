@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import warnings
 from collections import Counter
 from dataclasses import dataclass
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr_uncertainty._files import special_file_error
 from vpr_uncertainty.data.dataset import DEFAULT_RADIUS, Dataset, PositionKind, latlon_to_utm, positives_within_radius
 from vpr_uncertainty.retrieval.result import Retrieval
 
@@ -50,10 +52,14 @@ def printable(text: str | Path) -> str:
     return os.fsencode(str(text)).decode("utf-8", "backslashreplace")
 
 
+def _few(items: list[str], shown: int = 3, separator: str = ", ") -> str:
+    more = f"{separator}and {len(items) - shown} more" if len(items) > shown else ""
+    return separator.join(items[:shown]) + more
+
+
 def describe_unlisted(problems: list[dict[str, str]], *, shown: int = 3) -> str:
     """The first ``shown`` listing problems, ``path (error)``, separated by semicolons."""
-    listed = "; ".join(f"{printable(item['path'])} ({item['error']})" for item in problems[:shown])
-    return listed + (f"; and {len(problems) - shown} more" if len(problems) > shown else "")
+    return _few([f"{printable(item['path'])} ({item['error']})" for item in problems], shown, "; ")
 
 
 def _link_error(path: Path) -> str:
@@ -71,6 +77,8 @@ def scan_images(folder: str | Path) -> tuple[list[Path], list[dict[str, str]]]:
     Hidden entries (``.*``) are neither listed nor entered, as :func:`glob.glob` skips them (a stray ``._0001.jpg``
     would shift every index of a ground truth given by index). A file with an image suffix is listed even as a broken
     link (extraction reports it; the other indices stay right); links back to a folder being listed are not followed.
+    A FIFO, device or socket with an image suffix (or a link to one) is refused before anything reads it: a
+    ValueError names the first and how many (reading one could block for ever; leaving it out would shift indices).
 
     Returns
     -------
@@ -83,6 +91,7 @@ def scan_images(folder: str | Path) -> tuple[list[Path], list[dict[str, str]]]:
     """
     folder = Path(folder)
     images: list[Path] = []
+    special: list[Path] = []
     problems: list[dict[str, str]] = []
 
     def visit(directory: Path, ancestors: frozenset[str]) -> None:
@@ -106,12 +115,18 @@ def scan_images(folder: str | Path) -> tuple[list[Path], list[dict[str, str]]]:
                 if real not in ancestors:  # a link back to a folder being listed adds no image
                     visit(path, ancestors | {real})
             elif path.suffix.lower() in IMAGE_EXTENSIONS:
-                if is_file or entry.is_symlink():
+                if not is_file and os.path.exists(path):  # neither a file nor a folder (nor a broken link)
+                    special.append(path)
+                elif is_file or entry.is_symlink():
                     images.append(path)
             elif entry.is_symlink() and not os.path.exists(path):
                 problems.append({"path": str(path), "error": _link_error(path)})
 
     visit(folder, frozenset({os.path.realpath(folder)}))
+    if special:
+        first = min(special)
+        error = special_file_error(first, os.stat(first).st_mode, "an image")
+        raise ValueError(f"{error} ({len(special)} such file(s) under {printable(folder)}: remove or replace them)")
     return sorted(images, key=lambda path: path.relative_to(folder).as_posix()), problems
 
 
@@ -127,6 +142,35 @@ def list_images(folder: str | Path, *, problems: list[dict[str, str]] | None = N
     if problems is not None:
         problems.extend(found)
     return paths
+
+
+def numbered_order(paths: list[Path], folder: str | Path) -> list[Path]:
+    """``paths`` ordered by the number each name is (VPR-Bench: ``0000050.jpg`` is image 50 of its ground truth).
+
+    Unchanged when no name is a number. Otherwise the numbers must be 0..N-1, once each: an image deleted and
+    another added (``0000050.jpg`` gone, ``0000200.jpg`` new) would shift every index after it against the ground
+    truth, so a ValueError names the files that do not fit and the numbers missing.
+
+    Examples
+    --------
+    >>> numbered_order([Path("0.jpg"), Path("7.jpg")], "ref")
+    Traceback (most recent call last):
+    ...
+    ValueError: ref: image names are their indices 0..1 in the ground truth; not fitting: 7.jpg; missing: 1; rename \
+or remove the files that do not fit
+    """
+    numbers = [int(path.stem) if re.fullmatch("[0-9]+", path.stem) else -1 for path in paths]
+    if max(numbers, default=-1) < 0:
+        return paths
+    count = Counter(numbers)
+    misfits = [p.name for p, n in zip(paths, numbers, strict=True) if not 0 <= n < len(paths) or count[n] > 1]
+    if misfits:
+        missing = [str(number) for number in range(len(paths)) if number not in count]
+        raise ValueError(
+            f"{printable(folder)}: image names are their indices 0..{len(paths) - 1} in the ground truth; not "
+            f"fitting: {_few(misfits)}; missing: {_few(missing)}; rename or remove the files that do not fit"
+        )
+    return [path for _, path in sorted(zip(numbers, paths, strict=True))]
 
 
 #: Accepted names of the database and query folders, in order of preference.
@@ -400,11 +444,11 @@ def check_image_counts(
         )
 
 
-def _listed(folder: Path, argument: str) -> list[Path]:
+def _listed(folder: Path, argument: str, numbered: bool) -> list[Path]:
     paths = list_images(folder)
     if not paths:
         raise FileNotFoundError(f"no images in {folder} (argument {argument})")
-    return paths
+    return numbered_order(paths, folder) if numbered else paths
 
 
 def _by_names(root: Path, names: object) -> list[Path] | None:
@@ -426,8 +470,9 @@ def retrieval_image_paths(
 
     Give a dataset folder ``images`` (``query/`` and ``ref/``, or ``queries/`` and ``database/``, each listed
     recursively and sorted by path) or both ``query_images`` and ``database_images``. Names the retrieval holds are
-    looked up first, so an order that differs from the sorted one cannot go unnoticed. Raises ValueError when the
-    image counts differ from the retrieval's (naming both), FileNotFoundError when a folder is missing or empty.
+    looked up first, so an order that differs from the sorted one cannot go unnoticed; listed ``query/`` and ``ref/``
+    images (VPR-Bench) are in :func:`numbered_order`. Raises ValueError when the image counts differ from the
+    retrieval's (naming both), FileNotFoundError when a folder is missing or empty.
     """
     if images is not None and (query_images is not None or database_images is not None):
         raise ValueError(
@@ -452,10 +497,11 @@ def retrieval_image_paths(
     for folder, argument in ((query_folder, query_argument), (database_folder, database_argument)):
         if not folder.is_dir():
             raise FileNotFoundError(f"image folder not found: {folder} (argument {argument})")
+    numbered = images is not None and query_folder.name == IMAGE_SPLIT_FOLDERS[0][0]  # VPR-Bench: names are indices
     if query_paths is None:
-        query_paths = _listed(query_folder, query_argument)
+        query_paths = _listed(query_folder, query_argument, numbered)
     if database_paths is None:
-        database_paths = _listed(database_folder, database_argument)
+        database_paths = _listed(database_folder, database_argument, numbered)
     check_image_counts(
         retrieval,
         len(query_paths),

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.data.dataset import attach_ground_truth, ground_truth_fields
 from vpr_uncertainty.data.ground_truth import load_ground_truth, read_npy
 from vpr_uncertainty.data.images import is_hidden
@@ -135,7 +136,7 @@ def read_results(
 
 
 def _read_retrieval_file(path: Path, *, ground_truth: str | Path | None, **_: Any) -> Retrieval:
-    if path.is_file():
+    if is_regular_file(path, "a retrieval file"):
         with path.open("rb") as handle:
             if handle.read(6) == b"\x93NUMPY":
                 raise ValueError(
@@ -258,7 +259,7 @@ def _open_similarity(path: str | Path, file_format: str, *, mmap: bool) -> np.nd
     """The matrix of ``path`` with dtype and shape checked (values not yet); memory-mapped when ``mmap``."""
 
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, "a similarity matrix"):
         raise FileNotFoundError(f"similarity file not found: {path}")
     if file_format == "vprbench":
         return _check_similarity_shape(load_vprbench_similarity(path), path)
@@ -351,7 +352,7 @@ def _literal(node: ast.AST) -> Any:
 def read_arguments(log: str | Path) -> dict[str, Any]:
     """The arguments of a VPR-methods-evaluation run from the ``Arguments: Namespace(...)`` line of its ``info.log``."""
     path = Path(log)
-    if not path.is_file():
+    if not is_regular_file(path, "a log file"):
         return {}
     for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
         found = _ARGUMENTS.search(line)
@@ -465,7 +466,7 @@ def read_vpr_methods_evaluation(
     """
 
     folder = Path(folder)
-    missing = [name for name in LOG_FILES if not (folder / name).is_file()]
+    missing = [name for name in LOG_FILES if not is_regular_file(folder / name, "a descriptor file")]
     if missing:
         raise FileNotFoundError(
             f"{folder} is not a VPR-methods-evaluation log folder with descriptors: {', '.join(missing)} missing "
@@ -564,7 +565,7 @@ def load_vprbench_similarity(path: str | Path) -> np.ndarray:
 def _descriptor_file(path: str | Path, split: str | None) -> tuple[Path, bool]:
     """The path of an existing descriptor file and whether it is HDF5 (which needs a valid ``split``)."""
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, "a descriptor file"):
         raise FileNotFoundError(f"descriptor file not found: {path}")
     suffix = path.suffix.lower()
     if suffix == ".npy":

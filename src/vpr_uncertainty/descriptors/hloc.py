@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.cache import hard_links, open_dataset
 
 #: The dataset of each image's group that holds its global descriptor.
@@ -60,22 +61,18 @@ def is_hloc_file(path: str | Path) -> bool:
 
 
 def _split_of(name: str) -> str | None:
-    first = name.split("/", 1)[0].lower()
-    if "/" not in name:
-        return None
-    if first in QUERY_PREFIXES:
-        return "queries"
-    if first in DATABASE_PREFIXES:
-        return "database"
-    return None
+    first = name.split("/", 1)[0].lower() if "/" in name else ""
+    return "queries" if first in QUERY_PREFIXES else "database" if first in DATABASE_PREFIXES else None
 
 
 def _row(handle, name: str, path: Path) -> np.ndarray:
-    """The global descriptor of image ``name``: a 1-D dataset of the file itself, as float32."""
+    """The global descriptor of image ``name``: a 1-D dataset of real numbers of the file itself, as float32
+    (strings, complex numbers or records would be garbled by the cast)."""
     dataset = open_dataset(handle, f"{name}/{HLOC_DATASET}", path)
-    if dataset.ndim != 1:
+    if dataset.ndim != 1 or dataset.dtype.kind not in "biuf":
         raise ValueError(
-            f"{path}: {name}/{HLOC_DATASET} has shape {dataset.shape}; expected one 1-D descriptor (D,) per image"
+            f"{path}: {name}/{HLOC_DATASET} has shape {dataset.shape} and dtype {dataset.dtype}; expected one 1-D "
+            "descriptor (D,) of real numbers per image"
         )
     return np.asarray(dataset[()], dtype=np.float32)
 
@@ -100,14 +97,15 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
     Raises
     ------
     ValueError
-        When the file holds no global descriptors, a descriptor that is not 1-D, descriptors of different sizes,
+        When the file holds no global descriptors, a descriptor that is not 1-D real numbers, descriptors of different
+        sizes,
         no image of ``split`` although its names carry split prefixes, or a soft or external link, external
         storage or a virtual dataset (:mod:`vpr_uncertainty.cache`: bytes from outside the file are refused).
     """
     import h5py
 
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, "a descriptor file"):
         raise FileNotFoundError(f"descriptor file not found: {path}")
     with h5py.File(path, "r") as handle:
         names = _names(handle, path)

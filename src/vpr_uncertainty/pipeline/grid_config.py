@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.cache import slug
 from vpr_uncertainty.methods import (
     PATH_OPTIONS,
@@ -534,7 +535,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
         methods that the inputs cannot meet).
     """
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, "a configuration file"):
         raise FileNotFoundError(f"configuration file not found: {path}")
     data = read_mapping(path)
     unknown = sorted(set(overrides) - set(_BOOTSTRAP_KEYS))

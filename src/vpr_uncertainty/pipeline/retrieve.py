@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.pipeline.options import (
     add_options,
@@ -262,7 +263,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
 def _load_positions(path: Path | None, expected: int, what: str) -> np.ndarray | None:
     if path is None:
         return None
-    if not path.is_file():
+    if not is_regular_file(path, "a positions file"):
         raise FileNotFoundError(f"{what} positions file not found: {path}")
     if path.suffix.lower() != ".npy":
         raise ValueError(f"{path}: positions must be a .npy array of shape ({expected}, 2)")

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.cache import ChecksumError, atomic_write, payload_checksum
 from vpr_uncertainty.retrieval.result import Retrieval, check_distinct, check_indices, check_integers, check_scores
 
@@ -90,7 +91,7 @@ def load_retrieval(path: str | Path) -> Retrieval:
         Naming the file, the field and the problem; also for an empty, truncated or non-``.npz`` file.
     """
     path = Path(path)
-    if not path.is_file():
+    if not is_regular_file(path, "a retrieval file"):
         raise FileNotFoundError(f"retrieval file not found: {path}")
     arrays = _read_arrays(path)
     missing = {"scores", "indices"} - set(arrays)
