@@ -168,6 +168,8 @@ def test_row8_run_refuses_a_query_replaced_by_another_of_the_same_count(tmp_path
     assert done.returncode == 2, done.stderr[-2000:]
     error = done.stderr.strip().splitlines()[-1]
     assert str(root / "query") in error and "0000200.jpg" in error and "missing: 50;" in error
+    extracted = _cli("extract", "--dataset", str(root), "--out", str(tmp_path / "d.h5"), "--no-progress")
+    assert extracted.returncode == 2 and "missing: 50;" in extracted.stderr  # extract does not list the folder instead
 
 
 @pytest.mark.realdata

@@ -306,13 +306,14 @@ def dataset_images(
         raises :class:`~vpr_uncertainty.data.images.ImageListingError` naming it.
     """
     from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.data.images import ImageListingError
+    from vpr_uncertainty.data.images import ImageListingError, MalformedImageNameError
 
     folder = Path(dataset)
     found: list[dict[str, str]] = []
     try:
         loaded = load_dataset(dataset)
-    except (FileNotFoundError, ValueError):
+    except (FileNotFoundError, MalformedImageNameError):  # no ground truth, names without positions; not a dataset
+        # that is there but wrong (images that do not match its ground truth): that is refused
         scanned = _scan_dataset(folder, found) if folder.is_dir() else None
         if scanned is None:
             raise
