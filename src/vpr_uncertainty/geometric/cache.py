@@ -36,6 +36,7 @@ import numpy as np
 from vpr_uncertainty import cache
 from vpr_uncertainty.cache import open_present
 from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
+from vpr_uncertainty.identity import target_identity
 
 if TYPE_CHECKING:
     import h5py
@@ -145,9 +146,14 @@ def config_fingerprint(config: Mapping[str, Any]) -> str:
     return cache.fingerprint(STAGE, {"cache_format": CACHE_FORMAT_VERSION, **config})
 
 
+def extractor_config(extractor: Extractor) -> dict[str, Any]:
+    """What determines an extractor's features: its configuration and the code of its class."""
+    return {**extractor.config(), "code": target_identity(type(extractor))}
+
+
 def cache_path(cache_dir: str | Path, extractor: Extractor) -> Path:
     """The cache file of an extractor's configuration inside ``cache_dir``."""
-    return Path(cache_dir) / f"{extractor.name}-{config_fingerprint(extractor.config())[:16]}.h5"
+    return Path(cache_dir) / f"{extractor.name}-{config_fingerprint(extractor_config(extractor))[:16]}.h5"
 
 
 def read_features(file: h5py.File | str | Path, name: str, *, verify: bool = False) -> LocalFeatures:
@@ -385,7 +391,7 @@ def extract_features(
     try:
         if cache_dir is not None:
             file_path = cache_path(cache_dir, extractor)
-            config = json.dumps(extractor.config(), sort_keys=True, default=str)
+            config = json.dumps(extractor_config(extractor), sort_keys=True, default=str)
             store = active_store()
             if store is None:
                 handle = _open_cache(file_path, config)

@@ -21,7 +21,7 @@ from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.data import DEFAULT_TOP_K
 from vpr_uncertainty.evaluation.metrics import RECALL_NS, check_recall_ns
-from vpr_uncertainty.methods import default_method_names
+from vpr_uncertainty.methods import default_method_names, get_method
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
@@ -199,7 +199,8 @@ def compute(
         latency=latency,
         **{**dict(inputs or {}), **dict(conf.options)},
     )
-    described = {"methods": methods, "k": conf.k, "alpha": conf.alpha, "options": dict(conf.options)}
+    identities = [get_method(name).identity() for name in methods]
+    described = {"methods": identities, "k": conf.k, "alpha": conf.alpha, "options": dict(conf.options)}
     fingerprint = cache.fingerprint(STAGE, described, {"retrieval": retrieval_fingerprint})
     if path is not None:
         path = Path(path)

@@ -101,7 +101,9 @@ def compute(
         device=conf.device,
         **options,
     )
-    described = {"method": conf.method, "top_k": conf.top_k}
+    from vpr_uncertainty.methods import get_method
+
+    described = {"method": get_method(conf.method).identity(), "top_k": conf.top_k}
     fingerprint = cache.fingerprint("verify", described, {"retrieval": retrieval.config.get("fingerprint")})
     verification = reranking.verification
     with cache.atomic_write(path, "wb") as handle:
