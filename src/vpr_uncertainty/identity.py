@@ -299,18 +299,21 @@ def code_identity(module: str) -> str:
     """
     from vpr_uncertainty import __version__
 
+    known = _CLOSURES.get(module)  # the files read last time, unchanged: the same identity, without the walk
+    if known is not None and all(_stamp(path) == stamp for path, stamp in known[0]):
+        return known[1]
     top = module.split(".")[0]
     hasher = hashlib.blake2b(f"vpr-uncertainty {__version__};".encode(), digest_size=16)
     seen: set[str] = set()
-    pending = [module]
+    pending, files = [module], []
     while pending:
         name = pending.pop()
         path = _module_file(name)
         hasher.update(f"{name}:".encode())
         if path is None:
             continue
-        stat = os.stat(path)
-        digest, imports = _source(path, (stat.st_size, stat.st_mtime_ns))
+        files.append((path, _stamp(path)))
+        digest, imports = _source(path, files[-1][1])
         hasher.update(digest.encode())
         package = (name if path.endswith("__init__.py") else name.rpartition(".")[0]).split(".")
         for target, dots in imports:
@@ -324,7 +327,19 @@ def code_identity(module: str) -> str:
                 continue  # the toolkit's own tree only, and a user's tree without the toolkit (its version counts)
             if own or not is_installed(target):
                 pending.append(target)
-    return "code:" + hasher.hexdigest()
+    _CLOSURES[module] = (files, "code:" + hasher.hexdigest())
+    return _CLOSURES[module][1]
+
+
+_CLOSURES: dict[str, tuple[list[tuple[str, tuple[int, int]]], str]] = {}
+
+
+def _stamp(path: str) -> tuple[int, int]:
+    try:
+        stat = os.stat(path)
+    except OSError:  # deleted since: not the same
+        return -1, -1
+    return stat.st_size, stat.st_mtime_ns
 
 
 def target_identity(target: Any) -> str:

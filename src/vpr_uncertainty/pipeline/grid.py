@@ -404,7 +404,9 @@ def _partly_hashed(entry: InputEntry, config: GridConfig) -> tuple[Path, ...]:
     return tuple(path for path in paths if path.is_file() and cache.is_partly_hashed(path))
 
 
-def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False, verify: bool = False) -> Cell:
+def run_cell(
+    entry: InputEntry, config: GridConfig, *, force: bool = False, verify: bool = False, dataset: Any = None
+) -> Cell:
     """Evaluate one (VPR method, dataset) cell, or read it from ``config.out/cells`` when it is up to date.
 
     Parameters
@@ -419,6 +421,8 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False, veri
         Before reusing the cell, hash every byte of its input files larger than
         :data:`~vpr_uncertainty.cache.FULL_HASH_BYTES` (normally keyed by size, times and both ends) and recompute
         the cell when one differs from what it was computed from.
+    dataset : Dataset, optional
+        The cell's image dataset when already loaded (for another cell of the same images).
 
     Returns
     -------
@@ -428,7 +432,7 @@ def run_cell(entry: InputEntry, config: GridConfig, *, force: bool = False, veri
     cells = out / "cells"
     cells.mkdir(parents=True, exist_ok=True)
     json_path, npz_path = cells / f"{entry.key}.json", cells / f"{entry.key}.npz"
-    dataset = _image_dataset(entry)
+    dataset = _image_dataset(entry) if dataset is None else dataset
     fingerprint = _cell_fingerprint(entry, config, dataset)
     large = _partly_hashed(entry, config)
     if not force and fingerprint is not None:
@@ -529,10 +533,13 @@ def run_grid(
             results = executor.map(task, config.inputs, on_result=lambda result: bar.update(1))
             store_features(pending for _, pending in results)  # no task is running: this process is the one writer
             return [cell for cell, _ in results]
-        cells = []
+        cells, images = [], {}  # the images folder of results cells, loaded once
         for entry in config.inputs:
             bar.set_postfix_str(f"{entry.vpr_method} / {entry.dataset}", refresh=False)
-            cells.append(run_cell(entry, config, force=force, verify=verify))
+            if entry.model is None and entry.images is not None and entry.images not in images:
+                images[entry.images] = _image_dataset(entry)
+            dataset = images.get(entry.images) if entry.model is None else None
+            cells.append(run_cell(entry, config, force=force, verify=verify, dataset=dataset))
             bar.update(1)
     return cells
 
