@@ -206,10 +206,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     prefix = "vpr-uncertainty"
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
+        warnings.formatwarning = _short_warning  # from the first: a plugin that fails to load is one line too
         plugins, command = _early_arguments(argv)
         args = build_parser(plugins, command=command).parse_args(argv)
         prefix = f"vpr-uncertainty {args.command}"
-        warnings.formatwarning = _short_warning
         from vpr_uncertainty.progress import progress_default
 
         with progress_default(getattr(args, "progress", None)):

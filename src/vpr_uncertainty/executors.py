@@ -4,8 +4,9 @@ registers in :data:`EXECUTORS`.
 An executor's :meth:`~BaseExecutor.imap` yields ``(position, result)`` pairs as items complete, and
 :meth:`~BaseExecutor.map` returns the results in the order of the items. The functions are module-level functions
 of this package (Ray pickles them by reference) that write their own cached artefacts to paths every worker sees:
-on a cluster of several machines the output folder must be on a shared filesystem. A Ray task whose worker dies is
-retried (:data:`MAX_RETRIES`); a stopped run resumes from the caches.
+on a cluster of several machines the output folder must be on a shared filesystem. A Ray worker imports the plugins
+this process loaded before it runs a task (:class:`~vpr_uncertainty.plugins.Travelling`). A Ray task whose worker
+dies is retried (:data:`MAX_RETRIES`); a stopped run resumes from the caches.
 
 Examples
 --------
@@ -21,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+import os
 import signal
 import socket
 import threading
@@ -30,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.plugins import Registry, load_plugins, load_target, merge_options
+from vpr_uncertainty.plugins import Registry, Travelling, load_plugins, load_target, merge_options
 
 __all__ = [
     "CONNECT_TIMEOUT",
@@ -52,7 +54,7 @@ __all__ = [
 
 #: How many times Ray reruns a task whose worker died.
 MAX_RETRIES = 3
-#: Seconds to wait for a Ray cluster at an explicit address to accept a connection (``--connect-timeout``).
+#: Seconds to wait for a Ray cluster at an explicit address to answer (``--connect-timeout``).
 CONNECT_TIMEOUT = 30.0
 #: Seconds a Ray start-up (``ray.init``) may take before it is abandoned and what it started is shut down.
 START_TIMEOUT = 180.0
@@ -147,14 +149,15 @@ class RayExecutor(BaseExecutor):
     gpus_per_worker : float, default=0
         GPUs Ray assigns to each task (fractions share one GPU).
     connect_timeout : float, default=30
-        Seconds to wait for the cluster at ``host:port`` to accept a connection before a ConnectionError (Ray
-        itself would wait for minutes on an address where nothing listens).
+        Seconds to wait for the cluster at ``host:port`` to answer before a ConnectionError (see
+        :func:`wait_for_address`; Ray itself waits for minutes, or for ever, where nothing or something else listens).
     start_timeout : float, default=180
         Seconds ``ray.init`` may take (see :func:`start_ray`).
     log_file : str or Path, optional
         Where Ray's own log lines in this process (its start-up notices and warnings, Ray Data's progress
-        messages) go while the executor is open (see :func:`redirect_ray_logs`); by default Ray's own handling
-        (the terminal). The command line passes a file unless ``--verbose``.
+        messages) go while the executor is open (see :func:`redirect_ray_logs`), and whatever Ray's C++ core writes
+        to the standard error during ``ray.init``; by default Ray's own handling (the terminal). The command line
+        passes a file unless ``--verbose``.
     """
 
     name = "ray"
@@ -183,19 +186,20 @@ class RayExecutor(BaseExecutor):
         self._owns_cluster = False
         self._restore_logs = redirect_ray_logs(log_file) if log_file is not None else None
         try:
-            self._connect(address, start_timeout)
+            self._connect(address, start_timeout, log_file)
         except BaseException:
             self._put_logs_back()
             raise
 
-    def _connect(self, address: str | None, start_timeout: float) -> None:
+    def _connect(self, address: str | None, start_timeout: float, log_file: str | Path | None) -> None:
         if not self.ray.is_initialized():
             # "local": a new cluster, never one that a `ray start` on this machine left behind
             options: dict[str, Any] = {"address": address or "local", "include_dashboard": False}
             options["log_to_driver"] = False
             if address is None and self.workers is not None:
                 options["num_cpus"] = self.workers
-            start_ray(self.ray, options, start_timeout)
+            with _stderr_to(log_file):
+                start_ray(self.ray, options, start_timeout)
             self._owns_cluster = True
         if self.workers is None:
             self.workers = max(1, int(self.ray.cluster_resources().get("CPU", 1)))
@@ -208,7 +212,8 @@ class RayExecutor(BaseExecutor):
         remote = ray.remote(_apply).options(
             num_cpus=1, num_gpus=self.gpus_per_worker, max_retries=MAX_RETRIES, retry_exceptions=False
         )
-        function = ray.put(function)  # serialised once (a partial may hold a model), not once per task
+        # serialised once (a partial may hold a model), read in each worker after the plugins this process loaded
+        function = ray.put(Travelling(function))
         pending: dict[Any, int] = {}
         queue = iter(enumerate(items))
         try:
@@ -222,7 +227,9 @@ class RayExecutor(BaseExecutor):
                 try:
                     result = ray.get(done)
                 except ray.exceptions.RayTaskError as error:
-                    raise error.as_instanceof_cause() from None
+                    # an argument the worker could not read (a plugin it cannot import): Ray's RaySystemError holds it
+                    unread = getattr(error.cause, "client_exc", None)
+                    raise unread if isinstance(unread, Exception) else error.as_instanceof_cause() from None
                 for next_position, item in queue:
                     pending[remote.remote(function, item)] = next_position
                     break
@@ -306,21 +313,83 @@ def start_ray(ray: Any, options: dict[str, Any], timeout: float) -> None:
             signal.signal(signal.SIGALRM, previous)
 
 
-def wait_for_address(address: str, timeout: float) -> None:
-    """Wait until something accepts a TCP connection at a Ray ``address`` (``host:port`` or ``ray://host:port``).
+@contextlib.contextmanager
+def _stderr_to(path: str | Path | None) -> Iterator[None]:
+    """The standard error of this process (file descriptor 2, where Ray's C++ core writes) appended to ``path``."""
+    saved = os.dup(2)
+    try:
+        if path is not None:
+            with open(path, "ab") as file:
+                os.dup2(file.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
-    ``"auto"`` and ``"local"`` name no port and pass unchecked (Ray answers those at once). Raises
-    ConnectionError after ``timeout`` seconds, naming the address.
+
+def _frame(kind: int, flags: int, stream: int, payload: bytes = b"") -> bytes:
+    """One HTTP/2 frame (RFC 9113, section 4.1)."""
+    return len(payload).to_bytes(3, "big") + bytes([kind, flags]) + stream.to_bytes(4, "big") + payload
+
+
+def _ray_answer(connection: socket.socket, authority: bytes, deadline: float, client: bool) -> str | None:
+    """None when the peer speaks Ray's protocol (gRPC: HTTP/2; a GCS also answers ``GetClusterId``, or refuses it
+    for authentication), else what answered, in words; TimeoutError when nothing came by ``deadline``."""
+    headers = [(b":path", b"/ray.rpc.NodeInfoGcsService/GetClusterId"), (b":authority", authority)]
+    headers += [(b"content-type", b"application/grpc"), (b"te", b"trailers")]
+    # HPACK: :method POST and :scheme http from the static table, the rest as literals (names and values < 127 B)
+    block = b"\x83\x86" + b"".join(b"\0" + bytes([len(n)]) + n + bytes([len(v)]) + v for n, v in headers)
+    call = b"" if client else _frame(1, 4, 1, block) + _frame(0, 1, 1, bytes(5))  # an empty request message
+    connection.sendall(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + _frame(4, 0, 0) + call)
+    received, at = b"", 0
+    while True:
+        if time.monotonic() >= deadline or len(received) > 1 << 20:  # a GCS says what it has to say in a few bytes
+            raise TimeoutError
+        connection.settimeout(deadline - time.monotonic())
+        chunk = connection.recv(65536)
+        received += chunk
+        if (len(received) >= 9 or not chunk) and received[3:4] != b"\x04":  # HTTP/2 servers start with SETTINGS
+            if received.startswith(b"HTTP/") or received.lstrip().startswith(b"<"):  # an HTTP/1 error (page)
+                return "an HTTP server answers there"
+            return "something answers there in another protocol" if received else "something there hangs up"
+        if not chunk:
+            return "something there hangs up"
+        while len(received) >= at + 9 + (length := int.from_bytes(received[at : at + 3], "big")):
+            kind, flags, stream = received[at + 3], received[at + 4], int.from_bytes(received[at + 5 : at + 9], "big")
+            payload, at = received[at + 9 : at + 9 + length], at + 9 + length
+            ended = stream == 1 and kind == 1 and flags & 1  # the call ended without a reply: its status says why
+            # 16, UNAUTHENTICATED: a GCS that wants the token ray.init sends (a status in another encoding: Ray judges)
+            token = ended and (b"grpc-status\x0216" in payload or b"grpc-status" not in payload)
+            if kind == 4 and not flags & 1:  # the server's SETTINGS: acknowledged (a client server is done)
+                if client:
+                    return None
+                connection.sendall(_frame(4, 1, 0))
+            elif (stream == 1 and kind == 0) or token:  # the reply to GetClusterId, or a GCS that wants a token
+                return None
+            elif ended or kind == 7 or (stream == 1 and kind == 3):  # an error status, GOAWAY, RST_STREAM
+                return "a gRPC server there refuses Ray's calls"
+
+
+def wait_for_address(address: str, timeout: float) -> None:
+    """Wait until a Ray cluster answers at ``address`` (``host:port``: its GCS; ``ray://host:port``: its client
+    server), at most ``timeout`` seconds.
+
+    ``ray.init`` waits for minutes (on a port where nothing listens) or for ever (on one where something else
+    does: Ray's dashboard, any HTTP server, a silent listener), in C++ that no signal interrupts. So the port is
+    asked first, in Ray's protocol: it must speak HTTP/2, and a GCS must answer (or refuse for authentication) a
+    ``GetClusterId`` call. ``"auto"`` and ``"local"`` name no port and pass unchecked; a connection refused is
+    tried again until ``timeout``. Raises ConnectionError naming the address, what answers there and the fix.
     """
+    client = address.startswith("ray://")
     target = address.split("://", 1)[1] if "://" in address else address
     host, _, port = target.rpartition(":")
     if not host or not port.isdigit():
         return
     deadline = time.monotonic() + timeout
+    fix = "give the address `ray start --head` prints (GCS port 6379 by default; 8265 is the dashboard)"
     while True:
         try:
-            with socket.create_connection((host.strip("[]"), int(port)), timeout=min(2.0, timeout)):
-                return
+            connection = socket.create_connection((host.strip("[]"), int(port)), timeout=min(2.0, timeout))
         except OSError as error:
             if time.monotonic() >= deadline:
                 raise ConnectionError(
@@ -328,6 +397,17 @@ def wait_for_address(address: str, timeout: float) -> None:
                     "one there (`ray start --head`), or raise --connect-timeout"
                 ) from None
             time.sleep(min(0.5, max(deadline - time.monotonic(), 0.0)))
+            continue
+        try:
+            with connection:
+                answer = _ray_answer(connection, target.encode(), deadline, client)
+        except OSError as error:
+            answer = "something accepts connections there but does not answer" + (
+                f" within {timeout:g} s" if isinstance(error, TimeoutError) else f" ({error.strerror or error})"
+            )
+        if answer is None:
+            return
+        raise ConnectionError(f"{address} is not a Ray {'client server' if client else 'GCS'}: {answer}; {fix}")
 
 
 @dataclass(frozen=True)

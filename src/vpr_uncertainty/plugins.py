@@ -7,7 +7,9 @@ user's package does) and those named by ``--plugin MODULE``. A :class:`Registry`
 found; functions that list a registry's names call :func:`load_plugins` first. Entries are declarative (a ``name``;
 most also a ``description``, what they ``requires``, their pip ``extra`` and default ``options``); a target may be a
 dotted path imported on first use (:func:`load_target`), and a user's options are merged over the defaults
-(:func:`merge_options`, LightGlue's ``default_conf`` style; an unknown option is an error).
+(:func:`merge_options`, LightGlue's ``default_conf`` style; an unknown option is an error). What a process loaded
+travels to the processes that run its work (Ray workers): :class:`Travelling` wraps what is sent so that, unpickled
+there, the same plugin modules are imported first (:func:`replay_plugins`) and checked to be the same code.
 
 Examples
 --------
@@ -33,18 +35,23 @@ from __future__ import annotations
 import difflib
 import importlib
 import re
+import sys
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 __all__ = [
     "ENTRY_POINT_GROUP",
     "Registry",
+    "Travelling",
     "load_plugins",
     "load_target",
+    "loaded_plugins",
     "merge_options",
     "missing_extra_message",
     "registered_code",
+    "replay_plugins",
 ]
 
 T = TypeVar("T")
@@ -58,6 +65,9 @@ SUGGESTION_CUTOFF = 0.8
 _entry_points_loaded = False
 #: Every registry made, for :func:`registered_code`.
 _REGISTRIES: list[Registry] = []
+#: What this process imported as plugins, in order: target -> (the sys.path folder its module was found in, the
+#: digest of its code, :func:`vpr_uncertainty.identity.code_identity`; both None for the toolkit's own modules).
+_loaded: dict[str, tuple[str | None, str | None]] = {}
 
 
 def load_plugins(modules: Iterable[str] = ()) -> None:
@@ -85,7 +95,9 @@ def load_plugins(modules: Iterable[str] = ()) -> None:
                 if distribution.replace("_", "-") == "vpr-uncertainty":
                     raise
                 warnings.warn(
-                    f"plugin {entry_point.name!r} of {distribution} could not be loaded and is left out: {error}",
+                    f"plugin {entry_point.name!r} ({entry_point.value}) of the package {distribution} could not be "
+                    f"loaded and is left out ({type(error).__name__}: {' '.join(str(error).split())}); repair or "
+                    f"uninstall that package (pip uninstall {distribution})",
                     stacklevel=2,
                 )
     for module in modules:
@@ -98,10 +110,74 @@ def load_plugins(modules: Iterable[str] = ()) -> None:
 
 
 def _import_plugin(target: str) -> None:
-    module_name, _, function = target.partition(":")
-    module = importlib.import_module(module_name.strip())
+    name, _, function = (part.strip() for part in target.partition(":"))
+    before = sys.modules.get(name)
+    module = importlib.import_module(name)
     if function:
-        getattr(module, function.strip())()
+        getattr(module, function)()
+    if target not in _loaded or module is not before:  # the code of the module as it was executed
+        from vpr_uncertainty.identity import code_identity
+
+        file, own = getattr(module, "__file__", None), name.split(".")[0] == "vpr_uncertainty"
+        depth = name.count(".") + (file is not None and file.endswith("__init__.py"))
+        folder = None if own or file is None else str(Path(file).absolute().parents[depth])
+        _loaded[target] = (folder, None if own else code_identity(name))
+
+
+def loaded_plugins() -> tuple[tuple[str, str | None, str | None], ...]:
+    """The plugins this process imported (entry points first, loaded now if they were not), in order:
+    ``(target, folder, code)``, the folder of ``sys.path`` the module came from and the digest of its code."""
+    load_plugins()
+    return tuple((target, *found) for target, found in _loaded.items())
+
+
+def replay_plugins(loaded: Iterable[tuple[str, str | None, str | None]]) -> None:
+    """Import in this process (a Ray worker) the plugins another one imported (:func:`loaded_plugins`), in its order
+    and instead of this process's own entry points, so that every name means what it means there.
+
+    Raises
+    ------
+    ImportError
+        Naming the plugin, when one cannot be imported here or its code is not the code the other process runs.
+    """
+    global _entry_points_loaded
+    _entry_points_loaded = True
+    for target, folder, code in loaded:
+        if target not in _loaded:
+            if folder is not None and folder not in sys.path:
+                sys.path.append(folder)
+            try:
+                _import_plugin(target)
+            except Exception as error:
+                raise ImportError(
+                    f"plugin {target!r} cannot be imported on a Ray worker ({type(error).__name__}: "
+                    f"{' '.join(str(error).split())}); it must be importable at the same path on every node"
+                    f"{f' ({folder})' if folder else ''}"
+                ) from None
+        if _loaded[target][1] != code:
+            raise ImportError(
+                f"plugin {target!r} on a Ray worker is not the code this run loaded (its source in {folder} changed "
+                "since, or differs on that node); run again, with the same file on every node"
+            )
+
+
+class Travelling:
+    """``payload`` wrapped so that, unpickled in another process (a Ray worker), it is ``payload`` itself, read
+    only after the plugins this process loaded were imported there (:func:`replay_plugins`), so that the classes
+    of the payload that a plugin defines are found too."""
+
+    def __init__(self, payload: Any, loaded: tuple[tuple[str, str | None, str | None], ...] | None = None) -> None:
+        self.payload, self.loaded = payload, loaded
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        if self.loaded is not None:  # unpickled: the plugins imported
+            return replay_plugins, (self.loaded,)
+        # a pickle is read in order: the plugins are imported, then the payload is read and returned as it is
+        return _arrived, (Travelling(None, loaded_plugins()), self.payload)
+
+
+def _arrived(replayed: None, payload: T) -> T:
+    return payload
 
 
 def missing_extra_message(what: str, module: str | None, extra: str | None) -> str:

@@ -32,6 +32,7 @@ from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache, read_comp
 from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, to_model_input
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, DescriptorModel, load_model
 from vpr_uncertainty.executors import MAX_RETRIES
+from vpr_uncertainty.plugins import Travelling
 from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval.result import check_positive_int
 
@@ -501,7 +502,7 @@ def ray_described_batches(
             warnings.filterwarnings("ignore", message=".*ray_remote_args.* deprecated", category=DeprecationWarning)
             dataset = ray_data.from_items(_rows(todo), override_num_blocks=blocks).map_batches(
                 DescribeBatch,
-                fn_constructor_args=(model if model_factory is None else model_factory,),
+                fn_constructor_args=(Travelling(model if model_factory is None else model_factory),),
                 batch_size=batch_size,
                 compute=ray_data.ActorPoolStrategy(size=max(1, min(executor.workers, blocks))),
                 num_cpus=1,
@@ -518,6 +519,9 @@ def ray_described_batches(
                 except StopIteration:
                     break
                 except ray.exceptions.RayActorError as error:
+                    if getattr(error, "actor_init_failed", False):  # e.g. a plugin it cannot import: last line
+                        cause = str(error).strip().splitlines()[-1]
+                        raise RuntimeError(f"the model could not be set up on a Ray worker: {cause}") from error
                     raise WorkerDiedError(
                         f"a batch of images killed its Ray worker {TASK_RETRIES + 1} times ({seen} of {len(todo)} "
                         "images were described and written before); run again to resume"
