@@ -317,7 +317,7 @@ def test_a_plugin_returning_no_real_numbers_is_named(
     unregister.append("ODD")
     assert _evaluate_with(_plugin(tmp_path, monkeypatch, "ODD", body), "ODD", small_matrix) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
-    assert f"uncertainty method 'ODD' returned {what}; it must return real numbers" in line
+    assert f"uncertainty method 'ODD' returned {what}; it must return one real number per query" in line
 
 
 @pytest.mark.parametrize(("error", "status"), [("ValueError", 2), ("RuntimeError", 1), ("ZeroDivisionError", 1)])

@@ -313,8 +313,7 @@ class UncertaintyMethod:
         """The function on ``retrieval`` with the ``options`` it takes, as a call without arguments.
 
         ``options`` are already resolved (:meth:`resolve_inputs`); an unmet need is a ValueError, raised now. The
-        function gets read-only views of the retrieval's arrays: a method that writes into them fails (naming itself,
-        under :meth:`naming_errors`) instead of changing what the next method reads.
+        function gets read-only views of the retrieval's arrays: writing into them fails instead of misleading the next.
         """
         present = [name for name in vars(retrieval) if getattr(retrieval, name) is not None]
         missing = self.unmet_needs([*present, *(key for key, value in options.items() if value is not None)])
@@ -336,16 +335,13 @@ class UncertaintyMethod:
     def check_result(
         self, result: Any, retrieval: Retrieval
     ) -> np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty:
-        """``result`` when it holds one finite, real uncertainty per query of ``retrieval``, else a TypeError (not
-        real numbers) or RuntimeError naming the method."""
+        """``result`` when it holds one finite real uncertainty per query of ``retrieval``, else an error naming it."""
         wrapped = isinstance(result, (OwnRetrievalUncertainty, DetailedUncertainty))
         uncertainty = np.asarray(result.uncertainty if wrapped else result)
         if uncertainty.dtype.kind not in "biuf":
-            kind = {"c": "complex numbers", "U": "strings", "S": "bytes", "O": "Python objects"}
-            raise TypeError(
-                f"uncertainty method {self.name!r} returned {kind.get(uncertainty.dtype.kind, uncertainty.dtype)}; "
-                "it must return real numbers, one per query (higher = less trustworthy)"
-            )
+            kinds = {"c": "complex numbers", "U": "strings", "S": "bytes", "O": "Python objects"}
+            what = f"returned {kinds.get(uncertainty.dtype.kind, uncertainty.dtype)}"
+            raise TypeError(f"uncertainty method {self.name!r} {what}; it must return one real number per query")
         if isinstance(result, OwnRetrievalUncertainty) and result.retrieval.n_queries != retrieval.n_queries:
             raise RuntimeError(f"uncertainty method {self.name!r} answered a different number of queries")
         if uncertainty.shape != (retrieval.n_queries,):

@@ -119,20 +119,10 @@ def best_auc_pr(evaluation: Evaluation) -> float | None:
     return max(scored) if len(scored) >= 2 else None
 
 
-#: First characters that make a spreadsheet read a cell as a formula (OWASP, "CSV Injection").
-_FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
-
-
 def csv_cell(value: object) -> object:
-    """``value`` as a CSV cell that a spreadsheet shows as text: a string that starts like a formula (``=``, ``+``,
-    ``-``, ``@``, tab, carriage return) and is not a number gets a leading ``'``, as OWASP advises.
-
-    Examples
-    --------
-    >>> print(csv_cell('=HYPERLINK("http://x")'), csv_cell("-0.25"), csv_cell("SU"))
-    '=HYPERLINK("http://x") -0.25 SU
-    """
-    if isinstance(value, str) and value.startswith(_FORMULA_STARTS):
+    """``value`` as a CSV cell: text that a spreadsheet would run as a formula (it starts with = + - @, a tab or a
+    carriage return, and is no number) gets a leading ``'`` (OWASP's advice on CSV injection)."""
+    if isinstance(value, str) and value.startswith(("=", "+", "-", "@", "\t", "\r")):
         try:
             float(value)
         except ValueError:
@@ -141,7 +131,6 @@ def csv_cell(value: object) -> object:
 
 
 def _csv_text(rows: list[list[object]]) -> str:
-    """A CSV document (``\n`` line ends) of ``rows``, every cell through :func:`csv_cell`."""
     buffer = io.StringIO()
     csv.writer(buffer, lineterminator="\n").writerows([csv_cell(cell) for cell in row] for row in rows)
     return buffer.getvalue()
