@@ -37,7 +37,8 @@ def test_a_score_entry_binds_its_scores_function_directly_with_its_own_options()
     retrieval = Retrieval(scores=np.array([[0.9, 0.5, 0.4]]), indices=np.array([[0, 1, 2]]))
     call = get_method("SU").bind(retrieval, {"k": 3, "alpha": 0.2, "sort": True, "device": "cpu"})
     assert call.func is score_functions.statistical_uncertainty  # the timed call is the formula, no wrapper
-    assert call.args[0] is retrieval.scores and call.keywords == {"k": 3, "alpha": 0.2}
+    assert call.keywords == {"k": 3, "alpha": 0.2}
+    assert np.shares_memory(call.args[0], retrieval.scores) and not call.args[0].flags.writeable  # read-only view
     call = get_method("L2").bind(retrieval, {"k": 3, "alpha": 0.2})
     assert call.func is score_functions.l2_distance and call.keywords == {"k": 3, "distances": None}
 

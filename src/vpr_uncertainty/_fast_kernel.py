@@ -32,37 +32,23 @@ def ratio_kernel(scores, n, rs_weight, sd_weight, most_uncertain, out):  # pragm
         best = scores[q, 0]
         ok = best < math.inf  # also False for NaN
         previous = best
-        total = 0.0
-        for j in range(1, n):
+        for j in range(1, n_columns):  # the columns after the first n must be sorted too
             value = scores[q, j]
             ok &= value <= previous  # False for NaN
-            total += value
             previous = value
-        for j in range(n, n_columns):  # the columns after the first n must be sorted too
-            value = scores[q, j]
-            ok &= value <= previous
-            previous = value
-        if not ok:
-            return q + 1
         count = n
-        if scores[q, n - 1] == -math.inf:  # missing candidates: score the finite ones
-            count = 0
-            total = 0.0
-            for j in range(n):
-                if scores[q, j] == -math.inf:
-                    break
-                count += 1
-                total += scores[q, j]
-            if count < 2:
-                return q + 1
-            total -= best
+        while count > 0 and scores[q, count - 1] == -math.inf:  # missing candidates: score the finite ones
+            count -= 1
+        if not ok or count < 2 or (best <= 0 and not most_uncertain):
+            return q + 1
         if best <= 0:
-            if not most_uncertain:
-                return q + 1
             out[q] = 1.0 - best
-        else:
-            median = 0.5 * (np.float64(scores[q, (count - 1) // 2]) + np.float64(scores[q, count // 2]))
-            out[q] = (rs_weight * (total / (count - 1)) + sd_weight * median) / best
+        else:  # the order of operations of scores._ratio_values: the same bits on both paths
+            total = np.float64(scores[q, 1])
+            for j in range(2, count):
+                total += scores[q, j]
+            middle = np.float64(scores[q, (count - 1) // 2]) + scores[q, count // 2]
+            out[q] = (rs_weight / (count - 1) * total + sd_weight * 0.5 * middle) / best
         if not abs(out[q]) < math.inf:  # overflow of out's dtype
             return q + 1
     return 0
@@ -74,6 +60,7 @@ def make_ratio(n: int):
     ``kernel(scores, rs_weight, sd_weight, limit, out)`` writes every row's value into ``out`` and returns how many
     rows are bad: unsorted, NaN, +inf, a missing candidate, s_1 <= 0, or a result beyond ``limit`` (the largest
     finite value of ``out``'s dtype). Bad rows are left to :func:`ratio_kernel`; their values here are garbage.
+    The order of operations is that of ``scores._ratio_values`` (the same bits on both paths).
     """
     low, high = (n - 1) // 2, n // 2
 
@@ -89,8 +76,8 @@ def make_ratio(n: int):
             for j in range(1, n):
                 ok &= flat[row + j] <= flat[row + j - 1]  # False for NaN
             best = flat[row]
-            total = 0.0
-            for j in range(1, n):
+            total = np.float64(flat[row + 1])
+            for j in range(2, n):
                 total += flat[row + j]
             ok &= (best < math.inf) & (flat[row + n - 1] > -math.inf) & (best > 0)
             value = (rs_weight * total + sd_weight * (np.float64(flat[row + low]) + flat[row + high])) / best

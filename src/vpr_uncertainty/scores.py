@@ -88,42 +88,32 @@ def check_alpha(alpha: object, *, name: str = "alpha") -> float:
     return check_fraction(alpha, name)
 
 
-def _combination_weights(n: int, rs_weight: float, sd_weight: float, dtype: np.dtype) -> np.ndarray:
-    """Weights w of shape (n,) such that ``sorted_scores @ w == rs_weight·mean(s_2..s_n) + sd_weight·median``."""
-    weights = np.zeros(n, dtype=np.float64)
-    weights[1:] += rs_weight / (n - 1)
-    weights[(n - 1) // 2] += sd_weight / 2
-    weights[n // 2] += sd_weight / 2
-    return weights.astype(dtype)
+def _ratio_values(top: np.ndarray, rs_weight: float, sd_weight: float) -> np.ndarray:
+    """(rs_weight·mean(s_2..s_n) + sd_weight·median(s_1..s_n)) / s_1 of each sorted row of ``top`` (R, n), in float64
+    (or wider); not finite for a row with ±inf or s_1 <= 0.
+
+    In the numba kernels' order of operations (:mod:`vpr_uncertainty._fast_kernel`), so that both paths give the same
+    bits, and so the same ties: s_2 + s_3 + ... left to right, then (rs_weight / (n − 1))·sum + (sd_weight / 2)·(the
+    middle two), divided by s_1. Each column is made contiguous once (a transposed copy), as numpy is slow on strides.
+    """
+    n = top.shape[1]
+    columns = np.empty((n, top.shape[0]), dtype=np.result_type(top.dtype, np.float64))
+    np.copyto(columns, top.T)
+    middle = columns[(n - 1) // 2] + columns[n // 2]
+    total = columns[1]  # summed in place: the middle columns are read already
+    for j in range(2, n):
+        total += columns[j]
+    total *= rs_weight / (n - 1)
+    middle *= sd_weight * 0.5
+    total += middle
+    best = columns[0]
+    total /= np.where((best > 0) & (best < np.inf), best, np.nan)  # NaN flags s_1 <= 0 and +inf for a closer look
+    return total
 
 
 def _check_policy(on_nonpositive: str) -> None:
     if on_nonpositive not in _NONPOSITIVE_POLICIES:
         raise ValueError(f"on_nonpositive must be one of {_NONPOSITIVE_POLICIES}, got {on_nonpositive!r}")
-
-
-def _divide_by_best(numerator: np.ndarray, best: np.ndarray, on_nonpositive: str) -> np.ndarray:
-    nonpositive = best <= 0
-    if not nonpositive.any():
-        with np.errstate(over="ignore"):  # overflow is reported below with the offending row
-            result = numerator / best
-    elif on_nonpositive == "raise":
-        row = int(np.flatnonzero(nonpositive)[0])
-        raise ValueError(
-            f"scores has {int(nonpositive.sum())} row(s) whose best similarity is <= 0 (first: row {row}, "
-            f"s_1 = {float(best[row]):g}); the ratios s_i / s_1 need s_1 > 0. Use on_nonpositive='most_uncertain' "
-            "to rank such queries as the most uncertain"
-        )
-    else:
-        with np.errstate(over="ignore"):
-            result = numerator / np.where(nonpositive, 1, best)
-        result[nonpositive] = 1 - best[nonpositive]
-    if not np.isfinite(result).all():
-        row = int(np.flatnonzero(~np.isfinite(result))[0])
-        raise ValueError(
-            f"scores overflow {result.dtype} in row {row} (s_1 = {float(best[row]):g}); cast the scores to float64"
-        )
-    return result
 
 
 def _ratio_metric(
@@ -133,11 +123,11 @@ def _ratio_metric(
 
     Large inputs go to the optional numba kernel (:mod:`vpr_uncertainty._fast`: one pass per row) when numba is
     installed; this numpy path is the reference, and the kernel hands every row it does not score the ordinary way
-    back to it. With sorted rows the mean of the runners-up and the median are fixed linear combinations of the
-    columns, so no per-row sort or median is needed. One pass, block by block in cache, checks the order of every
-    row and multiplies the block by the weights, giving every row's weighted sum and s_1. These are finite unless
-    the row holds ±inf or overflows, so they flag, without another pass, the rows with missing candidates (-inf),
-    +inf or overflow, which are redone one by one.
+    back to it, and both compute in the same order (:func:`_ratio_values`): the same bits, so the same ties. With
+    sorted rows the mean of the runners-up and the median are fixed combinations of the columns, so no per-row sort
+    or median is needed. One pass, block by block in cache, checks the order of every row and computes its value;
+    a value that is not finite, or an s_1 that is not positive, flags the rows with missing candidates (-inf), +inf,
+    s_1 <= 0 or overflow, which are redone apart.
     """
     k = check_k(k)
     _check_policy(on_nonpositive)
@@ -152,41 +142,45 @@ def _ratio_metric(
     fast = _fast.ratio_metric(scores, n, rs_weight, sd_weight, on_nonpositive == "most_uncertain")
     if fast is not None:
         return fast
-    # With rs_weight > 0 every column after the first has a positive weight, so ±inf anywhere already makes the
-    # weighted sum or s_1 non-finite; pure SD weighs only the middle columns and needs the plain sum as a flag.
-    flag_row = rs_weight == 0
-    weights = np.zeros((3 if flag_row else 2, n), dtype=scores.dtype)
-    weights[0] = _combination_weights(n, rs_weight, sd_weight, scores.dtype)
-    weights[1, 0] = 1
-    if flag_row:
-        weights[2] = 1
-    sums = np.empty((weights.shape[0], n_queries), dtype=scores.dtype)  # each result is a contiguous row
+    values = np.empty(n_queries, dtype=np.result_type(scores.dtype, np.float64))
     rows = block_rows(n_columns)
     buffer = np.empty(min(rows, n_queries) * n_columns, dtype=bool)
-    with np.errstate(invalid="ignore", over="ignore"):  # ±inf rows are redone below
+    with np.errstate(all="ignore"):  # rows with ±inf or s_1 <= 0 are redone below
         for start in range(0, n_queries, rows):
             block = scores[start : start + rows]
             check_order(block, buffer, start)
-            np.matmul(weights, block[:, :n].T, out=sums[:, start : start + rows])
-    top = scores[:, :n]
-    numerator, best = sums[0], sums[1]
-    finite = np.isfinite(sums[2]) if flag_row else np.isfinite(numerator) & np.isfinite(best)
-    unusual = np.flatnonzero(~finite)
+            values[start : start + rows] = _ratio_values(block[:, :n], rs_weight, sd_weight)
+    best, unusual = scores[:, 0], np.flatnonzero(~np.isfinite(values))
     if unusual.size:
-        numerator, best = numerator.copy(), top[:, 0].copy()
         check_best_scores(best)
-        # Rows with missing candidates (-inf) are scored on the candidates they have.
-        n_candidates = np.isfinite(top[unusual]).sum(axis=1)
+        top = scores[unusual, :n]
+        n_candidates = np.isfinite(top).sum(axis=1)  # rows with missing candidates (-inf): scored on those they have
         if (n_candidates < 2).any():
             every_row = np.full(n_queries, n)
             every_row[unusual] = n_candidates
             raise_for_short_rows(every_row)
-        for count in np.unique(n_candidates):
-            rows = unusual[n_candidates == count]
-            count_weights = _combination_weights(int(count), rs_weight, sd_weight, scores.dtype)
-            with np.errstate(over="ignore", invalid="ignore"):  # overflow is reported by _divide_by_best
-                numerator[rows] = top[rows, :count] @ count_weights
-    return _divide_by_best(numerator, best, on_nonpositive)
+        first = top[:, 0].astype(values.dtype)
+        nonpositive = first <= 0
+        if nonpositive.any() and on_nonpositive == "raise":
+            row = int(unusual[nonpositive][0])
+            raise ValueError(
+                f"scores has {int(nonpositive.sum())} row(s) whose best similarity is <= 0 (first: row {row}, "
+                f"s_1 = {float(best[row]):g}); the ratios s_i / s_1 need s_1 > 0. Use on_nonpositive='most_uncertain' "
+                "to rank such queries as the most uncertain"
+            )
+        with np.errstate(all="ignore"):  # overflow is reported below
+            for count in np.unique(n_candidates):
+                group = n_candidates == count
+                values[unusual[group]] = _ratio_values(top[group, :count], rs_weight, sd_weight)
+            values[unusual[nonpositive]] = 1.0 - first[nonpositive]
+    with np.errstate(over="ignore"):
+        result = values.astype(scores.dtype)
+    if not np.isfinite(result).all():
+        row = int(np.flatnonzero(~np.isfinite(result))[0])
+        raise ValueError(
+            f"scores overflow {result.dtype} in row {row} (s_1 = {float(best[row]):g}); cast the scores to float64"
+        )
+    return result
 
 
 def ratio_spread(

@@ -147,6 +147,7 @@ def _read_retrieval_file(path: Path, *, ground_truth: str | Path | None, **_: An
     if ground_truth is not None:
         n_database = retrieval.positives.shape[1] if retrieval.positives is not None else None
         retrieval.positives = load_ground_truth(ground_truth, n_queries=retrieval.n_queries, n_database=n_database)
+        retrieval.config.pop("positives_vs_mean", None)  # measured against the positives replaced
         retrieval.__post_init__()
     return retrieval
 
@@ -160,18 +161,29 @@ def _read_matrix(
     higher_is_better: bool = True,
     **_: Any,
 ) -> Retrieval:
-    # Memory-mapped and cut to its top-k one block of queries at a time: never the whole matrix in memory.
-    scores, indices, (n_queries, n_database) = read_similarity_top_k(
-        path, top_k, file_format=file_format, higher_is_better=higher_is_better
-    )
+    from vpr_uncertainty.evaluation.metrics import positives_against_mean
+
     if ground_truth is None:
         raise ValueError(
             f"{path} is a similarity matrix without ground truth; give the ground truth (argument ground_truth)"
         )
-    # Sized by the matrix: a positive beyond its columns, or a mask of another width, is an error naming the file.
-    positives = load_ground_truth(ground_truth, n_queries=n_queries, n_database=n_database)
+    read: dict[str, Any] = {"ordering": [0, 0]}  # queries whose positives score above / below their row's mean
+
+    def measure(block: np.ndarray, first_row: int, shape: tuple[int, int]) -> None:
+        if first_row == 0:  # sized by the matrix: a positive beyond its columns is an error naming the file
+            read["positives"] = load_ground_truth(ground_truth, n_queries=shape[0], n_database=shape[1])
+        rows, columns = read["positives"][first_row : first_row + len(block)].nonzero()
+        for side, count in enumerate(positives_against_mean(block if higher_is_better else -block, rows, columns)):
+            read["ordering"][side] += count
+
+    # Memory-mapped and cut to its top-k one block of queries at a time: never the whole matrix in memory.
+    scores, indices, _ = read_similarity_top_k(
+        path, top_k, file_format=file_format, higher_is_better=higher_is_better, on_block=measure
+    )
     config = {"source": str(path), "ground_truth": str(ground_truth), "top_k": int(scores.shape[1])}
-    if higher_is_better:
+    config["positives_vs_mean"], positives = read["ordering"], read["positives"]
+    if higher_is_better or (scores > 0).any():  # lower-is-better scores below 0 are no squared L2 distances: negated
+        config.update({} if higher_is_better else {"scores": "distance"})
         return Retrieval(scores=scores, indices=indices, positives=positives, config=config)
     return Retrieval.from_distances(-scores, indices, positives=positives, config=config)
 
@@ -296,6 +308,7 @@ def read_similarity_top_k(
     file_format: str = "auto",
     block_rows: int | None = None,
     higher_is_better: bool = True,
+    on_block: Callable[[np.ndarray, int, tuple[int, int]], None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """The top-k of every query of a similarity matrix file, memory-mapped and read one block of queries at a time.
 
@@ -303,16 +316,19 @@ def read_similarity_top_k(
     checked block by block with the errors of :func:`load_similarity_matrix`; VPR-Bench's legacy files are read whole.
     Returns scores and indices of shape (Q, min(top_k, D)) as :func:`~vpr_uncertainty.retrieval.top_k_from_similarity`
     does, and the matrix's shape (Q, D). ``higher_is_better=False``: the file holds distances; the k nearest are
-    returned with their distances negated (the scores of a Retrieval are higher = better).
+    returned with their distances negated (the scores of a Retrieval are higher = better). ``on_block(block,
+    first_row, shape)`` sees every block of values as stored, once checked.
     """
     path = Path(path)
     matrix = _open_similarity(path, file_format, mmap=True)
     check_positive_int(top_k, "top_k")
+    shape = (int(matrix.shape[0]), int(matrix.shape[1]))
 
     def check_block(block: np.ndarray, first_row: int) -> None:
         _check_similarity_values(block, path, first_row, higher_is_better=higher_is_better)
+        if on_block is not None:
+            on_block(block, first_row, shape)
 
-    shape = (int(matrix.shape[0]), int(matrix.shape[1]))
     if isinstance(matrix, np.memmap) and matrix.flags.c_contiguous:
         matrix = MappedRows(matrix)  # one mapping per block: read pages do not pile up in resident memory
     scores, indices = top_k_blocks(

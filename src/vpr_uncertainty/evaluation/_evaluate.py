@@ -19,9 +19,11 @@ from vpr_uncertainty.evaluation.metrics import (
     RECALL_NS,
     FewerCandidatesWarning,
     answerable_queries,
+    candidate_hits,
     check_recall_ns,
     correct_at_n,
     first_positive_rank,
+    positives_against_mean,
     precision_at_recall,
     rank_queries,
     recall_at_full_precision,
@@ -172,28 +174,28 @@ def evaluate(
         k=min(int(k), retrieval.k),
         k_requested=int(k),
     )
-    if recall_note:
-        evaluation.notes.append(recall_note)
-        warnings.warn(recall_note, FewerCandidatesWarning, stacklevel=2)
+
+    def note(text: str | None, warning: type[Warning] | None = None) -> None:
+        if text:
+            evaluation.notes.append(text)
+            if warning is not None:
+                warnings.warn(text, warning, stacklevel=3)
+
+    note(recall_note, FewerCandidatesWarning)
     if (~answerable).any():
-        evaluation.notes.append(
+        note(
             f"{int((~answerable).sum())} queries have no positive in the database; they count as wrong answers "
             "and are left out of the recall denominators"
         )
     both_classes = correct.any() and not correct.all()
     if not both_classes:
-        evaluation.notes.append("AUC-PR and AP are undefined: every top-1 answer is correct, or none is")
-        warnings.warn(evaluation.notes[-1], RuntimeWarning, stacklevel=2)
-    shortfall = _candidates_note(k, retrieval.k, entries, retrieval.config.get("source"))
-    if shortfall:
-        evaluation.notes.append(shortfall)
-        warnings.warn(shortfall, FewerCandidatesWarning, stacklevel=2)
-    nonpositive = _nonpositive_note(retrieval.scores, entries)
-    if nonpositive:
-        evaluation.notes.append(nonpositive)
+        note("AUC-PR and AP are undefined: every top-1 answer is correct, or none is", RuntimeWarning)
+    note(_candidates_note(k, retrieval.k, entries, retrieval.config.get("source")), FewerCandidatesWarning)
+    note(_nonpositive_note(retrieval.scores, entries))
     replaced = [f"{entry.name} is {OVERRIDES[entry.name]}'s" for entry in entries if entry.name in OVERRIDES]
     if replaced:
-        evaluation.notes.append(f"{', '.join(replaced)} method, a plugin's in place of the built-in of that name")
+        note(f"{', '.join(replaced)} method, a plugin's in place of the built-in of that name")
+    note(_direction_note(retrieval, float(correct.mean())), UserWarning)
     for entry in entries:
         inputs = entry.resolve_inputs(retrieval, {"k": k, "alpha": alpha, **options})  # files read once
         timings: dict[str, float] = {}
@@ -207,7 +209,8 @@ def evaluate(
                 timings["time_per_query_ms_warm"] = warm / retrieval.n_queries * 1e3
         else:
             call = entry.bind(retrieval, inputs)  # needs checked once; the timed call is the method's own function
-            result, seconds = time_per_query(call, retrieval.n_queries, repeats=timing_repeats)
+            with entry.naming_errors():
+                result, seconds = time_per_query(call, retrieval.n_queries, repeats=timing_repeats)
             entry.check_result(result, retrieval)
         if latency and entry.kind in LATENCY_KINDS:
             timings["latency_ms_batch1"] = latency_batch1(functools.partial(entry, **inputs), retrieval) * 1e3
@@ -215,9 +218,7 @@ def evaluate(
         if isinstance(result, DetailedUncertainty):
             result, details = result.uncertainty, dict(result.details)
         if isinstance(result, OwnRetrievalUncertainty):
-            uncertainty = result.uncertainty
-            own = result.retrieval
-            details = dict(result.details)
+            uncertainty, own, details = result.uncertainty, result.retrieval, dict(result.details)
             if details.get("trained_on_queries"):
                 evaluation.notes.append(
                     f"{entry.name} was trained on {details['trained_on_queries']} of these {retrieval.n_queries} "
@@ -251,9 +252,7 @@ def evaluate(
             n_distinct=ranking.n_distinct,
             tied_share=ranking.tied_share,
         )
-    tied = _tied_note(evaluation.methods.values(), evaluation.n_queries)
-    if tied:
-        evaluation.notes.append(tied)
+    note(_tied_note(evaluation.methods.values(), evaluation.n_queries))
     if bootstrap:
         add_bootstrap(evaluation, n_resamples=bootstrap, seed=seed, reference=reference)
     return evaluation
@@ -263,15 +262,9 @@ def evaluate(
 _NONPOSITIVE_RULE_DOCS = "docs/explanation/conventions.md; vpr_uncertainty.scores"
 
 
-def _is_ratio(entry: UncertaintyMethod) -> bool:
-    """Whether the method divides by the best similarity s_1 (RS, SD, SU, SU-adaptive: ``scores="similarity"``),
-    and so ranks s_1 <= 0 as the most uncertain and reads k of the candidates."""
-    return entry.scores == "similarity"
-
-
 def _candidates_note(k: int, available: int, entries: Sequence[UncertaintyMethod], source: object) -> str | None:
     """A note when k exceeds the candidates per query, for the methods whose result depends on k (ratio, spatial)."""
-    using_k = [entry.name for entry in entries if _is_ratio(entry) or entry.kind == "spatial"]
+    using_k = [entry.name for entry in entries if entry.scores == "similarity" or entry.kind == "spatial"]
     if int(k) <= available or not using_k:
         return None
     where = f" ({source})" if source else ""
@@ -283,7 +276,7 @@ def _candidates_note(k: int, available: int, entries: Sequence[UncertaintyMethod
 
 def _nonpositive_note(scores: np.ndarray, entries: Sequence[UncertaintyMethod]) -> str | None:
     """A note counting the queries whose best similarity s_1 <= 0, when a ratio method (RS, SD, SU, ...) is asked."""
-    ratio = [entry.name for entry in entries if _is_ratio(entry)]
+    ratio = [entry.name for entry in entries if entry.scores == "similarity"]  # divide by s_1: RS, SD, SU, ...
     if not ratio or scores.shape[0] == 0 or scores.shape[1] == 0:
         return None
     best = np.asarray(scores)[:, 0]
@@ -293,6 +286,27 @@ def _nonpositive_note(scores: np.ndarray, entries: Sequence[UncertaintyMethod]) 
     return (
         f"{count} of {len(best)} queries have a best similarity s_1 <= 0: {', '.join(ratio)} rank them as the most "
         f"uncertain (uncertainty 1 - s_1 >= 1), the rule for s_1 <= 0 in {_NONPOSITIVE_RULE_DOCS}"
+    )
+
+
+def _direction_note(retrieval: Retrieval, top_1_correct: float) -> str | None:
+    """A note when the scores order the ground truth last (distances read as similarities, or the reverse): when the
+    queries whose positives score below the mean of their row (the matrix's, as the reader counted them in
+    ``config["positives_vs_mean"]``, else the candidates') outnumber those above by 3 standard deviations of a fair
+    coin's count (one-sided p ≈ 0.001 for scores unrelated to the ground truth; any better ones score them above)."""
+    counts = retrieval.config.get("positives_vs_mean")
+    if counts is None:
+        rows, columns = np.nonzero(candidate_hits(retrieval.indices, retrieval.positives))
+        counts = positives_against_mean(retrieval.scores, rows, columns)
+    above, below = (int(count) for count in counts)
+    if below - above < 3 * np.sqrt(above + below) or below == 0:
+        return None
+    reading, advice = ("similarities", "if lower means more similar, read them as distances: --scores distance")
+    if retrieval.score_kind == "distance":
+        reading, advice = "distances (--scores distance)", "if higher means more similar, drop --scores distance"
+    return (
+        f"the scores rank the ground truth backwards: read as {reading}, {below} of {above + below} queries score "
+        f"their positives below the mean of their row (top-1 correct: {top_1_correct:.3f}); {advice}"
     )
 
 

@@ -49,10 +49,12 @@ __all__ = [
     "auc_pr",
     "aurc",
     "average_precision",
+    "candidate_hits",
     "check_labels",
     "check_recall_ns",
     "correct_at_n",
     "first_positive_rank",
+    "positives_against_mean",
     "precision_at_recall",
     "rank_queries",
     "recall_at_full_precision",
@@ -111,12 +113,27 @@ def first_positive_rank(indices: object, positives: object, n: int | None = None
             f"indices refer to database image {int(top.max())} but the ground truth covers "
             f"{positives.shape[1]} database images"
         )
-    rows = np.repeat(np.arange(len(top)), n)
-    hits = np.asarray(positives[rows, np.maximum(top.ravel(), 0)]).reshape(top.shape)
-    hits &= top >= 0
+    hits = candidate_hits(top, positives)
     first = hits.argmax(axis=1)  # the first True, or 0 when none
     first[~hits[np.arange(len(hits)), first]] = n
     return first
+
+
+def candidate_hits(indices: np.ndarray, positives: sparse.csr_array) -> np.ndarray:
+    """Whether each candidate (``indices`` (Q, K), ``-1``: missing) is among its query's ``positives``, (Q, K) bool."""
+    rows = np.repeat(np.arange(len(indices)), indices.shape[1])
+    hits = np.asarray(positives[rows, np.maximum(indices.ravel(), 0)]).reshape(indices.shape)
+    return hits & (indices >= 0)
+
+
+def positives_against_mean(scores: np.ndarray, rows: np.ndarray, columns: np.ndarray) -> tuple[int, int]:
+    """How many rows of ``scores`` (R, C) give their positives (at ``rows``, ``columns``) a mean score above the row's
+    mean, and how many below it (rows without positives count in neither)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        count = np.bincount(rows, minlength=len(scores))
+        positive = np.bincount(rows, scores[rows, columns], minlength=len(scores)) / count
+        mean = scores.mean(axis=1, dtype=np.float64)
+    return int((positive > mean).sum()), int((positive < mean).sum())
 
 
 def correct_at_n(indices: object, positives: object, n: int = 1) -> np.ndarray:

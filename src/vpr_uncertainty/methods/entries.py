@@ -9,12 +9,14 @@ selected method takes is an error (:func:`check_options`). A name can carry its 
 
 from __future__ import annotations
 
+import contextlib
+import copy
 import dataclasses
 import functools
 import inspect
 import math
 import warnings
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -248,6 +250,8 @@ class UncertaintyMethod:
                     f"{high:.4g}]; for distances or negated distances, read them as distances: --scores distance)"
                 )
         if self.scores == "cosine" and retrieval.distances is None:
+            if retrieval.score_kind == "distance":
+                return "it needs squared L2 distances, and these lower-is-better scores hold values below 0"
             low, high = _score_range(retrieval.scores[:, :2])
             tolerance = _scores.COSINE_TOLERANCE
             if low < -1 - tolerance or high > 1 + tolerance:
@@ -308,15 +312,20 @@ class UncertaintyMethod:
     def bind(self, retrieval: Retrieval, options: Mapping[str, Any]) -> Callable[[], Any]:
         """The function on ``retrieval`` with the ``options`` it takes, as a call without arguments.
 
-        ``options`` are already resolved (:meth:`resolve_inputs`); an unmet need is a ValueError, raised now.
+        ``options`` are already resolved (:meth:`resolve_inputs`); an unmet need is a ValueError, raised now. The
+        function gets read-only views of the retrieval's arrays: writing into them fails instead of misleading the next.
         """
         present = [name for name in vars(retrieval) if getattr(retrieval, name) is not None]
         missing = self.unmet_needs([*present, *(key for key, value in options.items() if value is not None)])
         if missing:
             raise ValueError(f"uncertainty method {self.name!r} needs {describe_needs(missing)}")
+        if self.scores == "cosine" and retrieval.score_kind == "distance" and retrieval.distances is None:
+            where = retrieval.config.get("source", "the retrieval")
+            raise ValueError(f"uncertainty method {self.name!r} on {where}: {self.unsuited_to(retrieval)}")
         accepted = self.accepted_options()
         if accepted is not None:
             options = {key: value for key, value in options.items() if key in accepted}
+        retrieval = _read_only(retrieval)
         if not self.reads:
             return functools.partial(self.function, retrieval, **options)
         first, *others = self.reads
@@ -326,9 +335,13 @@ class UncertaintyMethod:
     def check_result(
         self, result: Any, retrieval: Retrieval
     ) -> np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty:
-        """``result`` when it holds one finite uncertainty per query of ``retrieval``, else a RuntimeError."""
+        """``result`` when it holds one finite real uncertainty per query of ``retrieval``, else an error naming it."""
         wrapped = isinstance(result, (OwnRetrievalUncertainty, DetailedUncertainty))
         uncertainty = np.asarray(result.uncertainty if wrapped else result)
+        if uncertainty.dtype.kind not in "biuf":
+            kinds = {"c": "complex numbers", "U": "strings", "S": "bytes", "O": "Python objects"}
+            what = f"returned {kinds.get(uncertainty.dtype.kind, uncertainty.dtype)}"
+            raise TypeError(f"uncertainty method {self.name!r} {what}; it must return one real number per query")
         if isinstance(result, OwnRetrievalUncertainty) and result.retrieval.n_queries != retrieval.n_queries:
             raise RuntimeError(f"uncertainty method {self.name!r} answered a different number of queries")
         if uncertainty.shape != (retrieval.n_queries,):
@@ -344,7 +357,38 @@ class UncertaintyMethod:
         self, retrieval: Retrieval, **options: Any
     ) -> np.ndarray | OwnRetrievalUncertainty | DetailedUncertainty:
         call = self.bind(retrieval, self.resolve_inputs(retrieval, options))
-        return self.check_result(call(), retrieval)
+        with self.naming_errors():
+            return self.check_result(call(), retrieval)
+
+    @contextlib.contextmanager
+    def naming_errors(self) -> Iterator[None]:
+        """Re-raise an error of the method's call as one line that names the method (its traceback: ``--debug``), of
+        the same kind when it is one the command line reports as such (its exit status), else as a RuntimeError."""
+        try:
+            yield
+        except Exception as error:
+            if str(error).startswith("uncertainty method "):  # names a method already (this one, or one it called)
+                raise
+            kinds = (ImportError, FileNotFoundError, PermissionError, ValueError, TypeError, KeyError, OSError)
+            text = str(error.args[0] if isinstance(error, KeyError) and error.args else error) or type(error).__name__
+            if "read-only" in text:
+                text += " (the retrieval's arrays are read-only: a method copies what it changes)"
+            kind = next((kind for kind in kinds if isinstance(error, kind)), RuntimeError)
+            raise kind(f"uncertainty method {self.name!r} failed: {text}") from error
+
+
+def _read_only(retrieval: Retrieval) -> Retrieval:
+    """A shallow copy of ``retrieval`` whose arrays (the sparse positives' too) are read-only views; config copied."""
+    guarded, frozen = copy.copy(retrieval), functools.partial(np.lib.stride_tricks.as_strided, writeable=False)
+    for name, value in vars(retrieval).items():
+        if isinstance(value, np.ndarray):
+            setattr(guarded, name, frozen(value))
+        elif hasattr(value, "indptr"):  # scipy.sparse positives
+            setattr(guarded, name, sparse := copy.copy(value))
+            sparse.data, sparse.indices, sparse.indptr = map(frozen, (value.data, value.indices, value.indptr))
+        elif isinstance(value, dict):
+            setattr(guarded, name, dict(value))
+    return guarded
 
 
 #: What a method may assume of the scores (:attr:`UncertaintyMethod.scores`).

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from vpr_uncertainty.pipeline.evaluate import EvaluateConf, read_inputs
 from vpr_uncertainty.pipeline.evaluate import compute as evaluate_compute
 from vpr_uncertainty.pipeline.options import (
@@ -81,9 +83,8 @@ def compute(
     from vpr_uncertainty.evaluation import compare
 
     settings = {"n_resamples": conf.resamples, "seed": conf.seed}
+    _check_sides(conf, retrieval_b is not None)
     if conf.uncertainty is not None:
-        if retrieval_b is not None:
-            raise ValueError("--uncertainty compares two uncertainty methods of one results file; give only A")
         evaluate_conf = conf.evaluate
         if not evaluate_conf.methods:
             evaluate_conf = dataclasses.replace(evaluate_conf, methods=list(conf.uncertainty))
@@ -93,10 +94,9 @@ def compute(
         evaluation = evaluate_compute(evaluate_conf, retrieval_a).evaluation
         method_a, method_b = conf.uncertainty
         return compare(evaluation, method_a=method_a, method_b=method_b, **settings)
-    if retrieval_b is None:
-        raise ValueError("give B (a second results file of the same queries) or --uncertainty U1,U2")
+    _check_same_ground_truth(retrieval_a, retrieval_b, labels)
     evaluation_a, evaluation_b = (evaluate_compute(conf.evaluate, r).evaluation for r in (retrieval_a, retrieval_b))
-    return compare(
+    comparison = compare(
         evaluation_a,
         evaluation_b,
         labels=labels,
@@ -104,6 +104,34 @@ def compute(
         query_names_b=retrieval_b.query_names,
         **settings,
     )
+    if all(np.array_equal(getattr(retrieval_a, name), getattr(retrieval_b, name)) for name in ("scores", "indices")):
+        comparison.notes.append(f"{labels[0]} and {labels[1]} hold the same retrieval: every difference is 0")
+    return comparison
+
+
+def _check_sides(conf: CompareConf, with_b: bool) -> None:
+    if conf.uncertainty is not None and with_b:
+        raise ValueError("--uncertainty compares two uncertainty methods of one results file; give only A")
+    if conf.uncertainty is None and not with_b:
+        raise ValueError("give B (a second results file of the same queries) or --uncertainty U1,U2 (see --help)")
+
+
+def _check_same_ground_truth(retrieval_a: Any, retrieval_b: Any, labels: Sequence[str]) -> None:
+    """Refuse two retrievals whose queries or positives differ: their correctness labels are not comparable."""
+    (a, b), (first, second) = (retrieval_a.positives, retrieval_b.positives), labels
+    if a is None or b is None:
+        return  # evaluate says that it needs the ground truth
+    for axis, what in enumerate(("queries", "database images")):
+        if a.shape[axis] != b.shape[axis]:
+            raise ValueError(
+                f"{first} and {second} must hold the same {what}: they have {a.shape[axis]} and {b.shape[axis]} {what}"
+            )
+    rows = np.unique((a != b).nonzero()[0])
+    if rows.size:
+        raise ValueError(
+            f"{first} and {second} hold different ground truth: the positives of {rows.size} of {a.shape[0]} queries "
+            f"differ (first: query {rows[0]}); compare them with the same ground truth (--gt GT)"
+        )
 
 
 def main(
@@ -183,16 +211,8 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
 
 def _read(path: Path, args: argparse.Namespace, conf: EvaluateConf) -> Any:
     """One results file, read as ``evaluate`` reads its SCORES."""
-    reader_args = argparse.Namespace(
-        scores=path,
-        gt=args.gt,
-        format=args.format,
-        score_kind=args.score_kind,
-        radius=None,
-        images=None,
-        query_images=None,
-        database_images=None,
-    )
+    unused = dict.fromkeys(("radius", "images", "query_images", "database_images"))
+    reader_args = argparse.Namespace(scores=path, gt=args.gt, format=args.format, score_kind=args.score_kind, **unused)
     retrieval, _, _, notes = read_inputs(reader_args, conf)
     for note in notes:
         print(f"note: {path}: {note}")
@@ -202,10 +222,7 @@ def _read(path: Path, args: argparse.Namespace, conf: EvaluateConf) -> Any:
 def _handle(args: argparse.Namespace) -> int:
     evaluate_conf = conf_from_args(EvaluateConf, args, bootstrap=0, seed=0, reference=None)
     conf = conf_from_args(CompareConf, args, evaluate=evaluate_conf)
-    if conf.uncertainty is not None and args.b is not None:
-        raise ValueError("--uncertainty compares two uncertainty methods of one results file; give only A")
-    if conf.uncertainty is None and args.b is None:
-        raise ValueError("give B (a second results file of the same queries) or --uncertainty U1,U2 (see --help)")
+    _check_sides(conf, args.b is not None)  # before reading the files
     paths = [args.a] if args.b is None else [args.a, args.b]
     with command_wording(ground_truth="--gt GT"):
         retrievals = [_read(path, args, evaluate_conf) for path in paths]

@@ -52,10 +52,10 @@ STAGE = "uncertainty"
 
 
 def recall_list(text: str) -> tuple[int, ...]:
-    """Comma-separated N of recall@N (``1,5,10,100``), each an int >= 1; sorted, without repeats."""
+    """Comma-separated N of recall@N (``1,5,10,100``), each an int >= 1 in ASCII digits; sorted, without repeats."""
     try:
-        return check_recall_ns([int(part) for part in text.split(",") if part.strip()])
-    except (TypeError, ValueError) as error:
+        return check_recall_ns([positive_int(part.strip()) for part in text.split(",") if part.strip()])
+    except (TypeError, ValueError, argparse.ArgumentTypeError) as error:
         raise argparse.ArgumentTypeError(
             f"expected a comma-separated list of ints >= 1 such as 1,5,10,100, got {text!r}"
         ) from error

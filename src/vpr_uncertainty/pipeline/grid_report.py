@@ -16,6 +16,7 @@ import numpy as np
 from vpr_uncertainty.cache import atomic_write, write_text
 from vpr_uncertainty.evaluation import Evaluation
 from vpr_uncertainty.pipeline.grid_config import GridConfig
+from vpr_uncertainty.reports.tables import csv_cell
 
 CSV_FIELDS = (
     "vpr_method",
@@ -216,7 +217,7 @@ def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
     with atomic_write(csv_path, newline="") as file:
         writer = csv.DictWriter(file, fieldnames=[*CSV_FIELDS, *recall_fields])
         writer.writeheader()
-        writer.writerows(rows)
+        writer.writerows({key: csv_cell(value) for key, value in row.items()} for row in rows)
     return {"results_json": json_path, "results_csv": csv_path}
 
 

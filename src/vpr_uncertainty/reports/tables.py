@@ -34,6 +34,7 @@ __all__ = [
     "build_table1",
     "build_ties_table",
     "column_distributions",
+    "csv_cell",
     "evaluation_csv",
     "evaluation_latex",
     "format_table",
@@ -116,6 +117,23 @@ def best_auc_pr(evaluation: Evaluation) -> float | None:
         if m.informative and m.auc_pr is not None and not m.trained_on_queries
     ]
     return max(scored) if len(scored) >= 2 else None
+
+
+def csv_cell(value: object) -> object:
+    """``value`` as a CSV cell: text that a spreadsheet would run as a formula (it starts with = + - @, a tab or a
+    carriage return, and is no number) gets a leading ``'`` (OWASP's advice on CSV injection)."""
+    if isinstance(value, str) and value.startswith(("=", "+", "-", "@", "\t", "\r")):
+        try:
+            float(value)
+        except ValueError:
+            return "'" + value
+    return value
+
+
+def _csv_text(rows: list[list[object]]) -> str:
+    buffer = io.StringIO()
+    csv.writer(buffer, lineterminator="\n").writerows([csv_cell(cell) for cell in row] for row in rows)
+    return buffer.getvalue()
 
 
 def markdown_cell(text: str) -> str:
@@ -407,12 +425,10 @@ def table1_csv(table: Table1) -> str:
     the best alone, significantly better than every other method.
     """
     marks = table.marks()
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
     with_ci = table.intervals is not None
     columns = [part for c in table.columns for part in ((c, f"{c}_ci_low", f"{c}_ci_high") if with_ci else (c,))]
     extra = ["significant_best_for"] if with_ci else []
-    writer.writerow(["method", *columns, "time_per_query_ms", "best_for", *extra])
+    csv_rows: list[list[object]] = [["method", *columns, "time_per_query_ms", "best_for", *extra]]
     for i, (name, row, time_ms) in enumerate(zip(table.rows, table.values, table.time_ms, strict=True)):
         best_for = [column for j, column in enumerate(table.columns) if marks[i][j]]
         numbers = []
@@ -423,8 +439,8 @@ def table1_csv(table: Table1) -> str:
                 numbers += ["", ""] if interval is None else [f"{interval[0]:.6f}", f"{interval[1]:.6f}"]
         numbers.append("" if time_ms is None else f"{time_ms:.6f}")
         sole = [c for j, c in enumerate(table.columns) if marks[i][j] and table.significant and table.significant[j]]
-        writer.writerow([name, *numbers, ";".join(best_for), *([";".join(sole)] if with_ci else [])])
-    return buffer.getvalue()
+        csv_rows.append([name, *numbers, ";".join(best_for), *([";".join(sole)] if with_ci else [])])
+    return _csv_text(csv_rows)
 
 
 def table1_latex(
@@ -494,9 +510,7 @@ def evaluation_csv(evaluation: Evaluation) -> str:
     with_ci = evaluation.bootstrap is not None
     metrics = [key for key, _, _ in _EVALUATION_COLUMNS]
     intervals = [f"{key}_ci_{end}" for key in ("auc_pr", "average_precision", "aurc") for end in ("low", "high")]
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["method", *metrics, "informative", "best", *(intervals if with_ci else [])])
+    csv_rows: list[list[object]] = [["method", *metrics, "informative", "best", *(intervals if with_ci else [])]]
     for name, method in evaluation.methods.items():
         numbers = method.to_dict()
         row = [name, *("" if numbers[key] is None else repr(float(numbers[key])) for key in metrics)]
@@ -505,8 +519,8 @@ def evaluation_csv(evaluation: Evaluation) -> str:
             for key in ("auc_pr", "average_precision", "aurc"):
                 interval = getattr(method, f"{key}_ci")
                 row += ["", ""] if interval is None else [repr(float(interval[0])), repr(float(interval[1]))]
-        writer.writerow(row)
-    return buffer.getvalue()
+        csv_rows.append(row)
+    return _csv_text(csv_rows)
 
 
 def evaluation_latex(
@@ -683,15 +697,14 @@ def ties_markdown(table: TiesTable) -> str:
 
 def ties_csv(table: TiesTable) -> str:
     """CSV: ``C_tied_share`` and ``C_distinct_values`` for each VPR method ``C`` (empty where undefined)."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["method", *(f"{c}_{part}" for c in table.columns for part in ("tied_share", "distinct_values"))])
+    header = ["method", *(f"{c}_{part}" for c in table.columns for part in ("tied_share", "distinct_values"))]
+    csv_rows: list[list[object]] = [header]
     for name, shares, distinct in zip(table.rows, table.tied_share, table.distinct, strict=True):
         values = []
         for share, count in zip(shares, distinct, strict=True):
             values += ["", ""] if share is None else [f"{share:.6f}", f"{count:g}"]
-        writer.writerow([name, *values])
-    return buffer.getvalue()
+        csv_rows.append([name, *values])
+    return _csv_text(csv_rows)
 
 
 # --- Table 1 from held-out means (the grid's calibration option) ---
