@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import difflib
 import importlib
-import re
 import sys
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -63,8 +62,6 @@ ENTRY_POINT_GROUP = "vpr_uncertainty.plugins"
 #: but not "GPA" -> "PA" (0.8, a letter more).
 SUGGESTION_CUTOFF = 0.8
 _entry_points_loaded = False
-#: Every registry made, for :func:`registered_code`.
-_REGISTRIES: list[Registry] = []
 #: What this process imported as plugins, in order: target -> (the sys.path folder its module was found in, the
 #: digest of its code, :func:`vpr_uncertainty.identity.code_identity`; both None for the toolkit's own modules).
 _loaded: dict[str, tuple[str | None, str | None]] = {}
@@ -228,30 +225,10 @@ def merge_options(defaults: Mapping[str, Any], given: Mapping[str, Any], *, what
 
 
 def registered_code() -> dict[str, str]:
-    """The :func:`~vpr_uncertainty.identity.code_identity` of every module outside the toolkit whose functions or
-    dotted targets any registry's entries hold (a user's plugins: methods, models, presets, formats), by name.
-
-    Part of the fingerprint of what the entries compute: an edited plugin, or one that replaces a built-in, keys
-    its results apart.
-    """
-    from vpr_uncertainty.identity import is_installed, target_identity
-
-    found: dict[str, str] = {}
-    for registry in _REGISTRIES:
-        for entry in registry:
-            values = vars(entry).values() if hasattr(entry, "__dict__") else ()
-            for value in values:
-                if isinstance(value, str) and re.fullmatch(r"[\w.]+:[\w.]+", value):
-                    key = value
-                elif callable(value) and not isinstance(value, type(entry)):
-                    function = getattr(value, "func", value)
-                    key = f"{getattr(function, '__module__', '')}:{getattr(function, '__qualname__', '')}"
-                else:
-                    continue
-                module = key.partition(":")[0]
-                if module.split(".")[0] != "vpr_uncertainty" and (module == "__main__" or not is_installed(module)):
-                    found[key] = target_identity(value)
-    return dict(sorted(found.items()))
+    """The code identity of every plugin of a user this process imported (entry points and ``--plugin``), by
+    target, as it was executed (:func:`loaded_plugins`): part of the key of what the registries' entries compute,
+    the same in a Ray worker, which imports the same plugins."""
+    return {target: code for target, _, code in loaded_plugins() if code}
 
 
 class Registry(Generic[T]):
@@ -274,7 +251,6 @@ class Registry(Generic[T]):
         self._normalise = normalise or (lambda name: name)
         self._entries: dict[str, T] = {}
         self._aliases: dict[str, str] = {}
-        _REGISTRIES.append(self)
 
     def register(self, entry: T, *, aliases: tuple[str, ...] = (), overwrite: bool = False) -> T:
         """Add ``entry`` under ``entry.name`` (and ``aliases``) and return it."""

@@ -32,7 +32,6 @@ from vpr_uncertainty.evaluation.metrics import (
 )
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 from vpr_uncertainty.methods import (
-    OVERRIDES,
     DetailedUncertainty,
     OwnRetrievalUncertainty,
     UncertaintyMethod,
@@ -192,7 +191,7 @@ def evaluate(
         note("AUC-PR and AP are undefined: every top-1 answer is correct, or none is", RuntimeWarning)
     note(_candidates_note(k, retrieval.k, entries, retrieval.config.get("source")), FewerCandidatesWarning)
     note(_nonpositive_note(retrieval.scores, entries))
-    replaced = [f"{entry.name} is {OVERRIDES[entry.name]}'s" for entry in entries if entry.name in OVERRIDES]
+    replaced = [f"{entry.name} is {entry.function.__module__}'s" for entry in entries if entry.replaces]
     if replaced:
         note(f"{', '.join(replaced)} method, a plugin's in place of the built-in of that name")
     note(_direction_note(retrieval, float(correct.mean())), UserWarning)

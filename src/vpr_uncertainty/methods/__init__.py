@@ -8,7 +8,6 @@ from vpr_uncertainty.methods import builtin, cascade  # noqa: F401
 from vpr_uncertainty.methods.entries import (
     METHODS,
     NEEDS,
-    OVERRIDES,
     PATH_OPTIONS,
     STAGE_INPUTS,
     DetailedUncertainty,
@@ -29,7 +28,6 @@ from vpr_uncertainty.methods.entries import (
 __all__ = [
     "METHODS",
     "NEEDS",
-    "OVERRIDES",
     "PATH_OPTIONS",
     "STAGE_INPUTS",
     "DetailedUncertainty",

@@ -31,7 +31,6 @@ from vpr_uncertainty.retrieval import Retrieval
 __all__ = [
     "METHODS",
     "NEEDS",
-    "OVERRIDES",
     "PATH_OPTIONS",
     "STAGE_INPUTS",
     "DetailedUncertainty",
@@ -203,6 +202,8 @@ class UncertaintyMethod:
         cosine similarities in [−1, 1] unless the retrieval holds its distances (``"cosine"``: L2, PA, SUE use
         d² = 2 − 2s). :meth:`unsuited_to` says why a retrieval does not fit; such a method is left out of the
         default list (:func:`default_method_names`), and named explicitly it raises its own error.
+    replaces : str or None
+        The module of the built-in method of this name that this (a plugin's) entry replaced.
     """
 
     name: str
@@ -219,6 +220,7 @@ class UncertaintyMethod:
     base: str | None = None
     reads: tuple[str, ...] = ()
     scores: str = "any"
+    replaces: str | None = None
     _function: MethodFunction | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -419,8 +421,6 @@ class _MethodRegistry(Registry[UncertaintyMethod]):
 
 #: The registered uncertainty methods.
 METHODS: Registry[UncertaintyMethod] = _MethodRegistry("uncertainty method", label="available")
-#: Built-in names a user's method replaced (``register_method(..., overwrite=True)``), with the module replacing them.
-OVERRIDES: dict[str, str] = {}
 
 
 def check_options(methods: Sequence[UncertaintyMethod], options: Collection[str]) -> None:
@@ -479,10 +479,9 @@ def register_method(
     """
     if name in METHODS and not overwrite:
         raise ValueError(f"an uncertainty method named {name!r} is already registered")
-    if name in METHODS and _is_builtin(METHODS.get(name).target) and not _is_builtin(target):
-        OVERRIDES[name] = f"{getattr(target, '__module__', target)}"
-    elif _is_builtin(target):
-        OVERRIDES.pop(name, None)
+    previous, replaces = METHODS.get(name) if name in METHODS else None, None
+    if previous is not None and not _is_builtin(target):  # a user's method in place of a built-in: tables say so
+        replaces = previous.replaces or (_module(previous.target) if _is_builtin(previous.target) else None)
     if not name or any(character in name for character in ":,=+"):
         raise ValueError(f"a method name must be non-empty and hold no ':', ',', '=' or '+', got {name!r}")
     entry = UncertaintyMethod(
@@ -498,13 +497,18 @@ def register_method(
         resolve=resolve,
         reads=tuple(reads),
         scores=scores,
+        replaces=replaces,
     )
     return METHODS.register(entry, overwrite=overwrite)
 
 
+def _module(target: Any) -> str:
+    """The module of a callable or dotted target."""
+    return target.partition(":")[0] if isinstance(target, str) else str(getattr(target, "__module__", ""))
+
+
 def _is_builtin(target: Any) -> bool:
-    module = target.partition(":")[0] if isinstance(target, str) else getattr(target, "__module__", "")
-    return str(module).split(".")[0] == "vpr_uncertainty"
+    return _module(target).split(".")[0] == "vpr_uncertainty"
 
 
 def parse_method_spec(spec: str) -> tuple[str, dict[str, Any]]:

@@ -21,7 +21,7 @@ import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation
 from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders, percentile_interval
-from vpr_uncertainty.methods import OVERRIDES
+from vpr_uncertainty.methods import METHODS
 from vpr_uncertainty.reports.latex import LATEX_PACKAGES, latex_escape, latex_float
 
 __all__ = [
@@ -411,7 +411,8 @@ def table1_markdown(table: Table1) -> str:
     lines += ["", marks_note(table)]
     if _any_uninformative(table):
         lines += ["", _FOOTNOTE]
-    replaced = [f"{name} is {OVERRIDES[name]}'s method" for name in table.rows if name in OVERRIDES]
+    entries = [METHODS.get(name) for name in table.rows if name in METHODS]  # a plugin's in place of a built-in:
+    replaced = [f"{entry.name} is {entry.function.__module__}'s method" for entry in entries if entry.replaces]
     if replaced:
         lines += ["", f"{'; '.join(replaced)}: a plugin's, in place of the built-in method of that name."]
     return "\n".join(lines) + "\n"
