@@ -170,8 +170,10 @@ def _ratio_metric(
             )
         with np.errstate(all="ignore"):  # overflow is reported below
             for count in np.unique(n_candidates):
-                group = n_candidates == count
-                values[unusual[group]] = _ratio_values(top[group, :count], rs_weight, sd_weight)
+                group = top[n_candidates == count, :count]
+                # the ratios are those of the row scaled by a power of two, exactly: s_1 in [0.5, 1) sums no overflow
+                group = np.ldexp(group, -np.frexp(group[:, :1])[1])
+                values[unusual[n_candidates == count]] = _ratio_values(group, rs_weight, sd_weight)
             values[unusual[nonpositive]] = 1.0 - first[nonpositive]
     with np.errstate(over="ignore"):
         result = values.astype(scores.dtype)
