@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.data.images import printable
 
 IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
@@ -71,12 +72,6 @@ def image_pixel_limit() -> int | None:
     from PIL import Image
 
     return Image.MAX_IMAGE_PIXELS
-
-
-def _positive_int(value: object, what: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{what} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
 
 
 @dataclass(frozen=True)
@@ -146,10 +141,10 @@ class Preprocessing:
             raise ValueError(f"std must be positive, got {self.std!r}")
         if self.interpolation not in _INTERPOLATIONS:
             raise ValueError(f"interpolation must be one of {_INTERPOLATIONS}, got {self.interpolation!r}")
-        object.__setattr__(self, "min_side", _positive_int(self.min_side, "min_side"))
+        object.__setattr__(self, "min_side", check_count(self.min_side, "min_side", 1))
         if self.max_side is not None:
             floor = max(self.min_side, self.multiple_of)
-            object.__setattr__(self, "max_side", _positive_int(self.max_side, "max_side", floor))
+            object.__setattr__(self, "max_side", check_count(self.max_side, "max_side", floor))
             sides = self.image_size if isinstance(self.image_size, tuple) else (self.image_size or 0,)
             if max(sides) > self.max_side:
                 raise ValueError(
