@@ -70,12 +70,11 @@ def _kernel_for(n_elements: int):
 def _made_kernel(kind: str, n_columns: int):
     key = (kind, n_columns)
     if key not in _made:
-        from vpr_uncertainty import _fast_kernel
+        from vpr_uncertainty import _fast_kernel as kernels
 
-        if kind == "ratio":
-            _made[key] = _fast_kernel.make_ratio(n_columns)
-        else:
-            _made[key] = _fast_kernel.make_two_column(n_columns, kind == "PA")
+        _made[key] = (
+            kernels.make_ratio(n_columns) if kind == "ratio" else kernels.make_two_column(n_columns, kind == "PA")
+        )
     return _made[key]
 
 
@@ -96,9 +95,7 @@ def ratio_metric(
     if n == scores.shape[1] and n in SPECIALISED:
         if _made_kernel("ratio", n)(scores, float(rs_weight), float(sd_weight), limit, out) == 0:
             return out
-    if kernel(scores, n, float(rs_weight), float(sd_weight), most_uncertain, out) != 0:
-        return None
-    return out
+    return out if kernel(scores, n, float(rs_weight), float(sd_weight), most_uncertain, out) == 0 else None
 
 
 def two_column(kind: str, scores: np.ndarray, tolerance: float) -> np.ndarray | None:
@@ -113,6 +110,4 @@ def two_column(kind: str, scores: np.ndarray, tolerance: float) -> np.ndarray | 
     n_columns = scores.shape[1]
     kernel = _made_kernel(kind, n_columns if n_columns in SPECIALISED else 0)
     out = np.empty(scores.shape[0], dtype=scores.dtype)
-    if kernel(scores, float(tolerance), float(np.finfo(scores.dtype).max), out) != 0:
-        return None
-    return out
+    return out if kernel(scores, float(tolerance), float(np.finfo(scores.dtype).max), out) == 0 else None

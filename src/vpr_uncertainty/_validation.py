@@ -97,15 +97,12 @@ def check_block(
     if n_rows == 0:
         return
     if n_columns > 1:
-        # One contiguous comparison over the flattened block checks the order of every row; comparisons across
-        # row boundaries are masked. NaN fails every comparison, so it is caught here too.
+        # One contiguous comparison over the flattened block checks the order of every row (NaN fails it); the
+        # comparisons across row boundaries are set to True instead of being counted apart (a strided count is slow).
         flat = block.ravel()
-        if buffer is None:
-            in_order = flat[1:] <= flat[:-1]
-        else:
-            in_order = np.less_equal(flat[1:], flat[:-1], out=buffer[: flat.size - 1])
-        across_rows = in_order[n_columns - 1 :: n_columns]
-        if np.count_nonzero(in_order) - np.count_nonzero(across_rows) != in_order.size - across_rows.size:
+        in_order = np.less_equal(flat[1:], flat[:-1], out=None if buffer is None else buffer[: flat.size - 1])
+        in_order[n_columns - 1 :: n_columns] = True
+        if np.count_nonzero(in_order) != in_order.size:
             _raise_for_nan(block, name, offset)
             bad = ~(block[:, 1:] <= block[:, :-1])
             row, col = np.argwhere(bad)[0]

@@ -386,10 +386,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         try:
             yield path
         except OSError as error:
-            named = _naming_target(error, path, path)
-            if named is error:
-                raise
-            raise named from error
+            _raise_naming_target(error, path, path)
+            raise
         return
     path.parent.mkdir(parents=True, exist_ok=True)
     _remove_orphans(path)
@@ -405,10 +403,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         os.replace(temporary, path)
     except OSError as error:
         temporary.unlink(missing_ok=True)
-        named = _naming_target(error, temporary, path)
-        if named is error:
-            raise
-        raise named from error
+        _raise_naming_target(error, temporary, path)
+        raise
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise
@@ -435,17 +431,17 @@ _WRITE_ERRNOS = frozenset(
 )
 
 
-def _naming_target(error: OSError, temporary: Path, path: Path) -> OSError:
-    """``error`` naming ``path`` instead of none or of its temporary file (an error naming another file, e.g. an
-    input read within the block, or without errno is returned unchanged)."""
+def _raise_naming_target(error: OSError, temporary: Path, path: Path) -> None:
+    """Raise ``error`` again naming ``path`` instead of none or of its temporary file; return for an error naming
+    another file (e.g. an input read within the block) or without errno, which the caller re-raises unchanged."""
     if not error.errno or error.filename2 is not None:
-        return error
+        return
     if error.filename is None:
         if error.errno not in _WRITE_ERRNOS:
-            return error
+            return
     elif str(error.filename) != str(temporary):
-        return error
-    return OSError(error.errno, error.strerror or os.strerror(error.errno), str(path))
+        return
+    raise OSError(error.errno, error.strerror or os.strerror(error.errno), str(path)) from error
 
 
 def _file_mode(path: Path) -> int:

@@ -103,72 +103,62 @@ class _Feeder:
     def feed(self, value: Any, where: str) -> None:
         if isinstance(value, _PLAIN):
             self.tag(type(value).__name__, value)
-            return
-        if isinstance(value, (tuple, list, frozenset, set)):
+        elif isinstance(value, (tuple, list, frozenset, set)):
             items = sorted(value, key=repr) if isinstance(value, (set, frozenset)) else value
             self.tag(type(value).__name__, len(items))
             for index, item in enumerate(items):
                 self.feed(item, f"{where}[{index}]")
-            return
-        if isinstance(value, dict):
+        elif isinstance(value, dict):
             self.tag("dict", len(value))
             for key in sorted(value, key=repr):
                 self.feed(key, f"{where} key")
                 self.feed(value[key], f"{where}[{key!r}]")
-            return
-        if id(value) in self.seen:  # a cycle or a shared object: described once
+        elif id(value) in self.seen:  # a cycle or a shared object: described once
             self.tag("seen", type(value).__qualname__)
-            return
-        self.seen.add(id(value))
+        else:
+            self.seen.add(id(value))
+            self.feed_object(value, where)
+
+    def feed_object(self, value: Any, where: str) -> None:
         torch = self.torch
         if torch is not None and isinstance(value, torch.Tensor):
             tensor = value.detach().to("cpu").contiguous()
             self.tag("tensor", str(tensor.dtype), tuple(tensor.shape))
             self.digest.update(tensor.view(-1).view(torch.uint8).numpy().tobytes() if tensor.numel() else b"")
-            return
-        if type(value).__module__ == "numpy" and hasattr(value, "tobytes"):
+        elif type(value).__module__ == "numpy" and hasattr(value, "tobytes"):
             self.tag("ndarray", str(getattr(value, "dtype", "")), getattr(value, "shape", ()))
             self.digest.update(value.tobytes())
-            return
-        if torch is not None and isinstance(value, (torch.dtype, torch.device)):
+        elif torch is not None and isinstance(value, (torch.dtype, torch.device)):
             self.tag(type(value).__name__, str(value))
-            return
-        if torch is not None and isinstance(value, torch.nn.Module):
+        elif torch is not None and isinstance(value, torch.nn.Module):
             self.module(value, where)
-            return
-        if isinstance(value, types.ModuleType):
+        elif isinstance(value, types.ModuleType):
             self.tag("module", value.__name__)
-            return
-        if isinstance(value, type):
+        elif isinstance(value, type):
             self.tag("class", value.__module__, value.__qualname__)
-            return
-        if isinstance(value, types.BuiltinFunctionType):
+        elif isinstance(value, types.BuiltinFunctionType):
             self.tag("builtin", getattr(value, "__module__", None), value.__qualname__)
-            return
-        if isinstance(value, types.FunctionType):
+        elif isinstance(value, types.FunctionType):
             self.function(value, where)
-            return
-        if isinstance(value, types.MethodType):
+        elif isinstance(value, types.MethodType):
             self.tag("method")
             self.feed(value.__func__, f"{where}.__func__")
             self.feed(value.__self__, f"{where}.__self__")
-            return
-        if isinstance(value, functools.partial):
+        elif isinstance(value, functools.partial):
             self.tag("partial")
             self.feed(value.func, f"{where}.func")
             self.feed(value.args, f"{where}.args")
             self.feed(value.keywords, f"{where}.keywords")
-            return
-        if (hasattr(value, "__dict__") or _slots(value)) and type(value).__module__ not in _OPAQUE:
+        elif (hasattr(value, "__dict__") or _slots(value)) and type(value).__module__ not in _OPAQUE:
             self.cls(type(value), where)
             for name, attribute in sorted({**getattr(value, "__dict__", {}), **_slots(value)}.items()):
                 self.tag("attribute", name)
                 self.feed(attribute, f"{where}.{name}")
-            return
-        raise UnfingerprintableModel(
-            f"cannot fingerprint {where} ({type(value).__module__}.{type(value).__qualname__}): the descriptor cache "
-            "could not tell when it changes; name the model with weights_id=... (a key you change with it)"
-        )
+        else:
+            raise UnfingerprintableModel(
+                f"cannot fingerprint {where} ({type(value).__module__}.{type(value).__qualname__}): the descriptor "
+                "cache could not tell when it changes; name the model with weights_id=... (a key you change with it)"
+            )
 
     def cls(self, cls: type, where: str) -> None:
         """A class by name and source, and what is set on it and its user-defined bases (``Net.scale = 2.0``)."""

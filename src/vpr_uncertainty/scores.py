@@ -49,7 +49,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from vpr_uncertainty import _fast
-from vpr_uncertainty._onepass import block_rows, check_order, scan
+from vpr_uncertainty._onepass import scan
 from vpr_uncertainty._validation import (
     as_score_array,
     check_best_scores,
@@ -142,14 +142,11 @@ def _ratio_metric(
     fast = _fast.ratio_metric(scores, n, rs_weight, sd_weight, on_nonpositive == "most_uncertain")
     if fast is not None:
         return fast
-    values = np.empty(n_queries, dtype=np.result_type(scores.dtype, np.float64))
-    rows = block_rows(n_columns)
-    buffer = np.empty(min(rows, n_queries) * n_columns, dtype=bool)
-    with np.errstate(all="ignore"):  # rows with ±inf or s_1 <= 0 are redone below
-        for start in range(0, n_queries, rows):
-            block = scores[start : start + rows]
-            check_order(block, buffer, start)
-            values[start : start + rows] = _ratio_values(block[:, :n], rs_weight, sd_weight)
+
+    def compute(block: np.ndarray, out: np.ndarray) -> None:  # rows with ±inf or s_1 <= 0 are redone below
+        out[:] = _ratio_values(block[:, :n], rs_weight, sd_weight)
+
+    values = scan(scores, compute, np.result_type(scores.dtype, np.float64))[0]
     best, unusual = scores[:, 0], np.flatnonzero(~np.isfinite(values))
     if unusual.size:
         check_best_scores(best)
@@ -473,11 +470,12 @@ def squared_distances_from_similarities(
         return np.maximum(2 - 2 * scores, 0)
 
 
-def _top_distances(scores: np.ndarray, distances: object, n: int, method: str) -> np.ndarray:
-    """First ``n`` columns of the L2 distances (not squared), from ``distances`` or from the similarities."""
+def _top_distances(scores: np.ndarray, distances: object, n: int, method: str, sort: bool) -> np.ndarray:
+    """First ``n`` columns of the L2 distances (not squared), from ``distances`` (sorted first with ``sort``) or from
+    the similarities."""
     if distances is None:
         return np.sqrt(squared_distances_from_similarities(scores[:, :n], method=method))
-    squared = np.asarray(distances)
+    squared = np.sort(np.asarray(distances), axis=1) if sort else np.asarray(distances)
     if squared.ndim != 2 or squared.shape[0] != scores.shape[0] or squared.shape[1] < n:
         raise ValueError(f"distances must have shape ({scores.shape[0]}, >= {n}) to match scores, got {squared.shape}")
     squared = squared[:, :n].astype(scores.dtype, copy=False)
@@ -499,8 +497,15 @@ def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
     return scores
 
 
+def _baseline(scores: object, k: object, sort: bool, columns: int, reference, compute=None, kernel=None) -> np.ndarray:
+    """A baseline's result: from the fused pass (:func:`_fused_baseline`, with ``compute``) when it gives one, else
+    ``reference(top)`` of the scores that :func:`_prepare` validated."""
+    fast = None if compute is None else _fused_baseline(scores, k, sort, columns, compute, kernel)
+    return fast if fast is not None else reference(_prepare(scores, k, sort, columns))
+
+
 def _fused_baseline(
-    scores: object, k: object, sort: bool, columns: int, compute, kernel: str | None = None
+    scores: object, k: object, sort: bool, columns: int, compute, kernel: str | None
 ) -> np.ndarray | None:
     """A baseline's result in one pass over the scores (:func:`~vpr_uncertainty._onepass.scan`), or None (reference).
 
@@ -541,11 +546,14 @@ def _distance_first(block: np.ndarray, out: np.ndarray) -> np.ndarray:
 
 def _distance_ratio(block: np.ndarray, out: np.ndarray) -> np.ndarray:
     squared = 2 - 2 * block[:, :2]
-    top2 = np.sqrt(np.maximum(squared, 0))
-    first, second = top2[:, 0], top2[:, 1]
-    out[:] = 1
-    np.divide(first, second, out=out, where=second != 0)
+    _first_over_second(np.sqrt(np.maximum(squared, 0)), out)
     return squared
+
+
+def _first_over_second(top2: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """d_1 / d_2 of each row of ``top2`` into ``out``; 1 where d_2 = 0 (two candidates at distance 0)."""
+    out[:] = 1
+    return np.divide(top2[:, 0], top2[:, 1], out=out, where=top2[:, 1] != 0)
 
 
 def _difference_of_first_two(block: np.ndarray, out: np.ndarray) -> None:
@@ -574,10 +582,7 @@ def best_match(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray
     >>> best_match(np.array([[0.8, 0.4], [0.3, 0.1]]))
     array([-0.8, -0.3])
     """
-    fast = _fused_baseline(scores, k, sort, 1, _negated_first)
-    if fast is not None:
-        return fast
-    return -_prepare(scores, k, sort, 1)[:, 0]
+    return _baseline(scores, k, sort, 1, lambda top: -top[:, 0], _negated_first)
 
 
 def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
@@ -606,14 +611,11 @@ def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: 
     >>> l2_distance(np.array([[0.5, 0.0]]))
     array([1.])
     """
-    if distances is None:
-        fast = _fused_baseline(scores, k, sort, 1, _distance_first)
-        if fast is not None:
-            return fast
-    scores = _prepare(scores, k, sort, 1)
-    if distances is not None and sort:
-        distances = np.sort(np.asarray(distances), axis=1)
-    return _top_distances(scores, distances, 1, "L2")[:, 0]
+
+    def reference(top: np.ndarray) -> np.ndarray:
+        return _top_distances(top, distances, 1, "L2", sort)[:, 0]
+
+    return _baseline(scores, k, sort, 1, reference, _distance_first if distances is None else None)
 
 
 def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
@@ -643,17 +645,12 @@ def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None
     >>> perceptual_aliasing(np.array([[0.5, -1.0], [1.0, 1.0]]))
     array([0.5, 1. ])
     """
-    if distances is None:
-        fast = _fused_baseline(scores, k, sort, 2, _distance_ratio, "PA")
-        if fast is not None:
-            return fast
-    scores = _prepare(scores, k, sort, 2)
-    if distances is not None and sort:
-        distances = np.sort(np.asarray(distances), axis=1)
-    top2 = _top_distances(scores, distances, 2, "PA")
-    first, second = top2[:, 0], top2[:, 1]
-    both_zero = second == 0
-    return np.divide(first, second, out=np.ones_like(first), where=~both_zero)
+
+    def reference(top: np.ndarray) -> np.ndarray:
+        top2 = _top_distances(top, distances, 2, "PA", sort)
+        return _first_over_second(top2, np.empty_like(top2[:, 0]))
+
+    return _baseline(scores, k, sort, 2, reference, _distance_ratio if distances is None else None, "PA")
 
 
 def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
@@ -678,11 +675,7 @@ def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
     >>> margin(np.array([[0.9, 0.5], [0.6, 0.6]]))
     array([-0.4,  0. ])
     """
-    fast = _fused_baseline(scores, k, sort, 2, _difference_of_first_two, "margin")
-    if fast is not None:
-        return fast
-    scores = _prepare(scores, k, sort, 2)
-    return scores[:, 1] - scores[:, 0]
+    return _baseline(scores, k, sort, 2, lambda top: top[:, 1] - top[:, 0], _difference_of_first_two, "margin")
 
 
 #: α of a row whose runners-up have no spread (or a single runner-up): the paper's default.

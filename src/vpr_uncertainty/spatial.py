@@ -132,9 +132,7 @@ def spatial_uncertainty(
     array([1.25e+01, 5.00e+05])
     """
     slope, max_deviation = check_sue_options(k=k, slope=slope, clip=clip, max_deviation=max_deviation)
-    indices = np.asarray(indices)
-    distances = np.asarray(distances)
-    positions = np.asarray(database_positions)
+    indices, distances, positions = np.asarray(indices), np.asarray(distances), np.asarray(database_positions)
     if indices.ndim != 2 or not np.issubdtype(indices.dtype, np.integer):
         raise ValueError(f"indices must be a 2-D integer array (n_queries, k), got {indices.dtype} {indices.shape}")
     if distances.shape != indices.shape:
@@ -240,17 +238,11 @@ def sue_from_retrieval(
             stacklevel=2,
         )
     if retrieval.distances is not None:
-        distances = retrieval.distances
+        squared = retrieval.distances
     else:
-        distances = squared_distances_from_similarities(np.asarray(retrieval.scores, dtype=np.float64), method="SUE")
+        squared = squared_distances_from_similarities(np.asarray(retrieval.scores, dtype=np.float64), method="SUE")
     return spatial_uncertainty(
-        retrieval.indices,
-        distances,
-        retrieval.database_positions,
-        k,
-        slope=slope,
-        clip=clip,
-        max_deviation=max_deviation,
+        retrieval.indices, squared, retrieval.database_positions, k, slope=slope, clip=clip, max_deviation=max_deviation
     )
 
 

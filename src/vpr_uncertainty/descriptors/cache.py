@@ -105,18 +105,11 @@ def _non_finite(rows: _StoredRows) -> np.ndarray:
     return np.concatenate(found)
 
 
-def non_finite_rows(group: Any, count: int) -> np.ndarray:
-    """Indices of the first ``count`` rows of a split whose descriptors hold NaN or infinite values (block by block)."""
-    if "descriptors" not in group:
-        return np.empty(0, dtype=np.int64)
-    return _non_finite(_StoredRows(group["descriptors"], count))
-
-
 def blank_non_finite(path: Path, group: Any, split: str, names: Any, keys: Any) -> list[str]:
     """``keys`` with the key of every row holding NaN or infinite values blanked (the extraction recomputes those
     images), with a one-line :class:`~vpr_uncertainty.cache.CacheWarning` naming ``path``."""
     keys = list(keys)
-    bad = non_finite_rows(group, len(keys))
+    bad = _non_finite(_StoredRows(group["descriptors"], len(keys))) if "descriptors" in group else np.zeros(0)
     if bad.size:
         protocol.stale_notice(
             path,

@@ -315,13 +315,12 @@ def extract_descriptors(
     failed = [] if failed is None else failed
     try:
         keys: dict[str, str] = {}
+        done: set[str] = set()
         if cache is not None:
             cache.open()
             stored = cache.keys(split)
             keys = {name: _content_key(path) for name, path in zip(names, paths, strict=True)}
             done = {name for name in names if keys[name] and stored.get(name) == keys[name]}
-        else:
-            done = set()
         todo = [(index, name, path) for index, (name, path) in enumerate(zip(names, paths, strict=True))]
         todo = [item for item in todo if item[1] not in done]
         with (

@@ -98,8 +98,7 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
     ------
     ValueError
         When the file holds no global descriptors, a descriptor that is not 1-D real numbers, descriptors of different
-        sizes,
-        no image of ``split`` although its names carry split prefixes, or a soft or external link, external
+        sizes, no image of ``split`` although its names carry split prefixes, or a soft or external link, external
         storage or a virtual dataset (:mod:`vpr_uncertainty.cache`: bytes from outside the file are refused).
     """
     import h5py
@@ -125,11 +124,7 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
     return np.asarray(names, dtype=str), np.stack(rows)
 
 
-def write_hloc_descriptors(
-    path: str | Path,
-    names: Sequence[str],
-    descriptors: np.ndarray,
-) -> Path:
+def write_hloc_descriptors(path: str | Path, names: Sequence[str], descriptors: np.ndarray) -> Path:
     """Write global descriptors in hloc's layout (one group per image name, dataset ``global_descriptor``).
 
     Existing groups of the same names are replaced, others are kept (so the queries and the database can go

@@ -17,17 +17,19 @@ times). A model at native resolution never upscales a tiny image into a meaningl
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import errno
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.data.images import printable
 
 IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
@@ -70,12 +72,6 @@ def image_pixel_limit() -> int | None:
     from PIL import Image
 
     return Image.MAX_IMAGE_PIXELS
-
-
-def _positive_int(value: object, what: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{what} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
 
 
 @dataclass(frozen=True)
@@ -132,13 +128,9 @@ class Preprocessing:
                 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0 for v in values)
             ):
                 raise ValueError(f"image_size must be None, a positive int or (height, width), got {size!r}")
-            if isinstance(size, tuple):
-                object.__setattr__(self, "image_size", tuple(int(v) for v in size))
-            else:
-                object.__setattr__(self, "image_size", int(size))
-        if isinstance(self.multiple_of, bool) or not isinstance(self.multiple_of, (int, np.integer)):
-            raise ValueError(f"multiple_of must be a positive int, got {self.multiple_of!r}")
-        if self.multiple_of < 1:
+            object.__setattr__(self, "image_size", tuple(map(int, size)) if isinstance(size, tuple) else int(size))
+        multiple = self.multiple_of
+        if isinstance(multiple, bool) or not isinstance(multiple, (int, np.integer)) or multiple < 1:
             raise ValueError(f"multiple_of must be a positive int, got {self.multiple_of!r}")
         for field in ("mean", "std"):
             value = tuple(float(v) for v in getattr(self, field))
@@ -149,10 +141,10 @@ class Preprocessing:
             raise ValueError(f"std must be positive, got {self.std!r}")
         if self.interpolation not in _INTERPOLATIONS:
             raise ValueError(f"interpolation must be one of {_INTERPOLATIONS}, got {self.interpolation!r}")
-        object.__setattr__(self, "min_side", _positive_int(self.min_side, "min_side"))
+        object.__setattr__(self, "min_side", check_count(self.min_side, "min_side", 1))
         if self.max_side is not None:
             floor = max(self.min_side, self.multiple_of)
-            object.__setattr__(self, "max_side", _positive_int(self.max_side, "max_side", floor))
+            object.__setattr__(self, "max_side", check_count(self.max_side, "max_side", floor))
             sides = self.image_size if isinstance(self.image_size, tuple) else (self.image_size or 0,)
             if max(sides) > self.max_side:
                 raise ValueError(
@@ -223,22 +215,49 @@ class _Unusable(ValueError):
     """Raised inside the loaders for an image whose size rules it out; the message is the reason."""
 
 
-def _check_pixels(width: int, height: int) -> None:
-    limit = image_pixel_limit()
-    if limit is not None and width * height > limit:
-        raise _Unusable(
-            f"{width} x {height} pixels, more than the limit of {limit:,} (PIL.Image.MAX_IMAGE_PIXELS, protection "
-            "against decompression bombs)"
-        )
-
-
-def _bomb_reason(error: Exception) -> str:
-    claimed = re.search(r"\((\d+) pixels\)", str(error))
-    pixels = f"{int(claimed.group(1)):,} pixels" if claimed else "too many pixels"
+def _too_many(pixels: str) -> str:
     return (
         f"{pixels}, more than the limit of {image_pixel_limit() or 0:,} (PIL.Image.MAX_IMAGE_PIXELS, protection "
         "against decompression bombs)"
     )
+
+
+def _check_pixels(width: int, height: int) -> None:
+    limit = image_pixel_limit()
+    if limit is not None and width * height > limit:
+        raise _Unusable(_too_many(f"{width} x {height} pixels"))
+
+
+@contextlib.contextmanager
+def _opened(path: str | Path, name: str | None, reading: str) -> Iterator[Any]:
+    """``PIL.Image.open(path)``; what makes the image unusable, there or in the block, raises an ImageDecodeError
+    naming it (``reading``: what an unreadable file could not be read for)."""
+    from PIL import Image, UnidentifiedImageError
+
+    name = str(path) if name is None else name
+    path = Path(path)
+    link = _link_problem(path)
+    if link is not None:
+        raise ImageDecodeError(name, path, link)
+    try:
+        with Image.open(path) as image:
+            yield image
+    except _Unusable as error:
+        raise ImageDecodeError(name, path, str(error)) from None
+    except FileNotFoundError:
+        raise ImageDecodeError(name, path, "file not found") from None
+    except UnidentifiedImageError:
+        raise ImageDecodeError(name, path, _unidentified(path)) from None
+    except Image.DecompressionBombError as error:
+        claimed = re.search(r"\((\d+) pixels\)", str(error))
+        pixels = f"{int(claimed.group(1)):,} pixels" if claimed else "too many pixels"
+        raise ImageDecodeError(name, path, _too_many(pixels)) from None
+    except MemoryError:
+        raise ImageDecodeError(name, path, "not enough memory to decode it") from None
+    except (OSError, ValueError, SyntaxError) as error:  # unreadable, truncated or corrupt data
+        raise ImageDecodeError(name, path, f"cannot {reading}: {error or type(error).__name__}") from None
+    except Exception as error:  # PIL's decoders raise many kinds of errors on corrupt data
+        raise ImageDecodeError(name, path, f"corrupt image data ({type(error).__name__}: {error})") from None
 
 
 def read_image_size(path: str | Path, *, name: str | None = None) -> tuple[int, int]:
@@ -251,27 +270,9 @@ def read_image_size(path: str | Path, *, name: str | None = None) -> tuple[int, 
     ImageDecodeError
         Naming the image, when it is missing, a broken link, not an image, or over ``PIL.Image.MAX_IMAGE_PIXELS``.
     """
-    from PIL import Image, UnidentifiedImageError
-
-    name = str(path) if name is None else name
-    path = Path(path)
-    link = _link_problem(path)
-    if link is not None:
-        raise ImageDecodeError(name, path, link)
-    try:
-        with Image.open(path) as image:
-            width, height = image.size
+    with _opened(path, name, "read its header") as image:
+        width, height = image.size
         _check_pixels(width, height)
-    except _Unusable as error:
-        raise ImageDecodeError(name, path, str(error)) from None
-    except FileNotFoundError:
-        raise ImageDecodeError(name, path, "file not found") from None
-    except UnidentifiedImageError:
-        raise ImageDecodeError(name, path, _unidentified(path)) from None
-    except Image.DecompressionBombError as error:
-        raise ImageDecodeError(name, path, _bomb_reason(error)) from None
-    except (OSError, ValueError, SyntaxError) as error:
-        raise ImageDecodeError(name, path, f"cannot read its header: {error or type(error).__name__}") from None
     return width, height
 
 
@@ -298,45 +299,20 @@ def load_image(path: str | Path, preprocessing: Preprocessing, *, name: str | No
         an image, truncated, over the decompression-bomb limit, or smaller than ``preprocessing.min_side``. The
         message names the image and the reason.
     """
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
-    name = str(path) if name is None else name
-    path = Path(path)
-    link = _link_problem(path)
-    if link is not None:
-        raise ImageDecodeError(name, path, link)
-    try:
-        with Image.open(path) as image:
-            width, height = image.size
-            size = _check_size(width, height, preprocessing)
-            box = None
-            if min(width // (2 * size[0]), height // (2 * size[1])) >= 2:
-                # JPEG: decode at 1/2, 1/4 or 1/8 scale, still at least twice the target size (as thumbnail())
-                drafted = image.draft("RGB", (2 * size[0], 2 * size[1]))
-                box = None if drafted is None else drafted[1]
-            image.load()
-            rgb = image.convert("RGB")
-    except _Unusable as error:
-        raise ImageDecodeError(name, path, str(error)) from None
-    except FileNotFoundError:
-        raise ImageDecodeError(name, path, "file not found") from None
-    except UnidentifiedImageError:
-        raise ImageDecodeError(name, path, _unidentified(path)) from None
-    except Image.DecompressionBombError as error:
-        raise ImageDecodeError(name, path, _bomb_reason(error)) from None
-    except MemoryError:
-        raise ImageDecodeError(name, path, "not enough memory to decode it") from None
-    except (OSError, ValueError, SyntaxError) as error:  # unreadable, truncated or corrupt data
-        raise ImageDecodeError(name, path, f"cannot decode it: {error or type(error).__name__}") from None
-    except Exception as error:  # PIL's decoders raise many kinds of errors on corrupt data
-        raise ImageDecodeError(name, path, f"corrupt image data ({type(error).__name__}: {error})") from None
+    with _opened(path, name, "decode it") as image:
+        width, height = image.size
+        size = _check_size(width, height, preprocessing)
+        box = None
+        if min(width // (2 * size[0]), height // (2 * size[1])) >= 2:
+            # JPEG: decode at 1/2, 1/4 or 1/8 scale, still at least twice the target size (as thumbnail())
+            drafted = image.draft("RGB", (2 * size[0], 2 * size[1]))
+            box = None if drafted is None else drafted[1]
+        image.load()
+        rgb = image.convert("RGB")
     if size != rgb.size or box is not None:
-        resample = {
-            "bilinear": Image.Resampling.BILINEAR,
-            "bicubic": Image.Resampling.BICUBIC,
-            "nearest": Image.Resampling.NEAREST,
-        }[preprocessing.interpolation]
-        rgb = rgb.resize(size, resample=resample, box=box)
+        rgb = rgb.resize(size, resample=Image.Resampling[preprocessing.interpolation.upper()], box=box)
     return np.asarray(rgb, dtype=np.uint8)
 
 

@@ -354,10 +354,9 @@ def load_efficientnet_lite0_gem(spec: ModelSpec, *, device: Any = "cpu", p: floa
     """Load ``efficientnet-lite0-gem`` (optionally with another GeM exponent ``p``) on ``device``."""
     weights_id = efficientnet_weights_id(spec, p=p)  # checks p
     network = _build_network(float(p))
-    model = DescriptorModel(
+    return DescriptorModel(
         spec.name, network, spec.preprocessing, weights_id=weights_id, descriptor_dim=spec.descriptor_dim
-    )
-    return model.to(device)
+    ).to(device)
 
 
 EFFICIENTNET_SPEC = ModelSpec(
@@ -461,14 +460,9 @@ def load_hub_model(spec: ModelSpec, *, device: Any = "cpu", **options: Any) -> D
             f"the torch.hub code of model {spec.name!r} ({spec.hub_repo}) needs a package that is not installed: "
             f"{error}"
         ) from error
-    model = DescriptorModel(
-        spec.name,
-        network,
-        spec.preprocessing,
-        weights_id=_hub_weights_id(spec, kwargs),
-        descriptor_dim=descriptor_dim,
-    )
-    return model.to(device)
+    return DescriptorModel(
+        spec.name, network, spec.preprocessing, weights_id=_hub_weights_id(spec, kwargs), descriptor_dim=descriptor_dim
+    ).to(device)
 
 
 def _load_torchscript_export(
@@ -488,145 +482,114 @@ def _load_torchscript_export(
     return model
 
 
-def _spec(
-    name: str,
-    description: str,
-    descriptor_dim: int,
-    backbone: str,
-    preprocessing: Preprocessing,
-    repo: str | None,
-    entrypoint: str | None,
-    kwargs: dict[str, Any],
-    source: str,
-    notes: str = "",
-) -> ModelSpec:
-    return ModelSpec(
-        name=name,
-        description=description,
-        descriptor_dim=descriptor_dim,
-        backbone=backbone,
-        preprocessing=preprocessing,
-        loader=load_hub_model,
-        source=source,
-        hub_repo=repo,
-        hub_entrypoint=entrypoint,
-        hub_kwargs=kwargs,
-        notes=notes,
-        identify=hub_weights_id if repo is not None else None,  # a TorchScript export: its file's hash, via torch
-    )
-
-
 _NATIVE = Preprocessing(min_side=DEFAULT_MIN_SIDE)
 
 _DINO = Preprocessing(multiple_of=14, min_side=DEFAULT_MIN_SIDE)
 
+_hub_spec = functools.partial(ModelSpec, loader=load_hub_model, identify=hub_weights_id)
+
 #: The nine methods of the benchmark, in the order of the paper's tables.
 HUB_MODELS: tuple[ModelSpec, ...] = (
-    _spec(
+    _hub_spec(
         "eigenplaces",
         "EigenPlaces (ICCV 2023), ResNet-50, 512-D",
         512,
         "ResNet-50",
         _NATIVE,
-        "gmberton/eigenplaces",
-        "get_trained_model",
-        {"backbone": "ResNet50", "fc_output_dim": 512},
-        "torch.hub (authors)",
+        hub_repo="gmberton/eigenplaces",
+        hub_entrypoint="get_trained_model",
+        hub_kwargs={"backbone": "ResNet50", "fc_output_dim": 512},
+        source="torch.hub (authors)",
     ),
-    _spec(
+    _hub_spec(
         "cosplace",
         "CosPlace (CVPR 2022), ResNet-50, 512-D",
         512,
         "ResNet-50",
         _NATIVE,
-        "gmberton/cosplace",
-        "get_trained_model",
-        {"backbone": "ResNet50", "fc_output_dim": 512},
-        "torch.hub (authors)",
+        hub_repo="gmberton/cosplace",
+        hub_entrypoint="get_trained_model",
+        hub_kwargs={"backbone": "ResNet50", "fc_output_dim": 512},
+        source="torch.hub (authors)",
     ),
-    _spec(
+    _hub_spec(
         "convap",
         "Conv-AP (GSV-Cities, Neurocomputing 2022), ResNet-50, 512-D, 320x320",
         512,
         "ResNet-50",
         Preprocessing(image_size=(320, 320)),
-        None,
-        None,
-        {},
-        "TorchScript export in the torch.hub cache",
-        "weights resnet50_ConvAP_128_2x2.ckpt: https://drive.google.com/drive/folders/1VYPw9uGD11NgiGFgfWueLt3noJYOIuhL",
+        source="TorchScript export in the torch.hub cache",
+        notes="weights resnet50_ConvAP_128_2x2.ckpt: "
+        "https://drive.google.com/drive/folders/1VYPw9uGD11NgiGFgfWueLt3noJYOIuhL",
+        identify=None,  # a TorchScript export: its file's hash, via torch
     ),
-    _spec(
+    _hub_spec(
         "mixvpr",
         "MixVPR (WACV 2023), ResNet-50, 4096-D, 320x320",
         4096,
         "ResNet-50",
         Preprocessing(image_size=(320, 320)),
-        "jarvisyjw/MixVPR",
-        "get_trained_model",
-        {"pretrained": True},
-        "torch.hub (community fork, endorsed in amaralibey/MixVPR#33)",
-        "the hub serves the 4096-D model only",
+        hub_repo="jarvisyjw/MixVPR",
+        hub_entrypoint="get_trained_model",
+        hub_kwargs={"pretrained": True},
+        source="torch.hub (community fork, endorsed in amaralibey/MixVPR#33)",
+        notes="the hub serves the 4096-D model only",
     ),
-    _spec(
+    _hub_spec(
         "apgem",
         "AP-GeM (ICCV 2019), ResNet-101, 2048-D",
         2048,
         "ResNet-101",
         _NATIVE,
-        None,
-        None,
-        {},
-        "TorchScript export in the torch.hub cache",
-        "weights Resnet-101-AP-GeM.pt of naver/deep-image-retrieval (dirtorch): "
+        source="TorchScript export in the torch.hub cache",
+        notes="weights Resnet-101-AP-GeM.pt of naver/deep-image-retrieval (dirtorch): "
         "https://docs.google.com/uc?export=download&id=1UWJGDuHtzaQdFhSMojoYVQjmCXhIwVvy",
+        identify=None,  # a TorchScript export: its file's hash, via torch
     ),
-    _spec(
+    _hub_spec(
         "salad",
         "SALAD (CVPR 2024), DINOv2 ViT-B/14, 8448-D",
         8448,
         "DINOv2 ViT-B/14",
         _DINO,
-        "serizba/salad",
-        "dinov2_salad",
-        {},
-        "torch.hub (authors)",
+        hub_repo="serizba/salad",
+        hub_entrypoint="dinov2_salad",
+        source="torch.hub (authors)",
     ),
-    _spec(
+    _hub_spec(
         "anyloc",
         "AnyLoc-VLAD-DINOv2 (RA-L 2023), ViT-G/14, urban vocabulary, 49152-D",
         49152,
         "DINOv2 ViT-G/14",
         _DINO,
-        "AnyLoc/DINO",
-        "get_vlad_model",
-        {"backbone": "DINOv2", "domain": "urban"},
-        "torch.hub (authors)",
-        "domain= selects the VLAD vocabulary: urban, indoor, aerial, structured, unstructured, global",
+        hub_repo="AnyLoc/DINO",
+        hub_entrypoint="get_vlad_model",
+        hub_kwargs={"backbone": "DINOv2", "domain": "urban"},
+        source="torch.hub (authors)",
+        notes="domain= selects the VLAD vocabulary: urban, indoor, aerial, structured, unstructured, global",
     ),
-    _spec(
+    _hub_spec(
         "cricavpr",
         "CricaVPR (CVPR 2024), DINOv2 ViT-B/14, 10752-D, 224x224",
         10752,
         "DINOv2 ViT-B/14",
         Preprocessing(image_size=(224, 224)),
-        "Lu-Feng/CricaVPR",
-        "trained_model",
-        {},
-        "torch.hub (authors)",
-        "descriptors depend on the other images of the batch (cross-image encoder)",
+        hub_repo="Lu-Feng/CricaVPR",
+        hub_entrypoint="trained_model",
+        source="torch.hub (authors)",
+        notes="descriptors depend on the other images of the batch (cross-image encoder)",
     ),
-    _spec(
+    _hub_spec(
         "netvlad",
         "NetVLAD (CVPR 2016), VGG-16 + PCA whitening, 4096-D (OpenIBL weights)",
         4096,
         "VGG-16",
         _OPENIBL,
-        "yxgeee/OpenIBL",
-        "vgg16_netvlad",
-        {"pretrained": True},
-        "torch.hub (OpenIBL, SFRS-trained weights)",
-        "the original MATLAB Pitts30k weights have no torch.hub entry point",
+        hub_repo="yxgeee/OpenIBL",
+        hub_entrypoint="vgg16_netvlad",
+        hub_kwargs={"pretrained": True},
+        source="torch.hub (OpenIBL, SFRS-trained weights)",
+        notes="the original MATLAB Pitts30k weights have no torch.hub entry point",
     ),
 )
 
