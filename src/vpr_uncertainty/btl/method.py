@@ -27,17 +27,21 @@ the place of database image i, as in VPR-Bench's corridor):
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import sparse
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.btl.model import SKETCH_TOLERANCE, BTLHead, embed, load_btl_head, row_digests, row_sketches
 from vpr_uncertainty.btl.training import resolve_device, train_btl_head
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
 from vpr_uncertainty.retrieval import Retrieval, search_descriptors
+
+#: The option that gives the descriptors of each split.
+_OPTIONS = {"queries": "query_descriptors", "database": "database_descriptors"}
 
 
 def read_btl_head(value: object, *, device: str = "cpu") -> BTLHead:
@@ -76,16 +80,12 @@ def resolve_btl_inputs(retrieval: Retrieval, options: Mapping[str, Any]) -> dict
     resolved = dict(options)
     device = str(resolved.get("device") or "cpu")
     resolved["btl_head"] = read_btl_head(resolved.get("btl_head"), device=device)
-    resolved["query_descriptors"] = read_btl_descriptors(
-        resolved.get("query_descriptors"), "queries", retrieval.query_names
-    )
-    resolved["database_descriptors"] = read_btl_descriptors(
-        resolved.get("database_descriptors"), "database", retrieval.database_names
-    )
+    for split, names in (("queries", retrieval.query_names), ("database", retrieval.database_names)):
+        resolved[_OPTIONS[split]] = read_btl_descriptors(resolved.get(_OPTIONS[split]), split, names)
     return resolved
 
 
-def _load_positions(path: Path, name: str) -> np.ndarray:
+def _load_positions(path: Path, name: str, expected: int, what: str) -> np.ndarray:
     if not path.is_file():
         raise FileNotFoundError(f"{name} file not found: {path}")
     try:
@@ -94,13 +94,9 @@ def _load_positions(path: Path, name: str) -> np.ndarray:
         raise ValueError(f"{path}: {name} must be a numeric .npy array: {error}") from None
     if array.ndim not in (1, 2) or not np.issubdtype(array.dtype, np.number):
         raise ValueError(f"{path}: {name} must be a numeric array of shape (n, 2) or (n,), got {array.shape}")
+    if len(array) != expected:
+        raise ValueError(f"the {name} have {len(array)} rows but there are {expected} {what}")
     return array
-
-
-def _h5_has_queries(path: Path) -> bool:
-    from vpr_uncertainty.descriptors.cache import cache_info
-
-    return bool(cache_info(path).get("queries", {}).get("count", 0))
 
 
 def read_training_inputs(
@@ -138,7 +134,9 @@ def read_training_inputs(
     """
     run = None if run is None else Path(run)
     descriptors = None if descriptors is None else Path(descriptors)
+    retrieval_path = None
     from vpr_uncertainty.data import load_descriptors, load_ground_truth, positives_within_radius
+    from vpr_uncertainty.descriptors.cache import cache_info
     from vpr_uncertainty.retrieval import load_retrieval
 
     if run is not None:
@@ -166,13 +164,11 @@ def read_training_inputs(
             "give the training data: descriptors (argument descriptors, with argument positions or argument "
             "positives) or a run folder (argument run)"
         )
-    else:
-        retrieval_path = None
 
     database_names, database = load_descriptors(descriptors, "database")
     query_path = query_descriptors
-    if query_path is None and descriptors.suffix.lower() in (".h5", ".hdf5") and _h5_has_queries(descriptors):
-        query_path = descriptors
+    if query_path is None and descriptors.suffix.lower() in (".h5", ".hdf5"):
+        query_path = descriptors if cache_info(descriptors).get("queries", {}).get("count", 0) else None
     query_names, queries = load_descriptors(query_path, "queries") if query_path is not None else (None, None)
     source: dict[str, Any] = {"descriptors": str(descriptors), "query_descriptors": str(query_path or "")}
 
@@ -202,19 +198,13 @@ def read_training_inputs(
             queries = None  # database × database ground truth: the database trains on itself
         source["positives"] = str(positives)
     elif positions is not None:
-        database_positions = _load_positions(Path(positions), "database positions (argument positions)")
-        if len(database_positions) != len(database):
-            raise ValueError(
-                f"the database positions (argument positions) have {len(database_positions)} rows but there are "
-                f"{len(database)} images"
-            )
+        database_positions = _load_positions(
+            Path(positions), "database positions (argument positions)", len(database), "images"
+        )
         if query_positions is not None and queries is not None:
-            query_array = _load_positions(Path(query_positions), "query positions (argument query_positions)")
-            if len(query_array) != len(queries):
-                raise ValueError(
-                    f"the query positions (argument query_positions) have {len(query_array)} rows but there are "
-                    f"{len(queries)} queries"
-                )
+            query_array = _load_positions(
+                Path(query_positions), "query positions (argument query_positions)", len(queries), "queries"
+            )
             ground_truth = positives_within_radius(query_array, database_positions, radius)
         else:
             queries = None  # no query ground truth: the database trains on itself
@@ -243,12 +233,11 @@ def _head(value: object, device: str) -> BTLHead:
 
 
 def _descriptors(value: object, split: str, expected: int | None) -> np.ndarray:
-    option = "query_descriptors" if split == "queries" else "database_descriptors"
+    option = _OPTIONS[split]
     if value is None:
         raise ValueError(
             f"uncertainty method 'BTL' needs the frozen descriptors: pass {option}= (an array of shape "
-            f"(n_{'queries' if split == 'queries' else 'database'}, dim), or a .npy / descriptor-cache .h5 path "
-            "when called through evaluate or get_method)"
+            f"(n_{split}, dim), or a .npy / descriptor-cache .h5 path when called through evaluate or get_method)"
         )
     if isinstance(value, (str, Path)):
         raise TypeError(
@@ -303,17 +292,7 @@ def btl_retrieval(
     }
     if head_path is not None:
         config["btl_head"] = head_path
-    own = Retrieval(
-        scores=scores,
-        indices=indices,
-        positives=retrieval.positives,
-        distances=distances,
-        query_names=retrieval.query_names,
-        database_names=retrieval.database_names,
-        query_positions=retrieval.query_positions,
-        database_positions=retrieval.database_positions,
-        config=config,
-    )
+    own = replace(retrieval, scores=scores, indices=indices, distances=distances, config=config)
     return own, query_variances
 
 
@@ -403,12 +382,6 @@ class BTLProtocol:
     description: str
 
 
-def _count(value: object, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
-
-
 def btl_protocol(name: str, n_queries: int, *, split_at: int | None = None) -> BTLProtocol:
     """The training and test queries of protocol ``name``.
 
@@ -433,7 +406,7 @@ def btl_protocol(name: str, n_queries: int, *, split_at: int | None = None) -> B
     >>> btl_protocol("database", 3).train_queries.size
     0
     """
-    n_queries = _count(n_queries, "n_queries", 2)
+    n_queries = check_count(n_queries, "n_queries", 2)
     if name == "database":
         if split_at is not None:
             raise ValueError(
@@ -447,7 +420,7 @@ def btl_protocol(name: str, n_queries: int, *, split_at: int | None = None) -> B
             description=f"trained on the database images as anchors, tested on all {n_queries} queries",
         )
     if name == "query-split":
-        split_at = n_queries // 2 if split_at is None else _count(split_at, "split_at", 2)
+        split_at = n_queries // 2 if split_at is None else check_count(split_at, "split_at", 2)
         if split_at > n_queries - 1:
             raise ValueError(
                 f"split_at must leave at least one test query: got {split_at} with {n_queries} queries "
@@ -480,7 +453,7 @@ def database_frame_positives(n_database: int, frame_tolerance: int | float) -> s
     """
     from vpr_uncertainty.data import positives_within_frames
 
-    frames = np.arange(_count(n_database, "n_database", 2))
+    frames = np.arange(check_count(n_database, "n_database", 2))
     return positives_within_frames(frames, frames, tolerance=frame_tolerance)
 
 

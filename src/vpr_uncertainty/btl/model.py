@@ -269,6 +269,9 @@ HEAD_FORMAT_VERSION = 1
 #: Default embedding dimension: min(input_dim, this).
 DEFAULT_MAX_EMBEDDING_DIM = 2048
 
+#: The constructor arguments of :class:`BTLHead`, stored in the head file as ``config``.
+_HEAD_CONFIG = ("input_dim", "embedding_dim", "hidden_dim", "min_variance", "initial_variance")
+
 
 class BTLHead(nn.Module):
     """Mean embedding and scalar variance of each image from its frozen global descriptor.
@@ -334,13 +337,7 @@ class BTLHead(nn.Module):
     @property
     def config(self) -> dict[str, Any]:
         """Constructor arguments, stored in the head file."""
-        return {
-            "input_dim": self.input_dim,
-            "embedding_dim": self.embedding_dim,
-            "hidden_dim": self.hidden_dim,
-            "min_variance": self.min_variance,
-            "initial_variance": self.initial_variance,
-        }
+        return {key: getattr(self, key) for key in _HEAD_CONFIG}
 
     def forward(self, descriptors: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Descriptors (B, input_dim) -> means (B, embedding_dim), unit norm, and variances (B,), positive."""
@@ -354,10 +351,6 @@ class BTLHead(nn.Module):
         # the log-variance by O(1) in a few steps instead of O(1e-2).
         variance = functional.softplus(self.variance(x * self._input_scale)[:, 0]) + self.min_variance
         return mean, variance
-
-
-def _device_of(module: nn.Module) -> torch.device:
-    return next(module.parameters()).device
 
 
 @torch.no_grad()
@@ -382,7 +375,7 @@ def embed(head: BTLHead, descriptors: object, *, batch_size: int = 8192) -> tupl
         raise ValueError(f"descriptors row {int(np.flatnonzero(np.abs(array).sum(axis=1) == 0)[0])} is all zeros")
     was_training = head.training
     head.eval()
-    device = _device_of(head)
+    device = next(head.parameters()).device
     means, variances = [], []
     try:
         for start in range(0, len(array), batch_size):
@@ -460,13 +453,7 @@ def load_btl_head(path: str | Path, *, device: str | torch.device = "cpu") -> BT
             "Upgrade vpr-uncertainty."
         )
     config = dict(state["config"])
-    head = BTLHead(
-        config["input_dim"],
-        config["embedding_dim"],
-        config["hidden_dim"],
-        min_variance=config["min_variance"],
-        initial_variance=config["initial_variance"],
-    )
+    head = BTLHead(**{key: config[key] for key in _HEAD_CONFIG})
     head.load_state_dict(state["state_dict"])
     head.metadata = dict(state.get("metadata") or {})
     return head.to(device).eval()

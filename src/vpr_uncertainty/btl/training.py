@@ -34,6 +34,7 @@ from vpr_uncertainty.btl.model import (
     row_sketches,
 )
 from vpr_uncertainty.cache import write_figure, write_json
+from vpr_uncertainty.progress import progress_bar
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,21 @@ def _unit_rows(values: object, name: str) -> np.ndarray:
     if (norms == 0).any():
         raise ValueError(f"{name} row {int(np.flatnonzero(norms[:, 0] == 0)[0])} is all zeros")
     return array / norms
+
+
+def _checked_positives(
+    queries: np.ndarray, database: np.ndarray, positives: object, anchors: str, what: str
+) -> sparse.csr_array:
+    """``positives`` as a sparse bool array, after checking it against the descriptors (named ``anchors``)."""
+    if queries.shape[1] != database.shape[1]:
+        raise ValueError(
+            f"{anchors} and database descriptors must have the same dimension, got {queries.shape[1]} and "
+            f"{database.shape[1]}"
+        )
+    positives = sparse.csr_array(positives, dtype=bool)
+    if positives.shape != (len(queries), len(database)):
+        raise ValueError(f"positives must have shape ({len(queries)}, {len(database)}) ({what}), got {positives.shape}")
+    return positives
 
 
 def mine_triplets(
@@ -118,16 +134,7 @@ def mine_triplets(
     """
     queries = _unit_rows(anchor_descriptors, "anchor descriptors")
     database = _unit_rows(database_descriptors, "database descriptors")
-    if queries.shape[1] != database.shape[1]:
-        raise ValueError(
-            f"anchor and database descriptors must have the same dimension, got {queries.shape[1]} and "
-            f"{database.shape[1]}"
-        )
-    positives = sparse.csr_array(positives, dtype=bool)
-    if positives.shape != (len(queries), len(database)):
-        raise ValueError(
-            f"positives must have shape ({len(queries)}, {len(database)}) (anchors × database), got {positives.shape}"
-        )
+    positives = _checked_positives(queries, database, positives, "anchor", "anchors × database")
     if same_set and len(queries) != len(database):
         raise ValueError("same_set=True needs the anchors to be the database images (as many rows)")
     for name, value in (("n_negatives", n_negatives), ("max_positives", max_positives), ("block_size", block_size)):
@@ -152,8 +159,7 @@ def mine_triplets(
             candidates[own] = -np.inf
             if same_set:
                 candidates[anchor] = -np.inf
-            available = int(np.isfinite(candidates).sum())
-            count = min(n_negatives, available)
+            count = min(n_negatives, int(np.isfinite(candidates).sum()))
             if count == 0:
                 continue
             nearest = np.argpartition(-candidates, count - 1)[:count]
@@ -254,16 +260,14 @@ class TrainingHistory:
 
     def summary(self) -> dict[str, Any]:
         """The numbers worth keeping in the head file."""
+        counts = ("n_train_anchors", "n_val_anchors", "n_train_triplets", "n_val_triplets")
         return {
             "best_epoch": self.best_epoch,
             "epochs_run": self.epoch[-1],
             "stopped_early": self.stopped_early,
             "initial_val_loss": self.initial_val_loss,
             "best_val_loss": self.best_val_loss,
-            "n_train_anchors": self.n_train_anchors,
-            "n_val_anchors": self.n_val_anchors,
-            "n_train_triplets": self.n_train_triplets,
-            "n_val_triplets": self.n_val_triplets,
+            **{name: getattr(self, name) for name in counts},
         }
 
 
@@ -308,10 +312,8 @@ def _split_anchors(positives: sparse.csr_array, same_set: bool, fraction: float,
 
 
 def _batches(triplets: Triplets, batch_size: int, generator: torch.Generator | None) -> list[np.ndarray]:
-    if generator is None:
-        order = np.arange(len(triplets))
-    else:
-        order = torch.randperm(len(triplets), generator=generator).numpy()
+    n = len(triplets)
+    order = np.arange(n) if generator is None else torch.randperm(n, generator=generator).numpy()
     return [order[start : start + batch_size] for start in range(0, len(order), batch_size)]
 
 
@@ -321,7 +323,7 @@ class _TripletLoss:
     def __init__(self, anchors: torch.Tensor, database: torch.Tensor, config: BTLTrainingConfig) -> None:
         self.anchors = anchors
         self.database = database
-        self.config = config
+        self.options = {"margin": config.margin, "kl_weight": config.kl_weight, "prior_variance": config.prior_variance}
 
     def __call__(self, head: BTLHead, triplets: Triplets, rows: np.ndarray) -> Any:
         # Each image goes through the head once per batch, however many triplets it is part of.
@@ -335,20 +337,7 @@ class _TripletLoss:
         a = torch.as_tensor(anchor_of, device=device)
         p = torch.as_tensor(image_of[: rows.size], device=device)
         n = torch.as_tensor(image_of[rows.size :], device=device)
-        mean_a, var_a = mean_q[a], var_q[a]
-        mean_p, var_p = mean_d[p], var_d[p]
-        mean_n, var_n = mean_d[n], var_d[n]
-        return bayesian_triplet_loss(
-            mean_a,
-            var_a,
-            mean_p,
-            var_p,
-            mean_n,
-            var_n,
-            margin=self.config.margin,
-            kl_weight=self.config.kl_weight,
-            prior_variance=self.config.prior_variance,
-        )
+        return bayesian_triplet_loss(mean_q[a], var_q[a], mean_d[p], var_d[p], mean_d[n], var_d[n], **self.options)
 
     @torch.no_grad()
     def evaluate(self, head: BTLHead, triplets: Triplets) -> tuple[float, float]:
@@ -399,15 +388,8 @@ def train_btl_head(
     database = _as_descriptors(database_descriptors, "database descriptors")
     same_set = query_descriptors is None
     queries = database if same_set else _as_descriptors(query_descriptors, "query descriptors")
-    if queries.shape[1] != database.shape[1]:
-        raise ValueError(
-            f"query and database descriptors must have the same dimension, got {queries.shape[1]} and "
-            f"{database.shape[1]}"
-        )
-    positives = sparse.csr_array(positives, dtype=bool)
-    if positives.shape != (len(queries), len(database)):
-        what = "database × database" if same_set else "queries × database"
-        raise ValueError(f"positives must have shape ({len(queries)}, {len(database)}) ({what}), got {positives.shape}")
+    what = "database × database" if same_set else "queries × database"
+    positives = _checked_positives(queries, database, positives, "query", what)
 
     train_anchors, val_anchors = _split_anchors(positives, same_set, config.val_fraction, config.seed)
     mining = {"n_negatives": config.n_negatives, "max_positives": config.max_positives, "same_set": same_set}
@@ -444,8 +426,6 @@ def train_btl_head(
     best = record(0, loss.evaluate(head, train_triplets))
     best_state = copy.deepcopy(head.state_dict())
     waited = 0
-    from vpr_uncertainty.progress import progress_bar
-
     with progress_bar(range(1, config.epochs + 1), desc="train BTL head", unit="epoch", enabled=progress) as bar:
         for epoch in bar:
             head.train()

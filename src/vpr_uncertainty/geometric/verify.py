@@ -58,7 +58,6 @@ from vpr_uncertainty.retrieval import Retrieval
 DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {"extractor": {}, "matcher": {}}
 
 _OPENCV = (("cv2", "opencv"),)
-
 _LEARNED = (("cv2", "gv"), ("torch", "gv"), ("kornia", "gv"))
 
 
@@ -153,7 +152,6 @@ def build_components(
 
 
 _G = "vpr_uncertainty.geometric."
-
 _ON_DEVICE = ("max_side", "device", "batch_size")
 
 for _preset in (
@@ -397,12 +395,9 @@ class GeometricVerifier:
     ) -> VerificationResult:
         """Inliers of pairs of image names (``paths`` maps names to files; not needed with ``features_path``)."""
         needed = list(dict.fromkeys(name for pair in pairs for name in pair))
-        if self.extractor is not None:
-            if paths is None:
-                raise ValueError("the images' paths are needed to extract their features")
-            features, stats = self._features([paths[name] for name in needed], needed)
-        else:
-            features, stats = self._features([], needed)
+        if self.extractor is not None and paths is None:
+            raise ValueError("the images' paths are needed to extract their features")
+        features, stats = self._features([] if self.extractor is None else [paths[name] for name in needed], needed)
         if self.executor is not None and self.executor.name != "local" and len(pairs) > 1:
             all_matches, inliers, matching, ransac = verify_on_executor(self, features, list(pairs))
         else:
@@ -430,6 +425,7 @@ class GeometricVerifier:
         with blas, single_torch_thread(uses_torch and parallel):
             all_matches = _map_pairs(match, pairs, self.workers if parallel else 1, "matching")
         ransac_start = time.perf_counter()
+        options = {"model": self.model, "threshold": self.ransac_threshold, "seed": self.seed}
 
         def ransac(item: tuple[tuple[str, str], np.ndarray]) -> int:
             (name0, name1), matches = item
@@ -437,13 +433,7 @@ class GeometricVerifier:
                 return 0
             points0, _ = features[name0].at_working_resolution(self.max_side)
             points1, _ = features[name1].at_working_resolution(self.max_side)
-            return count_inliers(
-                points0[matches[:, 0]],
-                points1[matches[:, 1]],
-                model=self.model,
-                threshold=self.ransac_threshold,
-                seed=self.seed,
-            )
+            return count_inliers(points0[matches[:, 0]], points1[matches[:, 1]], **options)
 
         inliers = _map_pairs(ransac, list(zip(pairs, all_matches, strict=True)), self.workers, "RANSAC")
         end = time.perf_counter()
@@ -500,13 +490,10 @@ class GeometricVerifier:
 
 
 def _h5_key(handle: Any, name: str) -> str:
-    """The group of ``name`` in an hloc file: the name itself, else the one group with the same file name."""
-    if name in handle:
-        return name
+    """The group of ``name`` in an hloc file: the name itself, else the one group with the same file name (when
+    neither is there, :func:`read_features` raises a KeyError that shows what the file's names look like)."""
     base = Path(name).name
-    if base in handle:
-        return base
-    return name  # read_features raises a KeyError that shows what the file's names look like
+    return base if name not in handle and base in handle else name
 
 
 def verify_retrieval(
@@ -705,13 +692,9 @@ def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
 
 
 gv_sift = _preset_method("GV-SIFT", "gv_sift")
-
 gv_disk_lightglue = _preset_method("GV-DISK-LG", "gv_disk_lightglue")
-
 gv_xfeat = _preset_method("GV-XFEAT", "gv_xfeat")
-
 gv_superpoint_superglue = _preset_method("GV-SP-SG", "gv_superpoint_superglue")
-
 gv_superpoint_lightglue = _preset_method("GV-SP-LG", "gv_superpoint_lightglue")
 
 
@@ -761,21 +744,12 @@ def gv_h5(
     return -result.inliers[:, 0].astype(np.float64)
 
 
-for _name, _function, _description, _extra in (
-    ("GV-SIFT", gv_sift, "−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++", "opencv"),
-    ("GV-DISK-LG", gv_disk_lightglue, "−RANSAC inliers: DISK + LightGlue", "gv"),
-    ("GV-XFEAT", gv_xfeat, "−RANSAC inliers: XFeat + LighterGlue", "gv"),
-    ("GV-SP-SG", gv_superpoint_superglue, "−RANSAC inliers: SuperPoint + SuperGlue", "gv"),
-    ("GV-SP-LG", gv_superpoint_lightglue, "−RANSAC inliers: SuperPoint + LightGlue", "gv"),
+for _name, _function, _description, _extra, _requires in (
+    ("GV-SIFT", gv_sift, "−RANSAC inliers with the top-1: SIFT, ratio test, MAGSAC++", "opencv", "images"),
+    ("GV-DISK-LG", gv_disk_lightglue, "−RANSAC inliers: DISK + LightGlue", "gv", "images"),
+    ("GV-XFEAT", gv_xfeat, "−RANSAC inliers: XFeat + LighterGlue", "gv", "images"),
+    ("GV-SP-SG", gv_superpoint_superglue, "−RANSAC inliers: SuperPoint + SuperGlue", "gv", "images"),
+    ("GV-SP-LG", gv_superpoint_lightglue, "−RANSAC inliers: SuperPoint + LightGlue", "gv", "images"),
+    ("GV-H5", gv_h5, "−RANSAC inliers from precomputed local features (hloc HDF5)", "opencv", "local_features"),
 ):
-    register_method(_name, _function, description=_description, extra=_extra, requires=("images",), kind="geometric")
-
-
-register_method(
-    "GV-H5",
-    gv_h5,
-    description="−RANSAC inliers from precomputed local features (hloc HDF5)",
-    extra="opencv",
-    requires=("local_features",),
-    kind="geometric",
-)
+    register_method(_name, _function, description=_description, extra=_extra, requires=(_requires,), kind="geometric")
