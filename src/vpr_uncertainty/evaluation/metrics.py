@@ -300,11 +300,6 @@ def check_labels(correct: object, uncertainty: object, *, name: str = "uncertain
     return correct, uncertainty
 
 
-def _check_both_classes(correct: np.ndarray) -> None:
-    if correct.all() or not correct.any():
-        _raise_one_class(int(correct.sum()), correct.size)
-
-
 def _raise_one_class(n_correct: int, n_queries: int) -> None:
     if n_correct in (0, n_queries):
         state = "correct" if n_correct else "wrong"
@@ -476,8 +471,6 @@ def auc_pr(correct: object, uncertainty: object) -> float:
     >>> auc_pr([True, True, False, False], [0.1, 0.2, 0.3, 0.4])
     1.0
     """
-    correct, uncertainty = check_labels(correct, uncertainty)
-    _check_both_classes(correct)
     return rank_queries(correct, uncertainty).auc_pr()
 
 
@@ -498,8 +491,6 @@ def average_precision(correct: object, uncertainty: object) -> float:
     >>> average_precision([True, False, True, False], [0.1, 0.2, 0.3, 0.4])
     0.8333333333333333
     """
-    correct, uncertainty = check_labels(correct, uncertainty)
-    _check_both_classes(correct)
     return rank_queries(correct, uncertainty).average_precision()
 
 
@@ -666,24 +657,23 @@ def threshold_at_precision(
             "uncertainty is boolean; expected one real number per query (higher = less trustworthy): were "
             "uncertainty and correct swapped? The order is threshold_at_precision(uncertainty, correct, precision)"
         )
-    curve = rejection_curve(correct, uncertainty, n_answerable=n_answerable)
+    ranking = rank_queries(correct, uncertainty)
+    curve = ranking.rejection_curve(n_answerable=n_answerable)
     reached = np.flatnonzero(curve.precision >= target)
-    n_queries = np.asarray(correct).size
     if not reached.size:
         warnings.warn(
-            f"no uncertainty threshold reaches precision {target:g} on these {n_queries} queries (the most "
+            f"no uncertainty threshold reaches precision {target:g} on these {ranking.n_queries} queries (the most "
             f"confident answers already give {curve.precision[0]:.3g}): the threshold accepts nothing",
             RuntimeWarning,
             stacklevel=2,
         )
         return ThresholdChoice(-math.inf, target, None, 0.0, 0.0, 0)
     last = int(reached[-1])
-    threshold = float(curve.thresholds[last])
     return ThresholdChoice(
-        threshold=threshold,
+        threshold=float(curve.thresholds[last]),
         target_precision=target,
         precision=float(curve.precision[last]),
         recall=float(curve.recall[last]),
         coverage=float(curve.coverage[last]),
-        n_accepted=int(np.count_nonzero(np.asarray(uncertainty, dtype=np.float64) <= threshold)),
+        n_accepted=int(ranking.accepted[last]),
     )
