@@ -68,15 +68,18 @@ def time_per_query(compute: Callable[[], Any], n_queries: int, *, repeats: int =
     seconds_per_query : float
         Median wall-clock time of one call divided by ``n_queries``.
     """
-    durations = []
-    start = time.perf_counter()
-    result = compute()
-    durations.append(time.perf_counter() - start)
+    result, first = _timed(compute)
+    durations = [first]
     while len(durations) < repeats and sum(durations) < _TIMING_BUDGET_S:
-        start = time.perf_counter()
-        compute()
-        durations.append(time.perf_counter() - start)
+        durations.append(_timed(compute)[1])
     return result, statistics.median(durations) / max(n_queries, 1)
+
+
+def _timed(call: Callable[[], Any]) -> tuple[Any, float]:
+    """``call()``'s result and the seconds it took."""
+    start = time.perf_counter()
+    result = call()
+    return result, time.perf_counter() - start
 
 
 def evaluate(
@@ -150,9 +153,8 @@ def evaluate(
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work
     check_options(entries, options)  # and so do options that no selected method takes
-    if recall_at is None:
-        answerable_n = retrieval.positives is None or retrieval.k >= retrieval.positives.shape[1]
-        recall_at = [n for n in RECALL_NS if n <= retrieval.k or answerable_n] or [1]
+    if recall_at is None:  # every N is known when the candidates cover the database
+        recall_at = [n for n in RECALL_NS if n <= retrieval.k or retrieval.k >= retrieval.positives.shape[1]] or [1]
     recall_at = check_recall_ns(recall_at)
     check_bootstrap(bootstrap, seed)
     if bootstrap:
@@ -412,22 +414,16 @@ def time_geometric(
     cache_dir = options.get("cache_dir")
     cache_dir = None if cache_dir is None else Path(cache_dir)
     before = _snapshot(cache_dir)
-    start = time.perf_counter()
-    result = call(options)
-    first = time.perf_counter() - start
+    result, first = _timed(lambda: call(options))
     if cache_dir is None:
         return result, first, None
     created = bool(_snapshot(cache_dir) - before)  # a new cache file: nothing of this extractor was cached
     warm: list[float] = [] if created else [first]
     while len(warm) < max(repeats, 1) and (not warm or sum(warm) < _TIMING_BUDGET_S):
-        start = time.perf_counter()
-        call(options)
-        warm.append(time.perf_counter() - start)
+        warm.append(_timed(lambda: call(options))[1])
     if created:
         cold = first
     else:
         with tempfile.TemporaryDirectory(prefix="vpr-uncertainty-cold-") as scratch:
-            start = time.perf_counter()
-            call({**options, "cache_dir": Path(scratch)})
-            cold = time.perf_counter() - start
+            cold = _timed(lambda: call({**options, "cache_dir": Path(scratch)}))[1]
     return result, cold, statistics.median(warm)

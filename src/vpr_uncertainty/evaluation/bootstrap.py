@@ -190,12 +190,9 @@ def bootstrap_metrics(
         raise ValueError("no uncertainties given to bootstrap")
     labels: dict[str, object] = {}
     for name in uncertainties:
-        if isinstance(correct, Mapping):
-            if name not in correct and None not in correct:
-                raise ValueError(f"no correctness labels for method {name!r}")
-            labels[name] = correct.get(name, correct.get(None))
-        else:
-            labels[name] = correct
+        if isinstance(correct, Mapping) and name not in correct and None not in correct:
+            raise ValueError(f"no correctness labels for method {name!r}")
+        labels[name] = correct.get(name, correct.get(None)) if isinstance(correct, Mapping) else correct
     arrays = {}
     for name in uncertainties:
         try:
@@ -446,9 +443,8 @@ def add_bootstrap(
     reference = resolve_reference(reference, names)
     distributions = evaluation_distributions(evaluation, n_resamples, seed)
     for name, method in evaluation.methods.items():
-        method.auc_pr_ci = percentile_interval(distributions["auc_pr"][name], confidence)
-        method.average_precision_ci = percentile_interval(distributions["average_precision"][name], confidence)
-        method.aurc_ci = percentile_interval(distributions["aurc"][name], confidence)
+        for metric in BOOTSTRAP_METRICS:
+            setattr(method, f"{metric}_ci", percentile_interval(distributions[metric][name], confidence))
         method.vs_reference = None
     base = evaluation.methods[reference]
     compared = [name for name in names if name != reference and evaluation.methods[name].auc_pr is not None]

@@ -292,17 +292,6 @@ class Evaluation:
 _VS_REFERENCE = ("delta_auc_pr", "p_value_holm", "significant")
 
 
-def _import_pandas() -> Any:
-    try:
-        import pandas
-    except ImportError as error:
-        raise ImportError(
-            "Evaluation.to_frame() needs pandas, which the core install leaves out: "
-            "pip install 'vpr-uncertainty[pandas]' (or pip install pandas)"
-        ) from error
-    return pandas
-
-
 def method_row(method: MethodEvaluation) -> dict[str, Any]:
     """The numbers of one method as a flat dict (the columns of :func:`evaluation_frame`)."""
     row: dict[str, Any] = {
@@ -352,12 +341,16 @@ def evaluation_frame(evaluation: Evaluation) -> pandas.DataFrame:
     ImportError
         When pandas is not installed (it names the extra to install).
     """
-    pandas = _import_pandas()
+    try:
+        import pandas
+    except ImportError as error:
+        raise ImportError(
+            "Evaluation.to_frame() needs pandas, which the core install leaves out: "
+            "pip install 'vpr-uncertainty[pandas]' (or pip install pandas)"
+        ) from error
     rows = [method_row(method) for method in evaluation.methods.values()]
-    columns: dict[str, None] = {}
-    for row in rows:
-        columns.update(dict.fromkeys(row))
-    frame = pandas.DataFrame(rows, index=pandas.Index(list(evaluation.methods), name="method"), columns=list(columns))
+    columns = list(dict.fromkeys(key for row in rows for key in row))
+    frame = pandas.DataFrame(rows, index=pandas.Index(list(evaluation.methods), name="method"), columns=columns)
     floats = [name for name in columns if name not in ("informative", "significant")]
     frame[floats] = frame[floats].astype(float)  # None (an undefined AUC-PR) becomes NaN, not an object column
     frame.attrs.update(
