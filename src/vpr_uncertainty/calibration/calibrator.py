@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -165,16 +165,12 @@ class Calibrator:
         if ranking is not None and not isinstance(ranking, str):
             raise ValueError(f"{where}: ranking must be a name or absent, got {ranking!r}")
         keys = ("mean", "scale", "coef") if model == "logistic" else ("x", "y")
+        size = len(features) if model == "logistic" else None
         arrays = {}
         for key in keys:
             value = data.get(key)
-            size = len(features) if model == "logistic" else None
-            if (
-                not isinstance(value, list)
-                or not value
-                or not all(_is_number(v) for v in value)
-                or (size is not None and len(value) != size)
-            ):
+            numbers = isinstance(value, list) and value and all(_is_number(v) for v in value)
+            if not numbers or size not in (None, len(value)):
                 expected = f"{size} finite numbers" if size else "a non-empty list of finite numbers"
                 raise ValueError(f"{where}: {key} must be {expected}, got {value!r}")
             arrays[key] = [float(v) for v in value]
@@ -207,18 +203,6 @@ class Calibrator:
 def _is_number(value: object) -> bool:
     """A finite int or float (not a bool): a number of a calibrator file."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _check_training(features: np.ndarray, correct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    features = np.asarray(features, dtype=np.float64)
-    correct = np.asarray(correct)
-    if features.ndim != 2 or correct.shape != (features.shape[0],):
-        raise ValueError(f"features (Q, F) and correct (Q,) must match, got {features.shape} and {correct.shape}")
-    if not np.isfinite(features).all():
-        raise ValueError("features must be finite")
-    correct = correct.astype(bool)
-    check_both_outcomes(correct)
-    return features, correct
 
 
 def check_both_outcomes(correct: np.ndarray) -> None:
@@ -260,7 +244,13 @@ def fit_calibrator(
         Inverse L2 strength C of the logistic regression (> 0).
     """
     check_model(model)
-    features, correct = _check_training(features, correct)
+    features, correct = np.asarray(features, dtype=np.float64), np.asarray(correct)
+    if features.ndim != 2 or correct.shape != (features.shape[0],):
+        raise ValueError(f"features (Q, F) and correct (Q,) must match, got {features.shape} and {correct.shape}")
+    if not np.isfinite(features).all():
+        raise ValueError("features must be finite")
+    correct = correct.astype(bool)
+    check_both_outcomes(correct)
     if len(feature_names) != features.shape[1]:
         raise ValueError(f"feature_names has {len(feature_names)} names for {features.shape[1]} columns")
     if model == "isotonic":
@@ -646,8 +636,6 @@ def select_calibrator(
             scores[name] = average_precision(correct, sign * features[feature])
     best = max(scores, key=lambda name: scores[name])  # the first of equals: the model, then SU
     if best == "CAL":
-        calibrator = fit_model(matrix, correct, model_features)
-        calibrator.ranking = "CAL"
-        return calibrator, scores
+        return replace(fit_model(matrix, correct, model_features), ranking="CAL"), scores
     feature, sign = RANKINGS[best]
     return platt(best, feature, sign, features[feature], correct), scores

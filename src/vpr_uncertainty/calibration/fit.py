@@ -16,11 +16,12 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty import __version__
 from vpr_uncertainty._validation import check_count, check_k
 from vpr_uncertainty.calibration.calibrator import (
     DEFAULT_FEATURES,
@@ -47,6 +48,7 @@ from vpr_uncertainty.calibration.guarantee import (
     needed_message,
 )
 from vpr_uncertainty.evaluation import correct_at_n
+from vpr_uncertainty.evaluation.metrics import rank_queries
 from vpr_uncertainty.progress import progress_bar
 
 if TYPE_CHECKING:
@@ -114,7 +116,7 @@ def calibrate_arrays(
         rankings = ("SU",)
     names = check_rankings(default_rankings(correct.size) if rankings is None else rankings, labelled_features)
     info: dict[str, Any] = {
-        "toolkit_version": _version(),
+        "toolkit_version": __version__,
         "target_precision": target_precision,
         "delta": delta if target_precision is not None else None,
         "calibration": {
@@ -133,9 +135,9 @@ def calibrate_arrays(
         if model == "isotonic":
             return fit_calibrator(labelled_features["SU"][:, None], correct, feature_names=("SU",), model="isotonic")
         if features is not None:
-            calibrator = fit_model(columns(labelled_features, model_features), correct, model_features)
-            calibrator.ranking = "CAL"
-            return calibrator
+            return replace(
+                fit_model(columns(labelled_features, model_features), correct, model_features), ranking="CAL"
+            )
         calibrator, selection = select_calibrator(
             labelled_features, correct, model_features=model_features, folds=folds, seed=seed
         )
@@ -191,12 +193,6 @@ def _half_way_cut(calibrator: Calibrator) -> float:
     first = int(above[0])
     # halfway to the next lower breakpoint, so that no calibration query sits exactly on the cut
     return calibrator.x[first] - 1.0 if first == 0 else 0.5 * (calibrator.x[first - 1] + calibrator.x[first])
-
-
-def _version() -> str:
-    from vpr_uncertainty import __version__
-
-    return __version__
 
 
 def calibrate(
@@ -332,14 +328,9 @@ class LabelPlan:
 
     def table(self) -> str:
         """A Markdown table of the simulated sizes."""
-        lines = [
-            "| labelled queries | P(certified) | P(useful certificate) | mean recall |",
-            "|---|---|---|---|",
-        ]
-        for size, certified, useful, recall in zip(
-            self.sizes, self.certified, self.useful, self.mean_recall, strict=True
-        ):
-            lines.append(f"| {size} | {certified:.2f} | {useful:.2f} | {recall:.3f} |")
+        lines = ["| labelled queries | P(certified) | P(useful certificate) | mean recall |", "|---|---|---|---|"]
+        rows = zip(self.sizes, self.certified, self.useful, self.mean_recall, strict=True)
+        lines += [f"| {size} | {c:.2f} | {u:.2f} | {r:.3f} |" for size, c, u, r in rows]
         return "\n".join(lines)
 
 
@@ -516,13 +507,9 @@ class GuaranteeSimulation:
 
 def hindsight_recall(uncertainty: np.ndarray, correct: np.ndarray, target_precision: float, n_answerable: int) -> float:
     """Largest end-to-end recall of a cut on ``uncertainty`` (accept ≤ cut) with precision ≥ p*, ties kept together."""
-    order = np.argsort(uncertainty, kind="stable")
-    ranked = uncertainty[order]
-    hits = np.cumsum(correct[order])
-    ends = np.append(np.flatnonzero(np.diff(ranked) != 0), ranked.size - 1)  # last index of each tied group
-    precision = hits[ends] / (ends + 1)
-    ok = precision >= target_precision
-    return float(hits[ends][ok].max() / max(n_answerable, 1)) if ok.any() else 0.0
+    ranking = rank_queries(correct, uncertainty)
+    ok = ranking.correct_accepted / ranking.accepted >= target_precision
+    return float(ranking.correct_accepted[ok].max() / max(n_answerable, 1)) if ok.any() else 0.0
 
 
 def simulate_guarantee(

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -440,8 +440,7 @@ def certify_rankings(
     n_good, name, chosen, accepted, good = best
     coverage = float(grid[chosen])
     if name == "CAL":
-        calibrator = fit_model(columns(labelled, model_features), correct, model_features)
-        calibrator.ranking = "CAL"
+        calibrator = replace(fit_model(columns(labelled, model_features), correct, model_features), ranking="CAL")
         cut = float(
             cuts_at_coverage(calibrator.confidence(columns(pool, model_features)), grid[chosen : chosen + 1])[0]
         )
