@@ -134,13 +134,7 @@ class Calibrator:
         if self.ranking is not None:
             data["ranking"] = self.ranking
         if self.model == "logistic":
-            data.update(
-                mean=self.mean,
-                scale=self.scale,
-                coef=self.coef,
-                intercept=self.intercept,
-                regularisation=self.regularisation,
-            )
+            data.update({key: getattr(self, key) for key in ("mean", "scale", "coef", "intercept", "regularisation")})
         else:
             data.update(x=self.x, y=self.y)
         return data
@@ -260,12 +254,8 @@ def fit_calibrator(
             raise ValueError(f"the isotonic model reads SU alone, got features {tuple(feature_names)}")
         fitted = IsotonicRegression(y_min=0.0, y_max=1.0, increasing=True, out_of_bounds="clip")
         fitted.fit(-features[:, 0], correct.astype(np.float64))
-        return Calibrator(
-            model=model,
-            features=("SU",),
-            x=fitted.X_thresholds_.tolist(),
-            y=fitted.y_thresholds_.tolist(),
-        )
+        x, y = fitted.X_thresholds_.tolist(), fitted.y_thresholds_.tolist()
+        return Calibrator(model=model, features=("SU",), x=x, y=y)
     if not regularisation > 0:
         raise ValueError(f"regularisation must be > 0, got {regularisation}")
     mean = features.mean(axis=0)
@@ -587,7 +577,6 @@ def platt(name: str, feature: str, sign: float, column: np.ndarray, correct: np.
         scale=[1.0],
         coef=[sign * slope],
         intercept=float(intercept),
-        regularisation=1.0,
         ranking=name,
     )
 

@@ -422,8 +422,7 @@ def plan_labels(
     rng = np.random.default_rng(seed)
     certified, useful, mean_recall = [], [], []
     for size in progress_bar(sizes, desc="simulating calibration sizes", unit="size", enabled=progress):
-        hits = good = 0
-        recall_sum = 0.0
+        hits, good, recall_sum = 0, 0, 0.0
         for _ in range(draws):
             rows = rng.choice(scores.shape[0], size, replace=True)
             labels = rng.random(size) < probability[rows]
@@ -447,8 +446,7 @@ def plan_labels(
         certified.append(hits / draws)
         useful.append(good / draws)
         mean_recall.append(recall_sum / draws)
-    reached = [size for size, share in zip(sizes, useful, strict=True) if share >= 1 - delta]
-    needed = reached[0] if reached else None
+    needed = next((size for size, share in zip(sizes, useful, strict=True) if share >= 1 - delta), None)
     have = labelled_scores.shape[0]
     if needed is None:
         message = (

@@ -243,7 +243,7 @@ def certify_threshold(
     answerable : ndarray of shape (n,), bool, optional
         Test queries with a positive in the database (the recall denominator); default all.
     """
-    _check_target(target_precision, delta)
+    n_needed = min_accepted(target_precision, delta)  # checks p* and δ
     confidence = np.asarray(confidence, dtype=np.float64)
     correct = np.asarray(correct, dtype=bool)
     cuts = np.asarray(cuts, dtype=np.float64)
@@ -251,7 +251,6 @@ def certify_threshold(
         raise ValueError(f"confidence and correct must be 1-D of one length, got {confidence.shape}, {correct.shape}")
     if cuts.ndim != 1 or (cuts.size > 1 and not (np.diff(cuts) < 0).all()):
         raise ValueError("cuts must be 1-D and strictly decreasing (strictest first)")
-    n_needed = min_accepted(target_precision, delta)
     n_answerable = int(correct.size if answerable is None else np.asarray(answerable, dtype=bool).sum())
     order = np.argsort(-confidence, kind="stable")
     ranked, hits = confidence[order], np.concatenate([[0], np.cumsum(correct[order])])

@@ -19,6 +19,7 @@ from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import stratified_split
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.evaluation import correct_at_n, evaluate
+from vpr_uncertainty.evaluation.bootstrap import BOOTSTRAP_METRICS
 from vpr_uncertainty.evaluation.metrics import check_labels
 from vpr_uncertainty.methods import get_method, register_method
 from vpr_uncertainty.retrieval import Retrieval
@@ -113,9 +114,6 @@ def brier_score(probability: object, correct: object) -> float:
     return float(np.mean((probability - correct) ** 2))
 
 
-_METRICS = ("auc_pr", "average_precision", "aurc")
-
-
 #: The fewest held-out queries of a split, and of each outcome among them, that a held-out figure is reported on.
 MIN_HELD_OUT, MIN_HELD_OUT_PER_OUTCOME = 10, 2
 
@@ -164,7 +162,7 @@ class HeldOutEvaluation:
         methods = {}
         for name, metrics in self.values.items():
             entry: dict[str, Any] = {}
-            for metric in _METRICS:
+            for metric in BOOTSTRAP_METRICS:
                 entry[metric] = self.mean(name, metric)
                 entry[f"{metric}_std"] = self.std(name, metric)
             entry["auc_pr_per_repeat"] = metrics["auc_pr"]
@@ -249,7 +247,7 @@ def evaluate_held_out(
         n_calibration=0,
         n_held_out=0,
         k=min(int(k), retrieval.k),
-        values={entry.name: {metric: [] for metric in _METRICS} for entry in entries},
+        values={entry.name: {metric: [] for metric in BOOTSTRAP_METRICS} for entry in entries},
     )
     pooled_p, pooled_correct, eces, briers = [], [], [], []
     for repeat in range(repeats):
@@ -277,7 +275,7 @@ def evaluate_held_out(
         if repeat == 0:
             result.notes.extend(evaluation.notes)
         for name, measured in evaluation.methods.items():
-            for metric in _METRICS:
+            for metric in BOOTSTRAP_METRICS:
                 result.values[name][metric].append(getattr(measured, metric))
             result.times.setdefault(name, []).append(measured.time_per_query_ms)
             if (get_method(name).base or name) == "CAL":

@@ -378,11 +378,9 @@ def latency_batch1(call: Callable[[Any], Any], retrieval: Any, *, n_calls: int =
     return max(statistics.median(per_call), 1e-12)
 
 
-def _snapshot(folder: Path | None) -> set[str]:
-    """Names of the files directly in ``folder`` (empty when it is None or missing)."""
-    if folder is None or not folder.is_dir():
-        return set()
-    return {path.name for path in folder.iterdir() if path.is_file()}
+def _snapshot(folder: Path) -> set[str]:
+    """Names of the files directly in ``folder`` (empty when it is missing)."""
+    return {path.name for path in folder.iterdir() if path.is_file()} if folder.is_dir() else set()
 
 
 def time_geometric(
@@ -411,19 +409,17 @@ def time_geometric(
     warm_seconds : float or None
         Median seconds of the calls that read every feature from the cache; None without ``cache_dir``.
     """
-    cache_dir = options.get("cache_dir")
-    cache_dir = None if cache_dir is None else Path(cache_dir)
+    if options.get("cache_dir") is None:
+        result, seconds = _timed(lambda: call(options))
+        return result, seconds, None
+    cache_dir = Path(options["cache_dir"])
     before = _snapshot(cache_dir)
-    result, first = _timed(lambda: call(options))
-    if cache_dir is None:
-        return result, first, None
+    result, cold = _timed(lambda: call(options))
     created = bool(_snapshot(cache_dir) - before)  # a new cache file: nothing of this extractor was cached
-    warm: list[float] = [] if created else [first]
+    warm: list[float] = [] if created else [cold]
     while len(warm) < max(repeats, 1) and (not warm or sum(warm) < _TIMING_BUDGET_S):
         warm.append(_timed(lambda: call(options))[1])
-    if created:
-        cold = first
-    else:
+    if not created:  # the first call read the cache: time a cold one in a fresh cache
         with tempfile.TemporaryDirectory(prefix="vpr-uncertainty-cold-") as scratch:
             cold = _timed(lambda: call({**options, "cache_dir": Path(scratch)}))[1]
     return result, cold, statistics.median(warm)

@@ -90,12 +90,6 @@ def resample_indices(n_queries: int, n_resamples: int, seed: int) -> Iterator[np
         yield rng.integers(0, n_queries, size=(min(_BLOCK, n_resamples - start), n_queries), dtype=np.int64)
 
 
-def _counts(indices: np.ndarray, n_queries: int) -> np.ndarray:
-    """(b, Q) how many times each query is drawn in each resample."""
-    rows = np.arange(indices.shape[0])[:, None] * n_queries
-    return np.bincount((indices + rows).ravel(), minlength=indices.shape[0] * n_queries).reshape(-1, n_queries)
-
-
 def weighted_metrics(correct: object, uncertainty: object, weights: object) -> dict[str, np.ndarray]:
     """AUC-PR, AP and AURC of one method on many weighted copies of its queries at once.
 
@@ -207,7 +201,8 @@ def bootstrap_metrics(
         metric: {name: [] for name in arrays} for metric in BOOTSTRAP_METRICS
     }
     for indices in resample_indices(n_queries, n_resamples, seed):
-        counts = _counts(indices, n_queries)
+        offsets = np.arange(indices.shape[0])[:, None] * n_queries  # counts: (b, Q), draws of each query
+        counts = np.bincount((indices + offsets).ravel(), minlength=indices.size).reshape(-1, n_queries)
         for name, (labels_of, uncertainty) in arrays.items():
             for metric, values in weighted_metrics(labels_of, uncertainty, counts).items():
                 blocks[metric][name].append(values)

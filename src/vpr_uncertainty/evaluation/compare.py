@@ -136,18 +136,10 @@ class Difference:
     skipped: int = 0
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "metric": self.metric,
-            "method_a": self.method_a,
-            "method_b": self.method_b,
-            "a": self.value_a,
-            "b": self.value_b,
-            "difference": self.difference,
-            "ci": None if self.interval is None else list(self.interval),
-            "p_value": self.p_value,
-            "p_value_holm": self.p_value_holm,
-            "skipped_resamples": self.skipped,
-        }
+        """The fields in field order, four named for JSON: ``a``, ``b``, ``ci`` (a list) and ``skipped_resamples``."""
+        json_names = {"value_a": "a", "value_b": "b", "interval": "ci", "skipped": "skipped_resamples"}
+        data = {json_names.get(key, key): value for key, value in asdict(self).items()}
+        return {**data, "ci": None if self.interval is None else list(self.interval)}
 
 
 @dataclass(frozen=True)
