@@ -160,7 +160,7 @@ class Calibrator:
             raise ValueError(f"{where}: ranking must be a name or absent, got {ranking!r}")
         keys = ("mean", "scale", "coef") if model == "logistic" else ("x", "y")
         size = len(features) if model == "logistic" else None
-        arrays = {}
+        arrays: dict[str, Any] = {}
         for key in keys:
             value = data.get(key)
             numbers = isinstance(value, list) and value and all(_is_number(v) for v in value)
@@ -177,21 +177,15 @@ class Calibrator:
             regularisation = data.get("regularisation", 1.0)
             if not (_is_number(regularisation) and regularisation > 0):
                 raise ValueError(f"{where}: regularisation must be a number > 0 (C), got {regularisation!r}")
-            return cls(
-                model=model,
-                features=tuple(features),
-                intercept=float(intercept),
-                regularisation=float(regularisation),
-                ranking=ranking,
-                **arrays,
-            )
-        if len(arrays["x"]) != len(arrays["y"]) or np.any(np.diff(arrays["x"]) < 0):
-            raise ValueError(f"{where}: x must be non-decreasing and as long as y")
-        if np.any(np.diff(arrays["y"]) < 0) or not 0 <= min(arrays["y"]) <= max(arrays["y"]) <= 1:
-            raise ValueError(f"{where}: y must be non-decreasing probabilities in [0, 1], got {arrays['y']}")
-        if features != ["SU"]:
-            raise ValueError(f"{where}: the isotonic model reads the feature SU only, got {features}")
-        return cls(model=model, features=("SU",), ranking=ranking, **arrays)
+            arrays.update(intercept=float(intercept), regularisation=float(regularisation))
+        else:
+            if len(arrays["x"]) != len(arrays["y"]) or np.any(np.diff(arrays["x"]) < 0):
+                raise ValueError(f"{where}: x must be non-decreasing and as long as y")
+            if np.any(np.diff(arrays["y"]) < 0) or not 0 <= min(arrays["y"]) <= max(arrays["y"]) <= 1:
+                raise ValueError(f"{where}: y must be non-decreasing probabilities in [0, 1], got {arrays['y']}")
+            if features != ["SU"]:
+                raise ValueError(f"{where}: the isotonic model reads the feature SU only, got {features}")
+        return cls(model=model, features=tuple(features), ranking=ranking, **arrays)
 
 
 def _is_number(value: object) -> bool:

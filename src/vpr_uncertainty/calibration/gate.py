@@ -27,13 +27,7 @@ import numpy as np
 from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty._validation import check_k, check_top_k_scores
 from vpr_uncertainty.cache import write_text
-from vpr_uncertainty.calibration.calibrator import (
-    FEATURES,
-    Calibrator,
-    aliasing_ratio,
-    feature_matrix,
-    row_features,
-)
+from vpr_uncertainty.calibration.calibrator import FEATURES, Calibrator, aliasing_ratio, feature_matrix, row_features
 from vpr_uncertainty.scores import one_row, row_statistics
 
 __all__ = ["FORMAT", "Gate"]

@@ -143,6 +143,12 @@ class Certificate:
         return asdict(self)
 
 
+def _uncertified(message: str, **fields: Any) -> Certificate:
+    """A certificate of nothing: no cut, no bound, no query accepted."""
+    zero = {"accepted": 0, "correct_accepted": 0, "expected_coverage": 0.0, "expected_recall": 0.0}
+    return Certificate(certified=False, cut=None, precision_lower_bound=None, message=message, **zero, **fields)
+
+
 def coverage_grid(n_labelled: int, target_precision: float, delta: float) -> np.ndarray:
     """The candidate coverages, strictest first: fixed by the number of labelled queries, p* and δ alone.
 
@@ -267,19 +273,12 @@ def certify_threshold(
                 f"the strictest candidate cut accepts {first} test queries, "
                 f"{int(good[0]) if cuts.size else 0} correct, and that does not reach the bound"
             )
-        return Certificate(
-            certified=False,
-            cut=None,
-            precision_lower_bound=None,
+        return _uncertified(
+            f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why} "
+            f"(at least {n_needed} accepted test queries, all correct, are needed)",
             n_test=int(correct.size),
-            accepted=0,
-            correct_accepted=0,
-            expected_coverage=0.0,
-            expected_recall=0.0,
             min_accepted=n_needed,
             cuts_tested=tested,
-            message=f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why} "
-            f"(at least {n_needed} accepted test queries, all correct, are needed)",
         )
     chosen = n_rejected - 1
     n_acc, n_good = int(accepted[chosen]), int(good[chosen])
@@ -406,12 +405,7 @@ def certify_rankings(
         if rejected and (best is None or good[chosen] > best[0]):
             best = (int(good[chosen]), name, chosen, accepted, good)
     n_needed = min_accepted(target_precision, share)
-    common = {
-        "n_test": n,
-        "min_accepted": n_needed,
-        "delta_per_ranking": share,
-        "rankings": outcomes,
-    }
+    common = {"n_test": n, "min_accepted": n_needed, "delta_per_ranking": share, "rankings": outcomes}
     if best is None:
         if n < n_needed:
             why = f"the {n} labelled queries are fewer than the {n_needed} accepted ones needed at δ/{len(rankings)}"
@@ -423,30 +417,21 @@ def certify_rankings(
                 f"the strictest cut ({n_needed} of {n} labelled queries) already holds a wrong answer for every "
                 f"ranking ({tried})"
             )
-        certificate = Certificate(
-            certified=False,
-            cut=None,
-            precision_lower_bound=None,
-            accepted=0,
-            correct_accepted=0,
-            expected_coverage=0.0,
-            expected_recall=0.0,
+        certificate = _uncertified(
+            f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why}",
             cuts_tested=max((o["cuts_tested"] for o in outcomes.values()), default=0),
-            message=f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why}",
             **common,
         )
         return certificate, None, math.inf
     n_good, name, chosen, accepted, good = best
-    coverage = float(grid[chosen])
+    coverage = grid[chosen : chosen + 1]
     if name == "CAL":
         calibrator = replace(fit_model(columns(labelled, model_features), correct, model_features), ranking="CAL")
-        cut = float(
-            cuts_at_coverage(calibrator.confidence(columns(pool, model_features)), grid[chosen : chosen + 1])[0]
-        )
+        cut = float(cuts_at_coverage(calibrator.confidence(columns(pool, model_features)), coverage)[0])
     else:
         feature, sign = RANKINGS[name]
         calibrator = platt(name, feature, sign, labelled[feature], correct)
-        cut_on_score = float(cuts_at_coverage(sign * pool[feature], grid[chosen : chosen + 1])[0])
+        cut_on_score = float(cuts_at_coverage(sign * pool[feature], coverage)[0])
         slope = calibrator.coef[0] * sign  # > 0: the calibrator's confidence is slope · (sign · f) + intercept
         cut = slope * cut_on_score + calibrator.intercept
     n_acc = int(accepted[chosen])
@@ -466,7 +451,7 @@ def certify_rankings(
             f"({len(rankings)} ranking(s) tested, each at risk {share:.3g})"
         ),
         ranking=name,
-        coverage=coverage,
+        coverage=float(coverage[0]),
         **common,
     )
     return certificate, calibrator, cut

@@ -169,7 +169,7 @@ class HeldOutEvaluation:
             if self.times.get(name):
                 entry["time_per_query_ms"] = float(np.mean(self.times[name]))
             methods[name] = entry
-        result: dict[str, Any] = {
+        return {
             "n_queries": self.n_queries,
             "k": self.k,
             "calibration": {
@@ -180,12 +180,9 @@ class HeldOutEvaluation:
                 "n_held_out": self.n_held_out,
             },
             "methods": methods,
+            **({"calibration_quality": self.quality} if self.quality else {}),
+            **({"notes": list(self.notes)} if self.notes else {}),
         }
-        if self.quality:
-            result["calibration_quality"] = self.quality
-        if self.notes:
-            result["notes"] = list(self.notes)
-        return result
 
 
 def evaluate_held_out(

@@ -441,11 +441,9 @@ def add_bootstrap(
         for metric in BOOTSTRAP_METRICS:
             setattr(method, f"{metric}_ci", percentile_interval(distributions[metric][name], confidence))
         method.vs_reference = None
-    base = evaluation.methods[reference]
+    base, auc_pr = evaluation.methods[reference], distributions["auc_pr"]
     compared = [name for name in names if name != reference and evaluation.methods[name].auc_pr is not None]
-    p_values = {
-        name: paired_p_value(distributions["auc_pr"][name], distributions["auc_pr"][reference]) for name in compared
-    }
+    p_values = {name: paired_p_value(auc_pr[name], auc_pr[reference]) for name in compared}
     tested = [name for name in compared if p_values[name] is not None and base.auc_pr is not None]
     adjusted = dict(zip(tested, holm([p_values[name] for name in tested]), strict=True)) if tested else {}
     for name in tested:
@@ -465,7 +463,7 @@ def add_bootstrap(
         }
         marked, significant = leaders(distributions[metric], values, higher_is_better=higher, level=level)
         best[metric] = {"methods": marked, "significant": significant}
-    skipped = {name: int(np.isnan(distributions["auc_pr"][name]).sum()) for name in names}
+    skipped = {name: int(np.isnan(auc_pr[name]).sum()) for name in names}
     evaluation.bootstrap = {
         "resamples": int(n_resamples),
         "seed": int(seed),
