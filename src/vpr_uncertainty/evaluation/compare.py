@@ -215,8 +215,7 @@ def _number(value: float | None, spec: str = ".4f") -> str:
 def _distributions(
     evaluation: Evaluation, names: Sequence[str], n_resamples: int, seed: int
 ) -> dict[str, dict[str, np.ndarray]]:
-    """The paired bootstrap of the methods ``names``, each judged by its own labels if it retrieves with its own
-    embeddings."""
+    """The paired bootstrap of the methods ``names``, each judged by its own labels where it has them."""
     methods = {name: evaluation.methods[name] for name in names}
     return bootstrap_metrics(
         {name: evaluation.correct if m.correct is None else m.correct for name, m in methods.items()},

@@ -300,14 +300,6 @@ def check_labels(correct: object, uncertainty: object, *, name: str = "uncertain
     return correct, uncertainty
 
 
-def _raise_one_class(n_correct: int, n_queries: int) -> None:
-    if n_correct in (0, n_queries):
-        state = "correct" if n_correct else "wrong"
-        raise ValueError(
-            f"all {n_queries} top-1 answers are {state}: precision-recall needs both correct and wrong answers"
-        )
-
-
 @dataclass(frozen=True)
 class RejectionCurve:
     """Precision and recall of the VPR system at every uncertainty threshold, from strictest to most lenient.
@@ -377,7 +369,11 @@ class UncertaintyRanking:
 
         Needs both correct and wrong answers (else ValueError).
         """
-        _raise_one_class(self.n_correct, self.n_queries)
+        if self.n_correct in (0, self.n_queries):
+            raise ValueError(
+                f"all {self.n_queries} top-1 answers are {'correct' if self.n_correct else 'wrong'}: precision-recall "
+                "needs both correct and wrong answers"
+            )
         tps = self.correct_accepted.astype(np.float64)
         precision = tps / self.accepted  # sklearn: tps / (tps + fps), and tps + fps = accepted, exactly
         recall = tps / tps[-1]
@@ -600,15 +596,6 @@ class ThresholdChoice:
         return np.asarray(uncertainty, dtype=np.float64) <= self.threshold
 
 
-def _check_precision(precision: object) -> float:
-    if isinstance(precision, bool) or not isinstance(precision, numbers.Real):
-        raise TypeError(f"precision must be a number in (0, 1], got {precision!r}")
-    value = float(precision)
-    if not 0.0 < value <= 1.0:  # also rejects NaN
-        raise ValueError(f"precision must lie in (0, 1], got {precision!r}")
-    return value
-
-
 def threshold_at_precision(
     uncertainty: object, correct: object, precision: float, *, n_answerable: int | None = None
 ) -> ThresholdChoice:
@@ -651,7 +638,11 @@ def threshold_at_precision(
     >>> print(threshold_at_precision([0.1, 0.2, 0.3, 0.4, 0.5], [True, True, False, True, False], 1.0))
     accept uncertainty <= 0.2: precision 1.000, recall 0.400, coverage 0.400 (2 queries)
     """
-    target = _check_precision(precision)
+    if isinstance(precision, bool) or not isinstance(precision, numbers.Real):
+        raise TypeError(f"precision must be a number in (0, 1], got {precision!r}")
+    target = float(precision)
+    if not 0.0 < target <= 1.0:  # also rejects NaN
+        raise ValueError(f"precision must lie in (0, 1], got {precision!r}")
     if np.asarray(uncertainty).dtype == bool:
         raise ValueError(
             "uncertainty is boolean; expected one real number per query (higher = less trustworthy): were "

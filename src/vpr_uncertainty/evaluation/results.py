@@ -209,20 +209,17 @@ class Evaluation:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON schema of ``evaluate --json``."""
-        result: dict[str, Any] = {"n_queries": self.n_queries}
-        if self.k is not None:
-            result["k"] = self.k
-        if self.k_requested is not None and self.k_requested != self.k:
-            result["k_requested"] = self.k_requested
-        result["recall@1"] = self.recall_at_n.get(1)
-        result.update({f"recall@{n}": value for n, value in self.recall_at_n.items() if n != 1})
-        result["n_queries_without_positives"] = self.n_queries - self.n_answerable
-        result["methods"] = {name: method.to_dict() for name, method in self.methods.items()}
-        if self.bootstrap is not None:
-            result["bootstrap"] = dict(self.bootstrap)
-        if self.notes:
-            result["notes"] = list(self.notes)
-        return result
+        return {
+            "n_queries": self.n_queries,
+            **({"k": self.k} if self.k is not None else {}),
+            **({"k_requested": self.k_requested} if self.k_requested not in (None, self.k) else {}),
+            "recall@1": self.recall_at_n.get(1),
+            **{f"recall@{n}": value for n, value in self.recall_at_n.items() if n != 1},
+            "n_queries_without_positives": self.n_queries - self.n_answerable,
+            "methods": {name: method.to_dict() for name, method in self.methods.items()},
+            **({"bootstrap": dict(self.bootstrap)} if self.bootstrap is not None else {}),
+            **({"notes": list(self.notes)} if self.notes else {}),
+        }
 
     @classmethod
     def from_dict(
