@@ -252,8 +252,7 @@ def fit_calibrator(
         return Calibrator(model=model, features=("SU",), x=x, y=y)
     if not regularisation > 0:
         raise ValueError(f"regularisation must be > 0, got {regularisation}")
-    mean = features.mean(axis=0)
-    scale = features.std(axis=0)
+    mean, scale = features.mean(axis=0), features.std(axis=0)
     scale[scale == 0] = 1.0
     intercept, coef = fit_logistic((features - mean) / scale, correct, regularisation=regularisation)
     return Calibrator(

@@ -47,8 +47,7 @@ from vpr_uncertainty.calibration.guarantee import (
     min_accepted,
     needed_message,
 )
-from vpr_uncertainty.evaluation import correct_at_n
-from vpr_uncertainty.evaluation.metrics import rank_queries
+from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n, rank_queries
 from vpr_uncertainty.progress import progress_bar
 
 if TYPE_CHECKING:
@@ -260,14 +259,10 @@ def calibrate(
     """
     if retrieval.positives is None:
         raise ValueError("calibration needs the ground truth of the queries (argument ground_truth)")
-    correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
-    answerable = np.asarray(retrieval.positives.sum(axis=1)).ravel() > 0
-    if unlabelled is not None and not isinstance(unlabelled, np.ndarray):
-        unlabelled = unlabelled.scores
     return calibrate_arrays(
         retrieval.scores,
-        correct,
-        answerable=answerable,
+        correct_at_n(retrieval.indices, retrieval.positives, 1),
+        answerable=answerable_queries(retrieval.positives),
         target_precision=target_precision,
         delta=delta,
         k=k,
@@ -275,7 +270,7 @@ def calibrate(
         model=model,
         features=features,
         rankings=rankings,
-        unlabelled=unlabelled,
+        unlabelled=unlabelled if unlabelled is None or isinstance(unlabelled, np.ndarray) else unlabelled.scores,
         folds=folds,
     )
 
@@ -339,8 +334,7 @@ def _probability(su_labelled: np.ndarray, correct: np.ndarray, su_all: np.ndarra
     confidence = -su_labelled
     mean, spread = float(confidence.mean()), float(confidence.std()) or 1.0
     intercept, (slope,) = fit_logistic(((confidence - mean) / spread)[:, None], correct, regularisation=1.0)
-    slope = max(float(slope), 0.0)
-    z = intercept + slope * (-su_all - mean) / spread
+    z = intercept + max(float(slope), 0.0) * (-su_all - mean) / spread  # slope >= 0: P decreasing in SU
     return 0.5 * (1.0 + np.tanh(0.5 * z))
 
 

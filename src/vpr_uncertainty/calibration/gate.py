@@ -189,8 +189,7 @@ class Gate:
         if short.size:
             self._refuse(f"fewer in {short.size} scores rows ({short[:10].tolist()} first)", finite=True)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked below
-            features = feature_matrix(scores, k=self.k, features=self.calibrator.features)
-            confidence = self.calibrator.confidence(features)
+            confidence = self.calibrator.confidence(feature_matrix(scores, k=self.k, features=self.calibrator.features))
         if not np.isfinite(confidence).all():
             row = int(np.flatnonzero(~np.isfinite(confidence))[0])
             raise ValueError(f"scores row {row} is too large: the gate's confidence overflows float64")

@@ -188,8 +188,7 @@ def evaluate(
             f"{int((~answerable).sum())} queries have no positive in the database; they count as wrong answers "
             "and are left out of the recall denominators"
         )
-    both_classes = correct.any() and not correct.all()
-    if not both_classes:
+    if correct.all() or not correct.any():
         note("AUC-PR and AP are undefined: every top-1 answer is correct, or none is", RuntimeWarning)
     note(_candidates_note(k, retrieval.k, entries, retrieval.config.get("source")), FewerCandidatesWarning)
     note(_nonpositive_note(retrieval.scores, entries))
@@ -215,9 +214,10 @@ def evaluate(
             entry.check_result(result, retrieval)
         if latency and entry.kind in LATENCY_KINDS:
             timings["latency_ms_batch1"] = latency_batch1(functools.partial(entry, **inputs), retrieval) * 1e3
-        method_correct, method_both, own_recall, details = correct, both_classes, None, {}
+        method_correct, own_recall, details = correct, None, {}
         if isinstance(result, DetailedUncertainty):
             result, details = result.uncertainty, dict(result.details)
+        uncertainty = result
         if isinstance(result, OwnRetrievalUncertainty):
             uncertainty, own, details = result.uncertainty, result.retrieval, dict(result.details)
             if details.get("trained_on_queries"):
@@ -226,21 +226,19 @@ def evaluate(
                     "queries (allow_train_queries): its figures are optimistic, and it is marked ‡ and never best"
                 )
             method_correct = correct_at_n(own.indices, own.positives if own.positives is not None else positives, 1)
-            method_both = bool(method_correct.any() and not method_correct.all())
             own_recall = float(method_correct[answerable].mean())
             evaluation.notes.append(
                 f"{entry.name} retrieves with its own embeddings: its correctness labels come from its own top-1 "
                 f"(recall@1 {own_recall:.3f})"
             )
-        else:
-            uncertainty = result
         ranking = rank_queries(method_correct, uncertainty)  # one sort for every metric of this method
+        both = 0 < ranking.n_correct < ranking.n_queries  # AUC-PR and AP need both correct and wrong answers
         curve = ranking.rejection_curve(n_answerable=evaluation.n_answerable)
         evaluation.methods[entry.name] = MethodEvaluation(
             name=entry.name,
             uncertainty=uncertainty,
-            auc_pr=ranking.auc_pr() if method_both else None,
-            average_precision=ranking.average_precision() if method_both else None,
+            auc_pr=ranking.auc_pr() if both else None,
+            average_precision=ranking.average_precision() if both else None,
             aurc=ranking.aurc(),
             time_per_query_ms=seconds * 1e3,
             curve=curve,

@@ -96,16 +96,9 @@ def mcnemar(correct_a: object, correct_b: object) -> McNemar:
     a, b = _flags(correct_a, "correct_a"), _flags(correct_b, "correct_b")
     if a.shape != b.shape:
         raise ValueError(f"correct_a and correct_b must have the same shape (n_queries,), got {a.shape} and {b.shape}")
-    a_only, b_only = int((a & ~b).sum()), int((~a & b).sum())
-    discordant = a_only + b_only
-    p_value = 1.0 if discordant == 0 else float(binomtest(a_only, discordant, 0.5).pvalue)
-    return McNemar(
-        both_correct=int((a & b).sum()),
-        a_only=a_only,
-        b_only=b_only,
-        both_wrong=int((~a & ~b).sum()),
-        p_value=min(1.0, p_value),
-    )
+    both, a_only, b_only, neither = (int(flags.sum()) for flags in (a & b, a & ~b, ~a & b, ~a & ~b))
+    p_value = 1.0 if a_only + b_only == 0 else float(binomtest(a_only, a_only + b_only, 0.5).pvalue)
+    return McNemar(both_correct=both, a_only=a_only, b_only=b_only, both_wrong=neither, p_value=min(1.0, p_value))
 
 
 def _flags(values: object, name: str) -> np.ndarray:
@@ -266,19 +259,18 @@ def _differences(
         for method_a, method_b in pairs:
             first, second = distributions_a[metric][method_a.name], distributions_b[metric][method_b.name]
             value_a, value_b = getattr(method_a, metric), getattr(method_b, metric)
-            found.append(
-                {
-                    "metric": metric,
-                    "method_a": method_a.name,
-                    "method_b": method_b.name,
-                    "value_a": value_a,
-                    "value_b": value_b,
-                    "difference": None if value_a is None or value_b is None else float(value_a - value_b),
-                    "interval": percentile_interval(first - second, confidence),
-                    "p_value": paired_p_value(first, second),
-                    "skipped": int((np.isnan(first) | np.isnan(second)).sum()),
-                }
-            )
+            row = {
+                "metric": metric,
+                "method_a": method_a.name,
+                "method_b": method_b.name,
+                "value_a": value_a,
+                "value_b": value_b,
+                "difference": None if value_a is None or value_b is None else float(value_a - value_b),
+                "interval": percentile_interval(first - second, confidence),
+                "p_value": paired_p_value(first, second),
+                "skipped": int((np.isnan(first) | np.isnan(second)).sum()),
+            }
+            found.append(row)
         tested = [row for row in found if row["p_value"] is not None]
         for row, p_holm in zip(tested, holm([row["p_value"] for row in tested]), strict=True):
             row["p_value_holm"] = p_holm

@@ -143,7 +143,6 @@ class MethodEvaluation:
         uncertainty = np.asarray(uncertainty)
         labels = correct if own_correct is None else np.asarray(own_correct, dtype=bool)
         ranking = rank_queries(labels, uncertainty)  # one sort: the curve and the ties
-        curve = ranking.rejection_curve(n_answerable=n_answerable)
         return cls(
             name=name,
             uncertainty=uncertainty,
@@ -151,7 +150,7 @@ class MethodEvaluation:
             average_precision=data["average_precision"],
             aurc=data["aurc"],
             time_per_query_ms=data["time_per_query_ms"],
-            curve=curve,
+            curve=ranking.rejection_curve(n_answerable=n_answerable),
             recall_at_full_precision=data["recall_at_100_precision"],
             precision_at_recall={float(level): value for level, value in data["precision_at_recall"].items()},
             own_recall_at_1=data.get("own_recall@1"),
