@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -134,13 +134,7 @@ class Calibrator:
         if self.ranking is not None:
             data["ranking"] = self.ranking
         if self.model == "logistic":
-            data.update(
-                mean=self.mean,
-                scale=self.scale,
-                coef=self.coef,
-                intercept=self.intercept,
-                regularisation=self.regularisation,
-            )
+            data.update({key: getattr(self, key) for key in ("mean", "scale", "coef", "intercept", "regularisation")})
         else:
             data.update(x=self.x, y=self.y)
         return data
@@ -165,16 +159,12 @@ class Calibrator:
         if ranking is not None and not isinstance(ranking, str):
             raise ValueError(f"{where}: ranking must be a name or absent, got {ranking!r}")
         keys = ("mean", "scale", "coef") if model == "logistic" else ("x", "y")
-        arrays = {}
+        size = len(features) if model == "logistic" else None
+        arrays: dict[str, Any] = {}
         for key in keys:
             value = data.get(key)
-            size = len(features) if model == "logistic" else None
-            if (
-                not isinstance(value, list)
-                or not value
-                or not all(_is_number(v) for v in value)
-                or (size is not None and len(value) != size)
-            ):
+            numbers = isinstance(value, list) and value and all(_is_number(v) for v in value)
+            if not numbers or size not in (None, len(value)):
                 expected = f"{size} finite numbers" if size else "a non-empty list of finite numbers"
                 raise ValueError(f"{where}: {key} must be {expected}, got {value!r}")
             arrays[key] = [float(v) for v in value]
@@ -187,38 +177,20 @@ class Calibrator:
             regularisation = data.get("regularisation", 1.0)
             if not (_is_number(regularisation) and regularisation > 0):
                 raise ValueError(f"{where}: regularisation must be a number > 0 (C), got {regularisation!r}")
-            return cls(
-                model=model,
-                features=tuple(features),
-                intercept=float(intercept),
-                regularisation=float(regularisation),
-                ranking=ranking,
-                **arrays,
-            )
-        if len(arrays["x"]) != len(arrays["y"]) or np.any(np.diff(arrays["x"]) < 0):
-            raise ValueError(f"{where}: x must be non-decreasing and as long as y")
-        if np.any(np.diff(arrays["y"]) < 0) or not 0 <= min(arrays["y"]) <= max(arrays["y"]) <= 1:
-            raise ValueError(f"{where}: y must be non-decreasing probabilities in [0, 1], got {arrays['y']}")
-        if features != ["SU"]:
-            raise ValueError(f"{where}: the isotonic model reads the feature SU only, got {features}")
-        return cls(model=model, features=("SU",), ranking=ranking, **arrays)
+            arrays.update(intercept=float(intercept), regularisation=float(regularisation))
+        else:
+            if len(arrays["x"]) != len(arrays["y"]) or np.any(np.diff(arrays["x"]) < 0):
+                raise ValueError(f"{where}: x must be non-decreasing and as long as y")
+            if np.any(np.diff(arrays["y"]) < 0) or not 0 <= min(arrays["y"]) <= max(arrays["y"]) <= 1:
+                raise ValueError(f"{where}: y must be non-decreasing probabilities in [0, 1], got {arrays['y']}")
+            if features != ["SU"]:
+                raise ValueError(f"{where}: the isotonic model reads the feature SU only, got {features}")
+        return cls(model=model, features=tuple(features), ranking=ranking, **arrays)
 
 
 def _is_number(value: object) -> bool:
     """A finite int or float (not a bool): a number of a calibrator file."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _check_training(features: np.ndarray, correct: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    features = np.asarray(features, dtype=np.float64)
-    correct = np.asarray(correct)
-    if features.ndim != 2 or correct.shape != (features.shape[0],):
-        raise ValueError(f"features (Q, F) and correct (Q,) must match, got {features.shape} and {correct.shape}")
-    if not np.isfinite(features).all():
-        raise ValueError("features must be finite")
-    correct = correct.astype(bool)
-    check_both_outcomes(correct)
-    return features, correct
 
 
 def check_both_outcomes(correct: np.ndarray) -> None:
@@ -260,7 +232,13 @@ def fit_calibrator(
         Inverse L2 strength C of the logistic regression (> 0).
     """
     check_model(model)
-    features, correct = _check_training(features, correct)
+    features, correct = np.asarray(features, dtype=np.float64), np.asarray(correct)
+    if features.ndim != 2 or correct.shape != (features.shape[0],):
+        raise ValueError(f"features (Q, F) and correct (Q,) must match, got {features.shape} and {correct.shape}")
+    if not np.isfinite(features).all():
+        raise ValueError("features must be finite")
+    correct = correct.astype(bool)
+    check_both_outcomes(correct)
     if len(feature_names) != features.shape[1]:
         raise ValueError(f"feature_names has {len(feature_names)} names for {features.shape[1]} columns")
     if model == "isotonic":
@@ -270,16 +248,11 @@ def fit_calibrator(
             raise ValueError(f"the isotonic model reads SU alone, got features {tuple(feature_names)}")
         fitted = IsotonicRegression(y_min=0.0, y_max=1.0, increasing=True, out_of_bounds="clip")
         fitted.fit(-features[:, 0], correct.astype(np.float64))
-        return Calibrator(
-            model=model,
-            features=("SU",),
-            x=fitted.X_thresholds_.tolist(),
-            y=fitted.y_thresholds_.tolist(),
-        )
+        x, y = fitted.X_thresholds_.tolist(), fitted.y_thresholds_.tolist()
+        return Calibrator(model=model, features=("SU",), x=x, y=y)
     if not regularisation > 0:
         raise ValueError(f"regularisation must be > 0, got {regularisation}")
-    mean = features.mean(axis=0)
-    scale = features.std(axis=0)
+    mean, scale = features.mean(axis=0), features.std(axis=0)
     scale[scale == 0] = 1.0
     intercept, coef = fit_logistic((features - mean) / scale, correct, regularisation=regularisation)
     return Calibrator(
@@ -597,7 +570,6 @@ def platt(name: str, feature: str, sign: float, column: np.ndarray, correct: np.
         scale=[1.0],
         coef=[sign * slope],
         intercept=float(intercept),
-        regularisation=1.0,
         ranking=name,
     )
 
@@ -646,8 +618,6 @@ def select_calibrator(
             scores[name] = average_precision(correct, sign * features[feature])
     best = max(scores, key=lambda name: scores[name])  # the first of equals: the model, then SU
     if best == "CAL":
-        calibrator = fit_model(matrix, correct, model_features)
-        calibrator.ranking = "CAL"
-        return calibrator, scores
+        return replace(fit_model(matrix, correct, model_features), ranking="CAL"), scores
     feature, sign = RANKINGS[best]
     return platt(best, feature, sign, features[feature], correct), scores

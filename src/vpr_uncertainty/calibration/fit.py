@@ -16,11 +16,12 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vpr_uncertainty import __version__
 from vpr_uncertainty._validation import check_count, check_k
 from vpr_uncertainty.calibration.calibrator import (
     DEFAULT_FEATURES,
@@ -46,7 +47,7 @@ from vpr_uncertainty.calibration.guarantee import (
     min_accepted,
     needed_message,
 )
-from vpr_uncertainty.evaluation import correct_at_n
+from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n, rank_queries
 from vpr_uncertainty.progress import progress_bar
 
 if TYPE_CHECKING:
@@ -114,7 +115,7 @@ def calibrate_arrays(
         rankings = ("SU",)
     names = check_rankings(default_rankings(correct.size) if rankings is None else rankings, labelled_features)
     info: dict[str, Any] = {
-        "toolkit_version": _version(),
+        "toolkit_version": __version__,
         "target_precision": target_precision,
         "delta": delta if target_precision is not None else None,
         "calibration": {
@@ -133,9 +134,9 @@ def calibrate_arrays(
         if model == "isotonic":
             return fit_calibrator(labelled_features["SU"][:, None], correct, feature_names=("SU",), model="isotonic")
         if features is not None:
-            calibrator = fit_model(columns(labelled_features, model_features), correct, model_features)
-            calibrator.ranking = "CAL"
-            return calibrator
+            return replace(
+                fit_model(columns(labelled_features, model_features), correct, model_features), ranking="CAL"
+            )
         calibrator, selection = select_calibrator(
             labelled_features, correct, model_features=model_features, folds=folds, seed=seed
         )
@@ -191,12 +192,6 @@ def _half_way_cut(calibrator: Calibrator) -> float:
     first = int(above[0])
     # halfway to the next lower breakpoint, so that no calibration query sits exactly on the cut
     return calibrator.x[first] - 1.0 if first == 0 else 0.5 * (calibrator.x[first - 1] + calibrator.x[first])
-
-
-def _version() -> str:
-    from vpr_uncertainty import __version__
-
-    return __version__
 
 
 def calibrate(
@@ -264,14 +259,10 @@ def calibrate(
     """
     if retrieval.positives is None:
         raise ValueError("calibration needs the ground truth of the queries (argument ground_truth)")
-    correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
-    answerable = np.asarray(retrieval.positives.sum(axis=1)).ravel() > 0
-    if unlabelled is not None and not isinstance(unlabelled, np.ndarray):
-        unlabelled = unlabelled.scores
     return calibrate_arrays(
         retrieval.scores,
-        correct,
-        answerable=answerable,
+        correct_at_n(retrieval.indices, retrieval.positives, 1),
+        answerable=answerable_queries(retrieval.positives),
         target_precision=target_precision,
         delta=delta,
         k=k,
@@ -279,7 +270,7 @@ def calibrate(
         model=model,
         features=features,
         rankings=rankings,
-        unlabelled=unlabelled,
+        unlabelled=unlabelled if unlabelled is None or isinstance(unlabelled, np.ndarray) else unlabelled.scores,
         folds=folds,
     )
 
@@ -332,14 +323,9 @@ class LabelPlan:
 
     def table(self) -> str:
         """A Markdown table of the simulated sizes."""
-        lines = [
-            "| labelled queries | P(certified) | P(useful certificate) | mean recall |",
-            "|---|---|---|---|",
-        ]
-        for size, certified, useful, recall in zip(
-            self.sizes, self.certified, self.useful, self.mean_recall, strict=True
-        ):
-            lines.append(f"| {size} | {certified:.2f} | {useful:.2f} | {recall:.3f} |")
+        lines = ["| labelled queries | P(certified) | P(useful certificate) | mean recall |", "|---|---|---|---|"]
+        rows = zip(self.sizes, self.certified, self.useful, self.mean_recall, strict=True)
+        lines += [f"| {size} | {c:.2f} | {u:.2f} | {r:.3f} |" for size, c, u, r in rows]
         return "\n".join(lines)
 
 
@@ -348,8 +334,7 @@ def _probability(su_labelled: np.ndarray, correct: np.ndarray, su_all: np.ndarra
     confidence = -su_labelled
     mean, spread = float(confidence.mean()), float(confidence.std()) or 1.0
     intercept, (slope,) = fit_logistic(((confidence - mean) / spread)[:, None], correct, regularisation=1.0)
-    slope = max(float(slope), 0.0)
-    z = intercept + slope * (-su_all - mean) / spread
+    z = intercept + max(float(slope), 0.0) * (-su_all - mean) / spread  # slope >= 0: P decreasing in SU
     return 0.5 * (1.0 + np.tanh(0.5 * z))
 
 
@@ -431,8 +416,7 @@ def plan_labels(
     rng = np.random.default_rng(seed)
     certified, useful, mean_recall = [], [], []
     for size in progress_bar(sizes, desc="simulating calibration sizes", unit="size", enabled=progress):
-        hits = good = 0
-        recall_sum = 0.0
+        hits, good, recall_sum = 0, 0, 0.0
         for _ in range(draws):
             rows = rng.choice(scores.shape[0], size, replace=True)
             labels = rng.random(size) < probability[rows]
@@ -456,8 +440,7 @@ def plan_labels(
         certified.append(hits / draws)
         useful.append(good / draws)
         mean_recall.append(recall_sum / draws)
-    reached = [size for size, share in zip(sizes, useful, strict=True) if share >= 1 - delta]
-    needed = reached[0] if reached else None
+    needed = next((size for size, share in zip(sizes, useful, strict=True) if share >= 1 - delta), None)
     have = labelled_scores.shape[0]
     if needed is None:
         message = (
@@ -516,13 +499,9 @@ class GuaranteeSimulation:
 
 def hindsight_recall(uncertainty: np.ndarray, correct: np.ndarray, target_precision: float, n_answerable: int) -> float:
     """Largest end-to-end recall of a cut on ``uncertainty`` (accept ≤ cut) with precision ≥ p*, ties kept together."""
-    order = np.argsort(uncertainty, kind="stable")
-    ranked = uncertainty[order]
-    hits = np.cumsum(correct[order])
-    ends = np.append(np.flatnonzero(np.diff(ranked) != 0), ranked.size - 1)  # last index of each tied group
-    precision = hits[ends] / (ends + 1)
-    ok = precision >= target_precision
-    return float(hits[ends][ok].max() / max(n_answerable, 1)) if ok.any() else 0.0
+    ranking = rank_queries(correct, uncertainty)
+    ok = ranking.correct_accepted / ranking.accepted >= target_precision
+    return float(ranking.correct_accepted[ok].max() / max(n_answerable, 1)) if ok.any() else 0.0
 
 
 def simulate_guarantee(

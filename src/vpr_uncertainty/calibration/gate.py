@@ -27,13 +27,7 @@ import numpy as np
 from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty._validation import check_k, check_top_k_scores
 from vpr_uncertainty.cache import write_text
-from vpr_uncertainty.calibration.calibrator import (
-    FEATURES,
-    Calibrator,
-    aliasing_ratio,
-    feature_matrix,
-    row_features,
-)
+from vpr_uncertainty.calibration.calibrator import FEATURES, Calibrator, aliasing_ratio, feature_matrix, row_features
 from vpr_uncertainty.scores import one_row, row_statistics
 
 __all__ = ["FORMAT", "Gate"]
@@ -195,8 +189,7 @@ class Gate:
         if short.size:
             self._refuse(f"fewer in {short.size} scores rows ({short[:10].tolist()} first)", finite=True)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked below
-            features = feature_matrix(scores, k=self.k, features=self.calibrator.features)
-            confidence = self.calibrator.confidence(features)
+            confidence = self.calibrator.confidence(feature_matrix(scores, k=self.k, features=self.calibrator.features))
         if not np.isfinite(confidence).all():
             row = int(np.flatnonzero(~np.isfinite(confidence))[0])
             raise ValueError(f"scores row {row} is too large: the gate's confidence overflows float64")

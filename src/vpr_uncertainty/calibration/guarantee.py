@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -143,6 +143,12 @@ class Certificate:
         return asdict(self)
 
 
+def _uncertified(message: str, **fields: Any) -> Certificate:
+    """A certificate of nothing: no cut, no bound, no query accepted."""
+    zero = {"accepted": 0, "correct_accepted": 0, "expected_coverage": 0.0, "expected_recall": 0.0}
+    return Certificate(certified=False, cut=None, precision_lower_bound=None, message=message, **zero, **fields)
+
+
 def coverage_grid(n_labelled: int, target_precision: float, delta: float) -> np.ndarray:
     """The candidate coverages, strictest first: fixed by the number of labelled queries, p* and δ alone.
 
@@ -243,7 +249,7 @@ def certify_threshold(
     answerable : ndarray of shape (n,), bool, optional
         Test queries with a positive in the database (the recall denominator); default all.
     """
-    _check_target(target_precision, delta)
+    n_needed = min_accepted(target_precision, delta)  # checks p* and δ
     confidence = np.asarray(confidence, dtype=np.float64)
     correct = np.asarray(correct, dtype=bool)
     cuts = np.asarray(cuts, dtype=np.float64)
@@ -251,7 +257,6 @@ def certify_threshold(
         raise ValueError(f"confidence and correct must be 1-D of one length, got {confidence.shape}, {correct.shape}")
     if cuts.ndim != 1 or (cuts.size > 1 and not (np.diff(cuts) < 0).all()):
         raise ValueError("cuts must be 1-D and strictly decreasing (strictest first)")
-    n_needed = min_accepted(target_precision, delta)
     n_answerable = int(correct.size if answerable is None else np.asarray(answerable, dtype=bool).sum())
     order = np.argsort(-confidence, kind="stable")
     ranked, hits = confidence[order], np.concatenate([[0], np.cumsum(correct[order])])
@@ -268,19 +273,12 @@ def certify_threshold(
                 f"the strictest candidate cut accepts {first} test queries, "
                 f"{int(good[0]) if cuts.size else 0} correct, and that does not reach the bound"
             )
-        return Certificate(
-            certified=False,
-            cut=None,
-            precision_lower_bound=None,
+        return _uncertified(
+            f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why} "
+            f"(at least {n_needed} accepted test queries, all correct, are needed)",
             n_test=int(correct.size),
-            accepted=0,
-            correct_accepted=0,
-            expected_coverage=0.0,
-            expected_recall=0.0,
             min_accepted=n_needed,
             cuts_tested=tested,
-            message=f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why} "
-            f"(at least {n_needed} accepted test queries, all correct, are needed)",
         )
     chosen = n_rejected - 1
     n_acc, n_good = int(accepted[chosen]), int(good[chosen])
@@ -407,12 +405,7 @@ def certify_rankings(
         if rejected and (best is None or good[chosen] > best[0]):
             best = (int(good[chosen]), name, chosen, accepted, good)
     n_needed = min_accepted(target_precision, share)
-    common = {
-        "n_test": n,
-        "min_accepted": n_needed,
-        "delta_per_ranking": share,
-        "rankings": outcomes,
-    }
+    common = {"n_test": n, "min_accepted": n_needed, "delta_per_ranking": share, "rankings": outcomes}
     if best is None:
         if n < n_needed:
             why = f"the {n} labelled queries are fewer than the {n_needed} accepted ones needed at δ/{len(rankings)}"
@@ -424,31 +417,21 @@ def certify_rankings(
                 f"the strictest cut ({n_needed} of {n} labelled queries) already holds a wrong answer for every "
                 f"ranking ({tried})"
             )
-        certificate = Certificate(
-            certified=False,
-            cut=None,
-            precision_lower_bound=None,
-            accepted=0,
-            correct_accepted=0,
-            expected_coverage=0.0,
-            expected_recall=0.0,
+        certificate = _uncertified(
+            f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why}",
             cuts_tested=max((o["cuts_tested"] for o in outcomes.values()), default=0),
-            message=f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why}",
             **common,
         )
         return certificate, None, math.inf
     n_good, name, chosen, accepted, good = best
-    coverage = float(grid[chosen])
+    coverage = grid[chosen : chosen + 1]
     if name == "CAL":
-        calibrator = fit_model(columns(labelled, model_features), correct, model_features)
-        calibrator.ranking = "CAL"
-        cut = float(
-            cuts_at_coverage(calibrator.confidence(columns(pool, model_features)), grid[chosen : chosen + 1])[0]
-        )
+        calibrator = replace(fit_model(columns(labelled, model_features), correct, model_features), ranking="CAL")
+        cut = float(cuts_at_coverage(calibrator.confidence(columns(pool, model_features)), coverage)[0])
     else:
         feature, sign = RANKINGS[name]
         calibrator = platt(name, feature, sign, labelled[feature], correct)
-        cut_on_score = float(cuts_at_coverage(sign * pool[feature], grid[chosen : chosen + 1])[0])
+        cut_on_score = float(cuts_at_coverage(sign * pool[feature], coverage)[0])
         slope = calibrator.coef[0] * sign  # > 0: the calibrator's confidence is slope · (sign · f) + intercept
         cut = slope * cut_on_score + calibrator.intercept
     n_acc = int(accepted[chosen])
@@ -468,7 +451,7 @@ def certify_rankings(
             f"({len(rankings)} ranking(s) tested, each at risk {share:.3g})"
         ),
         ranking=name,
-        coverage=coverage,
+        coverage=float(coverage[0]),
         **common,
     )
     return certificate, calibrator, cut

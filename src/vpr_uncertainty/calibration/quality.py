@@ -19,6 +19,7 @@ from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import stratified_split
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.evaluation import correct_at_n, evaluate
+from vpr_uncertainty.evaluation.bootstrap import BOOTSTRAP_METRICS
 from vpr_uncertainty.evaluation.metrics import check_labels
 from vpr_uncertainty.methods import get_method, register_method
 from vpr_uncertainty.retrieval import Retrieval
@@ -113,14 +114,11 @@ def brier_score(probability: object, correct: object) -> float:
     return float(np.mean((probability - correct) ** 2))
 
 
-_METRICS = ("auc_pr", "average_precision", "aurc")
-
-
 #: The fewest held-out queries of a split, and of each outcome among them, that a held-out figure is reported on.
 MIN_HELD_OUT, MIN_HELD_OUT_PER_OUTCOME = 10, 2
 
 
-def _check_split_sizes(correct: np.ndarray, calibration: np.ndarray, held_out: np.ndarray, fraction: float) -> None:
+def _check_split_sizes(correct: np.ndarray, held_out: np.ndarray, fraction: float) -> None:
     """Refuse splits whose held-out part is too small to measure anything (AUC-PR 1.000 from 2 queries)."""
     good, wrong = int(correct[held_out].sum()), int((~correct[held_out]).sum())
     if held_out.size < MIN_HELD_OUT or min(good, wrong) < MIN_HELD_OUT_PER_OUTCOME:
@@ -164,14 +162,14 @@ class HeldOutEvaluation:
         methods = {}
         for name, metrics in self.values.items():
             entry: dict[str, Any] = {}
-            for metric in _METRICS:
+            for metric in BOOTSTRAP_METRICS:
                 entry[metric] = self.mean(name, metric)
                 entry[f"{metric}_std"] = self.std(name, metric)
             entry["auc_pr_per_repeat"] = metrics["auc_pr"]
             if self.times.get(name):
                 entry["time_per_query_ms"] = float(np.mean(self.times[name]))
             methods[name] = entry
-        result: dict[str, Any] = {
+        return {
             "n_queries": self.n_queries,
             "k": self.k,
             "calibration": {
@@ -182,12 +180,9 @@ class HeldOutEvaluation:
                 "n_held_out": self.n_held_out,
             },
             "methods": methods,
+            **({"calibration_quality": self.quality} if self.quality else {}),
+            **({"notes": list(self.notes)} if self.notes else {}),
         }
-        if self.quality:
-            result["calibration_quality"] = self.quality
-        if self.notes:
-            result["notes"] = list(self.notes)
-        return result
 
 
 def evaluate_held_out(
@@ -237,6 +232,7 @@ def evaluate_held_out(
         raise ValueError(f"calibration_fraction must lie in (0, 1), got {calibration_fraction}")
     check_count(repeats, "repeats", 1)
     entries = [get_method(name) for name in methods]
+    names = [entry.name for entry in entries]
     uses_cal = any((entry.base or entry.name) == "CAL" for entry in entries)
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     if min(int(correct.sum()), int((~correct).sum())) < 2:
@@ -249,14 +245,14 @@ def evaluate_held_out(
         n_calibration=0,
         n_held_out=0,
         k=min(int(k), retrieval.k),
-        values={entry.name: {metric: [] for metric in _METRICS} for entry in entries},
+        values={name: {metric: [] for metric in BOOTSTRAP_METRICS} for name in names},
     )
     pooled_p, pooled_correct, eces, briers = [], [], [], []
     for repeat in range(repeats):
         calibration, held_out = stratified_split(correct, calibration_fraction, np.random.default_rng([seed, repeat]))
         result.n_calibration, result.n_held_out = int(calibration.size), int(held_out.size)
         if repeat == 0:  # every split has the same counts per outcome
-            _check_split_sizes(correct, calibration, held_out, calibration_fraction)
+            _check_split_sizes(correct, held_out, calibration_fraction)
         extra = dict(options)
         if options.get("query_paths") is not None:  # the images of the held-out queries only
             extra["query_paths"] = [options["query_paths"][int(row)] for row in held_out]
@@ -267,17 +263,12 @@ def evaluate_held_out(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the notes of the first repeat are kept below
             evaluation = evaluate(
-                retrieval.subset_queries(held_out),
-                [e.name for e in entries],
-                k=k,
-                alpha=alpha,
-                timing_repeats=1,
-                **extra,
+                retrieval.subset_queries(held_out), names, k=k, alpha=alpha, timing_repeats=1, **extra
             )
         if repeat == 0:
             result.notes.extend(evaluation.notes)
         for name, measured in evaluation.methods.items():
-            for metric in _METRICS:
+            for metric in BOOTSTRAP_METRICS:
                 result.values[name][metric].append(getattr(measured, metric))
             result.times.setdefault(name, []).append(measured.time_per_query_ms)
             if (get_method(name).base or name) == "CAL":

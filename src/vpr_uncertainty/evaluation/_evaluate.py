@@ -68,15 +68,18 @@ def time_per_query(compute: Callable[[], Any], n_queries: int, *, repeats: int =
     seconds_per_query : float
         Median wall-clock time of one call divided by ``n_queries``.
     """
-    durations = []
-    start = time.perf_counter()
-    result = compute()
-    durations.append(time.perf_counter() - start)
+    result, first = _timed(compute)
+    durations = [first]
     while len(durations) < repeats and sum(durations) < _TIMING_BUDGET_S:
-        start = time.perf_counter()
-        compute()
-        durations.append(time.perf_counter() - start)
+        durations.append(_timed(compute)[1])
     return result, statistics.median(durations) / max(n_queries, 1)
+
+
+def _timed(call: Callable[[], Any]) -> tuple[Any, float]:
+    """``call()``'s result and the seconds it took."""
+    start = time.perf_counter()
+    result = call()
+    return result, time.perf_counter() - start
 
 
 def evaluate(
@@ -150,9 +153,8 @@ def evaluate(
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work
     check_options(entries, options)  # and so do options that no selected method takes
-    if recall_at is None:
-        answerable_n = retrieval.positives is None or retrieval.k >= retrieval.positives.shape[1]
-        recall_at = [n for n in RECALL_NS if n <= retrieval.k or answerable_n] or [1]
+    if recall_at is None:  # every N is known when the candidates cover the database
+        recall_at = [n for n in RECALL_NS if n <= retrieval.k or retrieval.k >= retrieval.positives.shape[1]] or [1]
     recall_at = check_recall_ns(recall_at)
     check_bootstrap(bootstrap, seed)
     if bootstrap:
@@ -186,8 +188,7 @@ def evaluate(
             f"{int((~answerable).sum())} queries have no positive in the database; they count as wrong answers "
             "and are left out of the recall denominators"
         )
-    both_classes = correct.any() and not correct.all()
-    if not both_classes:
+    if correct.all() or not correct.any():
         note("AUC-PR and AP are undefined: every top-1 answer is correct, or none is", RuntimeWarning)
     note(_candidates_note(k, retrieval.k, entries, retrieval.config.get("source")), FewerCandidatesWarning)
     note(_nonpositive_note(retrieval.scores, entries))
@@ -213,9 +214,10 @@ def evaluate(
             entry.check_result(result, retrieval)
         if latency and entry.kind in LATENCY_KINDS:
             timings["latency_ms_batch1"] = latency_batch1(functools.partial(entry, **inputs), retrieval) * 1e3
-        method_correct, method_both, own_recall, details = correct, both_classes, None, {}
+        method_correct, own_recall, details = correct, None, {}
         if isinstance(result, DetailedUncertainty):
             result, details = result.uncertainty, dict(result.details)
+        uncertainty = result
         if isinstance(result, OwnRetrievalUncertainty):
             uncertainty, own, details = result.uncertainty, result.retrieval, dict(result.details)
             if details.get("trained_on_queries"):
@@ -224,21 +226,19 @@ def evaluate(
                     "queries (allow_train_queries): its figures are optimistic, and it is marked ‡ and never best"
                 )
             method_correct = correct_at_n(own.indices, own.positives if own.positives is not None else positives, 1)
-            method_both = bool(method_correct.any() and not method_correct.all())
             own_recall = float(method_correct[answerable].mean())
             evaluation.notes.append(
                 f"{entry.name} retrieves with its own embeddings: its correctness labels come from its own top-1 "
                 f"(recall@1 {own_recall:.3f})"
             )
-        else:
-            uncertainty = result
         ranking = rank_queries(method_correct, uncertainty)  # one sort for every metric of this method
+        both = 0 < ranking.n_correct < ranking.n_queries  # AUC-PR and AP need both correct and wrong answers
         curve = ranking.rejection_curve(n_answerable=evaluation.n_answerable)
         evaluation.methods[entry.name] = MethodEvaluation(
             name=entry.name,
             uncertainty=uncertainty,
-            auc_pr=ranking.auc_pr() if method_both else None,
-            average_precision=ranking.average_precision() if method_both else None,
+            auc_pr=ranking.auc_pr() if both else None,
+            average_precision=ranking.average_precision() if both else None,
             aurc=ranking.aurc(),
             time_per_query_ms=seconds * 1e3,
             curve=curve,
@@ -376,11 +376,9 @@ def latency_batch1(call: Callable[[Any], Any], retrieval: Any, *, n_calls: int =
     return max(statistics.median(per_call), 1e-12)
 
 
-def _snapshot(folder: Path | None) -> set[str]:
-    """Names of the files directly in ``folder`` (empty when it is None or missing)."""
-    if folder is None or not folder.is_dir():
-        return set()
-    return {path.name for path in folder.iterdir() if path.is_file()}
+def _snapshot(folder: Path) -> set[str]:
+    """Names of the files directly in ``folder`` (empty when it is missing)."""
+    return {path.name for path in folder.iterdir() if path.is_file()} if folder.is_dir() else set()
 
 
 def time_geometric(
@@ -409,25 +407,17 @@ def time_geometric(
     warm_seconds : float or None
         Median seconds of the calls that read every feature from the cache; None without ``cache_dir``.
     """
-    cache_dir = options.get("cache_dir")
-    cache_dir = None if cache_dir is None else Path(cache_dir)
+    if options.get("cache_dir") is None:
+        result, seconds = _timed(lambda: call(options))
+        return result, seconds, None
+    cache_dir = Path(options["cache_dir"])
     before = _snapshot(cache_dir)
-    start = time.perf_counter()
-    result = call(options)
-    first = time.perf_counter() - start
-    if cache_dir is None:
-        return result, first, None
+    result, cold = _timed(lambda: call(options))
     created = bool(_snapshot(cache_dir) - before)  # a new cache file: nothing of this extractor was cached
-    warm: list[float] = [] if created else [first]
+    warm: list[float] = [] if created else [cold]
     while len(warm) < max(repeats, 1) and (not warm or sum(warm) < _TIMING_BUDGET_S):
-        start = time.perf_counter()
-        call(options)
-        warm.append(time.perf_counter() - start)
-    if created:
-        cold = first
-    else:
+        warm.append(_timed(lambda: call(options))[1])
+    if not created:  # the first call read the cache: time a cold one in a fresh cache
         with tempfile.TemporaryDirectory(prefix="vpr-uncertainty-cold-") as scratch:
-            start = time.perf_counter()
-            call({**options, "cache_dir": Path(scratch)})
-            cold = time.perf_counter() - start
+            cold = _timed(lambda: call({**options, "cache_dir": Path(scratch)}))[1]
     return result, cold, statistics.median(warm)

@@ -90,12 +90,6 @@ def resample_indices(n_queries: int, n_resamples: int, seed: int) -> Iterator[np
         yield rng.integers(0, n_queries, size=(min(_BLOCK, n_resamples - start), n_queries), dtype=np.int64)
 
 
-def _counts(indices: np.ndarray, n_queries: int) -> np.ndarray:
-    """(b, Q) how many times each query is drawn in each resample."""
-    rows = np.arange(indices.shape[0])[:, None] * n_queries
-    return np.bincount((indices + rows).ravel(), minlength=indices.shape[0] * n_queries).reshape(-1, n_queries)
-
-
 def weighted_metrics(correct: object, uncertainty: object, weights: object) -> dict[str, np.ndarray]:
     """AUC-PR, AP and AURC of one method on many weighted copies of its queries at once.
 
@@ -190,12 +184,9 @@ def bootstrap_metrics(
         raise ValueError("no uncertainties given to bootstrap")
     labels: dict[str, object] = {}
     for name in uncertainties:
-        if isinstance(correct, Mapping):
-            if name not in correct and None not in correct:
-                raise ValueError(f"no correctness labels for method {name!r}")
-            labels[name] = correct.get(name, correct.get(None))
-        else:
-            labels[name] = correct
+        if isinstance(correct, Mapping) and name not in correct and None not in correct:
+            raise ValueError(f"no correctness labels for method {name!r}")
+        labels[name] = correct.get(name, correct.get(None)) if isinstance(correct, Mapping) else correct
     arrays = {}
     for name in uncertainties:
         try:
@@ -210,7 +201,8 @@ def bootstrap_metrics(
         metric: {name: [] for name in arrays} for metric in BOOTSTRAP_METRICS
     }
     for indices in resample_indices(n_queries, n_resamples, seed):
-        counts = _counts(indices, n_queries)
+        offsets = np.arange(indices.shape[0])[:, None] * n_queries  # counts: (b, Q), draws of each query
+        counts = np.bincount((indices + offsets).ravel(), minlength=indices.size).reshape(-1, n_queries)
         for name, (labels_of, uncertainty) in arrays.items():
             for metric, values in weighted_metrics(labels_of, uncertainty, counts).items():
                 blocks[metric][name].append(values)
@@ -446,15 +438,12 @@ def add_bootstrap(
     reference = resolve_reference(reference, names)
     distributions = evaluation_distributions(evaluation, n_resamples, seed)
     for name, method in evaluation.methods.items():
-        method.auc_pr_ci = percentile_interval(distributions["auc_pr"][name], confidence)
-        method.average_precision_ci = percentile_interval(distributions["average_precision"][name], confidence)
-        method.aurc_ci = percentile_interval(distributions["aurc"][name], confidence)
+        for metric in BOOTSTRAP_METRICS:
+            setattr(method, f"{metric}_ci", percentile_interval(distributions[metric][name], confidence))
         method.vs_reference = None
-    base = evaluation.methods[reference]
+    base, auc_pr = evaluation.methods[reference], distributions["auc_pr"]
     compared = [name for name in names if name != reference and evaluation.methods[name].auc_pr is not None]
-    p_values = {
-        name: paired_p_value(distributions["auc_pr"][name], distributions["auc_pr"][reference]) for name in compared
-    }
+    p_values = {name: paired_p_value(auc_pr[name], auc_pr[reference]) for name in compared}
     tested = [name for name in compared if p_values[name] is not None and base.auc_pr is not None]
     adjusted = dict(zip(tested, holm([p_values[name] for name in tested]), strict=True)) if tested else {}
     for name in tested:
@@ -474,7 +463,7 @@ def add_bootstrap(
         }
         marked, significant = leaders(distributions[metric], values, higher_is_better=higher, level=level)
         best[metric] = {"methods": marked, "significant": significant}
-    skipped = {name: int(np.isnan(distributions["auc_pr"][name]).sum()) for name in names}
+    skipped = {name: int(np.isnan(auc_pr[name]).sum()) for name in names}
     evaluation.bootstrap = {
         "resamples": int(n_resamples),
         "seed": int(seed),

@@ -26,7 +26,7 @@ Conventions
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -69,15 +69,7 @@ class McNemar:
         return (self.both_correct + self.b_only) / self.n_queries
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "recall@1_a": self.recall_a,
-            "recall@1_b": self.recall_b,
-            "both_correct": self.both_correct,
-            "a_only": self.a_only,
-            "b_only": self.b_only,
-            "both_wrong": self.both_wrong,
-            "p_value": self.p_value,
-        }
+        return {"recall@1_a": self.recall_a, "recall@1_b": self.recall_b, **asdict(self)}
 
 
 def mcnemar(correct_a: object, correct_b: object) -> McNemar:
@@ -104,16 +96,9 @@ def mcnemar(correct_a: object, correct_b: object) -> McNemar:
     a, b = _flags(correct_a, "correct_a"), _flags(correct_b, "correct_b")
     if a.shape != b.shape:
         raise ValueError(f"correct_a and correct_b must have the same shape (n_queries,), got {a.shape} and {b.shape}")
-    a_only, b_only = int((a & ~b).sum()), int((~a & b).sum())
-    discordant = a_only + b_only
-    p_value = 1.0 if discordant == 0 else float(binomtest(a_only, discordant, 0.5).pvalue)
-    return McNemar(
-        both_correct=int((a & b).sum()),
-        a_only=a_only,
-        b_only=b_only,
-        both_wrong=int((~a & ~b).sum()),
-        p_value=min(1.0, p_value),
-    )
+    both, a_only, b_only, neither = (int(flags.sum()) for flags in (a & b, a & ~b, ~a & b, ~a & ~b))
+    p_value = 1.0 if a_only + b_only == 0 else float(binomtest(a_only, a_only + b_only, 0.5).pvalue)
+    return McNemar(both_correct=both, a_only=a_only, b_only=b_only, both_wrong=neither, p_value=min(1.0, p_value))
 
 
 def _flags(values: object, name: str) -> np.ndarray:
@@ -144,18 +129,10 @@ class Difference:
     skipped: int = 0
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "metric": self.metric,
-            "method_a": self.method_a,
-            "method_b": self.method_b,
-            "a": self.value_a,
-            "b": self.value_b,
-            "difference": self.difference,
-            "ci": None if self.interval is None else list(self.interval),
-            "p_value": self.p_value,
-            "p_value_holm": self.p_value_holm,
-            "skipped_resamples": self.skipped,
-        }
+        """The fields in field order, four named for JSON: ``a``, ``b``, ``ci`` (a list) and ``skipped_resamples``."""
+        json_names = {"value_a": "a", "value_b": "b", "interval": "ci", "skipped": "skipped_resamples"}
+        data = {json_names.get(key, key): value for key, value in asdict(self).items()}
+        return {**data, "ci": None if self.interval is None else list(self.interval)}
 
 
 @dataclass(frozen=True)
@@ -209,7 +186,7 @@ class Comparison:
             interval = "n/a" if row.interval is None else f"[{row.interval[0]:+.4f}, {row.interval[1]:+.4f}]"
             lines.append(
                 f"{COMPARED_METRICS[row.metric]:<7} {name:<14} {_number(row.value_a):>7} {_number(row.value_b):>7} "
-                f"{_number(row.difference, signed=True):>8} {interval:>19} {_number(row.p_value):>7} "
+                f"{_number(row.difference, '+.4f'):>8} {interval:>19} {_number(row.p_value):>7} "
                 f"{_number(row.p_value_holm):>7}"
             )
         if self.mcnemar is not None:
@@ -221,19 +198,24 @@ class Comparison:
         lines.extend(f"note: {note}" for note in self.notes)
         return "\n".join(lines)
 
-    def __repr__(self) -> str:
-        return str(self)
+    __repr__ = __str__
 
 
-def _number(value: float | None, *, signed: bool = False) -> str:
-    if value is None:
-        return "n/a"
-    return f"{value:+.4f}" if signed else f"{value:.4f}"
+def _number(value: float | None, spec: str = ".4f") -> str:
+    return "n/a" if value is None else f"{value:{spec}}"
 
 
-def _labels(evaluation: Evaluation, method: MethodEvaluation) -> np.ndarray:
-    """The labels a method is judged by: its own when it retrieves with its own embeddings."""
-    return evaluation.correct if method.correct is None else method.correct
+def _distributions(
+    evaluation: Evaluation, names: Sequence[str], n_resamples: int, seed: int
+) -> dict[str, dict[str, np.ndarray]]:
+    """The paired bootstrap of the methods ``names``, each judged by its own labels where it has them."""
+    methods = {name: evaluation.methods[name] for name in names}
+    return bootstrap_metrics(
+        {name: evaluation.correct if m.correct is None else m.correct for name, m in methods.items()},
+        {name: m.uncertainty for name, m in methods.items()},
+        n_resamples=n_resamples,
+        seed=seed,
+    )
 
 
 def _check_evaluation(value: object, name: str) -> None:
@@ -277,23 +259,20 @@ def _differences(
         for method_a, method_b in pairs:
             first, second = distributions_a[metric][method_a.name], distributions_b[metric][method_b.name]
             value_a, value_b = getattr(method_a, metric), getattr(method_b, metric)
-            defined = ~(np.isnan(first) | np.isnan(second))
-            found.append(
-                {
-                    "metric": metric,
-                    "method_a": method_a.name,
-                    "method_b": method_b.name,
-                    "value_a": value_a,
-                    "value_b": value_b,
-                    "difference": None if value_a is None or value_b is None else float(value_a - value_b),
-                    "interval": percentile_interval(first - second, confidence),
-                    "p_value": paired_p_value(first, second),
-                    "skipped": int((~defined).sum()),
-                }
-            )
+            row = {
+                "metric": metric,
+                "method_a": method_a.name,
+                "method_b": method_b.name,
+                "value_a": value_a,
+                "value_b": value_b,
+                "difference": None if value_a is None or value_b is None else float(value_a - value_b),
+                "interval": percentile_interval(first - second, confidence),
+                "p_value": paired_p_value(first, second),
+                "skipped": int((np.isnan(first) | np.isnan(second)).sum()),
+            }
+            found.append(row)
         tested = [row for row in found if row["p_value"] is not None]
-        adjusted = holm([row["p_value"] for row in tested]) if tested else []
-        for row, p_holm in zip(tested, adjusted, strict=True):
+        for row, p_holm in zip(tested, holm([row["p_value"] for row in tested]), strict=True):
             row["p_value_holm"] = p_holm
         rows.extend(Difference(**{"p_value_holm": None, **row}) for row in found)
     return rows
@@ -386,62 +365,44 @@ def compare(
                 raise ValueError(f"{name!r} is not evaluated (methods: {', '.join(evaluation_a.methods)})")
         if method_a == method_b:
             raise ValueError(f"method_a and method_b are both {method_a!r}; name two different methods")
-        first, second = evaluation_a.methods[method_a], evaluation_a.methods[method_b]
-        distributions = bootstrap_metrics(
-            {name: _labels(evaluation_a, m) for name, m in ((method_a, first), (method_b, second))},
-            {method_a: first.uncertainty, method_b: second.uncertainty},
-            n_resamples=n_resamples,
-            seed=seed,
-        )
-        rows = _differences([(first, second)], distributions, distributions, confidence)
-        return Comparison(
-            label_a=method_a,
-            label_b=method_b,
-            n_queries=evaluation_a.n_queries,
-            differences=rows,
-            mcnemar=None,
-            n_resamples=n_resamples,
-            seed=seed,
-            confidence=confidence,
-        )
-    if method_a is not None or method_b is not None:
-        raise ValueError("method_a and method_b compare two methods of one evaluation; leave out evaluation_b")
-    _check_evaluation(evaluation_b, "evaluation_b")
-    _check_same_queries(evaluation_a, evaluation_b, query_names_a, query_names_b, labels)
-    if methods is None:
-        names = [name for name in evaluation_a.methods if name in evaluation_b.methods]
-        only = sorted(set(evaluation_a.methods).symmetric_difference(evaluation_b.methods))
-        if only:
-            notes.append(f"not in both, not compared: {', '.join(only)}")
-        if not names:
-            raise ValueError(
-                f"no uncertainty method is evaluated in both {labels[0]} ({', '.join(evaluation_a.methods)}) and "
-                f"{labels[1]} ({', '.join(evaluation_b.methods)})"
-            )
+        labels, test = (method_a, method_b), None  # the sides are named by the methods
+        pairs = [(evaluation_a.methods[method_a], evaluation_a.methods[method_b])]
+        distributions_a = distributions_b = _distributions(evaluation_a, (method_a, method_b), n_resamples, seed)
     else:
-        names = list(methods)
-        if not names:
-            raise ValueError("methods is empty; name at least one uncertainty method")
-        for name in names:
-            for label, evaluation in zip(labels, (evaluation_a, evaluation_b), strict=True):
-                if name not in evaluation.methods:
-                    raise ValueError(f"{name!r} is not evaluated in {label} (methods: {', '.join(evaluation.methods)})")
-    distributions_a, distributions_b = (
-        bootstrap_metrics(
-            {name: _labels(evaluation, evaluation.methods[name]) for name in names},
-            {name: evaluation.methods[name].uncertainty for name in names},
-            n_resamples=n_resamples,
-            seed=seed,
+        if method_a is not None or method_b is not None:
+            raise ValueError("method_a and method_b compare two methods of one evaluation; leave out evaluation_b")
+        _check_evaluation(evaluation_b, "evaluation_b")
+        _check_same_queries(evaluation_a, evaluation_b, query_names_a, query_names_b, labels)
+        if methods is None:
+            names = [name for name in evaluation_a.methods if name in evaluation_b.methods]
+            only = sorted(set(evaluation_a.methods).symmetric_difference(evaluation_b.methods))
+            if only:
+                notes.append(f"not in both, not compared: {', '.join(only)}")
+            if not names:
+                raise ValueError(
+                    f"no uncertainty method is evaluated in both {labels[0]} ({', '.join(evaluation_a.methods)}) and "
+                    f"{labels[1]} ({', '.join(evaluation_b.methods)})"
+                )
+        else:
+            names = list(methods)
+            if not names:
+                raise ValueError("methods is empty; name at least one uncertainty method")
+            for name in names:
+                for label, evaluation in zip(labels, (evaluation_a, evaluation_b), strict=True):
+                    if name not in evaluation.methods:
+                        known = ", ".join(evaluation.methods)
+                        raise ValueError(f"{name!r} is not evaluated in {label} (methods: {known})")
+        pairs = [(evaluation_a.methods[name], evaluation_b.methods[name]) for name in names]
+        distributions_a, distributions_b = (
+            _distributions(evaluation, names, n_resamples, seed) for evaluation in (evaluation_a, evaluation_b)
         )
-        for evaluation in (evaluation_a, evaluation_b)
-    )
-    pairs = [(evaluation_a.methods[name], evaluation_b.methods[name]) for name in names]
+        test = mcnemar(evaluation_a.correct, evaluation_b.correct)
     return Comparison(
         label_a=labels[0],
         label_b=labels[1],
         n_queries=evaluation_a.n_queries,
         differences=_differences(pairs, distributions_a, distributions_b, confidence),
-        mcnemar=mcnemar(evaluation_a.correct, evaluation_b.correct),
+        mcnemar=test,
         n_resamples=n_resamples,
         seed=seed,
         confidence=confidence,

@@ -300,19 +300,6 @@ def check_labels(correct: object, uncertainty: object, *, name: str = "uncertain
     return correct, uncertainty
 
 
-def _check_both_classes(correct: np.ndarray) -> None:
-    if correct.all() or not correct.any():
-        _raise_one_class(int(correct.sum()), correct.size)
-
-
-def _raise_one_class(n_correct: int, n_queries: int) -> None:
-    if n_correct in (0, n_queries):
-        state = "correct" if n_correct else "wrong"
-        raise ValueError(
-            f"all {n_queries} top-1 answers are {state}: precision-recall needs both correct and wrong answers"
-        )
-
-
 @dataclass(frozen=True)
 class RejectionCurve:
     """Precision and recall of the VPR system at every uncertainty threshold, from strictest to most lenient.
@@ -382,7 +369,11 @@ class UncertaintyRanking:
 
         Needs both correct and wrong answers (else ValueError).
         """
-        _raise_one_class(self.n_correct, self.n_queries)
+        if self.n_correct in (0, self.n_queries):
+            raise ValueError(
+                f"all {self.n_queries} top-1 answers are {'correct' if self.n_correct else 'wrong'}: precision-recall "
+                "needs both correct and wrong answers"
+            )
         tps = self.correct_accepted.astype(np.float64)
         precision = tps / self.accepted  # sklearn: tps / (tps + fps), and tps + fps = accepted, exactly
         recall = tps / tps[-1]
@@ -476,8 +467,6 @@ def auc_pr(correct: object, uncertainty: object) -> float:
     >>> auc_pr([True, True, False, False], [0.1, 0.2, 0.3, 0.4])
     1.0
     """
-    correct, uncertainty = check_labels(correct, uncertainty)
-    _check_both_classes(correct)
     return rank_queries(correct, uncertainty).auc_pr()
 
 
@@ -498,8 +487,6 @@ def average_precision(correct: object, uncertainty: object) -> float:
     >>> average_precision([True, False, True, False], [0.1, 0.2, 0.3, 0.4])
     0.8333333333333333
     """
-    correct, uncertainty = check_labels(correct, uncertainty)
-    _check_both_classes(correct)
     return rank_queries(correct, uncertainty).average_precision()
 
 
@@ -609,15 +596,6 @@ class ThresholdChoice:
         return np.asarray(uncertainty, dtype=np.float64) <= self.threshold
 
 
-def _check_precision(precision: object) -> float:
-    if isinstance(precision, bool) or not isinstance(precision, numbers.Real):
-        raise TypeError(f"precision must be a number in (0, 1], got {precision!r}")
-    value = float(precision)
-    if not 0.0 < value <= 1.0:  # also rejects NaN
-        raise ValueError(f"precision must lie in (0, 1], got {precision!r}")
-    return value
-
-
 def threshold_at_precision(
     uncertainty: object, correct: object, precision: float, *, n_answerable: int | None = None
 ) -> ThresholdChoice:
@@ -660,30 +638,33 @@ def threshold_at_precision(
     >>> print(threshold_at_precision([0.1, 0.2, 0.3, 0.4, 0.5], [True, True, False, True, False], 1.0))
     accept uncertainty <= 0.2: precision 1.000, recall 0.400, coverage 0.400 (2 queries)
     """
-    target = _check_precision(precision)
+    if isinstance(precision, bool) or not isinstance(precision, numbers.Real):
+        raise TypeError(f"precision must be a number in (0, 1], got {precision!r}")
+    target = float(precision)
+    if not 0.0 < target <= 1.0:  # also rejects NaN
+        raise ValueError(f"precision must lie in (0, 1], got {precision!r}")
     if np.asarray(uncertainty).dtype == bool:
         raise ValueError(
             "uncertainty is boolean; expected one real number per query (higher = less trustworthy): were "
             "uncertainty and correct swapped? The order is threshold_at_precision(uncertainty, correct, precision)"
         )
-    curve = rejection_curve(correct, uncertainty, n_answerable=n_answerable)
+    ranking = rank_queries(correct, uncertainty)
+    curve = ranking.rejection_curve(n_answerable=n_answerable)
     reached = np.flatnonzero(curve.precision >= target)
-    n_queries = np.asarray(correct).size
     if not reached.size:
         warnings.warn(
-            f"no uncertainty threshold reaches precision {target:g} on these {n_queries} queries (the most "
+            f"no uncertainty threshold reaches precision {target:g} on these {ranking.n_queries} queries (the most "
             f"confident answers already give {curve.precision[0]:.3g}): the threshold accepts nothing",
             RuntimeWarning,
             stacklevel=2,
         )
         return ThresholdChoice(-math.inf, target, None, 0.0, 0.0, 0)
     last = int(reached[-1])
-    threshold = float(curve.thresholds[last])
     return ThresholdChoice(
-        threshold=threshold,
+        threshold=float(curve.thresholds[last]),
         target_precision=target,
         precision=float(curve.precision[last]),
         recall=float(curve.recall[last]),
         coverage=float(curve.coverage[last]),
-        n_accepted=int(np.count_nonzero(np.asarray(uncertainty, dtype=np.float64) <= threshold)),
+        n_accepted=int(ranking.accepted[last]),
     )

@@ -143,7 +143,6 @@ class MethodEvaluation:
         uncertainty = np.asarray(uncertainty)
         labels = correct if own_correct is None else np.asarray(own_correct, dtype=bool)
         ranking = rank_queries(labels, uncertainty)  # one sort: the curve and the ties
-        curve = ranking.rejection_curve(n_answerable=n_answerable)
         return cls(
             name=name,
             uncertainty=uncertainty,
@@ -151,7 +150,7 @@ class MethodEvaluation:
             average_precision=data["average_precision"],
             aurc=data["aurc"],
             time_per_query_ms=data["time_per_query_ms"],
-            curve=curve,
+            curve=ranking.rejection_curve(n_answerable=n_answerable),
             recall_at_full_precision=data["recall_at_100_precision"],
             precision_at_recall={float(level): value for level, value in data["precision_at_recall"].items()},
             own_recall_at_1=data.get("own_recall@1"),
@@ -209,20 +208,17 @@ class Evaluation:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON schema of ``evaluate --json``."""
-        result: dict[str, Any] = {"n_queries": self.n_queries}
-        if self.k is not None:
-            result["k"] = self.k
-        if self.k_requested is not None and self.k_requested != self.k:
-            result["k_requested"] = self.k_requested
-        result["recall@1"] = self.recall_at_n.get(1)
-        result.update({f"recall@{n}": value for n, value in self.recall_at_n.items() if n != 1})
-        result["n_queries_without_positives"] = self.n_queries - self.n_answerable
-        result["methods"] = {name: method.to_dict() for name, method in self.methods.items()}
-        if self.bootstrap is not None:
-            result["bootstrap"] = dict(self.bootstrap)
-        if self.notes:
-            result["notes"] = list(self.notes)
-        return result
+        return {
+            "n_queries": self.n_queries,
+            **({"k": self.k} if self.k is not None else {}),
+            **({"k_requested": self.k_requested} if self.k_requested not in (None, self.k) else {}),
+            "recall@1": self.recall_at_n.get(1),
+            **{f"recall@{n}": value for n, value in self.recall_at_n.items() if n != 1},
+            "n_queries_without_positives": self.n_queries - self.n_answerable,
+            "methods": {name: method.to_dict() for name, method in self.methods.items()},
+            **({"bootstrap": dict(self.bootstrap)} if self.bootstrap is not None else {}),
+            **({"notes": list(self.notes)} if self.notes else {}),
+        }
 
     @classmethod
     def from_dict(
@@ -292,17 +288,6 @@ class Evaluation:
 _VS_REFERENCE = ("delta_auc_pr", "p_value_holm", "significant")
 
 
-def _import_pandas() -> Any:
-    try:
-        import pandas
-    except ImportError as error:
-        raise ImportError(
-            "Evaluation.to_frame() needs pandas, which the core install leaves out: "
-            "pip install 'vpr-uncertainty[pandas]' (or pip install pandas)"
-        ) from error
-    return pandas
-
-
 def method_row(method: MethodEvaluation) -> dict[str, Any]:
     """The numbers of one method as a flat dict (the columns of :func:`evaluation_frame`)."""
     row: dict[str, Any] = {
@@ -352,12 +337,16 @@ def evaluation_frame(evaluation: Evaluation) -> pandas.DataFrame:
     ImportError
         When pandas is not installed (it names the extra to install).
     """
-    pandas = _import_pandas()
+    try:
+        import pandas
+    except ImportError as error:
+        raise ImportError(
+            "Evaluation.to_frame() needs pandas, which the core install leaves out: "
+            "pip install 'vpr-uncertainty[pandas]' (or pip install pandas)"
+        ) from error
     rows = [method_row(method) for method in evaluation.methods.values()]
-    columns: dict[str, None] = {}
-    for row in rows:
-        columns.update(dict.fromkeys(row))
-    frame = pandas.DataFrame(rows, index=pandas.Index(list(evaluation.methods), name="method"), columns=list(columns))
+    columns = list(dict.fromkeys(key for row in rows for key in row))
+    frame = pandas.DataFrame(rows, index=pandas.Index(list(evaluation.methods), name="method"), columns=columns)
     floats = [name for name in columns if name not in ("informative", "significant")]
     frame[floats] = frame[floats].astype(float)  # None (an undefined AUC-PR) becomes NaN, not an object column
     frame.attrs.update(
