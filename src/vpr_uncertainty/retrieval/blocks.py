@@ -52,8 +52,6 @@ class DescriptorRows:
     def from_array(cls, array: np.ndarray, *, source: str = "array") -> DescriptorRows:
         """Rows of an array (a :class:`numpy.memmap` is sliced: the pages read stay mapped while it lives)."""
         array = np.asarray(array) if not isinstance(array, np.ndarray) else array
-        if array.ndim != 2:
-            raise ValueError(f"{source}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
         return cls(lambda start, stop: array[start:stop], array.shape, source=source)
 
     def __len__(self) -> int:

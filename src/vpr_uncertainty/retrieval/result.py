@@ -168,15 +168,18 @@ def check_scores(scores: object) -> np.ndarray:
             raise ValueError(f"scores contains NaN (first at {_where(_first(nan))}); expected finite similarities")
         if (scores == np.inf).any():
             raise ValueError(f"scores contains +inf (first at {_where(_first(scores == np.inf))})")
-    if scores.shape[1] > 1:
-        unsorted = scores[:, 1:] > scores[:, :-1]
-        if unsorted.any():
-            row, column = _first(unsorted)
-            raise ValueError(
-                f"scores must be sorted in descending order along each row, but row {row} has "
-                f"{scores[row, column]} before {scores[row, column + 1]}"
-            )
+    _check_sorted("scores", scores, descending=True)
     return scores
+
+
+def _check_sorted(name: str, array: np.ndarray, *, descending: bool) -> None:
+    unsorted = array[:, 1:] > array[:, :-1] if descending else array[:, 1:] < array[:, :-1]
+    if unsorted.any():
+        row, column = _first(unsorted)
+        order = "descending order along each row" if descending else "ascending order along each row (nearest first)"
+        raise ValueError(
+            f"{name} must be sorted in {order}, but row {row} has {array[row, column]} before {array[row, column + 1]}"
+        )
 
 
 def check_indices(indices: object, scores: np.ndarray) -> np.ndarray:
@@ -242,14 +245,7 @@ def _check_distances(distances: object, indices: np.ndarray) -> np.ndarray:
             f"distances holds {distances[position]} at {_where(position)}; expected finite squared L2 distances "
             ">= 0, and +inf where a candidate is missing (index -1)"
         )
-    if distances.shape[1] > 1:
-        unsorted = distances[:, 1:] < distances[:, :-1]
-        if unsorted.any():
-            row, column = _first(unsorted)
-            raise ValueError(
-                f"distances must be sorted in ascending order along each row (nearest first), but row {row} has "
-                f"{distances[row, column]} before {distances[row, column + 1]}"
-            )
+    _check_sorted("distances", distances, descending=False)
     return distances
 
 
@@ -315,13 +311,9 @@ def check_retrieval_fields(retrieval: Any) -> None:
                 f"{retrieval.database_positions.shape[1]}; they must agree"
             )
     sizes = {
-        name: length
-        for name, length in (
-            ("positives", None if retrieval.positives is None else retrieval.positives.shape[1]),
-            ("database_names", None if retrieval.database_names is None else len(retrieval.database_names)),
-            ("database_positions", None if retrieval.database_positions is None else len(retrieval.database_positions)),
-        )
-        if length is not None
+        name: value.shape[1] if name == "positives" else len(value)
+        for name in ("positives", "database_names", "database_positions")
+        if (value := getattr(retrieval, name)) is not None
     }
     if len(set(sizes.values())) > 1:
         described = ", ".join(f"{name}: {length}" for name, length in sizes.items())
@@ -387,11 +379,8 @@ def coerce_positives(value: object, *, n_database: int | None, indices: np.ndarr
         lists = positives_from_lists(rows, n_database=n_database)
     except ValueError as error:
         raise ValueError(f"{error} (positives must be {_EXPECTED})") from None
-    if n_database is None:
-        largest = int(lists.indices.max()) if lists.nnz else -1
-        if indices.size:
-            largest = max(largest, int(indices.max()))
-        n_database = largest + 1
+    if n_database is None:  # the lists cover their largest positive already
+        n_database = max(lists.shape[1], int(indices.max()) + 1 if indices.size else 0)
         lists = sparse.csr_array((lists.data, lists.indices, lists.indptr), shape=(lists.shape[0], n_database))
     return lists
 

@@ -214,8 +214,7 @@ def search_descriptors(
     faiss = _import_faiss()
     block = _database_block(database, database_block, index, device)
     if block is not None:
-        database = _as_rows(database)
-        database_owned = False
+        database, database_owned = _as_rows(database), False
     else:
         database, database_owned = _as_descriptors(database, "database")
     queries, queries_owned = _as_descriptors(queries, "queries")
@@ -252,11 +251,8 @@ def search_descriptors(
             stop = start + len(batch)
             scores[start:stop, :kept], indices[start:stop, :kept] = _block_top_k(searcher, batch, k, n_database)
             bar.update(len(batch))
-    missing = indices < 0
-    scores[missing] = -np.inf
     # Scores of normalised descriptors by construction (an approximate index may exceed 1 slightly): no range check.
-    distances = squared_distances_from_similarities(scores, check=False)
-    return scores, indices, distances
+    return scores, indices, squared_distances_from_similarities(scores, check=False)
 
 
 def retrieve(
@@ -362,11 +358,10 @@ def retrieve(
         "device": device,
         "n_database": n_database,
         "n_queries": int(np.shape(queries)[0]),
+        **({"search_params": search_params} if search_params else {}),
+        "dimension": dimension,
+        **(config or {}),
     }
-    if search_params:
-        settings["search_params"] = search_params
-    settings["dimension"] = dimension
-    settings.update(config or {})
     result = Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
     return result if ground_truth is None else attach_ground_truth(result, ground_truth)
 
