@@ -414,7 +414,6 @@ def load_vprbench_dataset(root: str | Path, *, name: str | None = None, n_databa
     ``ref/`` must match: give it only when the last reference images are no query's positive. Raises FileNotFoundError
     for a missing folder or ground truth, ValueError when an image count or name disagrees with the ground truth.
     """
-
     root = Path(root)
     paths = {}
     for folder in ("query", "ref"):

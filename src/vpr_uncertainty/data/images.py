@@ -484,24 +484,21 @@ def retrieval_image_paths(
     if images is None and query_images is None:
         raise ValueError("no image folder given (argument images)")
     if images is not None:
-        root = Path(images)
-        query_folder, database_folder = find_split_folders(root)
-        query_paths = _by_names(root, retrieval.query_names)
-        database_paths = _by_names(root, retrieval.database_names)
+        query_folder, database_folder = find_split_folders(images)
+        query_root = database_root = Path(images)
         query_argument = database_argument = "images"
     else:
-        query_folder, database_folder = Path(query_images), Path(database_images)  # type: ignore[arg-type]
-        query_paths = _by_names(query_folder, retrieval.query_names)
-        database_paths = _by_names(database_folder, retrieval.database_names)
+        query_folder = query_root = Path(query_images)  # type: ignore[arg-type]
+        database_folder = database_root = Path(database_images)  # type: ignore[arg-type]
         query_argument, database_argument = "query_images", "database_images"
+    query_paths = _by_names(query_root, retrieval.query_names)
+    database_paths = _by_names(database_root, retrieval.database_names)
     for folder, argument in ((query_folder, query_argument), (database_folder, database_argument)):
         if not folder.is_dir():
             raise FileNotFoundError(f"image folder not found: {folder} (argument {argument})")
     numbered = images is not None and query_folder.name == IMAGE_SPLIT_FOLDERS[0][0]  # VPR-Bench: names are indices
-    if query_paths is None:
-        query_paths = _listed(query_folder, query_argument, numbered)
-    if database_paths is None:
-        database_paths = _listed(database_folder, database_argument, numbered)
+    query_paths = query_paths or _listed(query_folder, query_argument, numbered)
+    database_paths = database_paths or _listed(database_folder, database_argument, numbered)
     check_image_counts(
         retrieval,
         len(query_paths),

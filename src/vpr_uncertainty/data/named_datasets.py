@@ -55,17 +55,13 @@ def corridor_files() -> dict[str, str]:
     return json.loads(text)
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def verify_corridor(folder: str | Path) -> list[str]:
     """Relative paths of the corridor files that are missing or whose checksum differs (empty when complete)."""
     folder = Path(folder)
     return [
         name
         for name, digest in corridor_files().items()
-        if not (folder / name).is_file() or _sha256(folder / name) != digest
+        if not (folder / name).is_file() or hashlib.sha256((folder / name).read_bytes()).hexdigest() != digest
     ]
 
 
@@ -176,7 +172,6 @@ def read_named_datasets(text: str | None = None) -> list[NamedDataset]:
         text = resources.files("vpr_uncertainty.data").joinpath("named_datasets.json").read_text(encoding="utf-8")
     document = json.loads(text)
     downloader = str(document.get("downloader", ""))
-
     fields = {item.name for item in dataclasses.fields(NamedDataset)}
     records = []
     for number, record in enumerate(document["datasets"]):
@@ -275,10 +270,7 @@ def _frames_from_dummy(dataset: Dataset, entry: NamedDataset, tolerance: float) 
         positives=positives_within_frames(frames[n_database:], frames[:n_database], tolerance),
         positive_radius=float(tolerance),
         position_kind="frames",
-        info={
-            **dataset.info,
-            "positions": f"frame index, recovered from dummy UTM ({entry.frame_spacing:.4f} m/frame)",
-        },
+        info=dict(dataset.info, positions=f"frame index, recovered from dummy UTM ({entry.frame_spacing:.4f} m/frame)"),
     )
 
 
