@@ -505,16 +505,13 @@ class _Searcher:
             if search_params:
                 raise ValueError(f"search_params {search_params!r} need an approximate index; exact search has none")
             return  # faiss.knn_inner_product on the array itself: no copy of the database into an index
-        if device == "cuda":
-            if not hasattr(faiss, "StandardGpuResources") or faiss.get_num_gpus() < 1:
-                if hasattr(faiss, "StandardGpuResources"):
-                    reason = "has GPU support but sees no GPU"
-                else:
-                    reason = "is built without GPU support"
-                raise ValueError(
-                    f"device='cuda' needs GPU Faiss and a visible GPU, but this Faiss ({faiss.__version__}) {reason}; "
-                    "install faiss-gpu and check CUDA_VISIBLE_DEVICES, or use device='cpu'"
-                )
+        gpu_faiss = hasattr(faiss, "StandardGpuResources")
+        if device == "cuda" and not (gpu_faiss and faiss.get_num_gpus() > 0):
+            reason = "has GPU support but sees no GPU" if gpu_faiss else "is built without GPU support"
+            raise ValueError(
+                f"device='cuda' needs GPU Faiss and a visible GPU, but this Faiss ({faiss.__version__}) {reason}; "
+                "install faiss-gpu and check CUDA_VISIBLE_DEVICES, or use device='cpu'"
+            )
         dimension = database.shape[1]
         try:
             built = faiss.index_factory(dimension, index, faiss.METRIC_INNER_PRODUCT)
