@@ -10,37 +10,18 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
-# The ground truth from positions lives below data/ (retrieval.ground_truth: retrieve() attaches it); re-exported here.
+# The ground truth from positions lives below data/ (retrieval.ground_truth: retrieve() attaches it); the two
+# functions that build and attach it are re-exported here.
 from vpr_uncertainty.retrieval.ground_truth import (
-    DEFAULT_RADIUS,
-    FIELDS,
     POSITION_KINDS,
     PositionKind,
     attach_ground_truth,
     check_positions,
     detect_position_kind,
     ground_truth_fields,
-    line_coordinate,
-    positives_within_frames,
-    positives_within_radius,
 )
 
-__all__ = [
-    "DEFAULT_RADIUS",
-    "FIELDS",
-    "POSITION_KINDS",
-    "Dataset",
-    "PlaceholderPositionsWarning",
-    "PositionKind",
-    "attach_ground_truth",
-    "check_positions",
-    "detect_position_kind",
-    "ground_truth_fields",
-    "latlon_to_utm",
-    "line_coordinate",
-    "positives_within_frames",
-    "positives_within_radius",
-]
+__all__ = ["Dataset", "PlaceholderPositionsWarning", "attach_ground_truth", "ground_truth_fields", "latlon_to_utm"]
 
 
 class PlaceholderPositionsWarning(UserWarning):

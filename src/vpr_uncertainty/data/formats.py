@@ -12,16 +12,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty._files import is_regular_file
-from vpr_uncertainty.data.dataset import (
-    DEFAULT_RADIUS,
-    Dataset,
-    PositionKind,
-    detect_position_kind,
-    latlon_to_utm,
-    line_coordinate,
-    positives_within_frames,
-    positives_within_radius,
-)
+from vpr_uncertainty.data.dataset import Dataset, latlon_to_utm
 from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.data.images import (
     DATABASE_FOLDERS,
@@ -32,6 +23,14 @@ from vpr_uncertainty.data.images import (
     numbered_order,
 )
 from vpr_uncertainty.plugins import Registry, load_target
+from vpr_uncertainty.retrieval.ground_truth import (
+    DEFAULT_RADIUS,
+    PositionKind,
+    detect_position_kind,
+    line_coordinate,
+    positives_within_frames,
+    positives_within_radius,
+)
 
 
 @dataclass(frozen=True)

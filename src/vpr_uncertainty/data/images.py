@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from vpr_uncertainty._files import special_file_error
-from vpr_uncertainty.data.dataset import DEFAULT_RADIUS, Dataset, PositionKind, latlon_to_utm, positives_within_radius
+from vpr_uncertainty.data.dataset import Dataset, latlon_to_utm
+from vpr_uncertainty.retrieval.ground_truth import DEFAULT_RADIUS, PositionKind, positives_within_radius
 from vpr_uncertainty.retrieval.result import Retrieval
 
 #: File extensions read as images (case-insensitive).

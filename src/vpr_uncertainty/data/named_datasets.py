@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.data.dataset import Dataset, PositionKind, line_coordinate, positives_within_frames
+from vpr_uncertainty.data.dataset import Dataset
 from vpr_uncertainty.data.formats import (
     detect_format,
     has_split,
@@ -25,6 +25,7 @@ from vpr_uncertainty.data.formats import (
 )
 from vpr_uncertainty.data.images import load_folder_dataset
 from vpr_uncertainty.plugins import Registry
+from vpr_uncertainty.retrieval.ground_truth import PositionKind, line_coordinate, positives_within_frames
 
 # --- the corridor download ---
 
