@@ -14,14 +14,7 @@ import numpy as np
 from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.data.dataset import Dataset, latlon_to_utm
 from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
-from vpr_uncertainty.data.images import (
-    DATABASE_FOLDERS,
-    QUERY_FOLDERS,
-    find_split_folder,
-    list_images,
-    load_folder_dataset,
-    numbered_order,
-)
+from vpr_uncertainty.data.images import find_split_folder, has_split, list_images, load_folder_dataset, numbered_order
 from vpr_uncertainty.plugins import Registry, load_target
 from vpr_uncertainty.retrieval.ground_truth import (
     DEFAULT_RADIUS,
@@ -73,13 +66,6 @@ def register_format(entry: DatasetFormat, *, overwrite: bool = False) -> Dataset
     if bool(entry.suffixes) == (entry.detect is not None):
         raise ValueError(f"dataset format {entry.name!r}: give either suffixes (a file format) or detect (a folder)")
     return DATASET_FORMAT_REGISTRY.register(entry, overwrite=overwrite)
-
-
-def has_split(folder: Path) -> bool:
-    """Whether ``folder`` holds a database and a queries folder (VPR-datasets-downloader split layout)."""
-    return any((folder / name).is_dir() for name in DATABASE_FOLDERS) and any(
-        (folder / name).is_dir() for name in QUERY_FOLDERS
-    )
 
 
 def detect_format(path: str | Path) -> str:
@@ -194,12 +180,10 @@ _QUERY_ROLES = frozenset({"query", "queries", "q"})
 def _delimiter(path: Path, sample: str, delimiter: str | None) -> str:
     if delimiter is not None:
         return delimiter
-    if path.suffix.lower() == ".tsv":
-        return "\t"
-    if path.suffix.lower() == ".csv":
-        return ","
-    first = sample.splitlines()[0] if sample else ""
-    return "\t" if "\t" in first else ","
+    suffix = path.suffix.lower()
+    if suffix in (".csv", ".tsv"):
+        return "," if suffix == ".csv" else "\t"
+    return "\t" if "\t" in (sample.splitlines()[0] if sample else "") else ","
 
 
 def _column(header: dict[str, int], names: tuple[str, ...]) -> int | None:
@@ -374,8 +358,7 @@ def load_poses_dataset(
                 f"{path}: expected arrays utmQ (queries × 2) and utmDb (database × 2) and optionally posDistThr, "
                 f"missing {', '.join(missing)} (found {', '.join(sorted(archive.files))})"
             )
-        query_positions = archive["utmQ"]
-        database_positions = archive["utmDb"]
+        query_positions, database_positions = archive["utmQ"], archive["utmDb"]
         threshold = float(archive["posDistThr"]) if "posDistThr" in archive.files else None
     for key, array in (("utmQ", query_positions), ("utmDb", database_positions)):
         if array.ndim != 2 or array.shape[1] != 2:

@@ -269,6 +269,11 @@ def _pick(folder: Path, candidates: tuple[str, ...]) -> Path | None:
     return None
 
 
+def has_split(folder: Path) -> bool:
+    """Whether ``folder`` holds a database and a queries folder (VPR-datasets-downloader split layout)."""
+    return bool(_pick(folder, DATABASE_FOLDERS) and _pick(folder, QUERY_FOLDERS))
+
+
 def find_split_folder(root: str | Path, split: str = "test") -> Path:
     """The folder holding ``database/`` and ``queries/``: ``root``, ``root/split`` or ``root/images/split``.
 
@@ -277,7 +282,7 @@ def find_split_folder(root: str | Path, split: str = "test") -> Path:
     root = Path(root)
     candidates = [root, root / split, root / "images" / split]
     for candidate in candidates:
-        if _pick(candidate, DATABASE_FOLDERS) and _pick(candidate, QUERY_FOLDERS):
+        if has_split(candidate):
             return candidate
     looked = ", ".join(str(candidate) for candidate in candidates)
     splits = sorted(path.name for path in (root / "images").glob("*") if path.is_dir()) if root.is_dir() else []

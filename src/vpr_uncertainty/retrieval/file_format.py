@@ -56,10 +56,9 @@ def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
     if retrieval.distances is not None:
         arrays["distances"] = retrieval.distances.astype(np.float32, copy=False)
     if retrieval.positives is not None:
-        positives = retrieval.positives
-        arrays["positives_indptr"] = positives.indptr.astype(np.int64)
-        arrays["positives_indices"] = positives.indices.astype(np.int64)
-        arrays["n_database"] = np.array(positives.shape[1])
+        arrays["positives_indptr"] = retrieval.positives.indptr.astype(np.int64)
+        arrays["positives_indices"] = retrieval.positives.indices.astype(np.int64)
+        arrays["n_database"] = np.array(retrieval.positives.shape[1])
     for name in ("query_names", "database_names", "query_positions", "database_positions"):
         value = getattr(retrieval, name)
         if value is not None:

@@ -84,12 +84,7 @@ class Retrieval:
     @property
     def n_database(self) -> int | None:
         """Number of database images, when the positives, the database names or positions tell it."""
-        if self.positives is not None:
-            return int(self.positives.shape[1])
-        for value in (self.database_names, self.database_positions):
-            if value is not None:
-                return len(value)
-        return None
+        return int(self.positives.shape[1]) if self.positives is not None else _known_database_size(self)
 
     def subset_queries(self, rows: np.ndarray) -> Retrieval:
         """The retrieval of the queries ``rows`` only (an index array or a boolean mask), same database."""
