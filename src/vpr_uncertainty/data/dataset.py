@@ -108,8 +108,7 @@ class Dataset:
             self.position_kind = detect_position_kind(self.database_positions, self.query_positions)
         if self.position_kind is not None and self.position_kind not in POSITION_KINDS:
             raise ValueError(f"position_kind must be one of {POSITION_KINDS} or None, got {self.position_kind!r}")
-        if self.positive_radius is not None:
-            self.positive_radius = float(self.positive_radius)
+        self.positive_radius = None if self.positive_radius is None else float(self.positive_radius)
 
     @property
     def n_queries(self) -> int:

@@ -238,8 +238,7 @@ def read_image_table(
         image = row[path_column].strip()
         if not image:
             raise ValueError(f"{where}: empty image path")
-        image_path = Path(image)
-        paths.append(image_path if image_path.is_absolute() else base / image_path)
+        paths.append(base / image)  # an absolute image path stays as it is
         for axis, column in enumerate(coordinate_columns):
             try:
                 values[row_index, axis] = float(row[column])

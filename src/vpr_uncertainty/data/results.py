@@ -264,9 +264,8 @@ def _check_similarity_values(
         )
 
 
-def _open_similarity(path: str | Path, file_format: str, *, mmap: bool) -> np.ndarray:
+def _open_similarity(path: Path, file_format: str, *, mmap: bool) -> np.ndarray:
     """The matrix of ``path`` with dtype and shape checked (values not yet); memory-mapped when ``mmap``."""
-    path = Path(path)
     if not is_regular_file(path, "a similarity matrix"):
         raise FileNotFoundError(f"similarity file not found: {path}")
     if file_format == "vprbench":

@@ -173,8 +173,7 @@ def top_k_blocks(
         if check_block is not None:
             check_block(block, start)
         values, candidates = _top_k_block(block if higher_is_better else -block, k)
-        scores[start : start + len(block)] = values
-        indices[start : start + len(block)] = candidates
+        scores[start : start + len(block)], indices[start : start + len(block)] = values, candidates
     indices[scores == -np.inf] = -1  # -inf = no candidate: the retrieval convention pairs it with index -1
     return scores, indices
 

@@ -97,16 +97,13 @@ def load_retrieval(path: str | Path) -> Retrieval:
         scores = check_scores(arrays["scores"])  # first, so that the positives are checked against them
         check_indices(arrays["indices"], scores)
         positives = _positives(arrays, scores.shape[0])
+        optional = ("distances", "query_names", "database_names", "query_positions", "database_positions")
         retrieval = Retrieval(
             scores=scores,
             indices=arrays["indices"],
             positives=positives,
-            distances=arrays.get("distances"),
-            query_names=arrays.get("query_names"),
-            database_names=arrays.get("database_names"),
-            query_positions=arrays.get("query_positions"),
-            database_positions=arrays.get("database_positions"),
             config=_config(arrays),
+            **{name: arrays.get(name) for name in optional},
         )
         names = {"query_names": retrieval.query_names, "database_names": retrieval.database_names}
         check_distinct(retrieval.indices, names)

@@ -89,19 +89,11 @@ class Retrieval:
     def subset_queries(self, rows: np.ndarray) -> Retrieval:
         """The retrieval of the queries ``rows`` only (an index array or a boolean mask), same database."""
         rows = np.asarray(rows)
-
-        def take(value: Any) -> Any:
-            return None if value is None else value[rows]
-
-        return dataclasses.replace(
-            self,
-            scores=self.scores[rows],
-            indices=self.indices[rows],
-            positives=take(self.positives),
-            distances=take(self.distances),
-            query_names=take(self.query_names),
-            query_positions=take(self.query_positions),
-        )
+        taken = {}
+        for name in ("scores", "indices", "positives", "distances", "query_names", "query_positions"):
+            value = getattr(self, name)
+            taken[name] = None if value is None else value[rows]
+        return dataclasses.replace(self, **taken)
 
     @property
     def n_queries(self) -> int:
@@ -468,8 +460,7 @@ def positives_from_lists(
     >>> positives_from_lists([[1], [0, 1]]).shape
     (2, 2)
     """
-    if n_database is not None:
-        n_database = check_n_database(n_database)
+    n_database = None if n_database is None else check_n_database(n_database)
     prefix = f"{source}: " if source is not None else ""
     rows = [_index_row(item, query, n_database, prefix) for query, item in enumerate(lists)]
     if n_database is None:
