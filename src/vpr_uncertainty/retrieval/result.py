@@ -236,28 +236,21 @@ def _check_distances(distances: object, indices: np.ndarray) -> np.ndarray:
     return distances
 
 
-def _check_names(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
+def _check_rows(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
+    """Names (1-D strings) or positions (2-D finite real numbers), one row per ``what``; None stays None."""
     if value is None:
         return None
-    array = np.asarray(value)
-    if array.ndim != 1 or array.dtype.kind not in "USO":
+    positions = name.endswith("_positions")
+    array = _check_real(name, value) if positions else np.asarray(value)
+    if positions and (array.ndim != 2 or array.shape[1] < 1):
+        raise ValueError(f"{name} must have shape (n_images, 2) (one row per {what}), got shape {array.shape}")
+    if not positions and (array.ndim != 1 or array.dtype.kind not in "USO"):
         raise ValueError(
             f"{name} must be a 1-D array of strings (one per {what}), got dtype {array.dtype} and shape {array.shape}"
         )
     if expected is not None and len(array) != expected:
         raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what})")
-    return array
-
-
-def _check_positions(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
-    if value is None:
-        return None
-    array = _check_real(name, value)
-    if array.ndim != 2 or array.shape[1] < 1:
-        raise ValueError(f"{name} must have shape (n_images, 2) (one row per {what}), got shape {array.shape}")
-    if expected is not None and len(array) != expected:
-        raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what})")
-    if not np.isfinite(array).all():
+    if positions and not np.isfinite(array).all():
         raise ValueError(f"{name} holds a non-finite value (first at {_where(_first(~np.isfinite(array)))})")
     return array
 
@@ -285,10 +278,10 @@ def check_retrieval_fields(retrieval: Any) -> None:
             raise ValueError(
                 f"positives has {retrieval.positives.shape[0]} rows but there are {n_queries} queries (scores rows)"
             )
-    retrieval.query_names = _check_names("query_names", retrieval.query_names, n_queries, "query")
-    retrieval.database_names = _check_names("database_names", retrieval.database_names, None, "database image")
-    retrieval.query_positions = _check_positions("query_positions", retrieval.query_positions, n_queries, "query")
-    retrieval.database_positions = _check_positions(
+    retrieval.query_names = _check_rows("query_names", retrieval.query_names, n_queries, "query")
+    retrieval.database_names = _check_rows("database_names", retrieval.database_names, None, "database image")
+    retrieval.query_positions = _check_rows("query_positions", retrieval.query_positions, n_queries, "query")
+    retrieval.database_positions = _check_rows(
         "database_positions", retrieval.database_positions, None, "database image"
     )
     if retrieval.query_positions is not None and retrieval.database_positions is not None:
