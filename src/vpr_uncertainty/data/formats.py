@@ -15,7 +15,7 @@ from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.data.dataset import Dataset, latlon_to_utm
 from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.data.images import find_split_folder, has_split, list_images, load_folder_dataset, numbered_order
-from vpr_uncertainty.plugins import Registry, load_target
+from vpr_uncertainty.plugins import Registry
 from vpr_uncertainty.retrieval.ground_truth import (
     DEFAULT_RADIUS,
     PositionKind,
@@ -89,13 +89,6 @@ def detect_format(path: str | Path) -> str:
             return entry.name
     expected = " or ".join(entry.expects for entry in DATASET_FORMAT_REGISTRY if entry.detect is not None)
     raise ValueError(f"{path} is not a dataset folder: expected {expected}")
-
-
-def read_format(file_format: str, path: Path, **arguments: Any) -> Dataset:
-    """Read ``path`` with the reader of the registered format ``file_format``."""
-    entry = DATASET_FORMAT_REGISTRY.get(file_format)
-    reader = load_target(entry.reader, what=f"dataset format {entry.name!r}", extra=entry.extra)
-    return reader(path, **arguments)
 
 
 def is_vprbench_folder(path: Path) -> bool:

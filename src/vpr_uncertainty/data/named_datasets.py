@@ -17,14 +17,14 @@ import numpy as np
 
 from vpr_uncertainty.data.dataset import Dataset
 from vpr_uncertainty.data.formats import (
+    DATASET_FORMAT_REGISTRY,
     detect_format,
     has_split,
     is_vprbench_folder,
     load_vprbench_dataset,
-    read_format,
 )
 from vpr_uncertainty.data.images import load_folder_dataset
-from vpr_uncertainty.plugins import Registry
+from vpr_uncertainty.plugins import Registry, load_target
 from vpr_uncertainty.retrieval.ground_truth import PositionKind, line_coordinate, positives_within_frames
 
 # --- the corridor download ---
@@ -356,5 +356,6 @@ def load_dataset(
                 f"({', '.join(NAMED_DATASET_REGISTRY.names())})"
             ) from None
         return _load_named(entry, root, split, radius)
-    arguments = {"split": split, "radius": radius, "queries": queries, "name": name, "position_kind": position_kind}
-    return read_format(detect_format(path), path, **arguments)
+    entry = DATASET_FORMAT_REGISTRY.get(detect_format(path))
+    reader = load_target(entry.reader, what=f"dataset format {entry.name!r}", extra=entry.extra)
+    return reader(path, split=split, radius=radius, queries=queries, name=name, position_kind=position_kind)

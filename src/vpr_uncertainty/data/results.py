@@ -675,8 +675,7 @@ def _open_npy(path: Path) -> DescriptorRows:
     if not isinstance(array, np.memmap) or not array.flags.c_contiguous:
         return DescriptorRows.from_array(array, source=str(path))  # empty, or Fortran-ordered: sliced
     shape, dtype, offset = array.shape, array.dtype, int(array.offset)  # a fresh mapping of the whole file
-    dimension = shape[1]
-    row_bytes = dimension * dtype.itemsize
+    dimension, row_bytes = shape[1], shape[1] * dtype.itemsize
     del array
 
     def read(start: int, stop: int) -> np.ndarray:
