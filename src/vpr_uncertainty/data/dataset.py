@@ -103,8 +103,7 @@ class Dataset:
             if positions is not None:
                 positions = check_positions(positions, f"{name}_positions", expected_rows=expected)
                 setattr(self, f"{name}_positions", positions)
-        has_positions = self.database_positions is not None or self.query_positions is not None
-        if self.position_kind is None and has_positions:
+        if self.position_kind is None:  # stays None without positions
             self.position_kind = detect_position_kind(self.database_positions, self.query_positions)
         if self.position_kind is not None and self.position_kind not in POSITION_KINDS:
             raise ValueError(f"position_kind must be one of {POSITION_KINDS} or None, got {self.position_kind!r}")
@@ -238,8 +237,7 @@ def latlon_to_utm(
     median_lat, median_lon = float(np.median(lat)), float(np.median(lon))
     if zone_number is None:
         zone_number = int(utm.latlon_to_zone_number(median_lat, median_lon))
-    if northern is None:
-        northern = median_lat >= 0
+    northern = median_lat >= 0 if northern is None else northern
     easting, northing, _, _ = utm.from_latlon(
         lat, lon, force_zone_number=int(zone_number), force_northern=bool(northern)
     )

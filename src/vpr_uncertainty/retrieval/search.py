@@ -54,9 +54,8 @@ def _check_norms(squared: np.ndarray, descriptors: np.ndarray, name: str, first_
 
 def _check_nonzero(squared: np.ndarray, name: str) -> None:
     """All-zero rows (squared norm 0) raise, naming them."""
-    zero = squared == 0
-    if zero.any():
-        rows = np.flatnonzero(zero)
+    rows = np.flatnonzero(squared == 0)
+    if rows.size:
         shown = ", ".join(str(r) for r in rows[:5]) + (", ..." if rows.size > 5 else "")
         raise ValueError(
             f"{name} has {rows.size} all-zero row(s) (rows {shown}); a zero vector has no direction and cannot be "
