@@ -19,11 +19,10 @@ from vpr_uncertainty.data.dataset import Dataset
 from vpr_uncertainty.data.formats import (
     DATASET_FORMAT_REGISTRY,
     detect_format,
-    has_split,
     is_vprbench_folder,
     load_vprbench_dataset,
 )
-from vpr_uncertainty.data.images import load_folder_dataset
+from vpr_uncertainty.data.images import has_split, load_folder_dataset
 from vpr_uncertainty.plugins import Registry, load_target
 from vpr_uncertainty.retrieval.ground_truth import PositionKind, line_coordinate, positives_within_frames
 
