@@ -1,17 +1,6 @@
 """Datasets, ground truth and the readers of what a user brings (dataset folders, results and descriptor files)."""
 
-from vpr_uncertainty.data.dataset import (
-    DEFAULT_RADIUS,
-    POSITION_KINDS,
-    Dataset,
-    PlaceholderPositionsWarning,
-    attach_ground_truth,
-    detect_position_kind,
-    ground_truth_fields,
-    latlon_to_utm,
-    positives_within_frames,
-    positives_within_radius,
-)
+from vpr_uncertainty.data.dataset import Dataset, PlaceholderPositionsWarning, latlon_to_utm
 from vpr_uncertainty.data.formats import (
     DATASET_FORMAT_REGISTRY,
     DatasetFormat,
@@ -48,6 +37,15 @@ from vpr_uncertainty.data.results import (
     read_results,
     read_similarity_top_k,
     register_results_format,
+)
+from vpr_uncertainty.retrieval.ground_truth import (
+    DEFAULT_RADIUS,
+    POSITION_KINDS,
+    attach_ground_truth,
+    detect_position_kind,
+    ground_truth_fields,
+    positives_within_frames,
+    positives_within_radius,
 )
 
 __all__ = [

@@ -10,37 +10,18 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
-# The ground truth from positions lives below data/ (retrieval.ground_truth: retrieve() attaches it); re-exported here.
+# The ground truth from positions lives below data/ (retrieval.ground_truth: retrieve() attaches it); the two
+# functions that build and attach it are re-exported here.
 from vpr_uncertainty.retrieval.ground_truth import (
-    DEFAULT_RADIUS,
-    FIELDS,
     POSITION_KINDS,
     PositionKind,
     attach_ground_truth,
     check_positions,
     detect_position_kind,
     ground_truth_fields,
-    line_coordinate,
-    positives_within_frames,
-    positives_within_radius,
 )
 
-__all__ = [
-    "DEFAULT_RADIUS",
-    "FIELDS",
-    "POSITION_KINDS",
-    "Dataset",
-    "PlaceholderPositionsWarning",
-    "PositionKind",
-    "attach_ground_truth",
-    "check_positions",
-    "detect_position_kind",
-    "ground_truth_fields",
-    "latlon_to_utm",
-    "line_coordinate",
-    "positives_within_frames",
-    "positives_within_radius",
-]
+__all__ = ["Dataset", "PlaceholderPositionsWarning", "attach_ground_truth", "ground_truth_fields", "latlon_to_utm"]
 
 
 class PlaceholderPositionsWarning(UserWarning):
@@ -108,33 +89,26 @@ class Dataset:
         self.positives = positives
         n_queries, n_database = positives.shape
         for name, expected in (("database", n_database), ("query", n_queries)):
-            paths = getattr(self, f"{name}_paths")
-            if paths is not None:
-                paths = [Path(path) for path in paths]
-                if len(paths) != expected:
-                    raise ValueError(f"{name}_paths has {len(paths)} entries but positives has {expected}")
-                setattr(self, f"{name}_paths", paths)
-            names = getattr(self, f"{name}_names")
+            paths, names = getattr(self, f"{name}_paths"), getattr(self, f"{name}_names")
+            paths = None if paths is None else [Path(path) for path in paths]  # an iterator is read once
             if names is None and paths is not None:
                 names = [_relative_name(path, self.root) for path in paths]
-            if names is not None:
-                names = [str(item) for item in names]
-                if len(names) != expected:
-                    raise ValueError(f"{name}_names has {len(names)} entries but positives has {expected}")
-                setattr(self, f"{name}_names", names)
+            for kind, items, convert in (("paths", paths, Path), ("names", names, str)):
+                if items is not None:
+                    items = [convert(item) for item in items]
+                    if len(items) != expected:
+                        raise ValueError(f"{name}_{kind} has {len(items)} entries but positives has {expected}")
+                    setattr(self, f"{name}_{kind}", items)
             positions = getattr(self, f"{name}_positions")
             if positions is not None:
                 positions = check_positions(positions, f"{name}_positions", expected_rows=expected)
                 setattr(self, f"{name}_positions", positions)
-        has_positions = self.database_positions is not None or self.query_positions is not None
-        if self.position_kind is None and has_positions:
+        if self.position_kind is None:  # stays None without positions
             self.position_kind = detect_position_kind(self.database_positions, self.query_positions)
         if self.position_kind is not None and self.position_kind not in POSITION_KINDS:
             raise ValueError(f"position_kind must be one of {POSITION_KINDS} or None, got {self.position_kind!r}")
-        if self.positive_radius is not None:
-            self.positive_radius = float(self.positive_radius)
+        self.positive_radius = None if self.positive_radius is None else float(self.positive_radius)
 
-    # -- sizes ---------------------------------------------------------------------------------------------
     @property
     def n_queries(self) -> int:
         """Number of queries Q."""
@@ -150,7 +124,6 @@ class Dataset:
         """Whether the image files are known (False for a positions-only dataset)."""
         return self.database_paths is not None and self.query_paths is not None
 
-    # -- ground truth --------------------------------------------------------------------------------------
     @property
     def n_positives(self) -> np.ndarray:
         """Number of positives of each query, ndarray of shape (Q,), int64."""
@@ -164,7 +137,6 @@ class Dataset:
         """
         return np.flatnonzero(self.n_positives == 0).astype(np.int64)
 
-    # -- positions -----------------------------------------------------------------------------------------
     @property
     def has_metric_positions(self) -> bool:
         """Whether both position arrays are known and in metres."""
@@ -191,7 +163,6 @@ class Dataset:
             )
         return self.database_positions, self.query_positions
 
-    # -- summaries -----------------------------------------------------------------------------------------
     def retrieval_fields(self) -> dict[str, Any]:
         """The fields of a :class:`~vpr_uncertainty.retrieval.Retrieval` that come from the dataset."""
         return {
@@ -228,14 +199,6 @@ class Dataset:
         )
 
 
-def _import_utm():
-    try:
-        import utm
-    except ImportError as error:  # pragma: no cover - utm is a dependency
-        raise ImportError("converting latitude/longitude to metres needs the 'utm' package: pip install utm") from error
-    return utm
-
-
 def latlon_to_utm(
     latitude: object,
     longitude: object,
@@ -255,26 +218,26 @@ def latlon_to_utm(
     >>> zone, northern, round(float(np.linalg.norm(positions[1] - positions[0])), 1)
     (17, True, 22.2)
     """
-    utm = _import_utm()
+    try:
+        import utm
+    except ImportError as error:  # pragma: no cover - utm is a dependency
+        raise ImportError("converting latitude/longitude to metres needs the 'utm' package: pip install utm") from error
     lat = np.asarray(latitude, dtype=np.float64).reshape(-1)
     lon = np.asarray(longitude, dtype=np.float64).reshape(-1)
     if lat.shape != lon.shape:
         raise ValueError(f"latitude and longitude must have the same length, got {lat.size} and {lon.size}")
     if not (np.isfinite(lat).all() and np.isfinite(lon).all()):
         raise ValueError("latitude and longitude must be finite numbers")
-    if lat.size and not ((lat >= -80).all() and (lat <= 84).all()):
-        bad = int(np.flatnonzero((lat < -80) | (lat > 84))[0])
-        raise ValueError(f"latitude must lie in [-80, 84] degrees (UTM), got {lat[bad]} at row {bad}")
-    if lon.size and not ((lon >= -180).all() and (lon <= 180).all()):
-        bad = int(np.flatnonzero((lon < -180) | (lon > 180))[0])
-        raise ValueError(f"longitude must lie in [-180, 180] degrees, got {lon[bad]} at row {bad}")
+    for name, values, low, high, note in (("latitude", lat, -80, 84, " (UTM)"), ("longitude", lon, -180, 180, "")):
+        bad = np.flatnonzero((values < low) | (values > high))[:1]
+        if bad.size:
+            raise ValueError(f"{name} must lie in [{low}, {high}] degrees{note}, got {values[bad[0]]} at row {bad[0]}")
     if lat.size == 0:
         return np.empty((0, 2)), int(zone_number or 0), bool(northern if northern is not None else True)
     median_lat, median_lon = float(np.median(lat)), float(np.median(lon))
     if zone_number is None:
         zone_number = int(utm.latlon_to_zone_number(median_lat, median_lon))
-    if northern is None:
-        northern = median_lat >= 0
+    northern = median_lat >= 0 if northern is None else northern
     easting, northing, _, _ = utm.from_latlon(
         lat, lon, force_zone_number=int(zone_number), force_northern=bool(northern)
     )

@@ -12,26 +12,18 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty._files import is_regular_file
-from vpr_uncertainty.data.dataset import (
+from vpr_uncertainty.data.dataset import Dataset, latlon_to_utm
+from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
+from vpr_uncertainty.data.images import find_split_folder, has_split, list_images, load_folder_dataset, numbered_order
+from vpr_uncertainty.plugins import Registry
+from vpr_uncertainty.retrieval.ground_truth import (
     DEFAULT_RADIUS,
-    Dataset,
     PositionKind,
     detect_position_kind,
-    latlon_to_utm,
     line_coordinate,
     positives_within_frames,
     positives_within_radius,
 )
-from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
-from vpr_uncertainty.data.images import (
-    DATABASE_FOLDERS,
-    QUERY_FOLDERS,
-    find_split_folder,
-    list_images,
-    load_folder_dataset,
-    numbered_order,
-)
-from vpr_uncertainty.plugins import Registry, load_target
 
 
 @dataclass(frozen=True)
@@ -76,13 +68,6 @@ def register_format(entry: DatasetFormat, *, overwrite: bool = False) -> Dataset
     return DATASET_FORMAT_REGISTRY.register(entry, overwrite=overwrite)
 
 
-def has_split(folder: Path) -> bool:
-    """Whether ``folder`` holds a database and a queries folder (VPR-datasets-downloader split layout)."""
-    return any((folder / name).is_dir() for name in DATABASE_FOLDERS) and any(
-        (folder / name).is_dir() for name in QUERY_FOLDERS
-    )
-
-
 def detect_format(path: str | Path) -> str:
     """The name of the registered format of a dataset path (file formats by suffix, folder formats by ``detect``).
 
@@ -104,13 +89,6 @@ def detect_format(path: str | Path) -> str:
             return entry.name
     expected = " or ".join(entry.expects for entry in DATASET_FORMAT_REGISTRY if entry.detect is not None)
     raise ValueError(f"{path} is not a dataset folder: expected {expected}")
-
-
-def read_format(file_format: str, path: Path, **arguments: Any) -> Dataset:
-    """Read ``path`` with the reader of the registered format ``file_format``."""
-    entry = DATASET_FORMAT_REGISTRY.get(file_format)
-    reader = load_target(entry.reader, what=f"dataset format {entry.name!r}", extra=entry.extra)
-    return reader(path, **arguments)
 
 
 def is_vprbench_folder(path: Path) -> bool:
@@ -195,12 +173,10 @@ _QUERY_ROLES = frozenset({"query", "queries", "q"})
 def _delimiter(path: Path, sample: str, delimiter: str | None) -> str:
     if delimiter is not None:
         return delimiter
-    if path.suffix.lower() == ".tsv":
-        return "\t"
-    if path.suffix.lower() == ".csv":
-        return ","
-    first = sample.splitlines()[0] if sample else ""
-    return "\t" if "\t" in first else ","
+    suffix = path.suffix.lower()
+    if suffix in (".csv", ".tsv"):
+        return "," if suffix == ".csv" else "\t"
+    return "\t" if "\t" in (sample.splitlines()[0] if sample else "") else ","
 
 
 def _column(header: dict[str, int], names: tuple[str, ...]) -> int | None:
@@ -255,8 +231,7 @@ def read_image_table(
         image = row[path_column].strip()
         if not image:
             raise ValueError(f"{where}: empty image path")
-        image_path = Path(image)
-        paths.append(image_path if image_path.is_absolute() else base / image_path)
+        paths.append(base / image)  # an absolute image path stays as it is
         for axis, column in enumerate(coordinate_columns):
             try:
                 values[row_index, axis] = float(row[column])
@@ -375,8 +350,7 @@ def load_poses_dataset(
                 f"{path}: expected arrays utmQ (queries × 2) and utmDb (database × 2) and optionally posDistThr, "
                 f"missing {', '.join(missing)} (found {', '.join(sorted(archive.files))})"
             )
-        query_positions = archive["utmQ"]
-        database_positions = archive["utmDb"]
+        query_positions, database_positions = archive["utmQ"], archive["utmDb"]
         threshold = float(archive["posDistThr"]) if "posDistThr" in archive.files else None
     for key, array in (("utmQ", query_positions), ("utmDb", database_positions)):
         if array.ndim != 2 or array.shape[1] != 2:
@@ -414,7 +388,6 @@ def load_vprbench_dataset(root: str | Path, *, name: str | None = None, n_databa
     ``ref/`` must match: give it only when the last reference images are no query's positive. Raises FileNotFoundError
     for a missing folder or ground truth, ValueError when an image count or name disagrees with the ground truth.
     """
-
     root = Path(root)
     paths = {}
     for folder in ("query", "ref"):

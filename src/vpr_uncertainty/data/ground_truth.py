@@ -189,8 +189,7 @@ def load_ground_truth(
         raise FileNotFoundError(f"ground truth file not found: {path}")
     if path.stat().st_size == 0:
         raise ValueError(f"{path} is empty (0 bytes); expected ground truth, one row of positives per query")
-    if n_database is not None:
-        n_database = check_n_database(n_database)
+    n_database = None if n_database is None else check_n_database(n_database)
     suffix = path.suffix.lower()
     text = dict.fromkeys((".txt", ".csv", ".tsv"), _from_text)
     reader = {".npy": _from_npy, ".npz": _from_npz, ".json": _from_json, **text}.get(suffix)

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from vpr_uncertainty._files import special_file_error
-from vpr_uncertainty.data.dataset import DEFAULT_RADIUS, Dataset, PositionKind, latlon_to_utm, positives_within_radius
+from vpr_uncertainty.data.dataset import Dataset, latlon_to_utm
+from vpr_uncertainty.retrieval.ground_truth import DEFAULT_RADIUS, PositionKind, positives_within_radius
 from vpr_uncertainty.retrieval.result import Retrieval
 
 #: File extensions read as images (case-insensitive).
@@ -268,6 +269,11 @@ def _pick(folder: Path, candidates: tuple[str, ...]) -> Path | None:
     return None
 
 
+def has_split(folder: Path) -> bool:
+    """Whether ``folder`` holds a database and a queries folder (VPR-datasets-downloader split layout)."""
+    return bool(_pick(folder, DATABASE_FOLDERS) and _pick(folder, QUERY_FOLDERS))
+
+
 def find_split_folder(root: str | Path, split: str = "test") -> Path:
     """The folder holding ``database/`` and ``queries/``: ``root``, ``root/split`` or ``root/images/split``.
 
@@ -276,7 +282,7 @@ def find_split_folder(root: str | Path, split: str = "test") -> Path:
     root = Path(root)
     candidates = [root, root / split, root / "images" / split]
     for candidate in candidates:
-        if _pick(candidate, DATABASE_FOLDERS) and _pick(candidate, QUERY_FOLDERS):
+        if has_split(candidate):
             return candidate
     looked = ", ".join(str(candidate) for candidate in candidates)
     splits = sorted(path.name for path in (root / "images").glob("*") if path.is_dir()) if root.is_dir() else []
@@ -484,24 +490,21 @@ def retrieval_image_paths(
     if images is None and query_images is None:
         raise ValueError("no image folder given (argument images)")
     if images is not None:
-        root = Path(images)
-        query_folder, database_folder = find_split_folders(root)
-        query_paths = _by_names(root, retrieval.query_names)
-        database_paths = _by_names(root, retrieval.database_names)
+        query_folder, database_folder = find_split_folders(images)
+        query_root = database_root = Path(images)
         query_argument = database_argument = "images"
     else:
-        query_folder, database_folder = Path(query_images), Path(database_images)  # type: ignore[arg-type]
-        query_paths = _by_names(query_folder, retrieval.query_names)
-        database_paths = _by_names(database_folder, retrieval.database_names)
+        query_folder = query_root = Path(query_images)  # type: ignore[arg-type]
+        database_folder = database_root = Path(database_images)  # type: ignore[arg-type]
         query_argument, database_argument = "query_images", "database_images"
+    query_paths = _by_names(query_root, retrieval.query_names)
+    database_paths = _by_names(database_root, retrieval.database_names)
     for folder, argument in ((query_folder, query_argument), (database_folder, database_argument)):
         if not folder.is_dir():
             raise FileNotFoundError(f"image folder not found: {folder} (argument {argument})")
     numbered = images is not None and query_folder.name == IMAGE_SPLIT_FOLDERS[0][0]  # VPR-Bench: names are indices
-    if query_paths is None:
-        query_paths = _listed(query_folder, query_argument, numbered)
-    if database_paths is None:
-        database_paths = _listed(database_folder, database_argument, numbered)
+    query_paths = query_paths or _listed(query_folder, query_argument, numbered)
+    database_paths = database_paths or _listed(database_folder, database_argument, numbered)
     check_image_counts(
         retrieval,
         len(query_paths),

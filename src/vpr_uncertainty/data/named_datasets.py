@@ -15,16 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.data.dataset import Dataset, PositionKind, line_coordinate, positives_within_frames
+from vpr_uncertainty.data.dataset import Dataset
 from vpr_uncertainty.data.formats import (
+    DATASET_FORMAT_REGISTRY,
     detect_format,
-    has_split,
     is_vprbench_folder,
     load_vprbench_dataset,
-    read_format,
 )
-from vpr_uncertainty.data.images import load_folder_dataset
-from vpr_uncertainty.plugins import Registry
+from vpr_uncertainty.data.images import has_split, load_folder_dataset
+from vpr_uncertainty.plugins import Registry, load_target
+from vpr_uncertainty.retrieval.ground_truth import PositionKind, line_coordinate, positives_within_frames
 
 # --- the corridor download ---
 
@@ -55,17 +55,13 @@ def corridor_files() -> dict[str, str]:
     return json.loads(text)
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
 def verify_corridor(folder: str | Path) -> list[str]:
     """Relative paths of the corridor files that are missing or whose checksum differs (empty when complete)."""
     folder = Path(folder)
     return [
         name
         for name, digest in corridor_files().items()
-        if not (folder / name).is_file() or _sha256(folder / name) != digest
+        if not (folder / name).is_file() or hashlib.sha256((folder / name).read_bytes()).hexdigest() != digest
     ]
 
 
@@ -176,7 +172,6 @@ def read_named_datasets(text: str | None = None) -> list[NamedDataset]:
         text = resources.files("vpr_uncertainty.data").joinpath("named_datasets.json").read_text(encoding="utf-8")
     document = json.loads(text)
     downloader = str(document.get("downloader", ""))
-
     fields = {item.name for item in dataclasses.fields(NamedDataset)}
     records = []
     for number, record in enumerate(document["datasets"]):
@@ -275,10 +270,7 @@ def _frames_from_dummy(dataset: Dataset, entry: NamedDataset, tolerance: float) 
         positives=positives_within_frames(frames[n_database:], frames[:n_database], tolerance),
         positive_radius=float(tolerance),
         position_kind="frames",
-        info={
-            **dataset.info,
-            "positions": f"frame index, recovered from dummy UTM ({entry.frame_spacing:.4f} m/frame)",
-        },
+        info=dict(dataset.info, positions=f"frame index, recovered from dummy UTM ({entry.frame_spacing:.4f} m/frame)"),
     )
 
 
@@ -363,5 +355,6 @@ def load_dataset(
                 f"({', '.join(NAMED_DATASET_REGISTRY.names())})"
             ) from None
         return _load_named(entry, root, split, radius)
-    arguments = {"split": split, "radius": radius, "queries": queries, "name": name, "position_kind": position_kind}
-    return read_format(detect_format(path), path, **arguments)
+    entry = DATASET_FORMAT_REGISTRY.get(detect_format(path))
+    reader = load_target(entry.reader, what=f"dataset format {entry.name!r}", extra=entry.extra)
+    return reader(path, split=split, radius=radius, queries=queries, name=name, position_kind=position_kind)

@@ -8,6 +8,7 @@ import re
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -188,10 +189,6 @@ def _read_matrix(
     return Retrieval.from_distances(-scores, indices, positives=positives, config=config)
 
 
-def _read_vprbench(path: Path, **options: Any) -> Retrieval:
-    return _read_matrix(path, **options, file_format="vprbench")
-
-
 def _read_log(path: Path, *, ground_truth: str | Path | None, top_k: int, **_: Any) -> Retrieval:
     return read_vpr_methods_evaluation(path, ground_truth=ground_truth, top_k=top_k).retrieval
 
@@ -221,7 +218,7 @@ for _entry in (
     ResultsFormat(
         "vprbench",
         "VPR-Bench's precomputed_data_corrected.npy",
-        _read_vprbench,
+        partial(_read_matrix, file_format="vprbench"),
         provides=("scores",),
         reads_distances=True,
     ),
@@ -267,10 +264,8 @@ def _check_similarity_values(
         )
 
 
-def _open_similarity(path: str | Path, file_format: str, *, mmap: bool) -> np.ndarray:
+def _open_similarity(path: Path, file_format: str, *, mmap: bool) -> np.ndarray:
     """The matrix of ``path`` with dtype and shape checked (values not yet); memory-mapped when ``mmap``."""
-
-    path = Path(path)
     if not is_regular_file(path, "a similarity matrix"):
         raise FileNotFoundError(f"similarity file not found: {path}")
     if file_format == "vprbench":
@@ -385,7 +380,6 @@ def read_arguments(log: str | Path) -> dict[str, Any]:
 
 def _jpg_images(folder: Path) -> list[Path]:
     """That tool's image list: every ``*.jpg`` under ``folder``, recursively, sorted by path, hidden ones left out."""
-
     found = (path for path in folder.glob("**/*.jpg") if not any(map(is_hidden, path.relative_to(folder).parts)))
     return sorted(found, key=lambda path: str(path))
 
@@ -480,7 +474,6 @@ def read_vpr_methods_evaluation(
     ValueError
         When the ground truth can neither be read nor derived (the message says why).
     """
-
     folder = Path(folder)
     missing = [name for name in LOG_FILES if not is_regular_file(folder / name, "a descriptor file")]
     if missing:
@@ -503,9 +496,12 @@ def read_vpr_methods_evaluation(
     )
     lists = _image_lists(arguments, len(queries), len(database), folder)
     query_paths, database_paths = lists if lists is not None else (None, None)
+    names = {}
+    if lists is not None:
+        names = {"query_names": [str(p) for p in query_paths], "database_names": [str(p) for p in database_paths]}
     if ground_truth is not None:
         positives = load_ground_truth(ground_truth, n_queries=len(queries), n_database=len(database))
-        fields = ground_truth_fields(len(queries), len(database), positives=positives)
+        fields = ground_truth_fields(len(queries), len(database), positives=positives, **names)
         notes.append(f"ground truth from {ground_truth}")
     elif lists is not None:
         threshold = radius if radius is not None else arguments.get("positive_dist_threshold") or 25.0
@@ -516,6 +512,7 @@ def read_vpr_methods_evaluation(
             database_positions=_utm(database_paths, Path(arguments["database_folder"])),  # type: ignore[arg-type]
             radius=float(threshold),
             position_kind="metres",
+            **names,
         )
         notes.append(f"ground truth: database images within {float(threshold):g} m (UTM in the image names)")
     else:
@@ -526,12 +523,6 @@ def read_vpr_methods_evaluation(
             else "it has no info.log naming the image folders"
         )
         raise ValueError(f"{folder}: no ground truth: {why}; give the ground truth (argument ground_truth)")
-    if database_paths is not None:
-        names = {
-            "query_names": [str(p) for p in query_paths],  # type: ignore[union-attr]
-            "database_names": [str(p) for p in database_paths],
-        }
-        fields = {**fields, **{key: np.asarray(value) for key, value in names.items()}}
     retrieval = attach_ground_truth(retrieval, fields)
     if database_paths is not None:
         checked = _check_predictions(folder, retrieval, database_paths)
@@ -684,8 +675,7 @@ def _open_npy(path: Path) -> DescriptorRows:
     if not isinstance(array, np.memmap) or not array.flags.c_contiguous:
         return DescriptorRows.from_array(array, source=str(path))  # empty, or Fortran-ordered: sliced
     shape, dtype, offset = array.shape, array.dtype, int(array.offset)  # a fresh mapping of the whole file
-    dimension = shape[1]
-    row_bytes = dimension * dtype.itemsize
+    dimension, row_bytes = shape[1], shape[1] * dtype.itemsize
     del array
 
     def read(start: int, stop: int) -> np.ndarray:

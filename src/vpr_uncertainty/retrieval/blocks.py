@@ -52,8 +52,6 @@ class DescriptorRows:
     def from_array(cls, array: np.ndarray, *, source: str = "array") -> DescriptorRows:
         """Rows of an array (a :class:`numpy.memmap` is sliced: the pages read stay mapped while it lives)."""
         array = np.asarray(array) if not isinstance(array, np.ndarray) else array
-        if array.ndim != 2:
-            raise ValueError(f"{source}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
         return cls(lambda start, stop: array[start:stop], array.shape, source=source)
 
     def __len__(self) -> int:
@@ -175,8 +173,7 @@ def top_k_blocks(
         if check_block is not None:
             check_block(block, start)
         values, candidates = _top_k_block(block if higher_is_better else -block, k)
-        scores[start : start + len(block)] = values
-        indices[start : start + len(block)] = candidates
+        scores[start : start + len(block)], indices[start : start + len(block)] = values, candidates
     indices[scores == -np.inf] = -1  # -inf = no candidate: the retrieval convention pairs it with index -1
     return scores, indices
 

@@ -56,18 +56,13 @@ def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
     if retrieval.distances is not None:
         arrays["distances"] = retrieval.distances.astype(np.float32, copy=False)
     if retrieval.positives is not None:
-        positives = retrieval.positives
-        arrays["positives_indptr"] = positives.indptr.astype(np.int64)
-        arrays["positives_indices"] = positives.indices.astype(np.int64)
-        arrays["n_database"] = np.array(positives.shape[1])
-    for name in ("query_names", "database_names"):
+        arrays["positives_indptr"] = retrieval.positives.indptr.astype(np.int64)
+        arrays["positives_indices"] = retrieval.positives.indices.astype(np.int64)
+        arrays["n_database"] = np.array(retrieval.positives.shape[1])
+    for name in ("query_names", "database_names", "query_positions", "database_positions"):
         value = getattr(retrieval, name)
         if value is not None:
-            arrays[name] = np.asarray(value, dtype=str)
-    for name in ("query_positions", "database_positions"):
-        value = getattr(retrieval, name)
-        if value is not None:
-            arrays[name] = np.asarray(value, dtype=np.float64)
+            arrays[name] = np.asarray(value, dtype=str if name.endswith("_names") else np.float64)
     arrays["checksum"] = np.array(_checksum(arrays))
     with atomic_write(path, "wb") as handle:  # written whole, then renamed: never a truncated file
         np.savez_compressed(handle, **arrays)
@@ -97,22 +92,18 @@ def load_retrieval(path: str | Path) -> Retrieval:
     missing = {"scores", "indices"} - set(arrays)
     if missing:
         raise ValueError(f"{path} is not a retrieval file: missing {sorted(missing)} (found {sorted(arrays)})")
-
     try:
         _format_version(arrays)
         scores = check_scores(arrays["scores"])  # first, so that the positives are checked against them
         check_indices(arrays["indices"], scores)
         positives = _positives(arrays, scores.shape[0])
+        optional = ("distances", "query_names", "database_names", "query_positions", "database_positions")
         retrieval = Retrieval(
             scores=scores,
             indices=arrays["indices"],
             positives=positives,
-            distances=arrays.get("distances"),
-            query_names=arrays.get("query_names"),
-            database_names=arrays.get("database_names"),
-            query_positions=arrays.get("query_positions"),
-            database_positions=arrays.get("database_positions"),
             config=_config(arrays),
+            **{name: arrays.get(name) for name in optional},
         )
         names = {"query_names": retrieval.query_names, "database_names": retrieval.database_names}
         check_distinct(retrieval.indices, names)
@@ -138,19 +129,17 @@ def _read_arrays(path: Path) -> dict[str, np.ndarray]:
         raise ValueError(f"retrieval file {path} is empty (0 bytes); write it again")
     try:
         archive = np.load(path, allow_pickle=False)
-        if not isinstance(archive, np.lib.npyio.NpzFile):
-            raise ValueError(f"retrieval file {path} is a single .npy array, not a .npz archive of named arrays")
-        with archive:
-            return {key: archive[key] for key in archive.files}
+        if isinstance(archive, np.lib.npyio.NpzFile):
+            with archive:
+                return {key: archive[key] for key in archive.files}
     except PermissionError:
         raise
     except _READ_ERRORS as error:
-        if str(error).startswith(f"retrieval file {path}"):
-            raise
         detail = str(error) or type(error).__name__
         raise ValueError(
             f"retrieval file {path} cannot be read as a .npz archive (truncated or not a retrieval file?): {detail}"
         ) from None
+    raise ValueError(f"retrieval file {path} is a single .npy array, not a .npz archive of named arrays")
 
 
 def _scalar_int(name: str, value: np.ndarray) -> int:
@@ -164,14 +153,11 @@ def _format_version(arrays: dict[str, np.ndarray]) -> int:
     if "format_version" not in arrays:
         return maximum  # written by another tool: read as the current version
     value = arrays["format_version"]
-    if value.ndim != 0 or value.dtype == bool or not np.issubdtype(value.dtype, np.integer):
+    if value.ndim != 0 or value.dtype == bool or not np.issubdtype(value.dtype, np.integer) or value < 1:
         raise ValueError(f"format_version must be an integer between 1 and {maximum}, got {value.tolist()!r}")
-    version = int(value)
-    if version < 1:
-        raise ValueError(f"format_version must be an integer between 1 and {maximum}, got {version}")
-    if version > maximum:
-        raise ValueError(f"format_version is {version}; this toolkit reads up to {maximum}. Upgrade vpr-uncertainty")
-    return version
+    if value > maximum:
+        raise ValueError(f"format_version is {value}; this toolkit reads up to {maximum}. Upgrade vpr-uncertainty")
+    return int(value)
 
 
 def _positives(arrays: dict[str, np.ndarray], n_queries: int) -> sparse.csr_array | None:

@@ -17,21 +17,6 @@ from scipy import sparse
 
 from vpr_uncertainty.retrieval.result import Retrieval
 
-__all__ = [
-    "DEFAULT_RADIUS",
-    "FIELDS",
-    "POSITION_KINDS",
-    "PositionKind",
-    "attach_ground_truth",
-    "check_positions",
-    "check_radius",
-    "detect_position_kind",
-    "ground_truth_fields",
-    "line_coordinate",
-    "positives_within_frames",
-    "positives_within_radius",
-]
-
 PositionKind = Literal["metres", "frames", "placeholder"]
 #: The values of :attr:`Dataset.position_kind` (besides None: no positions).
 POSITION_KINDS: tuple[str, ...] = ("metres", "frames", "placeholder")

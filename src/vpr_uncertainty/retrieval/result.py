@@ -84,29 +84,16 @@ class Retrieval:
     @property
     def n_database(self) -> int | None:
         """Number of database images, when the positives, the database names or positions tell it."""
-        if self.positives is not None:
-            return int(self.positives.shape[1])
-        for value in (self.database_names, self.database_positions):
-            if value is not None:
-                return len(value)
-        return None
+        return int(self.positives.shape[1]) if self.positives is not None else _known_database_size(self)
 
     def subset_queries(self, rows: np.ndarray) -> Retrieval:
         """The retrieval of the queries ``rows`` only (an index array or a boolean mask), same database."""
         rows = np.asarray(rows)
-
-        def take(value: Any) -> Any:
-            return None if value is None else value[rows]
-
-        return dataclasses.replace(
-            self,
-            scores=self.scores[rows],
-            indices=self.indices[rows],
-            positives=take(self.positives),
-            distances=take(self.distances),
-            query_names=take(self.query_names),
-            query_positions=take(self.query_positions),
-        )
+        taken = {}
+        for name in ("scores", "indices", "positives", "distances", "query_names", "query_positions"):
+            value = getattr(self, name)
+            taken[name] = None if value is None else value[rows]
+        return dataclasses.replace(self, **taken)
 
     @property
     def n_queries(self) -> int:
@@ -168,15 +155,18 @@ def check_scores(scores: object) -> np.ndarray:
             raise ValueError(f"scores contains NaN (first at {_where(_first(nan))}); expected finite similarities")
         if (scores == np.inf).any():
             raise ValueError(f"scores contains +inf (first at {_where(_first(scores == np.inf))})")
-    if scores.shape[1] > 1:
-        unsorted = scores[:, 1:] > scores[:, :-1]
-        if unsorted.any():
-            row, column = _first(unsorted)
-            raise ValueError(
-                f"scores must be sorted in descending order along each row, but row {row} has "
-                f"{scores[row, column]} before {scores[row, column + 1]}"
-            )
+    _check_sorted("scores", scores, descending=True)
     return scores
+
+
+def _check_sorted(name: str, array: np.ndarray, *, descending: bool) -> None:
+    unsorted = array[:, 1:] > array[:, :-1] if descending else array[:, 1:] < array[:, :-1]
+    if unsorted.any():
+        row, column = _first(unsorted)
+        order = "descending order along each row" if descending else "ascending order along each row (nearest first)"
+        raise ValueError(
+            f"{name} must be sorted in {order}, but row {row} has {array[row, column]} before {array[row, column + 1]}"
+        )
 
 
 def check_indices(indices: object, scores: np.ndarray) -> np.ndarray:
@@ -242,39 +232,25 @@ def _check_distances(distances: object, indices: np.ndarray) -> np.ndarray:
             f"distances holds {distances[position]} at {_where(position)}; expected finite squared L2 distances "
             ">= 0, and +inf where a candidate is missing (index -1)"
         )
-    if distances.shape[1] > 1:
-        unsorted = distances[:, 1:] < distances[:, :-1]
-        if unsorted.any():
-            row, column = _first(unsorted)
-            raise ValueError(
-                f"distances must be sorted in ascending order along each row (nearest first), but row {row} has "
-                f"{distances[row, column]} before {distances[row, column + 1]}"
-            )
+    _check_sorted("distances", distances, descending=False)
     return distances
 
 
-def _check_names(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
+def _check_rows(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
+    """Names (1-D strings) or positions (2-D finite real numbers), one row per ``what``; None stays None."""
     if value is None:
         return None
-    array = np.asarray(value)
-    if array.ndim != 1 or array.dtype.kind not in "USO":
+    positions = name.endswith("_positions")
+    array = _check_real(name, value) if positions else np.asarray(value)
+    if positions and (array.ndim != 2 or array.shape[1] < 1):
+        raise ValueError(f"{name} must have shape (n_images, 2) (one row per {what}), got shape {array.shape}")
+    if not positions and (array.ndim != 1 or array.dtype.kind not in "USO"):
         raise ValueError(
             f"{name} must be a 1-D array of strings (one per {what}), got dtype {array.dtype} and shape {array.shape}"
         )
     if expected is not None and len(array) != expected:
         raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what})")
-    return array
-
-
-def _check_positions(name: str, value: object, expected: int | None, what: str) -> np.ndarray | None:
-    if value is None:
-        return None
-    array = _check_real(name, value)
-    if array.ndim != 2 or array.shape[1] < 1:
-        raise ValueError(f"{name} must have shape (n_images, 2) (one row per {what}), got shape {array.shape}")
-    if expected is not None and len(array) != expected:
-        raise ValueError(f"{name} has {len(array)} entries, expected {expected} (one per {what})")
-    if not np.isfinite(array).all():
+    if positions and not np.isfinite(array).all():
         raise ValueError(f"{name} holds a non-finite value (first at {_where(_first(~np.isfinite(array)))})")
     return array
 
@@ -302,10 +278,10 @@ def check_retrieval_fields(retrieval: Any) -> None:
             raise ValueError(
                 f"positives has {retrieval.positives.shape[0]} rows but there are {n_queries} queries (scores rows)"
             )
-    retrieval.query_names = _check_names("query_names", retrieval.query_names, n_queries, "query")
-    retrieval.database_names = _check_names("database_names", retrieval.database_names, None, "database image")
-    retrieval.query_positions = _check_positions("query_positions", retrieval.query_positions, n_queries, "query")
-    retrieval.database_positions = _check_positions(
+    retrieval.query_names = _check_rows("query_names", retrieval.query_names, n_queries, "query")
+    retrieval.database_names = _check_rows("database_names", retrieval.database_names, None, "database image")
+    retrieval.query_positions = _check_rows("query_positions", retrieval.query_positions, n_queries, "query")
+    retrieval.database_positions = _check_rows(
         "database_positions", retrieval.database_positions, None, "database image"
     )
     if retrieval.query_positions is not None and retrieval.database_positions is not None:
@@ -315,13 +291,9 @@ def check_retrieval_fields(retrieval: Any) -> None:
                 f"{retrieval.database_positions.shape[1]}; they must agree"
             )
     sizes = {
-        name: length
-        for name, length in (
-            ("positives", None if retrieval.positives is None else retrieval.positives.shape[1]),
-            ("database_names", None if retrieval.database_names is None else len(retrieval.database_names)),
-            ("database_positions", None if retrieval.database_positions is None else len(retrieval.database_positions)),
-        )
-        if length is not None
+        name: value.shape[1] if name == "positives" else len(value)
+        for name in ("positives", "database_names", "database_positions")
+        if (value := getattr(retrieval, name)) is not None
     }
     if len(set(sizes.values())) > 1:
         described = ", ".join(f"{name}: {length}" for name, length in sizes.items())
@@ -387,11 +359,8 @@ def coerce_positives(value: object, *, n_database: int | None, indices: np.ndarr
         lists = positives_from_lists(rows, n_database=n_database)
     except ValueError as error:
         raise ValueError(f"{error} (positives must be {_EXPECTED})") from None
-    if n_database is None:
-        largest = int(lists.indices.max()) if lists.nnz else -1
-        if indices.size:
-            largest = max(largest, int(indices.max()))
-        n_database = largest + 1
+    if n_database is None:  # the lists cover their largest positive already
+        n_database = max(lists.shape[1], int(indices.max()) + 1 if indices.size else 0)
         lists = sparse.csr_array((lists.data, lists.indices, lists.indptr), shape=(lists.shape[0], n_database))
     return lists
 
@@ -484,8 +453,7 @@ def positives_from_lists(
     >>> positives_from_lists([[1], [0, 1]]).shape
     (2, 2)
     """
-    if n_database is not None:
-        n_database = check_n_database(n_database)
+    n_database = None if n_database is None else check_n_database(n_database)
     prefix = f"{source}: " if source is not None else ""
     rows = [_index_row(item, query, n_database, prefix) for query, item in enumerate(lists)]
     if n_database is None:

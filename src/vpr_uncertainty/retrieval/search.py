@@ -54,9 +54,8 @@ def _check_norms(squared: np.ndarray, descriptors: np.ndarray, name: str, first_
 
 def _check_nonzero(squared: np.ndarray, name: str) -> None:
     """All-zero rows (squared norm 0) raise, naming them."""
-    zero = squared == 0
-    if zero.any():
-        rows = np.flatnonzero(zero)
+    rows = np.flatnonzero(squared == 0)
+    if rows.size:
         shown = ", ".join(str(r) for r in rows[:5]) + (", ..." if rows.size > 5 else "")
         raise ValueError(
             f"{name} has {rows.size} all-zero row(s) (rows {shown}); a zero vector has no direction and cannot be "
@@ -214,8 +213,7 @@ def search_descriptors(
     faiss = _import_faiss()
     block = _database_block(database, database_block, index, device)
     if block is not None:
-        database = _as_rows(database)
-        database_owned = False
+        database, database_owned = _as_rows(database), False
     else:
         database, database_owned = _as_descriptors(database, "database")
     queries, queries_owned = _as_descriptors(queries, "queries")
@@ -252,11 +250,8 @@ def search_descriptors(
             stop = start + len(batch)
             scores[start:stop, :kept], indices[start:stop, :kept] = _block_top_k(searcher, batch, k, n_database)
             bar.update(len(batch))
-    missing = indices < 0
-    scores[missing] = -np.inf
     # Scores of normalised descriptors by construction (an approximate index may exceed 1 slightly): no range check.
-    distances = squared_distances_from_similarities(scores, check=False)
-    return scores, indices, distances
+    return scores, indices, squared_distances_from_similarities(scores, check=False)
 
 
 def retrieve(
@@ -362,11 +357,10 @@ def retrieve(
         "device": device,
         "n_database": n_database,
         "n_queries": int(np.shape(queries)[0]),
+        **({"search_params": search_params} if search_params else {}),
+        "dimension": dimension,
+        **(config or {}),
     }
-    if search_params:
-        settings["search_params"] = search_params
-    settings["dimension"] = dimension
-    settings.update(config or {})
     result = Retrieval(scores=scores, indices=indices, distances=distances, config=settings)
     return result if ground_truth is None else attach_ground_truth(result, ground_truth)
 
@@ -510,16 +504,13 @@ class _Searcher:
             if search_params:
                 raise ValueError(f"search_params {search_params!r} need an approximate index; exact search has none")
             return  # faiss.knn_inner_product on the array itself: no copy of the database into an index
-        if device == "cuda":
-            if not hasattr(faiss, "StandardGpuResources") or faiss.get_num_gpus() < 1:
-                if hasattr(faiss, "StandardGpuResources"):
-                    reason = "has GPU support but sees no GPU"
-                else:
-                    reason = "is built without GPU support"
-                raise ValueError(
-                    f"device='cuda' needs GPU Faiss and a visible GPU, but this Faiss ({faiss.__version__}) {reason}; "
-                    "install faiss-gpu and check CUDA_VISIBLE_DEVICES, or use device='cpu'"
-                )
+        gpu_faiss = hasattr(faiss, "StandardGpuResources")
+        if device == "cuda" and not (gpu_faiss and faiss.get_num_gpus() > 0):
+            reason = "has GPU support but sees no GPU" if gpu_faiss else "is built without GPU support"
+            raise ValueError(
+                f"device='cuda' needs GPU Faiss and a visible GPU, but this Faiss ({faiss.__version__}) {reason}; "
+                "install faiss-gpu and check CUDA_VISIBLE_DEVICES, or use device='cpu'"
+            )
         dimension = database.shape[1]
         try:
             built = faiss.index_factory(dimension, index, faiss.METRIC_INNER_PRODUCT)
