@@ -63,7 +63,7 @@ def recall_list(text: str) -> tuple[int, ...]:
 
 def method_list(text: str) -> list[str]:
     """Comma-separated method specs (``SU,SUE:clip=one-sided,slope=300``) checked against the registry."""
-    from vpr_uncertainty.methods import get_method, split_method_list
+    from vpr_uncertainty.methods import split_method_list
 
     try:
         specs = split_method_list(text)
@@ -85,6 +85,13 @@ METHOD_SPEC_HELP = (
 )
 
 
+#: Help of ``--bootstrap`` (evaluate, run, reproduce).
+BOOTSTRAP_HELP = (
+    "bootstrap resamples for 95 %% intervals of AUC-PR, AP and AURC, a paired test of each method's AUC-PR against "
+    "the reference (Holm-corrected) and a best marked only where significant; 0 = none, 1000 is usual"
+)
+
+
 @dataclass(frozen=True)
 class EvaluateConf:
     """Which uncertainties are computed and how they are evaluated; each field is also a command-line option."""
@@ -99,13 +106,7 @@ class EvaluateConf:
     )
     k: int = option(10, "candidates per query for RS/SD/SU", type=candidate_count)
     alpha: float = option(0.5, "weight of RS in SU, in [0, 1]", type=checked_number(check_alpha))
-    bootstrap: int = option(
-        0,
-        "bootstrap resamples for 95 %% intervals of AUC-PR, AP and AURC, a paired test of each method's AUC-PR against "
-        "the reference (Holm-corrected) and a best marked only where significant; 0 = none, 1000 is usual",
-        type=integer_at_least(0),
-        metavar="N",
-    )
+    bootstrap: int = option(0, BOOTSTRAP_HELP, type=integer_at_least(0), metavar="N")
     seed: int = option(0, "seed of the bootstrap resamples (and of the held-out splits)", type=integer_at_least(0))
     reference: str | None = option(
         None,
@@ -227,8 +228,6 @@ _IMAGES_HINT = (
 
 
 def _verifying(methods: list[str]) -> list[str]:
-    from vpr_uncertainty.methods import get_method
-
     def verifies(name: str) -> bool:
         entry = get_method(name)
         accepted = entry.accepted_options()
@@ -296,7 +295,7 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
 
 
 def _method_help() -> str:
-    from vpr_uncertainty.methods import available_methods, get_method
+    from vpr_uncertainty.methods import available_methods
 
     return "\n".join(f"  {name:<8} {get_method(name).description}" for name in available_methods())
 
@@ -402,13 +401,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         help="share of the queries used to fit CAL in each split, in (0, 1), e.g. 0.3",
     )
     held_out.add_argument("--repeats", type=positive_int, default=20, help="random splits (default 20)")
-    add_options(
-        parser.add_argument_group(
-            "confidence intervals and paired tests (paired bootstrap over queries: the same resamples for every method)"
-        ),
-        EvaluateConf,
-        only=("bootstrap", "seed", "reference"),
-    )
+    add_bootstrap_conf_options(parser)
     learned = parser.add_argument_group("options of methods that need more than scores")
     learned.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: the head written by train-btl")
     learned.add_argument(
@@ -429,12 +422,20 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=_handle)
 
 
+def add_bootstrap_conf_options(parser: argparse.ArgumentParser, **overrides: Any) -> None:
+    """The ``bootstrap``, ``seed`` and ``reference`` options of :class:`EvaluateConf` in one group (evaluate, run,
+    reproduce); ``overrides``: the ``help`` and ``defaults`` of :func:`~.options.add_options`."""
+    group = parser.add_argument_group(
+        "confidence intervals and paired tests (paired bootstrap over queries: the same resamples for every method)"
+    )
+    add_options(group, EvaluateConf, only=("bootstrap", "seed", "reference"), **overrides)
+
+
 def method_options(args: argparse.Namespace) -> dict[str, Any]:
     """The method options the flags of ``evaluate``, ``run`` and ``reproduce`` give (only those given)."""
-    options: dict[str, Any] = {}
-    for name in ("btl_head", "verify_fraction"):
-        if getattr(args, name, None) is not None:
-            options[name] = getattr(args, name)
+    options = {
+        name: getattr(args, name) for name in ("btl_head", "verify_fraction") if getattr(args, name, None) is not None
+    }
     if getattr(args, "descriptors", None) is not None:
         options.update(query_descriptors=args.descriptors, database_descriptors=args.descriptors)
     if getattr(args, "allow_train_queries", False):
@@ -483,8 +484,6 @@ def _handle(args: argparse.Namespace) -> int:
 
 def _check_verifies(methods: list[str]) -> None:
     """Refuse ``--executor ray`` when no selected method verifies images (nothing of evaluate would run there)."""
-    from vpr_uncertainty.methods import get_method
-
     if not any(get_method(name).kind in ("geometric", "cascade") for name in methods):
         raise ValueError(
             f"--executor ray: evaluate runs only geometric verification (GV-*, SCORE+GV) on Ray, and none of the "

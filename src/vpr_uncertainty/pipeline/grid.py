@@ -29,12 +29,11 @@ from vpr_uncertainty import cache
 from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, auc_pr, correct_at_n
 from vpr_uncertainty.methods import get_method
 from vpr_uncertainty.pipeline import evaluate
-from vpr_uncertainty.pipeline.evaluate import EvaluateConf
+from vpr_uncertainty.pipeline.evaluate import BOOTSTRAP_HELP, EvaluateConf, add_bootstrap_conf_options
 from vpr_uncertainty.pipeline.grid_config import GridConfig, InputEntry, full_query_methods, load_config
 from vpr_uncertainty.pipeline.grid_report import Cell, write_reports, write_results
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
-    add_bootstrap_options,
     add_executor_options,
     add_figure_width_option,
     executor_from_args,
@@ -109,7 +108,12 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--no-report", action="store_true", help="write results.json/csv only (no tables, figures)")
     add_figure_width_option(parser)
-    add_bootstrap_options(parser, defaults_from_config=True)
+    from_config = " (default: the config's, else 0)"  # None: the config's value applies unless given
+    add_bootstrap_conf_options(
+        parser,
+        help={"bootstrap": BOOTSTRAP_HELP + from_config, "seed": "seed of the bootstrap resamples" + from_config},
+        defaults={"bootstrap": None, "seed": None},
+    )
     parser.add_argument(
         "--verify-fraction",
         type=fraction,
@@ -247,12 +251,10 @@ def positive_hits(retrieval: Any, n: int) -> np.ndarray:
 
 def _image_dataset(entry: InputEntry) -> Any:
     """The image dataset of a cell: its ``images`` folder, or the dataset a model runs on (None: no images)."""
+    from vpr_uncertainty.data import load_dataset, load_vprbench_dataset
+
     if entry.model is None:
-        from vpr_uncertainty.data import load_vprbench_dataset
-
         return None if entry.images is None else load_vprbench_dataset(entry.images)
-    from vpr_uncertainty.data import load_dataset
-
     options = entry.run_options
     return load_dataset(entry.dataset_source, root=options.get("root"), split=options.get("split"))
 
@@ -444,14 +446,10 @@ def run_cell(
     start = time.perf_counter()
     retrieval, evaluation = _load_cell_input(entry, config, out, dataset, seconds)
     seconds["input"] = time.perf_counter() - start
-    query_paths = database_paths = None
-    if dataset is not None and dataset.has_images:
-        query_paths = [str(p) for p in dataset.query_paths]
-        database_paths = [str(p) for p in dataset.database_paths]
-        if len(query_paths) != retrieval.n_queries:
-            query_paths = database_paths = None
     # Image-based methods (geometric verification) get the images and one local-feature cache for the grid.
-    options = {} if query_paths is None else {"query_paths": query_paths, "database_paths": database_paths}
+    options: dict[str, list[str]] = {}
+    if dataset is not None and dataset.has_images and len(dataset.query_paths) == retrieval.n_queries:
+        options = {name: [str(p) for p in getattr(dataset, name)] for name in ("query_paths", "database_paths")}
     start = time.perf_counter()
     if evaluation is None:
         inputs = {"cache_dir": out / "local_features", **options}
@@ -474,8 +472,8 @@ def run_cell(
         ablation_alpha=alpha_curve,
         ablation_k=k_curve,
         hits=positive_hits(retrieval, HIT_COLUMNS),
-        query_paths=query_paths,
-        database_paths=database_paths,
+        query_paths=options.get("query_paths"),
+        database_paths=options.get("database_paths"),
         held_out=None
         if config.calibration is None
         else held_out_evaluation(retrieval, config, cache_dir=out / "local_features", **options),
@@ -484,11 +482,6 @@ def run_cell(
     if fingerprint is not None:
         save_cell(cell, json_path, npz_path, fingerprint, input_digests)
     return cell
-
-
-def _run_cell_task(entry: InputEntry, config: GridConfig, force: bool, verify: bool = False) -> Cell:
-    """:func:`run_cell` with positional settings (the task an executor runs for each cell)."""
-    return run_cell(entry, config, force=force, verify=verify)
 
 
 def run_grid(
@@ -529,7 +522,7 @@ def run_grid(
         if executor is not None and executor.name != "local":
             from vpr_uncertainty.geometric.cache import deferring_writes, store_features
 
-            task = partial(deferring_writes, partial(_run_cell_task, config=config, force=force, verify=verify))
+            task = partial(deferring_writes, partial(run_cell, config=config, force=force, verify=verify))
             results = executor.map(task, config.inputs, on_result=lambda result: bar.update(1))
             store_features(pending for _, pending in results)  # no task is running: this process is the one writer
             return [cell for cell, _ in results]

@@ -9,6 +9,7 @@ methods or options, unknown report figures or their options, ``vpr_methods`` tha
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import zipfile
 from collections.abc import Sequence
@@ -33,17 +34,17 @@ from vpr_uncertainty.scores import check_alpha
 def read_mapping(path: Path) -> dict[str, Any]:
     """The top-level mapping of a TOML or YAML file; a syntax error is one line naming the file and the line."""
     suffix = path.suffix.lower()
-    if suffix == ".toml":
-        import tomllib
+    if suffix not in (".toml", ".yaml", ".yml"):
+        raise ValueError(f"unsupported configuration file {path}: expected .toml, .yaml or .yml")
+    try:
+        if suffix == ".toml":
+            import tomllib
 
-        try:
-            with path.open("rb") as file:
-                return tomllib.load(file)
-        except tomllib.TOMLDecodeError as error:  # its message ends with "(at line L, column C)"
-            raise ValueError(f"{path}: invalid TOML: {error}") from None
-        except UnicodeDecodeError as error:
-            raise ValueError(f"{path}: not a UTF-8 text file ({error.reason} at byte {error.start})") from None
-    if suffix in (".yaml", ".yml"):
+            try:
+                with path.open("rb") as file:
+                    return tomllib.load(file)
+            except tomllib.TOMLDecodeError as error:  # its message ends with "(at line L, column C)"
+                raise ValueError(f"{path}: invalid TOML: {error}") from None
         try:
             import yaml
         except ImportError as error:
@@ -57,25 +58,23 @@ def read_mapping(path: Path) -> dict[str, Any]:
             where = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
             problem = getattr(error, "problem", None) or str(error).splitlines()[0]
             raise ValueError(f"{path}{where}: invalid YAML: {problem}") from None
-        except UnicodeDecodeError as error:
-            raise ValueError(f"{path}: not a UTF-8 text file ({error.reason} at byte {error.start})") from None
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: the configuration must be a mapping at the top level")
-        return data
-    raise ValueError(f"unsupported configuration file {path}: expected .toml, .yaml or .yml")
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: not a UTF-8 text file ({error.reason} at byte {error.start})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: the configuration must be a mapping at the top level")
+    return data
 
 
-def _count(data: dict[str, Any], key: str, problems: list[str]) -> int:
-    value = data.get(key, 0)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        problems.append(f"{key} must be an integer >= 0, got {value!r}")
-        return 0
-    return value
+def _integer(value: Any, name: str, low: int, problems: list[str]) -> int | None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        problems.append(f"{name} must be an integer >= {low}, got {value!r}")
+        return None
+    return int(value)
 
 
 def bootstrap_settings(data: dict[str, Any], methods: list[str], problems: list[str]) -> tuple[int, int, str | None]:
     """``(bootstrap, seed, reference)`` of the config; a reference must be one of the grid's methods."""
-    bootstrap, seed = _count(data, "bootstrap", problems), _count(data, "seed", problems)
+    bootstrap, seed = (_integer(data.get(key, 0), key, 0, problems) or 0 for key in ("bootstrap", "seed"))
     reference = data.get("reference")
     if reference is not None:
         if not isinstance(reference, str):
@@ -124,11 +123,7 @@ def _number(table: dict, key: str, problems: list[str]) -> Any:
             problems.append(f"calibration.fraction must be a number strictly between 0 and 1, got {value!r}")
             return None
         return float(value)
-    low = 1 if key == "repeats" else 0
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        problems.append(f"calibration.{key} must be an integer >= {low}, got {value!r}")
-        return None
-    return int(value)
+    return _integer(value, f"calibration.{key}", 1 if key == "repeats" else 0, problems)
 
 
 def calibration_option(raw: Any, methods: list[str], problems: list[str]) -> dict[str, Any] | None:
@@ -325,20 +320,7 @@ DEFAULT_ALPHAS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
 DEFAULT_KS: tuple[int, ...] = (2, 3, 5, 10, 15, 20, 30, 50)
 VPRBENCH_FILE = "precomputed_data_corrected.npy"
 _BOOTSTRAP_KEYS = ("bootstrap", "seed", "reference")
-_TOP_KEYS = {
-    "out",
-    "methods",
-    "k",
-    "alpha",
-    "alphas",
-    "ks",
-    "inputs",
-    "report",
-    "qualitative",
-    "calibration",
-    "verify_fraction",
-    *_BOOTSTRAP_KEYS,
-}
+_RUN_OPTIONS = ("root", "device", "batch_size", "index", "split")
 _INPUT_KEYS = {
     "precomputed_matches",
     "scores",
@@ -348,14 +330,9 @@ _INPUT_KEYS = {
     "vpr_methods",
     "vpr_method",
     "model",
-    "root",
-    "device",
-    "batch_size",
-    "index",
-    "split",
     "format",
+    *_RUN_OPTIONS,
 }
-_RUN_OPTIONS = ("root", "device", "batch_size", "index", "split")
 
 
 @dataclass(frozen=True)
@@ -431,6 +408,10 @@ class GridConfig:
     def method_options(self) -> dict[str, Any]:
         """Options for the uncertainty methods beyond k and α (the cascades' ``verify_fraction``)."""
         return {} if self.verify_fraction is None else {"verify_fraction": self.verify_fraction}
+
+
+#: The top-level keys of a configuration: the fields of :class:`GridConfig`.
+_TOP_KEYS = {field.name for field in dataclasses.fields(GridConfig)}
 
 
 def _numbers(data: dict, key: str, default: Any, kind: type, problems: list[str]) -> list:

@@ -90,20 +90,17 @@ class Cell:
     def rows(self) -> list[dict[str, Any]]:
         """Long-format rows (the fields of ``results.csv``), one per uncertainty method."""
         recalls = {f"recall@{n}": value for n, value in self.evaluation.recall_at_n.items()}
-        rows = []
-        for name, method in self.evaluation.methods.items():
-            metrics = method.to_dict()
-            rows.append(
-                {
-                    "vpr_method": self.vpr_method,
-                    "dataset": self.dataset,
-                    "uncertainty_method": name,
-                    **{key: metrics.get(key) for key in CSV_FIELDS[3:-1]},
-                    "n_queries": self.evaluation.n_queries,
-                    **recalls,
-                }
-            )
-        return rows
+        return [
+            {
+                "vpr_method": self.vpr_method,
+                "dataset": self.dataset,
+                "uncertainty_method": name,
+                **{key: metrics.get(key) for key in CSV_FIELDS[3:-1]},
+                "n_queries": self.evaluation.n_queries,
+                **recalls,
+            }
+            for name, metrics in ((name, method.to_dict()) for name, method in self.evaluation.methods.items())
+        ]
 
     def to_dict(self) -> dict[str, Any]:
         """The cell's entry in ``results.json``: its names, ``Evaluation.to_dict()``, the ablations and, with the

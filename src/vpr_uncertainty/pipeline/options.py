@@ -24,7 +24,6 @@ __all__ = [
     "FIGURE_WIDTHS",
     "FIGURE_WIDTH_HELP",
     "VERIFY_FRACTION_HELP",
-    "add_bootstrap_options",
     "add_executor_options",
     "add_figure_width_option",
     "add_options",
@@ -55,48 +54,49 @@ __all__ = [
 # --- argument types ------------------------------------------------------------------------------------------
 
 
-def integer_at_least(minimum: int) -> Callable[[str], int]:
-    """An argparse type accepting integers >= ``minimum``."""
+def _number_type(
+    convert: Callable[[str], Any], expected: str, accept: Callable[[Any], bool], rule: str, name: str
+) -> Callable[[str], Any]:
+    """An argparse type: ``convert(text)`` ("expected EXPECTED" when it fails) that ``accept`` must hold ("RULE")."""
 
-    def parse(text: str) -> int:
+    def parse(text: str) -> Any:
         try:
-            value = int(text if text.isascii() else "?")  # int() also reads other scripts' digits (٣)
+            value = convert(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text}")
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not accept(value):
+            raise argparse.ArgumentTypeError(f"{rule}, got {text}")
         return value
 
-    parse.__name__ = f"integer_at_least_{minimum}"
+    parse.__name__ = name
     return parse
+
+
+def integer_at_least(minimum: int) -> Callable[[str], int]:
+    """An argparse type accepting integers >= ``minimum``."""
+    return _number_type(
+        lambda text: int(text if text.isascii() else "?"),  # int() also reads other scripts' digits (٣)
+        f"an integer >= {minimum}",
+        lambda value: value >= minimum,
+        f"must be an integer >= {minimum}",
+        f"integer_at_least_{minimum}",
+    )
 
 
 #: Positive integers (batch sizes, epochs, k of a search).
 positive_int = integer_at_least(1)
 #: Candidates per query for RS/SD/SU: the best match and at least one runner-up.
 candidate_count = integer_at_least(2)
-
-
-def non_negative_float(text: str) -> float:
-    """An argparse type accepting finite numbers >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not 0 <= value < math.inf:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
-
-
-def fraction(text: str) -> float:
-    """An argparse type accepting numbers in [0, 1] (``--alpha``, ``--verify-fraction``)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"must lie in [0, 1], got {text}")
-    return value
+#: Finite numbers >= 0.
+non_negative_float = _number_type(
+    float, "a number", lambda v: 0 <= v < math.inf, "must be a finite number >= 0", "non_negative_float"
+)
+#: Numbers in [0, 1] (``--alpha``, ``--verify-fraction``).
+fraction = _number_type(float, "a number in [0, 1]", lambda v: 0.0 <= v <= 1.0, "must lie in [0, 1]", "fraction")
+#: Numbers strictly between 0 and 1 (a probability, a share of the queries).
+open_fraction = _number_type(
+    float, "a number in (0, 1)", lambda v: 0.0 < v < 1.0, "must lie strictly between 0 and 1", "open_fraction"
+)
 
 
 def checked_number(check: Callable[[float], Any]) -> Callable[[str], float]:
@@ -110,17 +110,6 @@ def checked_number(check: Callable[[float], Any]) -> Callable[[str], float]:
 
     parse.__name__ = getattr(check, "__name__", "number")
     return parse
-
-
-def open_fraction(text: str) -> float:
-    """An argparse type accepting numbers strictly between 0 and 1 (a probability, a share of the queries)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}") from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f"must lie strictly between 0 and 1, got {text}")
-    return value
 
 
 _DEVICE = re.compile(r"(cpu|mps|cuda(:\d+)?)")
@@ -303,22 +292,11 @@ def add_progress_options(parser: argparse.ArgumentParser, *, top_level: bool = F
     command, they override the same flags given before the command."""
     group = parser.add_mutually_exclusive_group()
     default = None if top_level else argparse.SUPPRESS
-    group.add_argument(
-        "--progress",
-        dest="progress",
-        action="store_const",
-        const=True,
-        default=default,
-        help="show progress bars on stderr even when it is not a terminal (a log file, a pipe)",
-    )
-    group.add_argument(
-        "--no-progress",
-        dest="progress",
-        action="store_const",
-        const=False,
-        default=default,
-        help="no progress bars (default: shown only when stderr is a terminal)",
-    )
+    for flag, value, text in (
+        ("--progress", True, "show progress bars on stderr even when it is not a terminal (a log file, a pipe)"),
+        ("--no-progress", False, "no progress bars (default: shown only when stderr is a terminal)"),
+    ):
+        group.add_argument(flag, dest="progress", action="store_const", const=value, default=default, help=text)
 
 
 def apply_threads(threads: int | None) -> None:
@@ -327,39 +305,6 @@ def apply_threads(threads: int | None) -> None:
         import torch
 
         torch.set_num_threads(threads)
-
-
-def add_bootstrap_options(
-    parser: argparse.ArgumentParser, *, seed: bool = True, defaults_from_config: bool = False
-) -> None:
-    """``--bootstrap``, ``--reference`` and (when ``seed``) ``--seed`` in one group; with ``defaults_from_config``
-    they default to None, so that a config file's values apply unless given."""
-    where = " (default: the config's, else {})" if defaults_from_config else " (default {})"
-    group = parser.add_argument_group(
-        "confidence intervals and paired tests (paired bootstrap over queries: the same resamples for every method)"
-    )
-    group.add_argument(
-        "--bootstrap",
-        type=integer_at_least(0),
-        default=None if defaults_from_config else 0,
-        metavar="N",
-        help="bootstrap resamples for 95 %% intervals of AUC-PR, AP and AURC, a paired test of each method's AUC-PR "
-        "against the reference (Holm-corrected) and a best marked only where significant; 0 = none, 1000 is usual"
-        + where.format(0),
-    )
-    if seed:
-        group.add_argument(
-            "--seed",
-            type=integer_at_least(0),
-            default=None if defaults_from_config else 0,
-            help="seed of the bootstrap resamples" + where.format(0),
-        )
-    group.add_argument(
-        "--reference",
-        metavar="NAME",
-        default=None,
-        help="the method every other one is tested against (default: SU when evaluated, else the first method)",
-    )
 
 
 #: What ``--workers`` means with ``--executor local`` in ``run`` and ``extract``.

@@ -177,13 +177,9 @@ def main(
     """Search the descriptor file ``database`` (.npy or .h5) for each row of ``queries`` and write ``out``."""
     from vpr_uncertainty.data import load_descriptors, open_descriptors
 
-    database_names, database_array = open_descriptors(database, "database")
-    query_names, query_array = load_descriptors(queries, "queries")
+    rows = open_descriptors(database, "database"), load_descriptors(queries, "queries")
     describe = {"database": str(database), "queries": str(queries)}
-    found = compute(
-        conf, (database_names, database_array), (query_names, query_array), ground_truth, out, describe=describe
-    )
-    return found.path
+    return compute(conf, *rows, ground_truth, out, describe=describe).path
 
 
 def search_device(device: str) -> tuple[str, str | None]:

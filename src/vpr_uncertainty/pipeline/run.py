@@ -34,7 +34,7 @@ import numpy as np
 
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.pipeline import evaluate, extract, report, retrieve, verify
-from vpr_uncertainty.pipeline.evaluate import METHOD_SPEC_HELP, EvaluateConf, method_options
+from vpr_uncertainty.pipeline.evaluate import METHOD_SPEC_HELP, EvaluateConf, add_bootstrap_conf_options, method_options
 from vpr_uncertainty.pipeline.extract import ExtractConf, add_threads_option
 from vpr_uncertainty.pipeline.options import (
     DECODING_THREADS,
@@ -144,7 +144,7 @@ def load_and_check(conf: RunConf, dataset: Any) -> Any:
     """The dataset (a folder, a registered name or a loaded Dataset), after every check that can fail before
     extraction (the slow part)."""
     from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.methods import STAGE_INPUTS, describe_needs, get_method
+    from vpr_uncertainty.methods import STAGE_INPUTS, available_methods, describe_needs, get_method
 
     if conf.retrieve.top_k < conf.evaluate.k:
         raise ValueError(f"top_k ({conf.retrieve.top_k}) must be >= k ({conf.evaluate.k})")
@@ -152,8 +152,6 @@ def load_and_check(conf: RunConf, dataset: Any) -> Any:
     for name in methods:
         get_method(name)  # unknown names fail before any work
     if conf.rerank is not None and get_method(conf.rerank).kind != "geometric":
-        from vpr_uncertainty.methods import available_methods
-
         raise ValueError(
             f"rerank needs a geometric verification method ({', '.join(available_methods(kind='geometric'))}), "
             f"got {conf.rerank!r}"
@@ -392,13 +390,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--btl-head", type=Path, metavar="HEAD.pt", help="BTL: head written by train-btl")
     parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
     _add_common_options(parser)
-    add_options(
-        parser.add_argument_group(
-            "confidence intervals and paired tests (paired bootstrap over queries: the same resamples for every method)"
-        ),
-        EvaluateConf,
-        only=("bootstrap", "seed", "reference"),
-    )
+    add_bootstrap_conf_options(parser)
     add_executor_options(
         parser,
         local_workers=DECODING_THREADS,

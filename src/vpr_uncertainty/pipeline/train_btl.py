@@ -7,6 +7,7 @@ from pathlib import Path
 
 from vpr_uncertainty.pipeline.options import (
     add_progress_options,
+    apply_threads,
     command_wording,
     device_name,
     non_negative_float,
@@ -109,10 +110,7 @@ _INPUTS = ("descriptors", "query_descriptors", "positions", "query_positions", "
 def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.btl import BTLTrainingConfig, save_btl_head, save_training_curve, train_btl_head
 
-    if args.threads:
-        import torch
-
-        torch.set_num_threads(args.threads)
+    apply_threads(args.threads)
     from vpr_uncertainty.btl.method import read_training_inputs
 
     flags = {name: "--" + name.replace("_", "-") for name in _INPUTS}
