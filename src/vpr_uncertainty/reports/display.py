@@ -217,10 +217,8 @@ class RejectionCurveDisplay:
                 self.accept_all, color="grey", linestyle=":", linewidth=1, label=f"accept all ({self.accept_all:.3f})"
             )
             lowest.append(self.accept_all)
-        ax.set_xlabel(_RECALL_LABEL)
-        ax.set_ylabel(_PRECISION_LABEL)
-        ax.set_xlim(0, 1.0)
-        ax.set_ylim(max(0.0, np.floor((min(lowest, default=0.0) - 0.05) * 10) / 10), 1.02)
+        ylim = (max(0.0, np.floor((min(lowest, default=0.0) - 0.05) * 10) / 10), 1.02)
+        ax.set(xlabel=_RECALL_LABEL, ylabel=_PRECISION_LABEL, xlim=(0, 1.0), ylim=ylim)
         ax.grid(alpha=0.3)
         if legend:
             legend_outside(ax, title="uncertainty method")
@@ -377,20 +375,13 @@ class ReliabilityDisplay:
         ax = _axis(ax)
         ax.plot([0, 1], [0, 1], ":", color="grey", label="perfect calibration")
         reliability = self.reliability
-        bins = [
-            (mean, accuracy, count)
-            for mean, accuracy, count in zip(
-                reliability.mean_probability, reliability.accuracy, reliability.counts, strict=True
-            )
-            if count
-        ]
+        counted = zip(reliability.mean_probability, reliability.accuracy, reliability.counts, strict=True)
+        bins = [(mean, accuracy, count) for mean, accuracy, count in counted if count]
         (self.line_,) = ax.plot([b[0] for b in bins], [b[1] for b in bins], "o-", label=self.name)
         for mean, accuracy, count in bins:
             ax.annotate(f"n={count}", (mean, accuracy), textcoords="offset points", xytext=(4, -10), fontsize=FONT_SIZE)
-        ax.set_xlim(0, 1)
-        ax.set_ylim(0, 1.02)
-        ax.set_xlabel("predicted P(correct top-1), mean of the bin")
-        ax.set_ylabel("share of correct top-1 answers")
+        ax.set(xlim=(0, 1), ylim=(0, 1.02))
+        ax.set(xlabel="predicted P(correct top-1), mean of the bin", ylabel="share of correct top-1 answers")
         ax.legend(loc="upper left")
         if title:
             ax.set_title(title)
@@ -505,9 +496,7 @@ class RecallAtNDisplay:
             ax.set_xscale("log")
             ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
         ax.set_xticks(ns, [str(n) for n in ns])
-        ax.set_ylim(0, 1.02)
-        ax.set_xlabel("N (database images retrieved)")
-        ax.set_ylabel("recall@N")
+        ax.set(ylim=(0, 1.02), xlabel="N (database images retrieved)", ylabel="recall@N")
         ax.grid(alpha=0.3)
         if legend and len(self.recalls) > 1:
             ax.legend(title="VPR method", loc="lower right")

@@ -11,10 +11,9 @@ that writes it::
 (every built-in figure: ``"page"``, 7.16 in, or ``"column"``, 3.5 in) is drawn at the width ``reproduce
 --figure-width`` gives, unless its spec sets one (``"ablations:width=column"``). A ``caption(cells, config, path,
 **options) -> str`` hook writes the caption of each file in ``report.html``; the built-in ones are the
-``caption()`` of the :class:`~vpr_uncertainty.reports.style.FigureSpec` the figure is drawn from.
-``reproduce`` calls every selected figure in
-registration order and gives each a section of ``report.html``. A figure is selected by name, optionally with options
-as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
+``caption()`` of the :class:`~vpr_uncertainty.reports.style.FigureSpec` the figure is drawn from. ``reproduce``
+calls every selected figure in registration order and gives each a section of ``report.html``. A figure is selected
+by name, optionally with options as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
 
 Examples
 --------
@@ -33,7 +32,7 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.cache import write_text
+from vpr_uncertainty.cache import slug, write_text
 from vpr_uncertainty.calibration.quality import Reliability
 from vpr_uncertainty.methods import typed_option
 from vpr_uncertainty.plugins import Registry, load_target, merge_options
@@ -108,32 +107,26 @@ class ReportFigure:
     def heading(self) -> str:
         return self.title or self.description
 
+    def _call(self, hook: Callable[..., Any] | str, *args: Any, **options: Any) -> Any:
+        """Call ``hook`` (or the function at its dotted path) with ``options`` merged over the figure's defaults."""
+        function = load_target(hook, what=f"report figure {self.name!r}", extra=self.extra)
+        return function(*args, **merge_options(self.options, options, what=f"report figure {self.name!r}"))
+
     def write(self, cells: Any, config: Any, out_dir: str | Path, **options: Any) -> list[Path]:
         """Write the figure with ``options`` merged over its defaults; returns the files written."""
-        function = load_target(self.target, what=f"report figure {self.name!r}", extra=self.extra)
-        options = merge_options(self.options, options, what=f"report figure {self.name!r}")
-        written = function(cells, config, Path(out_dir), **options)
+        written = self._call(self.target, cells, config, Path(out_dir), **options)
         if not isinstance(written, (list, tuple)) or not all(isinstance(path, Path) for path in written):
             raise TypeError(f"report figure {self.name!r} must return a list of the Paths it wrote, got {written!r}")
         return list(written)
 
     def section_html(self, cells: Any, config: Any, written: list[Path], **options: Any) -> str:
         """The HTML above the figures in ``report.html`` ("" without a ``section`` hook)."""
-        if self.section is None:
-            return ""
-        hook = load_target(self.section, what=f"report figure {self.name!r}", extra=self.extra)
-        return hook(cells, config, written, **merge_options(self.options, options, what=f"report figure {self.name!r}"))
+        return "" if self.section is None else self._call(self.section, cells, config, written, **options)
 
     def caption_of(self, cells: Any, config: Any, path: Path, **options: Any) -> str:
         """The caption of the file ``path`` it wrote: its ``caption`` hook's, else a generic one."""
-        if self.caption is not None:
-            hook = load_target(self.caption, what=f"report figure {self.name!r}", extra=self.extra)
-            text = hook(
-                cells, config, Path(path), **merge_options(self.options, options, what=f"report figure {self.name!r}")
-            )
-            if text:
-                return text
-        return figure_caption(self.name, Path(path), cells)
+        text = None if self.caption is None else self._call(self.caption, cells, config, Path(path), **options)
+        return text or figure_caption(self.name, Path(path), cells)
 
     def unmet_needs(self, available: Collection[str]) -> list[str]:
         """The entries of ``requires`` not in ``available``."""
@@ -235,9 +228,7 @@ def parse_figure_spec(spec: str) -> tuple[str, dict[str, Any]]:
 def unmet_figure_needs(entry: ReportFigure, available: Collection[str]) -> str | None:
     """One line saying what ``entry`` needs that ``available`` lacks, or None."""
     missing = entry.unmet_needs(available)
-    if not missing:
-        return None
-    return f"report figure {entry.name!r} needs " + "; ".join(FIGURE_NEEDS[need] for need in missing)
+    return f"report figure {entry.name!r} needs " + "; ".join(FIGURE_NEEDS[n] for n in missing) if missing else None
 
 
 # --- the built-in figures ---
@@ -245,12 +236,7 @@ def unmet_figure_needs(entry: ReportFigure, available: Collection[str]) -> str |
 
 def _with_vectors(pngs: Sequence[Path]) -> list[Path]:
     """Each PNG followed by the vector file written beside it."""
-    paths = []
-    for png in pngs:
-        paths.append(png)
-        if png.with_suffix(VECTOR_SUFFIX).is_file():
-            paths.append(png.with_suffix(VECTOR_SUFFIX))
-    return paths
+    return [path for png in pngs for path in (png, png.with_suffix(VECTOR_SUFFIX)) if path == png or path.is_file()]
 
 
 def _table1(cells: Sequence[Any], config: Any, metric: str):
@@ -262,12 +248,10 @@ def _table1(cells: Sequence[Any], config: Any, metric: str):
 def _write_table1(cells: Sequence[Any], config: Any, out_dir: Path, metric: str, stem: str) -> list[Path]:
     table = _table1(cells, config, metric)
     note = table1_note(cells) if metric == "auc_pr" else None
-    paths = []
-    for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex)):
-        path = out_dir / f"{stem}.{suffix}"
-        write_text(path, render(table) + (f"\n{note}\n" if note and suffix == "md" else ""))
-        paths.append(path)
-    return paths
+    return [
+        write_text(out_dir / f"{stem}.{suffix}", render(table) + (f"\n{note}\n" if note and suffix == "md" else ""))
+        for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex))
+    ]
 
 
 def write_table1(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
@@ -304,10 +288,10 @@ table1_aurc_section = _section("aurc")
 def write_ties(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
     """``ties.md`` and ``ties.csv``: the share of tied queries and the distinct values of every method."""
     table = build_ties_table(cells)
-    paths = [out_dir / "ties.md", out_dir / "ties.csv"]
-    write_text(paths[0], ties_markdown(table))
-    write_text(paths[1], ties_csv(table))
-    return paths
+    return [
+        write_text(out_dir / f"ties.{suffix}", render(table))
+        for suffix, render in (("md", ties_markdown), ("csv", ties_csv))
+    ]
 
 
 def ties_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
@@ -369,8 +353,6 @@ def write_cascade(cells: Sequence[Any], config: Any, out_dir: Path, *, width: st
 
 
 def cascade_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
-    from vpr_uncertainty.cache import slug
-
     for name, score, gv in cascades(cells):
         if path.stem == f"cascade__{slug(score)}_{slug(gv)}":
             return cascade_spec(cells, name, score, gv).caption()

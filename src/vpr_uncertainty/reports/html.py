@@ -95,8 +95,7 @@ def render_report(title: str, sections: Sequence[Section], *, intro: str = "") -
                 f"<figcaption><b>{label}</b>{escape(caption)}</figcaption></figure>"
             )
         parts.append("</section>")
-    parts.append(_RENDER_CHECK)
-    parts.append("</body></html>")
+    parts += [_RENDER_CHECK, "</body></html>"]
     return "\n".join(parts) + "\n"
 
 
@@ -139,8 +138,7 @@ def settings_table(cells: Sequence[Any], config: Any) -> str:
     ]
     if settings.get("verify_fraction") is not None:
         rows.append(("fraction verified by cascades", f"{settings['verify_fraction']:g}"))
-    for key, value in settings.items():  # settings added later (bootstrap, calibration, ...) are shown too
-        if key not in {"methods", "k", "alpha", "alphas", "ks", "verify_fraction"}:
-            rows.append((key, str(value)))
+    shown = {"methods", "k", "alpha", "alphas", "ks", "verify_fraction"}  # later settings (bootstrap, ...) too:
+    rows += [(key, str(value)) for key, value in settings.items() if key not in shown]
     body = "".join(f"<tr><th>{escape(key)}</th><td>{escape(value)}</td></tr>" for key, value in rows)
     return f'<table class="settings"><caption>Settings of this run</caption><tbody>{body}</tbody></table>'

@@ -192,6 +192,17 @@ def _legend_below(figure, handles: dict, columns: int, width: str) -> None:
         )
 
 
+def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None = None) -> None:
+    """Label the y axes of the first column, draw the legend of ``spec``'s series below the panels and the title."""
+    for axis in axes[:, 0]:
+        axis.set_ylabel(spec.y)
+    handles = {
+        s.label: plt.Line2D([], [], **{"markersize": 8 if s.style is _STAR else 4, **s.style}) for s in spec.series
+    }
+    _legend_below(figure, handles, axes.shape[1], width)
+    figure.suptitle(_fitted(title or spec.what, figure))
+
+
 def _save(figure, path: Path) -> Path:
     """The PNG and a PDF beside it, uncropped (the constrained layout keeps the legend inside); the PNG's path."""
     save_figure(figure, path, tight=False)
@@ -246,13 +257,7 @@ def plot_alpha_ablation(cells: Sequence, path: str | Path, *, width: str = "page
                 axis.set_xlim(-0.05, 1.05)
                 axis.set_xticks([0, 0.5, 1], ["0\nSD", "0.5", "1\nRS"])
                 axis.grid(alpha=0.3)
-            for axis in axes[:, 0]:
-                axis.set_ylabel(spec.y)
-            handles = {
-                s.label: plt.Line2D([], [], markersize=8 if s.style is _STAR else 4, **s.style) for s in spec.series
-            }
-            _legend_below(figure, handles, axes.shape[1], width)
-            figure.suptitle(_fitted(spec.what, figure))
+            _finish(plt, figure, axes, spec, width)
             return _save(figure, path)
         finally:
             plt.close(figure)
@@ -297,11 +302,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -
                 axis.set_xlabel(spec.x)
                 axis.set_title(title)
                 axis.grid(alpha=0.3)
-            for axis in axes[:, 0]:
-                axis.set_ylabel(spec.y)
-            handles = {s.label: plt.Line2D([], [], **s.style) for s in spec.series}
-            _legend_below(figure, handles, axes.shape[1], width)
-            figure.suptitle(_fitted(spec.what, figure))
+            _finish(plt, figure, axes, spec, width)
             return _save(figure, path)
         finally:
             plt.close(figure)
@@ -398,24 +399,18 @@ def _heatmap_spec(
         f"scale{' for all panels' if len(datasets) > 1 else ''}: blue > 0 ({proposed} predicts correct answers "
         "better), red < 0",
     )
-    what = (
-        f"{proposed}: Δ AUC-PR against each baseline (> 0: {proposed} better) on {', '.join(datasets) or 'no dataset'}"
-    )
-    if len(datasets) == 1:
-        return FigureSpec(
-            what=what,
-            panels=(datasets[0],),
-            panel_rule="one panel (one dataset); one column per baseline, baselines with the same Δ in every cell "
-            "sharing one, e.g. “BM = L2”",
-            x="baseline (" + ", ".join(title.removeprefix("vs ") for title in titles) + ")",
-            y=f"VPR method ({n_vpr})",
-            notes=notes,
-        )
+    one = len(datasets) == 1  # one panel, whose columns are the baselines
     return FigureSpec(
-        what=what,
-        panels=tuple(titles),
-        panel_rule="one per baseline; baselines with the same Δ in every cell share one, e.g. “vs BM = L2”",
-        x="dataset",
+        what=f"{proposed}: Δ AUC-PR against each baseline (> 0: {proposed} better) on "
+        f"{', '.join(datasets) or 'no dataset'}",
+        panels=(datasets[0],) if one else tuple(titles),
+        panel_rule=(
+            "one panel (one dataset); one column per baseline, baselines with the same Δ in every cell sharing one, "
+            "e.g. “BM = L2”"
+            if one
+            else "one per baseline; baselines with the same Δ in every cell share one, e.g. “vs BM = L2”"
+        ),
+        x="baseline (" + ", ".join(title.removeprefix("vs ") for title in titles) + ")" if one else "dataset",
         y=f"VPR method ({n_vpr})",
         notes=notes,
     )
@@ -480,11 +475,9 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "p
                     axis.set_title(title)
                 figure.colorbar(image, ax=axes, shrink=0.8, label="Δ AUC-PR", location=_colour_bar_side(width))
                 figure.suptitle(_fitted(spec.what.split(" on ")[0], figure))
-                path = out_dir / f"delta_{proposed}.png"
-                save_figure(figure, path, tight=False)  # and a PDF beside it
+                paths.append(_save(figure, out_dir / f"delta_{proposed}.png"))
             finally:
                 plt.close(figure)
-        paths.append(path)
     return paths
 
 
@@ -555,15 +548,9 @@ def plot_cascade(cells: Sequence[Any], out_dir: str | Path, *, width: str = "pag
     for name, score, gv in cascades(cells):
         spec = cascade_spec(cells, name, score, gv)
         usable, datasets = _cascade_datasets(cells, score, gv)
-        size = ablation_figsize(len(datasets), None, len(spec.series), width=width)
-        rows, columns = _layout(len(datasets), None, width)
         with figure_rc(width):
-            figure, axes = plt.subplots(
-                rows, columns, figsize=size, dpi=DPI, squeeze=False, sharey=True, layout="constrained"
-            )
+            figure, axes = _subplots(plt, len(datasets), None, len(spec.series), width)
             try:
-                for axis in axes.ravel()[len(datasets) :]:
-                    axis.set_visible(False)
                 for axis, title, dataset in zip(axes.ravel(), spec.panels, datasets, strict=False):
                     here = [c for c in usable if c.dataset == dataset]
                     curves = []
@@ -582,20 +569,13 @@ def plot_cascade(cells: Sequence[Any], out_dir: str | Path, *, width: str = "pag
                         if m.auc_pr is not None and m.details.get("verified_fraction") is not None
                     ]
                     if measured:
-                        x = float(np.mean([m[0] for m in measured]))
-                        y = float(np.mean([m[1] for m in measured]))
+                        x, y = (float(np.mean(values)) for values in zip(*measured, strict=True))
                         axis.plot([x], [y], zorder=3, **_AS_RUN)
                     axis.set_title(title)
-                    axis.set_xlabel(spec.x if width == "page" else f"fraction verified by {gv}")
-                    axis.set_xlim(0, 1)
-                    axis.tick_params(labelleft=True)
+                    axis.set(xlabel=spec.x if width == "page" else f"fraction verified by {gv}", xlim=(0, 1))
                     axis.grid(alpha=0.3)
-                for axis in axes[:, 0]:
-                    axis.set_ylabel(spec.y)
-                handles = {s.label: plt.Line2D([], [], **s.style) for s in spec.series}
-                _legend_below(figure, handles, columns, width)
                 title = spec.what.split(": ")[0] + f": 0 = {score} alone, 1 = {gv} on every query"
-                figure.suptitle(_fitted(title, figure))
+                _finish(plt, figure, axes, spec, width, title)
                 paths += save_figure(figure, Path(out_dir) / f"cascade__{slug(score)}_{slug(gv)}.png", tight=False)
             finally:
                 plt.close(figure)
@@ -620,8 +600,7 @@ def qualitative_figsize(n_rows: int, *, width: str = "page") -> tuple[float, flo
     ((7.16, 9.0), (3.5, 6.37))
     """
     inches = figure_width(width)
-    image = inches / (TOP + 1.4)  # the query's column is 1.4 times wider: its label is longer
-    # the query's image, 1.4 times wider, sets the row's height (4:3)
+    image = inches / (TOP + 1.4)  # the query's column, 1.4 times wider (a longer label), sets the row's height (4:3)
     return inches, capped_height(n_rows * (0.75 * 1.4 * image + 0.8) + 0.45, width)
 
 
@@ -643,12 +622,6 @@ def choose_queries(correct: np.ndarray, uncertainty: np.ndarray) -> dict[str, in
             pick = np.argmin(values) if category.startswith("confident") else np.argmax(values)
             chosen[category] = int(pool[pick])
     return chosen
-
-
-def _image(path: str) -> np.ndarray:
-    from matplotlib.image import imread
-
-    return imread(path)
 
 
 #: How an answer's correctness is drawn: a symbol in its title, a frame colour and a frame dash.
@@ -749,7 +722,7 @@ def plot_qualitative(
         try:
             for row, (title, query) in enumerate(zip(spec.panels, chosen.values(), strict=True)):
                 axis = axes[row][0]
-                axis.imshow(_image(cell.query_paths[query]))
+                axis.imshow(plt.imread(cell.query_paths[query]))
                 axis.set_title(title)
                 axis.set_xlabel("\n".join(f"{name} {uncertainties[name][query]:.3f}" for name in labels))
                 for column in range(1, TOP + 1):
@@ -759,18 +732,14 @@ def plot_qualitative(
                     if index < 0:
                         axis.set_axis_off()
                         continue
-                    axis.imshow(_image(cell.database_paths[index]))
+                    axis.imshow(plt.imread(cell.database_paths[index]))
                     symbol, colour, dash = _HIT[bool(cell.hits[query, rank])]
                     for spine in axis.spines.values():
-                        spine.set_edgecolor(colour)
-                        spine.set_linewidth(3)
-                        spine.set_linestyle(dash)
+                        spine.set(edgecolor=colour, linewidth=3, linestyle=dash)
                     axis.set_title(f"#{rank + 1} {symbol}\ns={scores[query, rank]:.3f}", color=colour)
                 for axis in axes[row]:
-                    axis.set_xticks([])
-                    axis.set_yticks([])
+                    axis.set(xticks=[], yticks=[])
             figure.suptitle(_fitted(spec.what, figure))
-            save_figure(figure, path, tight=False)  # and a PDF beside it
+            return _save(figure, path)
         finally:
             plt.close(figure)
-    return path

@@ -59,7 +59,6 @@ OKABE_ITO: tuple[str, ...] = (
     "#000000",  # black
     "#F0E442",  # yellow
 )
-_COLOURS = OKABE_ITO
 _DASHES: tuple[Any, ...] = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
 _MARKERS = ("o", "s", "^", "v", "D", "P", "X")
 #: How a caption names a marker and a dash.
@@ -232,7 +231,7 @@ def method_styles(names: Sequence[str]) -> dict[str, dict[str, Any]]:
     """
     return {
         name: {
-            "color": _COLOURS[index % len(_COLOURS)],
+            "color": OKABE_ITO[index % len(OKABE_ITO)],
             "linestyle": _DASHES[index % len(_DASHES)],
             "marker": _MARKERS[index % len(_MARKERS)],
         }

@@ -51,16 +51,18 @@ __all__ = [
     "ties_markdown",
 ]
 
+#: The columns of :func:`format_table` after ``method``: header, ``MethodEvaluation`` attribute, format.
 _COLUMNS = (
-    ("method", "{}"),
-    ("AUC-PR", "{:.4f}"),
-    ("AP", "{:.4f}"),
-    ("AURC", "{:.4f}"),
-    ("R@100%P", "{:.3f}"),
-    ("values", "{:d}"),
-    ("tied", "{:.0%}"),
-    ("ms/query", "{:.5f}"),
+    ("AUC-PR", "auc_pr", "{:.4f}"),
+    ("AP", "average_precision", "{:.4f}"),
+    ("AURC", "aurc", "{:.4f}"),
+    ("R@100%P", "recall_at_full_precision", "{:.3f}"),
+    ("values", "n_distinct", "{:d}"),
+    ("tied", "tied_share", "{:.0%}"),
+    ("ms/query", "time_per_query_ms", "{:.5f}"),
 )
+#: The metrics that have a bootstrap interval (``<metric>_ci``).
+_WITH_CI = ("auc_pr", "average_precision", "aurc")
 
 
 def _fmt(template: str, value: object) -> str:
@@ -171,27 +173,12 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
         marker = "*" if method.name in marked and method.informative else ""
         marker += "" if method.informative else "†"
         marker += "‡" if method.trained_on_queries else ""  # trained on these queries (see the notes)
-        values = (
-            method.name + marker,
-            method.auc_pr,
-            method.average_precision,
-            method.aurc,
-            method.recall_at_full_precision,
-            method.n_distinct,
-            method.tied_share,
-            method.time_per_query_ms,
-        )
-        row = [
-            _fmt(template, value) if index else str(value)
-            for index, ((_, template), value) in enumerate(zip(_COLUMNS, values, strict=True))
-        ]
+        row = [method.name + marker, *(_fmt(template, getattr(method, key)) for _, key, template in _COLUMNS)]
         if reference is not None:
-            row[1] = _with_interval(method.auc_pr, method.auc_pr_ci)
-            row[2] = _with_interval(method.average_precision, method.average_precision_ci)
-            row[3] = _with_interval(method.aurc, method.aurc_ci)
+            row[1:4] = [_with_interval(getattr(method, key), getattr(method, f"{key}_ci")) for key in _WITH_CI]
             row.append(_vs_reference(method, reference))
         rows.append(row)
-    header = [name for name, _ in _COLUMNS] + ([f"vs {reference}"] if reference is not None else [])
+    header = ["method", *(name for name, _, _ in _COLUMNS)] + ([f"vs {reference}"] if reference is not None else [])
     recalls = "  ".join(f"R@{n} {_fmt('{:.3f}', value)}" for n, value in evaluation.recall_at_n.items())
     summary = f"{evaluation.n_queries} queries, {recalls}"
     lines = [title] if title else []
@@ -200,13 +187,9 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
         lines += ["| " + " | ".join(markdown_cell(cell) for cell in row) + " |" for row in rows]
     else:
         widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+        justify = [str.ljust] + [str.rjust] * (len(header) - 1)
         lines.append(summary)
-        for row in [header, *rows]:
-            lines.append(
-                "  ".join(
-                    c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True))
-                )
-            )
+        lines += ["  ".join(j(c, w) for j, c, w in zip(justify, row, widths, strict=True)) for row in [header, *rows]]
     compared = sum(1 for m in evaluation.methods.values() if m.informative and m.auc_pr is not None)
     lines.append(
         f"{_legend(evaluation, compared)}. AUC-PR, AP: higher is better; AURC: lower is better; R@100%P: recall with "
@@ -220,8 +203,7 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
         )
     if tied:
         lines.append("† uninformative: the same uncertainty for every query (no ranking, chance-level AUC-PR).")
-    for note in evaluation.notes:
-        lines.append(f"note: {note}")
+    lines += [f"note: {note}" for note in evaluation.notes]
     return "\n".join(lines)
 
 
@@ -317,9 +299,7 @@ def build_table1(
     methods = list(dict.fromkeys(name for cell in cells for name in cell.evaluation.methods))
     values, times, informative = [], [], []
     for method in methods:
-        row = []
-        row_times = []
-        row_informative = []
+        row, row_times, row_informative = [], [], []
         for vpr in vpr_methods:
             found = [
                 c.evaluation.methods[method] for c in cells if c.vpr_method == vpr and method in c.evaluation.methods
@@ -363,7 +343,8 @@ def _rows(
             if value is None:
                 texts.append("–")
                 continue
-            text = f"{bold[0]}{value:.3f}{bold[1]}" if marks[i][j] else f"{value:.3f}{_dagger(table, i, j, dagger)}"
+            text = f"{bold[0]}{value:.3f}{bold[1]}" if marks[i][j] else f"{value:.3f}"
+            text += "" if marks[i][j] or table.is_informative(i, j) else dagger
             interval = None if table.intervals is None or not intervals else table.intervals[i][j]
             if interval is not None:
                 text += f" {around[0]}[{interval[0]:.2f}, {interval[1]:.2f}]{around[1]}"
@@ -385,11 +366,13 @@ def marks_note(table: Table1) -> str:
     )
 
 
-def _dagger(table: Table1, i: int, j: int, mark: str) -> str:
-    return "" if table.is_informative(i, j) else mark
-
-
 _FOOTNOTE = "† uninformative: the same uncertainty for every query on every dataset (AUC-PR at chance level)."
+_LATEX_FOOTNOTE = r"\par\smallskip{\footnotesize $^\dagger$ uninformative: constant uncertainty (chance level).}"
+
+
+def _end_latex(lines: list[str], uninformative: bool) -> str:
+    """The float's ``lines``, the footnote on uninformative methods (when there are any) and ``\\end{table}``."""
+    return "\n".join([*lines, *([_LATEX_FOOTNOTE] if uninformative else []), r"\end{table}"]) + "\n"
 
 
 def _any_uninformative(table: Table1) -> bool:
@@ -436,8 +419,7 @@ def table1_csv(table: Table1) -> str:
         for j, v in enumerate(row):
             numbers.append("" if v is None else f"{v:.6f}")
             if with_ci:
-                interval = table.intervals[i][j]
-                numbers += ["", ""] if interval is None else [f"{interval[0]:.6f}", f"{interval[1]:.6f}"]
+                numbers += ["", ""] if table.intervals[i][j] is None else [f"{x:.6f}" for x in table.intervals[i][j]]
         numbers.append("" if time_ms is None else f"{time_ms:.6f}")
         sole = [c for j, c in enumerate(table.columns) if marks[i][j] and table.significant and table.significant[j]]
         csv_rows.append([name, *numbers, ";".join(best_for), *([";".join(sole)] if with_ci else [])])
@@ -482,10 +464,7 @@ def table1_latex(
         )
     ]
     lines = latex_float(caption, label, "l" + "r" * (len(table.columns) + 1), header, rows, width)
-    if _any_uninformative(table):
-        lines.append(r"\par\smallskip{\footnotesize $^\dagger$ uninformative: constant uncertainty (chance level).}")
-    lines.append(r"\end{table}")
-    return "\n".join(lines) + "\n"
+    return _end_latex(lines, _any_uninformative(table))
 
 
 #: Columns of :func:`evaluation_csv` and :func:`evaluation_latex`: key of ``MethodEvaluation.to_dict``, LaTeX header,
@@ -510,16 +489,14 @@ def evaluation_csv(evaluation: Evaluation) -> str:
     marked = _marked(evaluation)
     with_ci = evaluation.bootstrap is not None
     metrics = [key for key, _, _ in _EVALUATION_COLUMNS]
-    intervals = [f"{key}_ci_{end}" for key in ("auc_pr", "average_precision", "aurc") for end in ("low", "high")]
+    intervals = [f"{key}_ci_{end}" for key in _WITH_CI for end in ("low", "high")]
     csv_rows: list[list[object]] = [["method", *metrics, "informative", "best", *(intervals if with_ci else [])]]
     for name, method in evaluation.methods.items():
         numbers = method.to_dict()
         row = [name, *("" if numbers[key] is None else repr(float(numbers[key])) for key in metrics)]
         row += [str(method.informative).lower(), str(name in marked and method.informative).lower()]
-        if with_ci:
-            for key in ("auc_pr", "average_precision", "aurc"):
-                interval = getattr(method, f"{key}_ci")
-                row += ["", ""] if interval is None else [repr(float(interval[0])), repr(float(interval[1]))]
+        for interval in (getattr(method, f"{key}_ci") for key in _WITH_CI) if with_ci else ():
+            row += ["", ""] if interval is None else [repr(float(interval[0])), repr(float(interval[1]))]
         csv_rows.append(row)
     return _csv_text(csv_rows)
 
@@ -574,10 +551,7 @@ def evaluation_latex(
         rows.append(cells)
     header = ["Method", *(title for _, title, _ in _EVALUATION_COLUMNS)]
     lines = latex_float(caption, label, "l" + "r" * len(_EVALUATION_COLUMNS), header, rows, width)
-    if any(not m.informative for m in evaluation.methods.values()):
-        lines.append(r"\par\smallskip{\footnotesize $^\dagger$ uninformative: constant uncertainty (chance level).}")
-    lines.append(r"\end{table}")
-    return "\n".join(lines) + "\n"
+    return _end_latex(lines, any(not m.informative for m in evaluation.methods.values()))
 
 
 def table1_html(table: Table1) -> str:
@@ -622,15 +596,14 @@ def table_significance(table: Any, distributions: dict[tuple[str, str], np.ndarr
 
     Only informative cells with a value compete in a column; fewer than two: nothing is marked.
     """
-    intervals, marked = [], []
-    for method in table.rows:
-        intervals.append(
-            [
-                percentile_interval(distributions[method, column]) if (method, column) in distributions else None
-                for column in table.columns
-            ]
-        )
-        marked.append([False] * len(table.columns))
+    intervals = [
+        [
+            percentile_interval(distributions[method, column]) if (method, column) in distributions else None
+            for column in table.columns
+        ]
+        for method in table.rows
+    ]
+    marked = [[False] * len(table.columns) for _ in table.rows]
     significant = []
     for j, column in enumerate(table.columns):
         values = {
@@ -701,10 +674,8 @@ def ties_csv(table: TiesTable) -> str:
     header = ["method", *(f"{c}_{part}" for c in table.columns for part in ("tied_share", "distinct_values"))]
     csv_rows: list[list[object]] = [header]
     for name, shares, distinct in zip(table.rows, table.tied_share, table.distinct, strict=True):
-        values = []
-        for share, count in zip(shares, distinct, strict=True):
-            values += ["", ""] if share is None else [f"{share:.6f}", f"{count:g}"]
-        csv_rows.append([name, *values])
+        pairs = [["", ""] if s is None else [f"{s:.6f}", f"{d:g}"] for s, d in zip(shares, distinct, strict=True)]
+        csv_rows.append([name, *(text for pair in pairs for text in pair)])
     return _csv_text(csv_rows)
 
 
@@ -739,16 +710,14 @@ class HeldOutCell:
 
 
 def _held_out_cell(cell: Any) -> HeldOutCell:
-    methods = {}
-    for name, numbers in cell.held_out["methods"].items():
-        full = cell.evaluation.methods.get(name)
-        methods[name] = HeldOutMethod(
-            name=name,
-            auc_pr=numbers.get("auc_pr"),
-            auc_pr_std=numbers.get("auc_pr_std"),
-            time_per_query_ms=numbers.get("time_per_query_ms"),
-            informative=True if full is None else full.informative,
+    methods = {
+        name: HeldOutMethod(
+            name,
+            *(numbers.get(key) for key in ("auc_pr", "auc_pr_std", "time_per_query_ms")),
+            informative=getattr(cell.evaluation.methods.get(name), "informative", True),  # CAL: none on all queries
         )
+        for name, numbers in cell.held_out["methods"].items()
+    }
     return HeldOutCell(cell.vpr_method, cell.dataset, HeldOutEvaluationView(methods))
 
 
