@@ -92,7 +92,6 @@ PROTOCOL = 1
 FULL_HASH_BYTES = 64 * 2**20
 #: Bytes hashed at each end of a larger file.
 EDGE_BYTES = 2**20
-_BLOCK = 2**20
 
 T = TypeVar("T")
 
@@ -121,18 +120,18 @@ def content_key(path: str | Path) -> str:
     >>> content_key(file) != first
     True
     """
-    hasher = hashlib.blake2b(digest_size=16)
     with open_regular(path) as handle:
         status = os.fstat(handle.fileno())
         if status.st_size <= FULL_HASH_BYTES:
-            while block := handle.read(_BLOCK):
-                hasher.update(block)
-        else:
-            hasher.update(handle.read(EDGE_BYTES))
-            handle.seek(-EDGE_BYTES, os.SEEK_END)
-            hasher.update(handle.read(EDGE_BYTES))
-            return f"{status.st_size}:{status.st_mtime_ns}:{_change_time(status)}:{hasher.hexdigest()}"
-    return f"{status.st_size}:{status.st_mtime_ns}:{hasher.hexdigest()}"
+            return f"{status.st_size}:{status.st_mtime_ns}:{hashlib.file_digest(handle, _blake2b).hexdigest()}"
+        hasher = _blake2b(handle.read(EDGE_BYTES))
+        handle.seek(-EDGE_BYTES, os.SEEK_END)
+        hasher.update(handle.read(EDGE_BYTES))
+        return f"{status.st_size}:{status.st_mtime_ns}:{_change_time(status)}:{hasher.hexdigest()}"
+
+
+def _blake2b(data: bytes = b"") -> Any:
+    return hashlib.blake2b(data, digest_size=16)
 
 
 def _change_time(stat: os.stat_result) -> int:
@@ -145,7 +144,7 @@ def is_partly_hashed(path: str | Path) -> bool:
 
 
 def file_digest(path: str | Path) -> str:
-    """``"blake2b:"`` and the BLAKE2b hash of every byte of a file, whatever its size (read in 1 MiB blocks).
+    """``"blake2b:"`` and the BLAKE2b hash of every byte of a file, whatever its size (read block by block).
 
     Examples
     --------
@@ -155,11 +154,8 @@ def file_digest(path: str | Path) -> str:
     >>> file_digest(file) == "blake2b:" + hashlib.blake2b(b"a", digest_size=16).hexdigest()
     True
     """
-    hasher = hashlib.blake2b(digest_size=16)
     with open_regular(path) as handle:
-        while block := handle.read(_BLOCK):
-            hasher.update(block)
-    return "blake2b:" + hasher.hexdigest()
+        return "blake2b:" + hashlib.file_digest(handle, _blake2b).hexdigest()
 
 
 def named_files_key(values: Any) -> dict[str, str]:

@@ -20,6 +20,7 @@ Examples
 from __future__ import annotations
 
 import contextlib
+import inspect
 import logging
 import math
 import os
@@ -32,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.plugins import Registry, Travelling, load_plugins, load_target, merge_options
+from vpr_uncertainty.plugins import Registry, Travelling, import_or_explain, load_plugins, load_target, merge_options
 
 __all__ = [
     "CONNECT_TIMEOUT",
@@ -62,13 +63,9 @@ START_TIMEOUT = 180.0
 
 def import_ray() -> Any:
     """The ``ray`` module, or an ImportError naming the extra that provides it."""
-    try:
-        import ray
-    except ImportError as error:
-        raise ImportError(
-            "the ray executor needs Ray: pip install 'vpr-uncertainty[ray]' (or pip install 'ray[data]')"
-        ) from error
-    return ray
+    return import_or_explain(
+        "ray", "the ray executor needs Ray: pip install 'vpr-uncertainty[ray]' (or pip install 'ray[data]')"
+    )
 
 
 def _apply(function: Callable[[Any], Any], item: Any) -> Any:
@@ -194,8 +191,11 @@ class RayExecutor(BaseExecutor):
     def _connect(self, address: str | None, start_timeout: float, log_file: str | Path | None) -> None:
         if not self.ray.is_initialized():
             # "local": a new cluster, never one that a `ray start` on this machine left behind
-            options: dict[str, Any] = {"address": address or "local", "include_dashboard": False}
-            options["log_to_driver"] = False
+            options: dict[str, Any] = {
+                "address": address or "local",
+                "include_dashboard": False,
+                "log_to_driver": False,
+            }
             if address is None and self.workers is not None:
                 options["num_cpus"] = self.workers
             with _stderr_to(log_file):
@@ -483,18 +483,11 @@ def get_executor(name: str = "local", **options: Any) -> BaseExecutor:
     return entry.create(**{key: value for key, value in options.items() if key not in owners})
 
 
-register_executor("local", LocalExecutor, description="in this process (default)", options={"workers": None})
+def _defaults(factory: Callable[..., BaseExecutor]) -> dict[str, Any]:
+    return {name: parameter.default for name, parameter in inspect.signature(factory).parameters.items()}
+
+
+register_executor("local", LocalExecutor, description="in this process (default)", options=_defaults(LocalExecutor))
 register_executor(
-    "ray",
-    RayExecutor,
-    description="as tasks on a Ray cluster",
-    options={
-        "address": None,
-        "workers": None,
-        "gpus_per_worker": 0.0,
-        "connect_timeout": CONNECT_TIMEOUT,
-        "start_timeout": START_TIMEOUT,
-        "log_file": None,
-    },
-    extra="ray",
+    "ray", RayExecutor, description="as tasks on a Ray cluster", options=_defaults(RayExecutor), extra="ray"
 )

@@ -182,13 +182,10 @@ class _Feeder:
                 attribute = list(attribute.values())  # hooks: keyed by a registration counter
             self.tag("attribute", name)
             self.feed(attribute, f"{where}.{name}")
-        for kind in ("_parameters", "_buffers"):
-            for name, tensor in sorted(vars(module).get(kind, {}).items()):
-                self.tag(kind, name)
-                self.feed(tensor, f"{where}.{name}")
-        for name, child in sorted(vars(module).get("_modules", {}).items()):
-            self.tag("submodule", name)
-            self.feed(child, f"{where}.{name}")
+        for kind, label in (("_parameters", "_parameters"), ("_buffers", "_buffers"), ("_modules", "submodule")):
+            for name, part in sorted(vars(module).get(kind, {}).items()):  # tensors, then submodules
+                self.tag(label, name)
+                self.feed(part, f"{where}.{name}")
 
     def function(self, function: types.FunctionType, where: str) -> None:
         self.tag("function", function.__module__, function.__qualname__)

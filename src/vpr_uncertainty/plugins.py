@@ -44,6 +44,7 @@ __all__ = [
     "ENTRY_POINT_GROUP",
     "Registry",
     "Travelling",
+    "import_or_explain",
     "load_plugins",
     "load_target",
     "loaded_plugins",
@@ -181,6 +182,14 @@ def missing_extra_message(what: str, module: str | None, extra: str | None) -> s
     """``"<what> needs a missing dependency (<module>); install it with: pip install 'vpr-uncertainty[<extra>]'"``."""
     hint = f"; install it with: pip install 'vpr-uncertainty[{extra}]'" if extra else ""
     return f"{what} needs a missing dependency ({module}){hint}"
+
+
+def import_or_explain(module: str, message: str) -> Any:
+    """Import and return ``module``, or raise an ImportError with ``message`` (what needs it, how to install it)."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as error:
+        raise ImportError(message) from error
 
 
 def load_target(target: Any, *, what: str, extra: str | None = None) -> Any:

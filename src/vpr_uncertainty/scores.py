@@ -529,9 +529,7 @@ def _fused_baseline(
     out, low, high = scan(scores, compute)
     if low <= high and not (-COSINE_TOLERANCE <= low and high <= 4 + COSINE_TOLERANCE):  # s in [-1, 1] ± tol / 2
         return None
-    if not np.isfinite(out).all():
-        return None
-    return out
+    return out if np.isfinite(out).all() else None
 
 
 def _negated_first(block: np.ndarray, out: np.ndarray) -> None:

@@ -68,10 +68,11 @@ def read_btl_descriptors(value: object, split: str, names: object = None) -> obj
         return value
     from vpr_uncertainty.data import load_descriptors
 
-    option = "query_descriptors" if split == "queries" else "database_descriptors"
     file_names, array = load_descriptors(value, split)
     if file_names is not None and names is not None and list(file_names) != [str(name) for name in names]:
-        raise ValueError(f"{option}: the image names in the descriptor file differ from the retrieval's {split} names")
+        raise ValueError(
+            f"{_OPTIONS[split]}: the image names in the descriptor file differ from the retrieval's {split} names"
+        )
     return array
 
 
@@ -270,13 +271,12 @@ def btl_retrieval(
         The head's variance of each query.
     """
     head = _head(btl_head, device)
-    head_path = getattr(head, "source_path", None)
     queries = _descriptors(query_descriptors, "queries", retrieval.n_queries)
     database = _descriptors(database_descriptors, "database", retrieval.n_database)
-    for option, array in (("query_descriptors", queries), ("database_descriptors", database)):
+    for split, array in (("queries", queries), ("database", database)):
         if array.shape[1] != head.input_dim:
             raise ValueError(
-                f"{option} have dimension {array.shape[1]} but the BTL head was trained on {head.input_dim}-D "
+                f"{_OPTIONS[split]} have dimension {array.shape[1]} but the BTL head was trained on {head.input_dim}-D "
                 "descriptors (use the descriptors of the model it was trained with)"
             )
     query_means, query_variances = embed(head, queries)
@@ -289,9 +289,8 @@ def btl_retrieval(
         "k": k,
         "embedding_dim": head.embedding_dim,
         "retrieved_with": "BTL head mean embeddings",
+        **({"btl_head": head.source_path} if getattr(head, "source_path", None) is not None else {}),
     }
-    if head_path is not None:
-        config["btl_head"] = head_path
     own = replace(retrieval, scores=scores, indices=indices, distances=distances, config=config)
     return own, query_variances
 
@@ -338,7 +337,6 @@ def btl_uncertainty(
         database_descriptors=database_descriptors,
         device=device,
     )
-    details: dict[str, Any] = {}
     seen = trained_on(btl_head, np.asarray(query_descriptors, dtype=np.float32))  # both checked by btl_retrieval
     if seen and not allow_train_queries:
         source = getattr(btl_head, "source_path", None) or "the BTL head"
@@ -347,8 +345,7 @@ def btl_uncertainty(
             "nothing about new queries. Evaluate it on other queries, or pass allow_train_queries=True "
             "(evaluate --allow-train-queries) to report it, marked"
         )
-    if seen:
-        details["trained_on_queries"] = seen
+    details = {"trained_on_queries": seen} if seen else {}
     return OwnRetrievalUncertainty(uncertainty=variance.astype(np.float64), retrieval=own, details=details)
 
 

@@ -416,11 +416,9 @@ def train_btl_head(
 
     def record(epoch: int, train: tuple[float, float]) -> float:
         val = loss.evaluate(head, val_triplets)
-        history.epoch.append(epoch)
-        history.train_loss.append(train[0])
-        history.train_nll.append(train[1])
-        history.val_loss.append(val[0])
-        history.val_nll.append(val[1])
+        columns = ("epoch", "train_loss", "train_nll", "val_loss", "val_nll")
+        for name, value in zip(columns, (epoch, *train, *val), strict=True):
+            getattr(history, name).append(value)
         return val[0]
 
     best = record(0, loss.evaluate(head, train_triplets))
@@ -481,8 +479,6 @@ def save_training_curve(history: TrainingHistory, json_path: str | Path, png_pat
     axes.plot(history.epoch, history.val_loss, label="validation", marker=".")
     best = f"best epoch {history.best_epoch}"
     axes.axvline(history.best_epoch, color="grey", linestyle="--", linewidth=1, label=best)
-    axes.set_xlabel("epoch")
-    axes.set_ylabel("Bayesian triplet loss")
-    axes.set_title("BTL head training")
+    axes.set(xlabel="epoch", ylabel="Bayesian triplet loss", title="BTL head training")
     axes.legend()
     write_figure(figure, png_path, dpi=120)

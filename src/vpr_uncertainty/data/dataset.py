@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+from vpr_uncertainty.plugins import import_or_explain
+
 # The ground truth from positions lives below data/ (retrieval.ground_truth: retrieve() attaches it); the two
 # functions that build and attach it are re-exported here.
 from vpr_uncertainty.retrieval.ground_truth import (
@@ -218,10 +220,7 @@ def latlon_to_utm(
     >>> zone, northern, round(float(np.linalg.norm(positions[1] - positions[0])), 1)
     (17, True, 22.2)
     """
-    try:
-        import utm
-    except ImportError as error:  # pragma: no cover - utm is a dependency
-        raise ImportError("converting latitude/longitude to metres needs the 'utm' package: pip install utm") from error
+    utm = import_or_explain("utm", "converting latitude/longitude to metres needs the 'utm' package: pip install utm")
     lat = np.asarray(latitude, dtype=np.float64).reshape(-1)
     lon = np.asarray(longitude, dtype=np.float64).reshape(-1)
     if lat.shape != lon.shape:

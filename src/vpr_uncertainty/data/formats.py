@@ -180,10 +180,7 @@ def _delimiter(path: Path, sample: str, delimiter: str | None) -> str:
 
 
 def _column(header: dict[str, int], names: tuple[str, ...]) -> int | None:
-    for name in names:
-        if name in header:
-            return header[name]
-    return None
+    return next((header[name] for name in names if name in header), None)
 
 
 def read_image_table(
@@ -239,12 +236,9 @@ def read_image_table(
                 raise ValueError(f"{where}: position {row[column]!r} is not a number") from None
         if roles is not None:
             role = row[role_column].strip().lower()
-            if role in _DATABASE_ROLES:
-                roles.append("database")
-            elif role in _QUERY_ROLES:
-                roles.append("query")
-            else:
+            if role not in _DATABASE_ROLES | _QUERY_ROLES:
                 raise ValueError(f"{where}: role {row[role_column]!r} is neither database nor query")
+            roles.append("database" if role in _DATABASE_ROLES else "query")
     if not np.isfinite(values).all():
         line = line_numbers[1 + int(np.argwhere(~np.isfinite(values))[0, 0])]
         raise ValueError(f"{path}:{line}: position is not finite")

@@ -239,10 +239,7 @@ def parse_image_name(path: str | Path) -> ImageName:
         raise _malformed(path, f"found {len(fields)} '@'-separated field(s), need at least UTM east and north")
     east = _number(fields[0], "UTM_east", path)
     north = _number(fields[1], "UTM_north", path)
-    zone: int | None = None
-    letter: str | None = None
-    latitude: float | None = None
-    longitude: float | None = None
+    zone = letter = latitude = longitude = None  # the optional fields, when given
     if len(fields) > 3 and fields[2]:
         try:
             zone = int(fields[2])
@@ -263,10 +260,7 @@ def parse_image_name(path: str | Path) -> ImageName:
 
 
 def _pick(folder: Path, candidates: tuple[str, ...]) -> Path | None:
-    for candidate in candidates:
-        if (folder / candidate).is_dir():
-            return folder / candidate
-    return None
+    return next((folder / candidate for candidate in candidates if (folder / candidate).is_dir()), None)
 
 
 def has_split(folder: Path) -> bool:
@@ -281,9 +275,8 @@ def find_split_folder(root: str | Path, split: str = "test") -> Path:
     """
     root = Path(root)
     candidates = [root, root / split, root / "images" / split]
-    for candidate in candidates:
-        if has_split(candidate):
-            return candidate
+    if (found := next((candidate for candidate in candidates if has_split(candidate)), None)) is not None:
+        return found
     looked = ", ".join(str(candidate) for candidate in candidates)
     splits = sorted(path.name for path in (root / "images").glob("*") if path.is_dir()) if root.is_dir() else []
     hint = f" (splits found under {root / 'images'}: {', '.join(splits)})" if splits else ""

@@ -221,8 +221,7 @@ def _valid_length(group: Any) -> int:
     """Rows present in every dataset (a kill between the writes leaves at most one batch unmatched)."""
     if "names" not in group or "descriptors" not in group:
         return 0
-    lengths = [group[key].shape[0] for key in _DATASETS if key in group]
-    return min(lengths)
+    return min(group[key].shape[0] for key in _DATASETS if key in group)
 
 
 def is_whole(path: Path) -> bool:
@@ -565,12 +564,10 @@ class DescriptorCache:
             # Descriptors and keys first, names last: a name on disk always has its descriptor and key.
             stored.resize((stop, stored.shape[1]))
             stored[start:stop] = descriptors.astype(self.dtype)
-            group["keys"].resize((stop,))
-            group["keys"][start:stop] = np.asarray(list(keys), dtype=object)
-            group["checksums"].resize((stop,))
-            group["checksums"][start:stop] = np.asarray(row_checksums(names, stored[start:stop], keys), dtype=object)
-            group["names"].resize((stop,))
-            group["names"][start:stop] = np.asarray(list(names), dtype=object)
+            checksums = row_checksums(names, stored[start:stop], keys)
+            for key, values in (("keys", keys), ("checksums", checksums), ("names", names)):
+                group[key].resize((stop,))
+                group[key][start:stop] = np.asarray(list(values), dtype=object)
             self._handle.flush()
 
     def _create(self, group: Any, dim: int) -> None:

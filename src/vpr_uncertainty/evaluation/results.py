@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rank_queries
+from vpr_uncertainty.plugins import import_or_explain
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas
@@ -337,13 +338,11 @@ def evaluation_frame(evaluation: Evaluation) -> pandas.DataFrame:
     ImportError
         When pandas is not installed (it names the extra to install).
     """
-    try:
-        import pandas
-    except ImportError as error:
-        raise ImportError(
-            "Evaluation.to_frame() needs pandas, which the core install leaves out: "
-            "pip install 'vpr-uncertainty[pandas]' (or pip install pandas)"
-        ) from error
+    pandas = import_or_explain(
+        "pandas",
+        "Evaluation.to_frame() needs pandas, which the core install leaves out: pip install 'vpr-uncertainty[pandas]' "
+        "(or pip install pandas)",
+    )
     rows = [method_row(method) for method in evaluation.methods.values()]
     columns = list(dict.fromkeys(key for row in rows for key in row))
     frame = pandas.DataFrame(rows, index=pandas.Index(list(evaluation.methods), name="method"), columns=columns)

@@ -57,11 +57,6 @@ class PendingFeatures:
 _store: dict[Path, PendingFeatures] | None = None
 
 
-def active_store() -> dict[Path, PendingFeatures] | None:
-    """The in-memory store of the enclosing :func:`deferred_writes` (cache file -> features), or None outside one."""
-    return _store
-
-
 @contextmanager
 def deferred_writes() -> Iterator[list[PendingFeatures]]:
     """Within the context, :func:`extract_features` reads the caches and never writes them: what it extracts is
@@ -229,12 +224,7 @@ def write_features(
         content_key = cache.content_key(source)
     if content_key is not None:
         group.attrs["content_key"] = content_key
-    group.attrs["checksum"] = _group_checksum(group)
-
-
-def _group_checksum(group: h5py.Group) -> str:
-    """The payload checksum of one image's stored features (every dataset of the group, by name)."""
-    return _checksum({key: group[key][()] for key in _FEATURE_DATASETS if key in group})
+    group.attrs["checksum"] = _checksum({key: group[key][()] for key in _FEATURE_DATASETS})  # as stored
 
 
 def _checksum(raw: Mapping[str, Any]) -> str:
@@ -259,9 +249,7 @@ def _stored_key(handle: h5py.File, name: str) -> str | None:
     import h5py
 
     group = handle.get(name)
-    if isinstance(group, h5py.Group) and "image_size" in group:
-        return group.attrs.get("content_key")
-    return None
+    return group.attrs.get("content_key") if isinstance(group, h5py.Group) and "image_size" in group else None
 
 
 def _open_cache(path: Path, config: str, *, write: bool = True) -> h5py.File | None:
@@ -382,11 +370,10 @@ def extract_features(
         if cache_dir is not None:
             file_path = cache_path(cache_dir, extractor)
             config = json.dumps(extractor_config(extractor), sort_keys=True, default=str)
-            store = active_store()
-            if store is None:
+            if _store is None:
                 handle = _open_cache(file_path, config)
-            else:  # a task: read the shared file, keep what is extracted for the driver
-                deferred = store.setdefault(file_path, PendingFeatures(file_path, config))
+            else:  # inside deferred_writes (a task): read the shared file, keep what is extracted for the driver
+                deferred = _store.setdefault(file_path, PendingFeatures(file_path, config))
                 features.update(_deferred_features(deferred, unique))
                 handle = _open_cache(file_path, config, write=False)
             if handle is not None:

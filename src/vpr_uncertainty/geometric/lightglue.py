@@ -143,15 +143,13 @@ LIGHTGLUE_FEATURES = ("disk", "superpoint", "xfeat")
 
 
 class TorchExtractor(Extractor):
-    """An extractor running a torch model: :meth:`config` adds its ``settings`` (attribute names) and the weights'
-    ``fingerprint`` to the base configuration."""
+    """An extractor running a torch model: :meth:`config` adds the weights' ``fingerprint``."""
 
     uses_torch = True
-    settings: tuple[str, ...] = ()
     fingerprint: str
 
     def config(self) -> dict[str, Any]:
-        return {**super().config(), **{key: getattr(self, key) for key in self.settings}, "weights": self.fingerprint}
+        return {**super().config(), "weights": self.fingerprint}
 
 
 def to_numpy(*tensors: Any) -> tuple[np.ndarray, ...]:

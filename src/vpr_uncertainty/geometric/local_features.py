@@ -231,6 +231,8 @@ class Extractor(ABC):
     thread_parallel: bool = False
     #: a torch model: on CPU, ``workers`` threads with one torch thread each; on CUDA, batches in one thread
     uses_torch: bool = False
+    #: the attributes (options) that :meth:`config` adds to the base configuration
+    settings: tuple[str, ...] = ()
 
     def __init__(self, *, max_side: int = DEFAULT_MAX_SIDE, device: str = "cpu", batch_size: int = 1) -> None:
         self.max_side = check_max_side(max_side)
@@ -239,7 +241,8 @@ class Extractor(ABC):
 
     def config(self) -> dict[str, Any]:
         """Everything that changes the output; the feature cache is keyed by it."""
-        return {"name": self.name, "max_side": self.max_side, "grayscale": self.grayscale}
+        base = {"name": self.name, "max_side": self.max_side, "grayscale": self.grayscale}
+        return {**base, **{key: getattr(self, key) for key in self.settings}}
 
     @abstractmethod
     def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
@@ -305,6 +308,7 @@ class SIFTExtractor(Extractor):
     name = "sift"
     grayscale = True
     thread_parallel = True
+    settings = ("max_keypoints", "root_sift", "contrast_threshold")
 
     def __init__(
         self,
@@ -325,13 +329,7 @@ class SIFTExtractor(Extractor):
         self._cv2 = cv2
 
     def config(self) -> dict[str, Any]:
-        return {
-            **super().config(),
-            "max_keypoints": self.max_keypoints,
-            "root_sift": self.root_sift,
-            "contrast_threshold": self.contrast_threshold,
-            "opencv": self._cv2.__version__,
-        }
+        return {**super().config(), "opencv": self._cv2.__version__}
 
     def _extract_batch(self, images: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         # one detector per call: cv2.SIFT objects are not documented as thread-safe

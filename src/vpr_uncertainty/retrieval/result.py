@@ -89,10 +89,10 @@ class Retrieval:
     def subset_queries(self, rows: np.ndarray) -> Retrieval:
         """The retrieval of the queries ``rows`` only (an index array or a boolean mask), same database."""
         rows = np.asarray(rows)
-        taken = {}
-        for name in ("scores", "indices", "positives", "distances", "query_names", "query_positions"):
-            value = getattr(self, name)
-            taken[name] = None if value is None else value[rows]
+        taken = {
+            name: None if (value := getattr(self, name)) is None else value[rows]
+            for name in ("scores", "indices", "positives", "distances", "query_names", "query_positions")
+        }
         return dataclasses.replace(self, **taken)
 
     @property
@@ -278,12 +278,12 @@ def check_retrieval_fields(retrieval: Any) -> None:
             raise ValueError(
                 f"positives has {retrieval.positives.shape[0]} rows but there are {n_queries} queries (scores rows)"
             )
-    retrieval.query_names = _check_rows("query_names", retrieval.query_names, n_queries, "query")
-    retrieval.database_names = _check_rows("database_names", retrieval.database_names, None, "database image")
-    retrieval.query_positions = _check_rows("query_positions", retrieval.query_positions, n_queries, "query")
-    retrieval.database_positions = _check_rows(
-        "database_positions", retrieval.database_positions, None, "database image"
-    )
+    for kind in ("names", "positions"):
+        for name, expected, what in (
+            (f"query_{kind}", n_queries, "query"),
+            (f"database_{kind}", None, "database image"),
+        ):
+            setattr(retrieval, name, _check_rows(name, getattr(retrieval, name), expected, what))
     if retrieval.query_positions is not None and retrieval.database_positions is not None:
         if retrieval.query_positions.shape[1] != retrieval.database_positions.shape[1]:
             raise ValueError(
@@ -399,14 +399,6 @@ def _index_row(item: object, query: int, n_database: int | None, source: str) ->
     return row
 
 
-def _csr_from_rows(rows: Sequence[np.ndarray], n_database: int) -> sparse.csr_array:
-    indptr = np.zeros(len(rows) + 1, dtype=np.int64)
-    np.cumsum([row.size for row in rows], out=indptr[1:])
-    indices = np.concatenate(rows) if rows else np.empty(0, np.int64)
-    data = np.ones(indices.size, dtype=bool)
-    return sparse.csr_array((data, indices, indptr), shape=(len(rows), n_database))
-
-
 def check_positive_int(value: object, name: str) -> int:
     """``value`` as an int when it is an integer >= 1 (not a bool); otherwise a ValueError naming ``name``."""
     if not is_index(value) or value < 1:
@@ -458,7 +450,10 @@ def positives_from_lists(
     rows = [_index_row(item, query, n_database, prefix) for query, item in enumerate(lists)]
     if n_database is None:
         n_database = max((int(row[-1]) for row in rows if row.size), default=-1) + 1
-    return _csr_from_rows(rows, n_database)
+    indptr = np.zeros(len(rows) + 1, dtype=np.int64)
+    np.cumsum([row.size for row in rows], out=indptr[1:])
+    indices = np.concatenate(rows) if rows else np.empty(0, np.int64)
+    return sparse.csr_array((np.ones(indices.size, dtype=bool), indices, indptr), shape=(len(rows), n_database))
 
 
 def positives_from_mask(mask: object, *, source: str | Path | None = None) -> sparse.csr_array:

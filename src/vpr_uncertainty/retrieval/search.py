@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.plugins import import_or_explain
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, default_block_rows
 from vpr_uncertainty.retrieval.ground_truth import DEFAULT_RADIUS, attach_ground_truth, ground_truth_fields
 from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
@@ -472,14 +473,11 @@ def faiss_gpu_available() -> bool:
 
 
 def _import_faiss() -> Any:
-    try:
-        import faiss
-    except ImportError as error:
-        raise ImportError(
-            "descriptor retrieval needs Faiss; install it with: pip install faiss-cpu (or faiss-gpu to search on a "
-            "CUDA device)"
-        ) from error
-    return faiss
+    return import_or_explain(
+        "faiss",
+        "descriptor retrieval needs Faiss; install it with: pip install faiss-cpu (or faiss-gpu to search on a CUDA "
+        "device)",
+    )
 
 
 class _Searcher:
