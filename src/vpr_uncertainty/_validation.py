@@ -6,19 +6,6 @@ import numbers
 
 import numpy as np
 
-__all__ = [
-    "BLOCK_ROWS",
-    "as_score_array",
-    "check_best_scores",
-    "check_block",
-    "check_count",
-    "check_fraction",
-    "check_k",
-    "check_rows",
-    "check_top_k_scores",
-    "raise_for_short_rows",
-]
-
 
 def check_k(k: object, *, name: str = "k") -> int:
     """Return ``k`` as an int after checking that it is an integer >= 2."""

@@ -38,22 +38,6 @@ from vpr_uncertainty.evaluation.metrics import check_labels
 if TYPE_CHECKING:
     from vpr_uncertainty.evaluation.results import Evaluation
 
-__all__ = [
-    "BOOTSTRAP_METRICS",
-    "DEFAULT_REFERENCE",
-    "TEST_DESCRIPTION",
-    "add_bootstrap",
-    "bootstrap_metrics",
-    "check_bootstrap",
-    "evaluation_distributions",
-    "holm",
-    "leaders",
-    "paired_p_value",
-    "percentile_interval",
-    "resample_indices",
-    "resolve_reference",
-    "weighted_metrics",
-]
 
 #: The metrics resampled, and whether higher is better.
 BOOTSTRAP_METRICS: dict[str, bool] = {"auc_pr": True, "average_precision": True, "aurc": False}

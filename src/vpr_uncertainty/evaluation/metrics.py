@@ -39,31 +39,6 @@ from scipy import sparse
 
 from vpr_uncertainty._repr import compact_repr
 
-__all__ = [
-    "RECALL_NS",
-    "FewerCandidatesWarning",
-    "RejectionCurve",
-    "ThresholdChoice",
-    "UncertaintyRanking",
-    "answerable_queries",
-    "auc_pr",
-    "aurc",
-    "average_precision",
-    "candidate_hits",
-    "check_labels",
-    "check_recall_ns",
-    "correct_at_n",
-    "first_positive_rank",
-    "positives_against_mean",
-    "precision_at_recall",
-    "rank_queries",
-    "recall_at_full_precision",
-    "recall_at_n",
-    "recall_candidates_note",
-    "rejection_curve",
-    "threshold_at_precision",
-]
-
 #: The N of recall@N reported by :func:`vpr_uncertainty.evaluate` by default (its ``recall_at`` takes any N); the
 #: largest one sets how many candidates a retrieval needs.
 RECALL_NS: tuple[int, ...] = (1, 5, 10, 20)

@@ -15,16 +15,6 @@ from vpr_uncertainty.plugins import import_or_explain
 if TYPE_CHECKING:  # pragma: no cover
     import pandas
 
-__all__ = [
-    "DETAIL_KEYS",
-    "TIMING_KEYS",
-    "Evaluation",
-    "MethodEvaluation",
-    "evaluation_frame",
-    "evaluation_summary",
-    "method_row",
-    "method_summary",
-]
 
 #: Optional time figures of a method (see :func:`vpr_uncertainty.evaluate`), in ms.
 TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms_warm")

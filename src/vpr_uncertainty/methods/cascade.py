@@ -26,15 +26,6 @@ from vpr_uncertainty.methods.entries import (
 )
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = [
-    "DEFAULT_VERIFY_FRACTION",
-    "cascade_entry",
-    "combine_cascade",
-    "most_uncertain",
-    "run_cascade",
-    "split_cascade_name",
-]
-
 DEFAULT_VERIFY_FRACTION = 0.3
 _GEOMETRIC = "geometric"
 
