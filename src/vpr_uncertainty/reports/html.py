@@ -11,17 +11,6 @@ from typing import Any
 
 from vpr_uncertainty.cache import slug, write_text
 
-__all__ = [
-    "Section",
-    "cell_stem",
-    "embed_png",
-    "figure_caption",
-    "png_display_width",
-    "render_report",
-    "settings_table",
-    "write_report",
-]
-
 _STYLE = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:1em 0;font-size:0.9em}th,td{border:1px solid #ccc;padding:3px 8px}

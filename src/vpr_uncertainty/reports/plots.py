@@ -45,35 +45,6 @@ from vpr_uncertainty.reports.style import (
     save_figure,
 )
 
-__all__ = [
-    "CATEGORIES",
-    "FRACTIONS",
-    "PROPOSED",
-    "SHOWN",
-    "TOP",
-    "ablation_figsize",
-    "alpha_ablation_spec",
-    "alpha_panels",
-    "best_alpha",
-    "cascade_curve",
-    "cascade_spec",
-    "cascades",
-    "choose_queries",
-    "delta_matrix",
-    "heatmap_figure_size",
-    "heatmap_layout",
-    "heatmap_spec",
-    "k_ablation_spec",
-    "k_panels",
-    "plot_alpha_ablation",
-    "plot_cascade",
-    "plot_delta_heatmaps",
-    "plot_k_ablation",
-    "plot_qualitative",
-    "qualitative_figsize",
-    "qualitative_spec",
-]
-
 # --- ablations ---
 
 #: Room in inches for the title above the panels, and for each row of the legend below them.
