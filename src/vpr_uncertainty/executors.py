@@ -35,24 +35,6 @@ from typing import Any
 
 from vpr_uncertainty.plugins import Registry, Travelling, import_or_explain, load_plugins, load_target, merge_options
 
-__all__ = [
-    "CONNECT_TIMEOUT",
-    "EXECUTORS",
-    "MAX_RETRIES",
-    "START_TIMEOUT",
-    "BaseExecutor",
-    "ExecutorEntry",
-    "LocalExecutor",
-    "RayExecutor",
-    "executor_names",
-    "get_executor",
-    "import_ray",
-    "redirect_ray_logs",
-    "register_executor",
-    "start_ray",
-    "wait_for_address",
-]
-
 #: How many times Ray reruns a task whose worker died.
 MAX_RETRIES = 3
 #: Seconds to wait for a Ray cluster at an explicit address to answer (``--connect-timeout``).

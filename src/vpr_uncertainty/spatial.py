@@ -45,15 +45,6 @@ from vpr_uncertainty.methods import register_method
 from vpr_uncertainty.retrieval import Retrieval
 from vpr_uncertainty.scores import squared_distances_from_similarities
 
-__all__ = [
-    "CLIP_MODES",
-    "DEFAULT_SLOPE",
-    "MAX_DEVIATION",
-    "check_sue_options",
-    "spatial_uncertainty",
-    "sue_from_retrieval",
-]
-
 #: Slope of the weights exp(−slope · d²) in the published implementation.
 DEFAULT_SLOPE = 350.0
 #: Largest deviation from the mean position, in metres, that counts in full.
