@@ -304,13 +304,11 @@ def extract_descriptors(
     workers = min(4, os.cpu_count() or 1) if workers is None else int(workers)
     dtype = "float16" if half else "float32"
 
-    cache = (
-        DescriptorCache(
+    cache = None
+    if cache_path is not None:
+        cache = DescriptorCache(
             cache_path, model.fingerprint, dtype=dtype, model_name=model.name, overwrite=overwrite, verify=(split,)
         )
-        if cache_path is not None
-        else None
-    )
     memory: dict[str, np.ndarray] = {}
     failed = [] if failed is None else failed
     try:

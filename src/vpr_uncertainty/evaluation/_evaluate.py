@@ -43,16 +43,6 @@ from vpr_uncertainty.methods import (
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = [
-    "LATENCY_KINDS",
-    "RECALL_LEVELS",
-    "FewerCandidatesWarning",
-    "evaluate",
-    "latency_batch1",
-    "single_query_retrievals",
-    "time_geometric",
-    "time_per_query",
-]
 
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
 #: Seconds of calls after which the timings stop repeating a call.

@@ -92,8 +92,7 @@ def compute(
         if missing:
             raise ValueError(f"--uncertainty names {', '.join(missing)}, which --methods leaves out")
         evaluation = evaluate_compute(evaluate_conf, retrieval_a).evaluation
-        method_a, method_b = conf.uncertainty
-        return compare(evaluation, method_a=method_a, method_b=method_b, **settings)
+        return compare(evaluation, method_a=conf.uncertainty[0], method_b=conf.uncertainty[1], **settings)
     _check_same_ground_truth(retrieval_a, retrieval_b, labels)
     evaluation_a, evaluation_b = (evaluate_compute(conf.evaluate, r).evaluation for r in (retrieval_a, retrieval_b))
     comparison = compare(

@@ -169,11 +169,8 @@ def cached(
     if config is None:
         return None
     result = Descriptors(path=path, model_name=config["model"], names={}, descriptors={})
-    for split in SPLITS:
-        if split not in images:
-            continue
-        paths, names = images[split]
-        found = cached_descriptors(config, paths, names, path, split, half=conf.half)
+    for split in (split for split in SPLITS if split in images):
+        found = cached_descriptors(config, *images[split], path, split, half=conf.half)
         if found is None:
             return None
         result.names[split], result.descriptors[split] = found

@@ -94,12 +94,9 @@ def ground_truth_key(fields: Mapping[str, Any]) -> str:
         matrix = sparse.csr_array(positives, dtype=bool)
         matrix.sort_indices()
         parts += [np.asarray(matrix.shape, dtype=np.int64), matrix.indptr.astype(np.int64), matrix.indices]
-    for name in ("query_names", "database_names"):
+    for name in ("query_names", "database_names", "query_positions", "database_positions"):
         value = fields.get(name)
-        parts.append(None if value is None else np.asarray(value, dtype=str))
-    for name in ("query_positions", "database_positions"):
-        value = fields.get(name)
-        parts.append(None if value is None else np.asarray(value, dtype=np.float64))
+        parts.append(None if value is None else np.asarray(value, dtype=str if name.endswith("_names") else np.float64))
     return cache.fingerprint("ground_truth", dict(fields.get("config") or {}), {"arrays": cache.array_digest(*parts)})
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from vpr_uncertainty.pipeline.options import (
@@ -118,23 +119,9 @@ def _handle(args: argparse.Namespace) -> int:
     with command_wording(**flags, learning_rate="--lr", device="--device cpu"):
         inputs = read_training_inputs(**{name: getattr(args, name) for name in _INPUTS}, radius=args.radius)
     database, queries = inputs["database"], inputs["queries"]
-    config = BTLTrainingConfig(
-        embedding_dim=args.embedding_dim,
-        hidden_dim=args.hidden_dim,
-        margin=args.margin,
-        kl_weight=args.kl_weight,
-        prior_variance=args.prior_variance,
-        n_negatives=args.negatives,
-        max_positives=args.max_positives,
-        epochs=args.epochs,
-        batch_size=args.batch_size,
-        learning_rate=args.lr,
-        weight_decay=args.weight_decay,
-        val_fraction=args.val_fraction,
-        patience=args.patience,
-        seed=args.seed,
-        device=args.device,
-    )
+    # the flags named as the settings, and --negatives, --lr
+    given = {f.name: getattr(args, f.name) for f in dataclasses.fields(BTLTrainingConfig) if hasattr(args, f.name)}
+    config = BTLTrainingConfig(**given, n_negatives=args.negatives, learning_rate=args.lr)
     anchors = f"{len(queries)} queries" if queries is not None else f"{len(database)} database images"
     print(f"training data: {anchors} as anchors, {len(database)} database images of dimension {database.shape[1]}")
     with command_wording(learning_rate="--lr", device="--device cpu"):
