@@ -68,11 +68,10 @@ def read_btl_descriptors(value: object, split: str, names: object = None) -> obj
         return value
     from vpr_uncertainty.data import load_descriptors
 
+    option = "query_descriptors" if split == "queries" else "database_descriptors"
     file_names, array = load_descriptors(value, split)
     if file_names is not None and names is not None and list(file_names) != [str(name) for name in names]:
-        raise ValueError(
-            f"{_OPTIONS[split]}: the image names in the descriptor file differ from the retrieval's {split} names"
-        )
+        raise ValueError(f"{option}: the image names in the descriptor file differ from the retrieval's {split} names")
     return array
 
 
@@ -273,10 +272,10 @@ def btl_retrieval(
     head = _head(btl_head, device)
     queries = _descriptors(query_descriptors, "queries", retrieval.n_queries)
     database = _descriptors(database_descriptors, "database", retrieval.n_database)
-    for split, array in (("queries", queries), ("database", database)):
+    for option, array in (("query_descriptors", queries), ("database_descriptors", database)):
         if array.shape[1] != head.input_dim:
             raise ValueError(
-                f"{_OPTIONS[split]} have dimension {array.shape[1]} but the BTL head was trained on {head.input_dim}-D "
+                f"{option} have dimension {array.shape[1]} but the BTL head was trained on {head.input_dim}-D "
                 "descriptors (use the descriptors of the model it was trained with)"
             )
     query_means, query_variances = embed(head, queries)

@@ -275,8 +275,9 @@ def find_split_folder(root: str | Path, split: str = "test") -> Path:
     """
     root = Path(root)
     candidates = [root, root / split, root / "images" / split]
-    if (found := next((candidate for candidate in candidates if has_split(candidate)), None)) is not None:
-        return found
+    for candidate in candidates:
+        if has_split(candidate):
+            return candidate
     looked = ", ".join(str(candidate) for candidate in candidates)
     splits = sorted(path.name for path in (root / "images").glob("*") if path.is_dir()) if root.is_dir() else []
     hint = f" (splits found under {root / 'images'}: {', '.join(splits)})" if splits else ""

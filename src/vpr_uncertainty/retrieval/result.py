@@ -278,12 +278,12 @@ def check_retrieval_fields(retrieval: Any) -> None:
             raise ValueError(
                 f"positives has {retrieval.positives.shape[0]} rows but there are {n_queries} queries (scores rows)"
             )
-    for kind in ("names", "positions"):
-        for name, expected, what in (
-            (f"query_{kind}", n_queries, "query"),
-            (f"database_{kind}", None, "database image"),
-        ):
-            setattr(retrieval, name, _check_rows(name, getattr(retrieval, name), expected, what))
+    retrieval.query_names = _check_rows("query_names", retrieval.query_names, n_queries, "query")
+    retrieval.database_names = _check_rows("database_names", retrieval.database_names, None, "database image")
+    retrieval.query_positions = _check_rows("query_positions", retrieval.query_positions, n_queries, "query")
+    retrieval.database_positions = _check_rows(
+        "database_positions", retrieval.database_positions, None, "database image"
+    )
     if retrieval.query_positions is not None and retrieval.database_positions is not None:
         if retrieval.query_positions.shape[1] != retrieval.database_positions.shape[1]:
             raise ValueError(
