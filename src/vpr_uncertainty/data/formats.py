@@ -236,7 +236,7 @@ def read_image_table(
                 raise ValueError(f"{where}: position {row[column]!r} is not a number") from None
         if roles is not None:
             role = row[role_column].strip().lower()
-            if role not in _DATABASE_ROLES | _QUERY_ROLES:
+            if role not in _DATABASE_ROLES and role not in _QUERY_ROLES:
                 raise ValueError(f"{where}: role {row[role_column]!r} is neither database nor query")
             roles.append("database" if role in _DATABASE_ROLES else "query")
     if not np.isfinite(values).all():

@@ -153,7 +153,7 @@ def build_components(
 
 _G = "vpr_uncertainty.geometric."
 _ON_DEVICE = ("max_side", "device", "batch_size")
-_glue = partial(
+_glue = partial(  # DISK and XFeat with the LightGlue weights their packages ship
     GVPreset, matcher=_G + "lightglue:LightGlueMatcher", extractor_runtime=_ON_DEVICE, matcher_runtime=("device",)
 )
 _official = partial(  # SuperPoint and its matchers from the official weights (a local path, or downloaded)
