@@ -242,6 +242,11 @@ def _load_cell_input(
     return result.retrieval, result.evaluation
 
 
+def positive_hits(retrieval: Any, n: int) -> np.ndarray:
+    """(Q, n) bool: whether each of the first ``n`` candidates of each query is a positive."""
+    return candidate_hits(retrieval.indices[:, :n], retrieval.positives)
+
+
 def _image_dataset(entry: InputEntry) -> Any:
     """The image dataset of a cell: its ``images`` folder, or the dataset a model runs on (None: no images)."""
     from vpr_uncertainty.data import load_dataset, load_vprbench_dataset
@@ -464,7 +469,7 @@ def run_cell(
         indices=retrieval.indices,
         ablation_alpha=alpha_curve,
         ablation_k=k_curve,
-        hits=candidate_hits(retrieval.indices[:, :HIT_COLUMNS], retrieval.positives),
+        hits=positive_hits(retrieval, HIT_COLUMNS),
         query_paths=options.get("query_paths"),
         database_paths=options.get("database_paths"),
         held_out=None
