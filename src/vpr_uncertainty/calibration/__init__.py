@@ -17,6 +17,7 @@ _EXPORTS: dict[str, str] = {
     "Gate": "vpr_uncertainty.calibration.gate",
     **dict.fromkeys(("Certificate", "certify_threshold", "min_accepted"), "vpr_uncertainty.calibration.guarantee"),
     **dict.fromkeys(("HeldOutEvaluation", "evaluate_held_out"), "vpr_uncertainty.calibration.quality"),
+    **dict.fromkeys(("SequentialCalibration", "SequentialStatus"), "vpr_uncertainty.calibration.sequential"),
 }
 
 __all__ = sorted(_EXPORTS)

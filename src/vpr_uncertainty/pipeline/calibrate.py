@@ -84,6 +84,15 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="estimate how many labelled queries certify --target-precision at a useful recall; writes no gate",
     )
+    parser.add_argument(
+        "--sequential",
+        type=Path,
+        metavar="LABELS.csv",
+        help="label one query at a time: SCORES is the unlabelled pool, LABELS.csv (query,correct rows; created "
+        "when missing) the labels so far; prints whether --target-precision is certified and the query to label "
+        "next (append its row and rerun), and writes --out once certified. With --gt the queries asked for are "
+        "labelled from the ground truth (a simulation of how many labels it takes)",
+    )
     parser.add_argument("--plot", type=output_file, metavar="FILE", help="write the reliability diagram")
     add_figure_width_option(parser)
     parser.set_defaults(handler=_handle)
@@ -94,6 +103,8 @@ def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.calibration.quality import brier_score, expected_calibration_error, reliability_diagram
     from vpr_uncertainty.evaluation import correct_at_n
 
+    if args.sequential is not None:
+        return _run_sequential(args)
     if args.plan and args.target_precision is None:
         raise ValueError("--plan needs --target-precision P: the plan says how many labels certify that precision")
     if not args.plan and args.out is None:
@@ -189,4 +200,67 @@ def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.nda
     print(plan.message)
     for note in plan.notes:
         print(f"note: {note}")
+    return 0
+
+
+def _read_labels(path: Path, n_queries: int) -> list[tuple[int, bool]]:
+    """The ``query,correct`` rows of a labels file (query: a pool index; correct: 1/0, true/false, yes/no)."""
+    import csv
+
+    if not path.exists():
+        return []
+    truth = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}
+    labels = []
+    with path.open(newline="", encoding="utf-8") as handle:
+        for line, row in enumerate(csv.reader(handle), start=1):
+            if not row or (line == 1 and row[0].strip().lower() == "query"):
+                continue
+            query, correct = [*row, ""][:2]
+            if not query.strip().isascii() or not query.strip().isdigit() or int(query) >= n_queries:
+                raise ValueError(f"{path}, line {line}: query must be a pool index in [0, {n_queries}), got {query!r}")
+            if correct.strip().lower() not in truth:
+                raise ValueError(f"{path}, line {line}: correct must be 1/0, true/false or yes/no, got {correct!r}")
+            labels.append((int(query), truth[correct.strip().lower()]))
+    return labels
+
+
+def _run_sequential(args: argparse.Namespace) -> int:
+    from vpr_uncertainty.calibration import SequentialCalibration
+    from vpr_uncertainty.evaluation import correct_at_n
+
+    if args.target_precision is None:
+        raise ValueError("--sequential needs --target-precision P: it labels until that precision is certified")
+    with command_wording(ground_truth="--gt GT"):
+        if args.gt is None:
+            scores, truth = _read_unlabelled(args.scores, args.format, max(DEFAULT_TOP_K, args.k)), None
+        else:
+            retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=args.k)
+            scores, truth = retrieval.scores, correct_at_n(retrieval.indices, retrieval.positives, 1)
+    rankings = args.rankings or ("SU", "margin")
+    session = SequentialCalibration(
+        scores, target_precision=args.target_precision, delta=args.delta, k=args.k, rankings=rankings
+    )
+    labels = _read_labels(args.sequential, len(scores))
+    for query, correct in labels:
+        session.add_label(query, correct)
+    if truth is not None:
+        while (query := session.next_query()) is not None:
+            session.add_label(query, bool(truth[query]))
+            labels.append((query, bool(truth[query])))
+        args.sequential.write_text("query,correct\n" + "".join(f"{q},{int(c)}\n" for q, c in labels), "utf-8")
+        print(
+            f"labelled {len(labels)} of {len(scores)} queries from {args.gt} in the order asked; "
+            f"wrote {args.sequential}"
+        )
+    status = session.status()
+    print(f"{args.scores}: {status.labelled} of {len(scores)} queries labelled; {status.message}")
+    query = session.next_query()
+    if query is not None:
+        print(
+            f"label next: query {query} (append '{query},1' if its top-1 answer is correct, else '{query},0', to "
+            f"{args.sequential}, and rerun)"
+        )
+    if status.certified and args.out is not None:
+        session.gate().save(args.out)
+        print(f"wrote {args.out}")
     return 0
