@@ -65,7 +65,7 @@ def test_plan_where_the_answer_is_known():
         scores[:60], correct[:60], target_precision=0.9, unlabelled=scores[60:], sizes=(50, 400), draws=20
     )
     assert plan.sizes == [50, 100] and plan.certified == [0.0, 0.0] and plan.needed is None
-    assert plan.message.startswith("the pool holds only 100 queries: labelling all of them would")
+    assert plan.message.startswith("the pool holds only 100 queries: labelling all of them certifies precision 0.9")
     _check_table(plan)
 
 

@@ -84,8 +84,7 @@ def _monotone(values: np.ndarray) -> list[np.ndarray]:
     for column in range(values.shape[1]):
         blocks.append([column])
         while len(blocks) > 1 and values[:, blocks[-2]].mean() > values[:, blocks[-1]].mean():
-            last = blocks.pop()
-            blocks[-1] += last
+            blocks[-2:] = [blocks[-2] + blocks[-1]]
     return [values[:, block].mean(axis=1) for block in blocks for _ in block]
 
 
@@ -97,7 +96,7 @@ def _imputed(pool_scores: np.ndarray, correct: np.ndarray, k: int) -> np.ndarray
     features = np.column_stack(list(feature_columns(pool_scores, k).values()))
     ranks = np.argsort(np.argsort(features, axis=0, kind="stable"), axis=0) / max(len(features) - 1, 1)
     labelled, unlabelled = ranks[: correct.size], ranks[correct.size :]
-    distance = ((unlabelled[:, None, :] - labelled[None, :, :]) ** 2).sum(axis=2)
+    distance = (labelled**2).sum(axis=1) - 2 * unlabelled @ labelled.T  # squared distance, less ‖unlabelled‖²
     return correct[np.argsort(distance, axis=1, kind="stable")[:, :3]].mean(axis=1)
 
 
@@ -123,13 +122,13 @@ def plan_labels(
     """Estimate, before labelling more, how often n labelled queries certify ``target_precision`` and at what recall.
 
     The population is the pool, labelled and ``unlabelled`` queries: each simulation gives every unlabelled query a
-    label drawn from its nearest labelled queries in the ranks of every feature (so each ranking's clean or dirty
-    top is as the labels show it, and a clean top seen on few labels still holds the odd error), draws queries
-    from the pool with replacement, and runs :func:`calibrate_arrays` with ``calibrate``'s defaults on the first
-    n, for each size n (common draws: the sizes differ by the labels added, not by luck). A draw holding one
-    outcome certifies nothing (``calibrate`` refuses it). Recall is measured on the simulated pool. Where noise
-    would make a figure fall with more labels, adjacent sizes are pooled (pool-adjacent-violators), so the table
-    is monotone. A plug-in estimate: its intervals count the simulations' noise, not the few labels'.
+    label drawn with the share correct of its 3 nearest labelled queries in the ranks of every feature (so each
+    ranking's clean or dirty top is as the labels show it), draws queries from the pool with replacement, and
+    runs :func:`calibrate_arrays` with ``calibrate``'s defaults on the first n, for each size n (common draws: the
+    sizes differ by the labels added, not by luck). A draw holding one outcome certifies nothing (``calibrate``
+    refuses it). Recall is measured on the simulated pool. Where noise would make a figure fall with more labels,
+    adjacent sizes are pooled (pool-adjacent-violators), so the table is monotone. A plug-in estimate: its
+    intervals count the simulations' noise, not the few labels' (docs/evidence/calibration.md measures its error).
 
     Parameters
     ----------
@@ -211,13 +210,16 @@ def plan_labels(
     mean_recall = [float(values.mean()) for values in recalls]
     spread = [_Z * float(values.std(ddof=1)) / np.sqrt(draws) if draws > 1 else np.inf for values in recalls]
     needed = next((size for size, share in zip(sizes, point, strict=True) if share >= 1 - delta), None)
-    goal = f"certify precision {target_precision:g} with probability ≥ {1 - delta:g}"
+    goal = f"precision {target_precision:g} in"
     if needed is not None:
-        message = f"about {needed} labelled queries {goal} (mean recall {mean_recall[sizes.index(needed)]:.2f})"
+        message = f"about {needed} labelled queries certify {goal} ≥ {1 - delta:.0%} of the simulations"
+        message += f" (mean recall {mean_recall[sizes.index(needed)]:.2f})"
     elif sizes[-1] == pool:
-        message = f"the pool holds only {pool} queries: labelling all of them would {goal} in {point[-1]:.0%} of draws"
+        message = f"the pool holds only {pool} queries: labelling all of them certifies {goal} {point[-1]:.0%} of the "
+        message += f"simulations, fewer than {1 - delta:.0%}"
     else:
-        message = f"none of the simulated sizes (up to {sizes[-1]} labelled queries) would {goal}"
+        message = f"none of the simulated sizes (up to {sizes[-1]} labelled queries) certifies {goal} {1 - delta:.0%}"
+        message += " of the simulations"
     notes = [
         f"simulated on the pool, the unlabelled queries' labels imputed from the {correct.size} labelled ones "
         f"({draws} simulations, the same draws at every size), calibrate run with its defaults: a plug-in estimate"
