@@ -196,4 +196,6 @@ def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.nda
     print(plan.message)
     for note in plan.notes:
         print(f"note: {note}")
+    if unlabelled is None:
+        print("note: the pool is SCORES alone; pass the queries not yet labelled with --unlabelled RESULTS")
     return 0
