@@ -8,12 +8,11 @@ for). Recall, everywhere here: accepted correct answers / answerable queries.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from vpr_uncertainty._validation import check_count
+from vpr_uncertainty._validation import as_score_array, check_count
 from vpr_uncertainty.calibration.calibrator import feature_columns, feature_matrix
 from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.guarantee import min_accepted
@@ -60,9 +59,6 @@ class LabelPlan:
     draws: int
     message: str = ""
     notes: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
     def table(self) -> str:
         """A Markdown table of the simulated sizes."""
@@ -173,10 +169,9 @@ def plan_labels(
     min_accepted(target_precision, delta)  # checks p* and δ
     pool_scores, pool_answerable = labelled_scores, answerable
     if unlabelled is not None and len(unlabelled):
-        if np.ndim(unlabelled) != 2:
-            raise ValueError(f"unlabelled must be top-K scores of shape (U, K), got {np.shape(unlabelled)}")
-        width = min(labelled_scores.shape[1], np.shape(unlabelled)[1])
-        pool_scores = np.concatenate([labelled_scores[:, :width], np.asarray(unlabelled, np.float64)[:, :width]])
+        unlabelled = as_score_array(unlabelled, name="unlabelled")
+        width = min(labelled_scores.shape[1], unlabelled.shape[1])
+        pool_scores = np.concatenate([labelled_scores[:, :width], unlabelled[:, :width]])
         pool_answerable = np.concatenate([answerable, np.ones(len(pool_scores) - correct.size, bool)])
     pool = len(pool_scores)
     asked = sorted({int(size) for size in sizes})
