@@ -17,7 +17,7 @@ import numpy as np
 
 from vpr_uncertainty import calibrate
 from vpr_uncertainty.calibration import evaluate_held_out
-from vpr_uncertainty.calibration.fit import simulate_guarantee
+from vpr_uncertainty.calibration.plan import simulate_guarantee
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
 from vpr_uncertainty.retrieval import load_retrieval
@@ -88,7 +88,7 @@ def loop_closure(retrievals: dict) -> None:
     print("\n## Loop closure: calibrate on queries 0-55, gate queries 56-110 (p* = 0.9, δ = 0.1)\n")
     print("| VPR method | certified bound | accepted | precision | recall | recall of SU at hindsight p>=0.9 |")
     print("|---|---|---|---|---|---|")
-    from vpr_uncertainty.calibration.fit import hindsight_recall
+    from vpr_uncertainty.calibration.plan import hindsight_recall
     from vpr_uncertainty.scores import statistical_uncertainty
 
     for name, retrieval in retrievals.items():

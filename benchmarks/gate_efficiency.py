@@ -74,7 +74,7 @@ import numpy as np
 from scipy import stats
 
 from vpr_uncertainty.calibration import calibrate_arrays
-from vpr_uncertainty.calibration.fit import hindsight_recall
+from vpr_uncertainty.calibration.plan import hindsight_recall
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
 from vpr_uncertainty.retrieval import Retrieval, load_retrieval

@@ -1,4 +1,4 @@
-"""The certified gate spends every label: the grid, the rankings at δ/R, unlabelled cuts, CAL's choice, the plan."""
+"""The certified gate spends every label: the grid, the rankings at δ/R, unlabelled cuts, CAL's choice."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from scipy import stats
 
 from vpr_uncertainty import Gate, calibrate
 from vpr_uncertainty.calibration.calibrator import feature_matrix
-from vpr_uncertainty.calibration.fit import calibrate_arrays, plan_labels
+from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.guarantee import coverage_grid, cuts_at_coverage
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import read_results
@@ -121,31 +121,6 @@ def test_gate_file_with_unknown_or_repeated_feature_is_refused(corridor, tmp_pat
         path.write_text(json.dumps(data))
         with pytest.raises(ValueError, match="features must be distinct names"):
             Gate.load(path)
-
-
-def test_plan_says_none_with_few_labels_and_how_many(corridor):
-    retrieval, correct = corridor("AMOSNet")
-    rows = np.random.default_rng(0).choice(111, 33, replace=False)
-    plan = plan_labels(retrieval.scores, retrieval.scores[rows], correct[rows], target_precision=0.9, draws=20)
-    assert plan.n_labelled == 33 and plan.sizes[0] == 25
-    assert plan.needed is None or plan.needed > 33
-    assert "with the 33 labelled now" in plan.message
-    assert all(0 <= u <= c <= 1 for u, c in zip(plan.useful, plan.certified, strict=True))
-    with pytest.raises(ValueError, match="at least 2 correct and 2 wrong"):
-        plan_labels(retrieval.scores, retrieval.scores[:3], np.array([True, True, False]), target_precision=0.9)
-
-
-def test_calibrate_plan_command(corridor_dir, corridor_matches_dir, tmp_path, capsys, monkeypatch):
-    matches = corridor_matches_dir / "AMOSNet" / "precomputed_data_corrected.npy"
-    gt = corridor_dir / "ground_truth_new.npy"
-    monkeypatch.chdir(tmp_path)
-    arguments = ["calibrate", str(matches), "--gt", str(gt), "--unlabelled", str(matches)]
-    assert main([*arguments, "--plan", "--target-precision", "0.9"]) == 0
-    out = capsys.readouterr().out
-    assert "| labelled queries | P(certified)" in out and "labelled queries" in out.splitlines()[-2]
-    assert not list(tmp_path.iterdir())  # --plan writes no gate
-    assert main([*arguments, "--plan"]) == 2
-    assert "--plan needs --target-precision" in capsys.readouterr().err
 
 
 def _outcome(call):

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from vpr_uncertainty.calibration.fit import simulate_guarantee
 from vpr_uncertainty.calibration.guarantee import (
     certify_threshold,
     clopper_pearson_lower,
@@ -17,6 +16,7 @@ from vpr_uncertainty.calibration.guarantee import (
     fixed_sequence,
     min_accepted,
 )
+from vpr_uncertainty.calibration.plan import simulate_guarantee
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
 

@@ -1,5 +1,5 @@
-""":func:`calibrate`: labelled calibration queries in, a :class:`~vpr_uncertainty.calibration.gate.Gate` out; and
-:func:`plan_labels` and :func:`simulate_guarantee`, how many labels that takes and how often the guarantee holds.
+""":func:`calibrate`: labelled calibration queries in, a :class:`~vpr_uncertainty.calibration.gate.Gate` out (how
+many labels that takes and how often the guarantee holds: :mod:`~vpr_uncertainty.calibration.plan`).
 
 Every label is spent; nothing is held back for a second look. P(correct) (the doubt ``CAL``) is the best of the
 fixed scores and a cross-fitted logistic model (:func:`~vpr_uncertainty.calibration.calibrator.select_calibrator`).
@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -32,9 +32,7 @@ from vpr_uncertainty.calibration.calibrator import (
     check_model,
     columns,
     feature_columns,
-    feature_matrix,
     fit_calibrator,
-    fit_logistic,
     fit_model,
     select_calibrator,
 )
@@ -44,26 +42,14 @@ from vpr_uncertainty.calibration.guarantee import (
     check_rankings,
     cuts_at_coverage,
     default_rankings,
-    min_accepted,
     needed_message,
 )
-from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n, rank_queries
-from vpr_uncertainty.progress import progress_bar
+from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n
 
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = [
-    "DEFAULT_SIZES",
-    "GuaranteeSimulation",
-    "LabelPlan",
-    "calibrate",
-    "calibrate_arrays",
-    "fingerprint",
-    "hindsight_recall",
-    "plan_labels",
-    "simulate_guarantee",
-]
+__all__ = ["calibrate", "calibrate_arrays", "fingerprint"]
 
 
 def fingerprint(scores: np.ndarray, correct: np.ndarray) -> str:
@@ -272,297 +258,4 @@ def calibrate(
         rankings=rankings,
         unlabelled=unlabelled if unlabelled is None or isinstance(unlabelled, np.ndarray) else unlabelled.scores,
         folds=folds,
-    )
-
-
-#: The calibration sizes :func:`plan_labels` simulates by default.
-DEFAULT_SIZES: tuple[int, ...] = (25, 50, 100, 200, 400, 800, 1600)
-
-
-@dataclass
-class LabelPlan:
-    """The outcome of :func:`plan_labels`.
-
-    Attributes
-    ----------
-    sizes : list of int
-        Calibration sizes simulated.
-    certified : list of float
-        Per size, the share of draws that certify p*.
-    useful : list of float
-        Per size, the share of draws that certify with an expected recall ≥ ``useful_fraction`` × oracle.
-    mean_recall : list of float
-        Per size, the mean expected recall on all queries (0 for draws that certify nothing).
-    oracle_recall : float
-        The plug-in recall of the best SU cut at p*.
-    needed : int or None
-        The smallest size whose ``useful`` share reaches 1 − δ (None: none of the sizes simulated).
-    n_labelled, n_queries : int
-        Labels the estimate used, and queries in the pool.
-    message : str
-        The answer in one or two sentences.
-    """
-
-    sizes: list[int]
-    certified: list[float]
-    useful: list[float]
-    mean_recall: list[float]
-    oracle_recall: float
-    needed: int | None
-    n_labelled: int
-    n_queries: int
-    target_precision: float
-    delta: float
-    useful_fraction: float
-    draws: int
-    message: str = ""
-    notes: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    def table(self) -> str:
-        """A Markdown table of the simulated sizes."""
-        lines = ["| labelled queries | P(certified) | P(useful certificate) | mean recall |", "|---|---|---|---|"]
-        rows = zip(self.sizes, self.certified, self.useful, self.mean_recall, strict=True)
-        lines += [f"| {size} | {c:.2f} | {u:.2f} | {r:.3f} |" for size, c, u, r in rows]
-        return "\n".join(lines)
-
-
-def _probability(su_labelled: np.ndarray, correct: np.ndarray, su_all: np.ndarray) -> np.ndarray:
-    """P(correct) of every query by Platt scaling of −SU on the labels (decreasing in SU)."""
-    confidence = -su_labelled
-    mean, spread = float(confidence.mean()), float(confidence.std()) or 1.0
-    intercept, (slope,) = fit_logistic(((confidence - mean) / spread)[:, None], correct, regularisation=1.0)
-    z = intercept + max(float(slope), 0.0) * (-su_all - mean) / spread  # slope >= 0: P decreasing in SU
-    return 0.5 * (1.0 + np.tanh(0.5 * z))
-
-
-def _oracle(probability: np.ndarray, su: np.ndarray, target_precision: float) -> float:
-    order = np.argsort(su, kind="stable")
-    expected = np.cumsum(probability[order])
-    precision = expected / np.arange(1, su.size + 1)
-    reaching = np.flatnonzero(precision >= target_precision)
-    return float(expected[reaching[-1]] / su.size) if reaching.size else 0.0
-
-
-def plan_labels(
-    scores: np.ndarray,
-    labelled_scores: np.ndarray,
-    correct: np.ndarray,
-    *,
-    target_precision: float,
-    delta: float = 0.1,
-    k: int = 10,
-    sizes: Sequence[int] = DEFAULT_SIZES,
-    draws: int = 40,
-    useful_fraction: float = 0.5,
-    seed: int = 0,
-    progress: bool | None = None,
-) -> LabelPlan:
-    """Estimate how many labelled queries certify ``target_precision`` at a useful recall, before labelling them.
-
-    P(correct) of every query is estimated by Platt scaling of SU on the few labels; the whole calibration
-    (:func:`calibrate_arrays`, with ``scores`` as its unlabelled pool) is then simulated on draws of n queries with
-    labels drawn from those probabilities. A draw is useful when it certifies p* and its expected recall reaches
-    ``useful_fraction`` of the best recall any SU cut could have at p* (the plug-in oracle); the answer is the
-    smallest n with a useful certificate with probability ≥ 1 − δ. A plug-in estimate, to be read as an order of
-    magnitude (33 labels or 300), not as a guarantee.
-
-    Parameters
-    ----------
-    scores : ndarray of shape (Q, K)
-        Top-K similarities of the queries the gate will decide (unlabelled), sorted descending.
-    labelled_scores : ndarray of shape (L, K)
-        The few labelled queries' scores (may be rows of ``scores``).
-    correct : ndarray of shape (L,), bool
-        Their top-1 correctness; both outcomes must occur.
-    target_precision, delta : float in (0, 1)
-        p* and δ, as in :func:`~vpr_uncertainty.calibrate`.
-    k : int, default=10
-    sizes : sequence of int
-        Calibration sizes to simulate.
-    draws : int, default=40
-        Simulated calibrations per size.
-    useful_fraction : float in (0, 1], default=0.5
-        A certificate is useful when its expected recall reaches this share of the plug-in SU oracle.
-    seed : int, default=0
-    progress : bool, optional
-        A progress bar over the sizes (default: on a terminal).
-    """
-    correct = np.asarray(correct, dtype=bool)
-    scores = np.asarray(scores, dtype=np.float64)
-    labelled_scores = np.asarray(labelled_scores, dtype=np.float64)
-    if labelled_scores.ndim != 2 or correct.shape != (labelled_scores.shape[0],):
-        raise ValueError(
-            f"labelled_scores (L, K) and correct (L,) must match, got {labelled_scores.shape} and {correct.shape}"
-        )
-    if min(int(correct.sum()), int((~correct).sum())) < 2:
-        raise ValueError(
-            f"a label plan needs at least 2 correct and 2 wrong labelled answers, got {int(correct.sum())} correct "
-            f"of {correct.size}: label a few more queries (a random handful is enough to start)"
-        )
-    if not 0.0 < useful_fraction <= 1.0:
-        raise ValueError(f"useful_fraction must lie in (0, 1], got {useful_fraction}")
-    check_count(draws, "draws", 1)
-    sizes = sorted({int(size) for size in sizes})
-    if not sizes or sizes[0] < 2:
-        raise ValueError(f"sizes must be integers >= 2, got {sizes}")
-    min_accepted(target_precision, delta)  # checks p* and δ
-    su_all = feature_matrix(scores, k=k, features=("SU",))[:, 0]
-    su_labelled = feature_matrix(labelled_scores, k=k, features=("SU",))[:, 0]
-    probability = _probability(su_labelled, correct, su_all)
-    oracle = _oracle(probability, su_all, target_precision)
-    rng = np.random.default_rng(seed)
-    certified, useful, mean_recall = [], [], []
-    for size in progress_bar(sizes, desc="simulating calibration sizes", unit="size", enabled=progress):
-        hits, good, recall_sum = 0, 0, 0.0
-        for _ in range(draws):
-            rows = rng.choice(scores.shape[0], size, replace=True)
-            labels = rng.random(size) < probability[rows]
-            if labels.all() or not labels.any():
-                continue  # nothing can be calibrated on one outcome: certifies nothing
-            gate = calibrate_arrays(
-                scores[rows],
-                labels,
-                target_precision=target_precision,
-                delta=delta,
-                k=k,
-                seed=int(rng.integers(1 << 31)),
-                unlabelled=scores,
-            )
-            if gate.precision_lower_bound is None:
-                continue
-            recall = float(probability[gate.accept(scores[:, : gate.k])].sum() / scores.shape[0])
-            hits += 1
-            recall_sum += recall
-            good += recall >= useful_fraction * oracle
-        certified.append(hits / draws)
-        useful.append(good / draws)
-        mean_recall.append(recall_sum / draws)
-    needed = next((size for size, share in zip(sizes, useful, strict=True) if share >= 1 - delta), None)
-    have = labelled_scores.shape[0]
-    if needed is None:
-        message = (
-            f"none of the simulated sizes (up to {sizes[-1]} labelled queries) certifies precision "
-            f"{target_precision:g} at a useful recall with probability {1 - delta:g}"
-        )
-    else:
-        message = f"about {needed} labelled queries certify precision {target_precision:g} at a useful recall"
-        message += f" (≥ {useful_fraction:g} × the best SU cut's {oracle:.2f}) with probability ≥ {1 - delta:g}"
-    if needed is None or have < needed:
-        message += f"; with the {have} labelled now, the expected certified recall is about "
-        below = [recall for size, recall in zip(sizes, mean_recall, strict=True) if size <= have]
-        message += f"{below[-1]:.2f}" if below else "0 (none)"
-    notes = [
-        f"P(correct) estimated from {have} labels by Platt scaling of SU (a plug-in estimate: an order of magnitude)"
-    ]
-    return LabelPlan(
-        sizes=sizes,
-        certified=certified,
-        useful=useful,
-        mean_recall=mean_recall,
-        oracle_recall=oracle,
-        needed=needed,
-        n_labelled=have,
-        n_queries=int(scores.shape[0]),
-        target_precision=target_precision,
-        delta=delta,
-        useful_fraction=useful_fraction,
-        draws=draws,
-        message=message,
-        notes=notes,
-    )
-
-
-@dataclass
-class GuaranteeSimulation:
-    """Per draw: population precision (NaN when nothing is accepted), recall and coverage; and the summary."""
-
-    precision: np.ndarray
-    recall: np.ndarray
-    coverage: np.ndarray
-    certified: np.ndarray
-    target_precision: float
-    delta: float
-    hindsight_recall: float
-
-    @property
-    def violation_rate(self) -> float:
-        """Share of draws whose accepted answers have population precision < p* (draws accepting none never do)."""
-        return float(np.mean(np.nan_to_num(self.precision, nan=1.0) < self.target_precision))
-
-    @property
-    def mean_recall(self) -> float:
-        return float(self.recall.mean())
-
-
-def hindsight_recall(uncertainty: np.ndarray, correct: np.ndarray, target_precision: float, n_answerable: int) -> float:
-    """Largest end-to-end recall of a cut on ``uncertainty`` (accept ≤ cut) with precision ≥ p*, ties kept together."""
-    ranking = rank_queries(correct, uncertainty)
-    ok = ranking.correct_accepted / ranking.accepted >= target_precision
-    return float(ranking.correct_accepted[ok].max() / max(n_answerable, 1)) if ok.any() else 0.0
-
-
-def simulate_guarantee(
-    scores: np.ndarray,
-    correct: np.ndarray,
-    *,
-    n_calibration: int,
-    target_precision: float = 0.9,
-    delta: float = 0.1,
-    n_draws: int = 200,
-    seed: int = 0,
-    k: int = 10,
-    model: str = "logistic",
-    rankings: Sequence[str] | None = None,
-    unlabelled: bool = False,
-    answerable: np.ndarray | None = None,
-) -> GuaranteeSimulation:
-    """Calibrate on ``n_draws`` i.i.d. draws of ``n_calibration`` queries and measure each gate on the population.
-
-    Draws are **with replacement**, so i.i.d. from the population (the assumption of the guarantee), and the
-    population precision among each gate's accepted answers is known exactly: the guarantee says the share of
-    draws below p* is at most δ. The hindsight reference is the largest recall of any SU cut with precision ≥ p* on
-    the whole population. With ``unlabelled=True`` every draw also passes the whole population's scores as
-    unlabelled queries (the robot's own traversal). Draws that hold only one outcome cannot be calibrated; they
-    are redrawn.
-    """
-    correct = np.asarray(correct, dtype=bool)
-    answerable = np.ones(correct.size, bool) if answerable is None else np.asarray(answerable, dtype=bool)
-    rng = np.random.default_rng(seed)
-    precision, recall, coverage, certified = (np.zeros(n_draws) for _ in range(4))
-    n_answerable = int(answerable.sum())
-    for draw in range(n_draws):
-        rows = rng.choice(correct.size, n_calibration, replace=True)
-        while correct[rows].all() or not correct[rows].any():
-            rows = rng.choice(correct.size, n_calibration, replace=True)
-        gate = calibrate_arrays(
-            scores[rows],
-            correct[rows],
-            answerable=answerable[rows],
-            target_precision=target_precision,
-            delta=delta,
-            k=k,
-            seed=draw,
-            model=model,
-            rankings=rankings,
-            unlabelled=scores if unlabelled else None,
-        )
-        accepted = gate.accept(scores[:, : gate.k])
-        n_accepted = int(accepted.sum())
-        good = int((accepted & correct).sum())
-        precision[draw] = good / n_accepted if n_accepted else np.nan
-        recall[draw] = good / max(n_answerable, 1)
-        coverage[draw] = n_accepted / correct.size
-        certified[draw] = gate.precision_lower_bound is not None
-    su = feature_matrix(scores, k=k, features=("SU",))[:, 0]
-    return GuaranteeSimulation(
-        precision=precision,
-        recall=recall,
-        coverage=coverage,
-        certified=certified.astype(bool),
-        target_precision=target_precision,
-        delta=delta,
-        hindsight_recall=hindsight_recall(su, correct, target_precision, n_answerable),
     )

@@ -43,8 +43,14 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
             "from 150 labelled queries on) is tested at delta/R on all labelled queries, at cuts fixed from the\n"
             "scores alone (quantiles over the labelled and --unlabelled queries). Without --target-precision the\n"
             "gate accepts P >= 0.5 and certifies nothing.\n\n"
-            "--plan answers, before more labelling, how many labelled queries would certify the target at a useful\n"
-            "recall: SCORES holds the few labelled queries so far, --unlabelled the queries the gate will decide.\n\n"
+            "--plan answers, before more labelling, how many labelled queries would certify the target: SCORES holds\n"
+            "the few labelled queries so far (at least 2 correct and 2 wrong), --unlabelled the queries not yet\n"
+            "labelled. The pool (labelled + unlabelled queries) is the population: each of 100 simulations labels\n"
+            "every unlabelled query like its 3 nearest labelled ones (drawn from their share correct), draws n\n"
+            "queries from the pool (the same draws for every n) and runs this command's defaults on them. Per n\n"
+            "it prints the share of simulations that certify p* and the mean recall (accepted correct /\n"
+            "answerable), each with a 95% interval; n never exceeds the pool, and the answer says so when the\n"
+            "pool is too small.\n\n"
             "SCORES is read as by `evaluate` (retrieval.npz, a similarity matrix .npy, VPR-Bench matches)."
         ),
         epilog=(
@@ -70,7 +76,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         metavar="RESULTS",
         help="queries without labels (read like SCORES, ground truth not needed): the cuts are quantiles over them "
-        "and the labelled ones; with --plan, the queries the gate will decide",
+        "and the labelled ones; with --plan, the queries that could be labelled next",
     )
     parser.add_argument(
         "--rankings",
@@ -82,7 +88,8 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--plan",
         action="store_true",
-        help="estimate how many labelled queries certify --target-precision at a useful recall; writes no gate",
+        help="simulate how often 25, 50, 100, ... labelled queries (up to the pool) certify --target-precision, "
+        "and at what recall; writes no gate",
     )
     parser.add_argument(
         "--sequential",
@@ -176,30 +183,32 @@ def _read_unlabelled(path: Path, file_format: str, top_k: int) -> np.ndarray:
 
 
 def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.ndarray | None) -> int:
-    from vpr_uncertainty.calibration.fit import plan_labels
-    from vpr_uncertainty.evaluation import correct_at_n
+    from vpr_uncertainty.calibration.plan import plan_labels
+    from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n
 
     if retrieval.positives is None:
         raise ValueError("--plan needs the labels of the few labelled queries in SCORES (--gt GT)")
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
-    pool = retrieval.scores if unlabelled is None else unlabelled
     plan = plan_labels(
-        pool,
         retrieval.scores,
         correct,
         target_precision=args.target_precision,
+        unlabelled=unlabelled,
+        answerable=answerable_queries(retrieval.positives),
         delta=args.delta,
         k=args.k,
         seed=args.seed,
     )
     print(
-        f"{args.scores}: {plan.n_labelled} labelled queries ({int(correct.sum())} correct); "
-        f"{plan.n_queries} queries to decide; p* = {args.target_precision:g}, delta = {args.delta:g}"
+        f"{args.scores}: {plan.n_labelled} labelled queries ({int(correct.sum())} correct); a pool of "
+        f"{plan.pool_size} queries to label from; p* = {args.target_precision:g}, delta = {args.delta:g}"
     )
     print(plan.table())
     print(plan.message)
     for note in plan.notes:
         print(f"note: {note}")
+    if unlabelled is None:
+        print("note: the pool is SCORES alone; pass the queries not yet labelled with --unlabelled RESULTS")
     return 0
 
 

@@ -1,0 +1,154 @@
+"""How far the label plan's predictions fall from what ``calibrate`` achieves: predicted vs achieved at n labels.
+
+Populations
+    Each of the ten VPR-Bench corridor matrices (its 111 queries), resampled as ``benchmarks/gate_efficiency.py``
+    does: a draw takes queries i.i.d. **with replacement** from the population.
+
+Predicted
+    The pool is the population's queries twice over (222 rows, the same distribution, so that 200 labels fit in
+    it). L of them (30 or 50, drawn without replacement; redrawn until they hold 2 correct and 2 wrong answers)
+    are labelled, and ``plan_labels(labelled scores, correct, unlabelled=the other pool rows,
+    answerable=..., target_precision=p*, delta=delta, sizes=(50, 100, 200), draws=--plan-draws, seed=rep)``
+    predicts; ``--reps`` labelled draws per population and L.
+
+Achieved
+    ``calibrate_arrays(scores, correct, answerable=..., target_precision=p*, delta=delta)`` (calibrate's defaults)
+    on ``--draws`` fresh draws of n queries from the same population; certified = a precision lower bound is
+    returned; recall = accepted correct / answerable population queries (0 when nothing is certified). A draw
+    holding one outcome counts as not certified (``calibrate`` refuses it), as in the plan.
+
+Printed: per population, L and n the predicted P(certified) and mean recall (mean over the reps) beside the
+achieved ones; then, per L and n, their means over the populations, the mean and largest |predicted - achieved|
+over the populations and reps, and the share of plans within the target of +-0.15.
+
+Usage
+    VPR_UNCERTAINTY_DATA=/path/to/data python benchmarks/label_plan_accuracy.py [--reps 3] [--plan-draws 100]
+        [--draws 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vpr_uncertainty.calibration import calibrate_arrays, plan_labels
+from vpr_uncertainty.data import read_results
+from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n
+
+SIZES = (50, 100, 200)
+LABELLED = (30, 50)
+TOLERANCE = 0.15
+
+
+def populations(data: Path) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per corridor method: top-k scores (111, K), top-1 correct and answerable (111,)."""
+    root, found = data / "vprbench", {}
+    for folder in sorted((root / "precomputed_matches/corridor").iterdir()):
+        retrieval = read_results(
+            folder / "precomputed_data_corrected.npy", ground_truth=root / "corridor/ground_truth_new.npy"
+        )
+        correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
+        found[folder.name] = (np.asarray(retrieval.scores), correct, answerable_queries(retrieval.positives))
+    return found
+
+
+def achieved(scores, correct, answerable, n, draws, rng, p_star, delta) -> tuple[float, float]:
+    """Share of ``draws`` fresh draws of n that certify, and their mean recall on the population."""
+    certified, recall = 0, 0.0
+    for _ in range(draws):
+        rows = rng.choice(correct.size, n, replace=True)
+        if correct[rows].all() or not correct[rows].any():
+            continue
+        gate = calibrate_arrays(
+            scores[rows], correct[rows], answerable=answerable[rows], target_precision=p_star, delta=delta
+        )
+        if gate.precision_lower_bound is not None:
+            certified += 1
+            recall += (gate.accept(scores[:, : gate.k]) & correct).sum() / max(int(answerable.sum()), 1)
+    return certified / draws, recall / draws
+
+
+def labelled_draw(correct: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
+    """Which rows of the pool (twice the population) are labelled, as a mask."""
+    while True:
+        rows = rng.choice(2 * correct.size, size, replace=False)
+        if min(int(correct[rows % correct.size].sum()), int((~correct[rows % correct.size]).sum())) >= 2:
+            return np.isin(np.arange(2 * correct.size), rows)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--reps", type=int, default=3, help="labelled draws per population and L (default 3)")
+    parser.add_argument("--plan-draws", type=int, default=100, help="simulations of each plan (default 100)")
+    parser.add_argument("--draws", type=int, default=200, help="fresh draws per population and n (default 200)")
+    parser.add_argument("--target-precision", type=float, default=0.9)
+    parser.add_argument("--delta", type=float, default=0.1)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    data = os.environ.get("VPR_UNCERTAINTY_DATA")
+    if not data:
+        parser.error("set VPR_UNCERTAINTY_DATA to the data folder (holding vprbench/)")
+    started, p_star, delta = time.perf_counter(), args.target_precision, args.delta
+    print(f"# Label plan: predicted vs achieved, p* = {p_star:g}, delta = {delta:g}\n")
+    print(
+        f"{args.reps} labelled draws per population and L, {args.plan_draws} simulations per plan; achieved on "
+        f"{args.draws} fresh draws per population and n. Recall = accepted correct / answerable.\n"
+    )
+    print("| population | L | n | P(certified) predicted | achieved | mean recall predicted | achieved |")
+    print("|---|---|---|---|---|---|---|")
+    pairs: dict[tuple[int, int], list[tuple[float, float, float, float]]] = {}
+    for index, (name, (scores, correct, answerable)) in enumerate(populations(Path(data)).items()):
+        rng = np.random.default_rng([args.seed, index])
+        truth = {n: achieved(scores, correct, answerable, n, args.draws, rng, p_star, delta) for n in SIZES}
+        for labelled in LABELLED:
+            plans = []
+            pool = np.tile(np.arange(correct.size), 2)
+            for rep in range(args.reps):
+                mask = labelled_draw(correct, labelled, rng)
+                rows = pool[mask]
+                plans.append(
+                    plan_labels(
+                        scores[rows],
+                        correct[rows],
+                        unlabelled=scores[pool[~mask]],
+                        answerable=answerable[rows],
+                        target_precision=p_star,
+                        delta=delta,
+                        sizes=SIZES,
+                        draws=args.plan_draws,
+                        seed=rep,
+                        progress=False,
+                    )
+                )
+            for column, n in enumerate(SIZES):
+                certified = [plan.certified[column] for plan in plans]
+                recall = [plan.mean_recall[column] for plan in plans]
+                pairs.setdefault((labelled, n), []).extend(
+                    (c, truth[n][0], r, truth[n][1]) for c, r in zip(certified, recall, strict=True)
+                )
+                print(
+                    f"| {name} | {labelled} | {n} | {np.mean(certified):.2f} | {truth[n][0]:.2f} | "
+                    f"{np.mean(recall):.3f} | {truth[n][1]:.3f} |"
+                )
+    print(
+        "\n| L | n | P(certified) predicted / achieved (mean) | abs error: mean / largest | within +-0.15 | "
+        "mean recall predicted / achieved | abs error: mean / largest |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for (labelled, n), rows in sorted(pairs.items()):
+        predicted, truth_c, recall, truth_r = np.array(rows).T
+        cert, rec = np.abs(predicted - truth_c), np.abs(recall - truth_r)
+        print(
+            f"| {labelled} | {n} | {predicted.mean():.2f} / {truth_c.mean():.2f} | "
+            f"{cert.mean():.3f} / {cert.max():.2f} | {np.mean(cert <= TOLERANCE):.2f} | "
+            f"{recall.mean():.3f} / {truth_r.mean():.3f} | {rec.mean():.3f} / {rec.max():.3f} |"
+        )
+    print(f"\n{time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
