@@ -246,6 +246,7 @@ def toolkit_unlabelled(population: Population, rows: np.ndarray, draw: int, sett
     return _toolkit(population, rows, draw, settings, unlabelled=population.scores)
 
 
+THIRDS = {"margin": 1 / 3, "SU": 1 / 3, "CAL": 1 / 3}
 #: Candidate procedures: (shares of delta, fallback, dense_from); shares may depend on n (a callable).
 VARIANTS: dict[str, tuple[Any, float, float]] = {
     "issue-19 procedure: SU; SU + CAL at delta/2 from n = 150 (tolerant steps, fixed sequence)": (
@@ -274,6 +275,8 @@ VARIANTS: dict[str, tuple[Any, float, float]] = {
     "chain, fallback 0.15, margin 0.5 + SU 0.5": ({"margin": 0.5, "SU": 0.5}, 0.15, DENSE_FROM),
     "chain without fallback, label-free mix: z(margin) - z(SU) on the labelled scores": ({"mix": 1.0}, 0.0, DENSE_FROM),
     "chain, label-free mix: z(margin) - z(SU) on the labelled scores": ({"mix": 1.0}, FALLBACK, DENSE_FROM),
+    "chain dense from n/2: margin + SU + CAL at 1/3 each": (THIRDS, FALLBACK, 0.5),
+    "chain with fallback 0.15: margin + SU + CAL at 1/3 each": (THIRDS, 0.15, DENSE_FROM),
     "tolerant steps, margin 0.5 + SU 0.5": ({"margin": 0.5, "SU": 0.5}, 0.0, 1.0),
     "tolerant steps, SU 0.5 + CAL 0.5": ({"SU": 0.5, "CAL": 0.5}, 0.0, 1.0),
     "tolerant steps, margin 0.5 + CAL 0.5": ({"margin": 0.5, "CAL": 0.5}, 0.0, 1.0),

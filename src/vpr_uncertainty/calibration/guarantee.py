@@ -407,8 +407,8 @@ def certify_rankings(
         counts, levels = cut_chain(n, target_precision, share * delta, fallback=fallback, dense_from=dense_from)
         outcome = outcomes[name] = {"delta": share * delta, "certified": False, "accepted": 0, "correct_accepted": 0}
         outcome["cuts_tested"] = int(counts.size)
-        matrix = columns(labelled, model_features)
-        crossed = cross_fitted(matrix, correct, model_features, folds, seed) if name == "CAL" else None
+        matrix = columns(labelled, model_features) if name == "CAL" else None
+        crossed = None if matrix is None else cross_fitted(matrix, correct, model_features, folds, seed)
         if counts.size == 0 or (name == "CAL" and crossed is None):
             continue
         coverage = counts / n
