@@ -35,6 +35,15 @@ Procedures
       fit/test split.
     * ``CP fixed sequence, SU and margin at delta/2, looser rule``: both of the above at delta/2 (a union bound), and
       the certified rule that accepts more labelled queries is kept.
+    * The candidate defaults of issue 29 (``VARIANTS``): ``certify_rankings`` with given shares of delta and chain
+      shapes (fallback share, dense part), applied to the population by the rule it returns; "issue-19 procedure"
+      is the default before issue 29 (SU alone, SU + CAL at delta/2 from 150 labels, tolerant steps, fixed
+      sequence). ``CHOSEN_ON_A_SPLIT``: the ranking chosen by average precision on a share of the labels, certified
+      alone at delta on the rest.
+
+Families (``--family``)
+    ``resampled``: the populations as loaded. ``contrasting``: made from them by :func:`contrasting`, so that the
+    first wrong answers come early by one ranking (SU or the margin) and late by the other.
 
 Metrics (per procedure and n; violations and certifying pooled over populations' draws)
     * violations: share of draws whose population precision among the accepted answers is < p* (a draw accepting
@@ -74,6 +83,14 @@ import numpy as np
 from scipy import stats
 
 from vpr_uncertainty.calibration import calibrate_arrays
+from vpr_uncertainty.calibration.calibrator import (
+    DEFAULT_FEATURES,
+    RANKINGS,
+    columns,
+    feature_columns,
+    select_calibrator,
+)
+from vpr_uncertainty.calibration.guarantee import DENSE_FROM, FALLBACK, certify_rankings
 from vpr_uncertainty.calibration.plan import hindsight_recall
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
@@ -109,11 +126,13 @@ class Population:
     su: np.ndarray = field(init=False)
     margin: np.ndarray = field(init=False)
     oracle: float = field(init=False)
+    features: dict[str, np.ndarray] = field(init=False)
     target_precision: float = 0.9
 
     def __post_init__(self) -> None:
         self.su = statistical_uncertainty(self.scores, 10)
         self.margin = self.scores[:, 0] - self.scores[:, 1]
+        self.features = feature_columns(self.scores.astype(np.float64), 10)
         self.oracle = hindsight_recall(self.su, self.correct, self.target_precision, int(self.answerable.sum()))
 
     @property
@@ -154,6 +173,32 @@ def load_populations(data: Path | None, extra: list[Path], target_precision: flo
     for path in extra:
         found.append(_population(f"{path.parent.name}/{path.name} (own run)", load_retrieval(path), target_precision))
     return found
+
+
+def contrasting(population: Population, early: str, top: float = 0.2, clean: float = 0.4) -> Population | None:
+    """A population whose first wrong answer comes early in one ranking and late in the other (SU, margin).
+
+    Keeps one wrong answer among the ``top`` share most confident by ``early`` that is outside the ``clean`` share
+    most confident by the other ranking, and drops every other wrong answer inside that share of the other ranking:
+    by ``early`` a wrong answer sits near the top, by the other none comes before about ``clean`` of the queries.
+    None when no wrong answer qualifies. Draws from it are i.i.d. like any other population's.
+    """
+    confidence = {"SU": -population.su, "margin": population.margin}
+    late = "margin" if early == "SU" else "SU"
+    rank = {name: np.argsort(np.argsort(-value, kind="stable")) for name, value in confidence.items()}
+    wrong, n = ~population.correct, population.size
+    candidates = np.flatnonzero(wrong & (rank[early] < top * n) & (rank[late] >= clean * n))
+    if not candidates.size:
+        return None
+    keep = ~(wrong & (rank[late] < clean * n))
+    keep[candidates[np.argmin(rank[early][candidates])]] = True
+    return Population(
+        f"{population.name}, early {early}",
+        population.scores[keep],
+        population.correct[keep],
+        population.answerable[keep],
+        target_precision=population.target_precision,
+    )
 
 
 def calibration_draws(population: Population, n: int, draws: int, seed: int, index: int) -> np.ndarray:
@@ -199,6 +244,130 @@ def toolkit_default(population: Population, rows: np.ndarray, draw: int, setting
 def toolkit_unlabelled(population: Population, rows: np.ndarray, draw: int, settings: Settings) -> Outcome:
     """``calibrate_arrays`` given the population's scores as unlabelled queries."""
     return _toolkit(population, rows, draw, settings, unlabelled=population.scores)
+
+
+THIRDS = {"margin": 1 / 3, "SU": 1 / 3, "CAL": 1 / 3}
+#: Candidate procedures: (shares of delta, fallback, dense_from); shares may depend on n (a callable).
+VARIANTS: dict[str, tuple[Any, float, float]] = {
+    "issue-19 procedure: SU; SU + CAL at delta/2 from n = 150 (tolerant steps, fixed sequence)": (
+        lambda n: {"SU": 1.0} if n < 150 else {"SU": 0.5, "CAL": 0.5},
+        0.0,
+        1.0,
+    ),
+    "chain, margin only": ({"margin": 1.0}, FALLBACK, DENSE_FROM),
+    "chain, SU only": ({"SU": 1.0}, FALLBACK, DENSE_FROM),
+    "chain, margin 0.5 + SU 0.5": ({"margin": 0.5, "SU": 0.5}, FALLBACK, DENSE_FROM),
+    "chain without fallback, margin 0.5 + SU 0.5": ({"margin": 0.5, "SU": 0.5}, 0.0, DENSE_FROM),
+    "chain, fallback 0.5, margin 0.5 + SU 0.5": ({"margin": 0.5, "SU": 0.5}, 0.5, DENSE_FROM),
+    "chain dense from the start, margin 0.5 + SU 0.5": ({"margin": 0.5, "SU": 0.5}, FALLBACK, 0.0),
+    "chain, margin 0.9 + SU 0.1": ({"margin": 0.9, "SU": 0.1}, FALLBACK, DENSE_FROM),
+    "chain, margin 0.7 + SU 0.3": ({"margin": 0.7, "SU": 0.3}, FALLBACK, DENSE_FROM),
+    "chain, SU 0.7 + margin 0.3": ({"SU": 0.7, "margin": 0.3}, FALLBACK, DENSE_FROM),
+    "chain, margin + SU + BM, 1/3 each": ({"margin": 1 / 3, "SU": 1 / 3, "BM": 1 / 3}, FALLBACK, DENSE_FROM),
+    "chain without fallback, margin + SU + BM, 1/3 each": ({"margin": 1 / 3, "SU": 1 / 3, "BM": 1 / 3}, 0, DENSE_FROM),
+    "chain, margin + SU + CAL, 1/3 each": ({"margin": 1 / 3, "SU": 1 / 3, "CAL": 1 / 3}, FALLBACK, DENSE_FROM),
+    "chain without fallback, margin + SU + CAL, 1/3 each": (
+        {"margin": 1 / 3, "SU": 1 / 3, "CAL": 1 / 3},
+        0,
+        DENSE_FROM,
+    ),
+    "chain without fallback, margin 0.5 + CAL 0.5": ({"margin": 0.5, "CAL": 0.5}, 0.0, DENSE_FROM),
+    "chain, fallback 0.15, margin 0.5 + SU 0.5": ({"margin": 0.5, "SU": 0.5}, 0.15, DENSE_FROM),
+    "chain without fallback, label-free mix: z(margin) - z(SU) on the labelled scores": ({"mix": 1.0}, 0.0, DENSE_FROM),
+    "chain, label-free mix: z(margin) - z(SU) on the labelled scores": ({"mix": 1.0}, FALLBACK, DENSE_FROM),
+    "chain dense from n/2: margin + SU + CAL at 1/3 each": (THIRDS, FALLBACK, 0.5),
+    "chain with fallback 0.15: margin + SU + CAL at 1/3 each": (THIRDS, 0.15, DENSE_FROM),
+    "tolerant steps, margin 0.5 + SU 0.5": ({"margin": 0.5, "SU": 0.5}, 0.0, 1.0),
+    "tolerant steps, SU 0.5 + CAL 0.5": ({"SU": 0.5, "CAL": 0.5}, 0.0, 1.0),
+    "tolerant steps, margin 0.5 + CAL 0.5": ({"margin": 0.5, "CAL": 0.5}, 0.0, 1.0),
+    "tolerant steps, margin + SU + CAL, 1/3 each": ({"margin": 1 / 3, "SU": 1 / 3, "CAL": 1 / 3}, 0.0, 1.0),
+    "tolerant steps, fallback 0.15, margin + SU + CAL, 1/3 each": (
+        {"margin": 1 / 3, "SU": 1 / 3, "CAL": 1 / 3},
+        0.15,
+        1.0,
+    ),
+}
+RANKINGS["mix"] = ("mix", 1.0)  # the benchmark's own label-free mix, standardised on each draw's scores
+
+
+def _chosen_on_a_split(select: float, fallback: float, dense_from: float) -> Procedure:
+    """Choose the ranking (select_calibrator: best average precision, the model cross-fitted) on a random share
+    ``select`` of the labels, then certify it alone at the whole delta on the others (the model fitted on the
+    choosing share is a fixed function for them: exact there too)."""
+
+    def procedure(population: Population, rows: np.ndarray, draw: int, settings: Settings) -> Outcome:
+        order = np.random.default_rng([settings.seed, draw, 7]).permutation(rows.size)
+        chooser, rest = rows[order[: round(select * rows.size)]], rows[order[round(select * rows.size) :]]
+        correct = population.correct
+        if correct[chooser].all() or not correct[chooser].any():
+            return np.zeros(population.size, bool), "none (one outcome in the choosing share)"
+        model = tuple(name for name in DEFAULT_FEATURES if name in population.features)
+        chosen, _ = select_calibrator(
+            {name: column[chooser] for name, column in population.features.items()},
+            correct[chooser],
+            model_features=model,
+            seed=draw,
+        )
+        confidence = chosen.confidence(columns(population.features, chosen.features))
+        _, rule, cut = certify_rankings(
+            {"chosen": confidence[rest]},
+            {"chosen": confidence[rest]},
+            correct[rest],
+            population.answerable[rest],
+            shares={"chosen": 1.0},
+            model_features=model,
+            target_precision=settings.target_precision,
+            delta=settings.delta,
+            folds=5,
+            seed=draw,
+            fallback=fallback,
+            dense_from=dense_from,
+        )
+        if rule is None:
+            return np.zeros(population.size, bool), "none"
+        return confidence >= cut, chosen.ranking
+
+    return procedure
+
+
+CHOSEN_ON_A_SPLIT = {
+    "choose on 1/4 of the labels, chain on the rest": (0.25, 0.0, DENSE_FROM),
+    "choose on 1/3 of the labels, chain on the rest": (1 / 3, 0.0, DENSE_FROM),
+    "choose on 1/4 of the labels, tolerant steps on the rest": (0.25, 0.0, 1.0),
+}
+RANKINGS["chosen"] = ("chosen", 1.0)
+
+
+def _variant(shares: Any, fallback: float, dense_from: float) -> Procedure:
+    def procedure(population: Population, rows: np.ndarray, draw: int, settings: Settings) -> Outcome:
+        given = shares(rows.size) if callable(shares) else shares
+        labelled = {name: column[rows] for name, column in population.features.items()}
+        model = tuple(name for name in DEFAULT_FEATURES if name in labelled)
+        features = population.features
+        if "mix" in given:  # z-scores on the draw's own scores (no label read), applied to the population alike
+            z = {name: (labelled[name].mean(), labelled[name].std() or 1.0) for name in ("gap", "SU")}
+            mix = lambda f: (f["gap"] - z["gap"][0]) / z["gap"][1] - (f["SU"] - z["SU"][0]) / z["SU"][1]  # noqa: E731
+            labelled["mix"], features = mix(labelled), {**features, "mix": mix(features)}
+        certificate, rule, cut = certify_rankings(
+            labelled,
+            labelled,
+            population.correct[rows],
+            population.answerable[rows],
+            shares=given,
+            model_features=model,
+            target_precision=settings.target_precision,
+            delta=settings.delta,
+            folds=5,
+            seed=draw,
+            fallback=fallback,
+            dense_from=dense_from,
+        )
+        if rule is None:
+            return np.zeros(population.size, bool), "none"
+        return rule.confidence(columns(features, rule.features)) >= cut, certificate.ranking
+
+    procedure.__doc__ = "certify_rankings with the given shares of delta and chain shape."
+    return procedure
 
 
 # --- plain fixed-sequence testing --------------------------------------------------------------------------------
@@ -357,6 +526,8 @@ def procedures(with_mapie: bool, with_unlabelled: bool) -> dict[str, Procedure]:
     chosen: dict[str, Procedure] = {"toolkit (default)": toolkit_default}
     if with_unlabelled:
         chosen["toolkit + unlabelled"] = toolkit_unlabelled
+    chosen.update({name: _variant(*variant) for name, variant in VARIANTS.items()})
+    chosen.update({name: _chosen_on_a_split(*variant) for name, variant in CHOSEN_ON_A_SPLIT.items()})
     if with_mapie:
         chosen.update({name: _mapie(method) for name, method in MAPIE_METHODS.items()})
     chosen["CP fixed sequence, SU"] = cp_su
@@ -517,6 +688,16 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--no-mapie", action="store_true", help="skip the MAPIE rows even when MAPIE is importable")
     parser.add_argument(
+        "--family",
+        choices=("resampled", "contrasting", "both"),
+        default="resampled",
+        help="the populations as loaded (resampled), or those made from them whose first wrong answer comes early "
+        "by SU and late by the margin or the other way round (contrasting, see `contrasting`), or both",
+    )
+    parser.add_argument(
+        "--only", default="", help="run only the procedures whose name contains one of these comma-separated texts"
+    )
+    parser.add_argument(
         "--sfs-betas",
         type=int,
         default=100,
@@ -533,13 +714,21 @@ def main(argv: list[str] | None = None) -> None:
     if not args.no_corridor and not data:
         parser.error("set VPR_UNCERTAINTY_DATA to the data folder (holding vprbench/), or pass --no-corridor")
     populations = load_populations(None if args.no_corridor else Path(data), args.retrieval, args.target_precision)
+    if args.family != "resampled":
+        made = [contrasting(p, early) for p in populations for early in ("SU", "margin")]
+        populations = (populations if args.family == "both" else []) + [p for p in made if p is not None]
     if not populations:
         parser.error("no population: give --retrieval files with --no-corridor")
     settings = Settings(args.target_precision, args.delta, args.seed, args.sfs_betas)
 
     version = None if args.no_mapie else mapie_version()
     with_unlabelled = supports_unlabelled()
-    names = list(procedures(version is not None, with_unlabelled))
+    wanted = [text for text in args.only.split(",") if text]
+    names = [
+        name
+        for name in procedures(version is not None, with_unlabelled)
+        if not wanted or any(t in name for t in wanted)
+    ]
     sizes = ", ".join(str(p.size) for p in populations)
     print(f"# Precision-guaranteed gates: p* = {args.target_precision:g}, delta = {args.delta:g}\n")
     print(

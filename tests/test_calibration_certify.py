@@ -11,7 +11,7 @@ from scipy import stats
 from vpr_uncertainty import Gate, calibrate
 from vpr_uncertainty.calibration.calibrator import feature_matrix
 from vpr_uncertainty.calibration.fit import calibrate_arrays
-from vpr_uncertainty.calibration.guarantee import coverage_grid, cuts_at_coverage
+from vpr_uncertainty.calibration.guarantee import certify_rankings, clopper_pearson_lower, cut_chain, cuts_at_coverage
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation import correct_at_n
@@ -31,64 +31,145 @@ def corridor(corridor_dir, corridor_matches_dir):
     return read
 
 
-def _by_hand(confidence, correct, p_star, delta):
-    """The fixed sequence written out: accept the m most confident for m on the grid, stop at the first failure."""
+def _by_hand(confidence, correct, p_star, level):
+    """The chain written out: accept the m most confident for each m of the chain, Wiens' fallback along it; the
+    loosest rejected count and its correct answers (None when none is rejected)."""
+    counts, levels = cut_chain(correct.size, p_star, level)
     order = np.argsort(-confidence, kind="stable")
-    last = None
-    for coverage in coverage_grid(correct.size, p_star, delta):
-        m = round(coverage * correct.size)
+    last, inherited = None, 0.0
+    for m, own in zip(counts.tolist(), levels.tolist(), strict=True):
         good = int(correct[order[:m]].sum())
-        if stats.binom.sf(good - 1, m, p_star) > delta:
-            break
-        last = (m, good)
+        level_now = own + inherited
+        passed = stats.binom.sf(good - 1, m, p_star) <= level_now
+        inherited = level_now if passed else 0.0
+        last = (m, good) if passed else last
     return last
 
 
 @pytest.mark.parametrize("method", ["AMOSNet", "HybridNet", "AlexNet_VPR"])
 def test_a_training_free_ranking_is_tested_on_every_label(corridor, method):
     retrieval, correct = corridor(method)
-    gate = calibrate(retrieval, target_precision=0.9, delta=0.1)
+    gate = calibrate(retrieval, target_precision=0.9, delta=0.1, rankings={"margin": 0.5, "SU": 0.5})
     certificate = gate.info["certificate"]
-    su = feature_matrix(retrieval.scores, features=("SU",))[:, 0]
-    expected = _by_hand(-su, correct, 0.9, 0.1)
-    assert certificate["n_test"] == 111 and gate.info["rankings"] == ["SU"]
-    assert (certificate["accepted"], certificate["correct_accepted"]) == expected
+    assert certificate["n_test"] == 111 and gate.info["rankings"] == {"margin": 0.05, "SU": 0.05}
+    found = {}
+    for name, feature, sign in (("margin", "gap", 1), ("SU", "SU", -1)):
+        confidence = sign * feature_matrix(retrieval.scores, features=(feature,))[:, 0]
+        found[name] = _by_hand(confidence, correct, 0.9, 0.05)
+        assert certificate["rankings"][name]["delta"] == 0.05
+        assert certificate["rankings"][name]["certified"] == (found[name] is not None)
+    if not any(found.values()):  # HybridNet: a wrong answer early in both rankings ends both chains at δ/2
+        assert not certificate["certified"] and not gate.accept(retrieval.scores[:, : gate.k]).any()
+        return
+    winner = max((name for name in found if found[name]), key=lambda name: found[name][1])
+    assert certificate["ranking"] == winner == gate.rule.ranking
+    assert (certificate["accepted"], certificate["correct_accepted"]) == found[winner]
     # the gate applies the certified rule itself
     accepted = gate.accept(retrieval.scores[:, : gate.k])
-    assert accepted.sum() == expected[0] and (accepted & correct).sum() == expected[1]
+    assert (accepted.sum(), (accepted & correct).sum()) == found[winner]
     assert gate.precision_lower_bound >= 0.9
+
+
+def _two_signal_scores(gap):
+    """Rows [0.9, 0.9 − gap, 0.1, …]: the margin ranks by ``gap``."""
+    scores = np.full((gap.size, 10), 0.1)
+    scores[:, 0], scores[:, 1] = 0.9, 0.9 - gap
+    return scores
+
+
+def test_hand_computed_chain_certifies_past_an_early_confident_error():
+    """60 labelled queries ranked by the margin; wrong answers at ranks 2 and 56 (1-based).
+
+    The chain at δ = 0.1 (fallback 0.3): 26 accepted at 0.07 (25 of 26 correct: p = 0.25, fails); nothing from 27 to
+    51 (no level of its own, none passed on); 52 at the fallback level 0.03 (51 of 52: p = 0.028, passes); 53, 54, 55
+    inherit 0.03 and pass (p 0.026, 0.023, 0.021); 56 (54 of 56: p = 0.052) fails and the chain ends. Certified: the
+    cut accepting 55, 54 of them correct. The plain fixed sequence stops at its first test (21 of 22) and certifies
+    nothing.
+    """
+    correct = np.ones(60, bool)
+    correct[[1, 55]] = False
+    scores = _two_signal_scores(0.5 - 0.005 * np.arange(60))
+    p = [stats.binom.sf(good - 1, m, 0.9) for m, good in ((26, 25), (52, 51), (55, 54), (56, 54), (22, 21))]
+    assert p[0] > 0.07 and p[1] <= 0.03 and p[2] <= 0.03 < p[3] and p[4] > 0.1
+    gate = calibrate_arrays(scores, correct, target_precision=0.9, delta=0.1, rankings={"margin": 1.0})
+    certificate = gate.info["certificate"]
+    assert certificate["ranking"] == "margin" and (certificate["accepted"], certificate["correct_accepted"]) == (55, 54)
+    assert gate.accept(scores).tolist() == [True] * 55 + [False] * 5
+    assert certificate["precision_lower_bound"] == pytest.approx(float(clopper_pearson_lower(54, 55, 0.03)))
+    fixed = certify_rankings(
+        *({"gap": scores[:, 0] - scores[:, 1]},) * 2,
+        correct,
+        np.ones(60, bool),
+        shares={"margin": 1.0},
+        model_features=("gap",),
+        target_precision=0.9,
+        delta=0.1,
+        folds=5,
+        seed=0,
+        fallback=0.0,
+    )
+    assert not fixed[0].certified and fixed[1] is None
 
 
 def test_rankings_share_delta_and_the_winner_is_reported(corridor):
     retrieval, _correct = corridor("AMOSNet")
     gate = calibrate(retrieval, target_precision=0.8, delta=0.1, rankings=("SU", "margin", "BM"))
     certificate = gate.info["certificate"]
-    assert certificate["delta_per_ranking"] == pytest.approx(0.1 / 3)
-    assert set(certificate["rankings"]) == {"SU", "margin", "BM"}
+    assert {name: o["delta"] for name, o in certificate["rankings"].items()} == pytest.approx(
+        dict.fromkeys(("SU", "margin", "BM"), 0.1 / 3)
+    )
     winner = certificate["ranking"]
     best = max(outcome["correct_accepted"] for outcome in certificate["rankings"].values())
     assert certificate["rankings"][winner]["correct_accepted"] == best == certificate["correct_accepted"]
-    assert gate.calibrator.ranking == winner
+    assert gate.rule.ranking == winner
+    weighted = calibrate(retrieval, target_precision=0.8, rankings={"margin": 0.9, "SU": 0.1})
+    assert weighted.info["rankings"] == pytest.approx({"margin": 0.09, "SU": 0.01})
     with pytest.raises(ValueError, match="unknown ranking"):
         calibrate(retrieval, target_precision=0.9, rankings=("SU", "bogus"))
+    with pytest.raises(ValueError, match="sum to at most 1"):
+        calibrate(retrieval, target_precision=0.9, rankings={"SU": 0.7, "margin": 0.7})
+
+
+def test_probability_is_the_selected_calibrators_with_or_without_a_target(corridor):
+    """Held-out AUC-PR of probability_correct is the same with a target as without (the same selection)."""
+    from sklearn.metrics import auc, precision_recall_curve
+
+    for method in ("AMOSNet", "HybridNet", "CALC"):
+        retrieval, correct = corridor(method)
+        scores = retrieval.scores[:, :10]
+        labelled = np.random.default_rng(1).permutation(111)[:60]
+        held_out = np.setdiff1d(np.arange(111), labelled)
+        plain = calibrate_arrays(scores[labelled], correct[labelled])
+        certified = calibrate_arrays(scores[labelled], correct[labelled], target_precision=0.8)
+        assert certified.info["selection"] == plain.info["selection"] and certified.calibrator == plain.calibrator
+        aucs = []
+        for gate in (plain, certified):
+            precision, recall, _ = precision_recall_curve(correct[held_out], gate.probability_correct(scores[held_out]))
+            aucs.append(auc(recall, precision))
+        assert aucs[0] == aucs[1], method
+        if method == "HybridNet":  # certified there, and the P it gives is not that of the certified ranking
+            assert certified.precision_lower_bound >= 0.8
 
 
 def test_cuts_come_from_unlabelled_scores_and_never_from_labels(corridor):
     retrieval, correct = corridor("HybridNet")
     labelled, pool = np.arange(0, 111, 2), np.arange(1, 111, 2)
     scores = retrieval.scores[:, :10]
-    gate = calibrate_arrays(scores[labelled], correct[labelled], target_precision=0.8, unlabelled=scores[pool])
+    gate = calibrate_arrays(
+        scores[labelled], correct[labelled], target_precision=0.8, unlabelled=scores[pool], rankings=("SU",)
+    )
     certificate = gate.info["certificate"]
     assert certificate["certified"] and gate.info["calibration"]["n_unlabelled"] == pool.size
     # the cut is the pooled −SU quantile at a coverage of the label-free grid
     su = feature_matrix(np.concatenate([scores[labelled], scores[pool]]), features=("SU",))[:, 0]
-    grid = coverage_grid(labelled.size, 0.8, 0.1)
-    assert any(np.isclose(certificate["coverage"], grid))
+    assert any(np.isclose(certificate["coverage"], cut_chain(labelled.size, 0.8, 0.1)[0] / labelled.size))
     cut_on_su = cuts_at_coverage(-su, np.array([certificate["coverage"]]))[0]
     own_su = feature_matrix(scores[labelled], features=("SU",))[:, 0]
     assert (gate.accept(scores[labelled]) == (-own_su >= cut_on_su)).all()
     # flipping the labels of the unlabelled queries changes nothing: they are never read
-    other = calibrate_arrays(scores[labelled], correct[labelled], target_precision=0.8, unlabelled=scores[pool][::-1])
+    other = calibrate_arrays(
+        scores[labelled], correct[labelled], target_precision=0.8, unlabelled=scores[pool][::-1], rankings=("SU",)
+    )
     assert other.cut == gate.cut
 
 
@@ -147,7 +228,8 @@ def _outcome(call):
 )
 @pytest.mark.parametrize("kind", ["certified", "model", "isotonic"])
 def test_one_query_paths_agree_on_every_input(corridor, row, kind):
-    """gate(row), gate.accept and probability_one give the same decision, or all refuse the row."""
+    """gate(row) and gate.accept give the same decision, or both refuse the row; probability_one and
+    probability_correct the same P, or both refuse it (P may overflow where the rule does not: another map)."""
     retrieval, _ = corridor("AMOSNet")
     options = {"certified": {"target_precision": 0.9}, "model": {"features": ("s1", "gap", "SU", "zscore")}}
     gate = calibrate(retrieval, **options.get(kind, {"model": "isotonic"}))
@@ -159,7 +241,8 @@ def test_one_query_paths_agree_on_every_input(corridor, row, kind):
     if isinstance(probability, float) and isinstance(batch_probability, float):
         assert probability == pytest.approx(batch_probability, rel=1e-9, abs=1e-12)
     else:
-        assert isinstance(probability, str) == isinstance(one, str)
+        assert isinstance(probability, str) and isinstance(batch_probability, str)
+    assert not isinstance(one, str) or isinstance(probability, str)  # a row the gate refuses has no P either
 
 
 @pytest.mark.parametrize("scores", [np.zeros((2, 10)), np.array(["0.5", "0.4"]), "0.5"])
@@ -199,7 +282,7 @@ def test_readme_loop_closure_example(corridor):
             accepted = gate.accept(scores[56:, : gate.k])
             found[method, target] = (int(accepted.sum()), int((accepted & correct[56:]).sum()))
     assert found["AMOSNet", 0.9] == found["HybridNet", 0.9] == found["AlexNet_VPR", 0.9] == (0, 0)
-    assert found["AMOSNet", 0.8] == (39, 38) and found["HybridNet", 0.8] == (51, 48)
+    assert found["AMOSNet", 0.8] == (36, 36) and found["HybridNet", 0.8] == (44, 42)
     assert found["AlexNet_VPR", 0.8] == (0, 0)
 
 

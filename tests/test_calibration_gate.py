@@ -36,7 +36,7 @@ def test_one_query_path_agrees_with_batch(method, model, target, corridor_dir, c
     assert accepted.tolist() == [gate(row[None, :]) for row in scores]
     probability = gate.probability_correct(scores)
     assert ((probability >= 0) & (probability <= 1)).all()
-    if gate.cut != np.inf and model == "logistic":
+    if gate.cut != np.inf and gate.threshold is not None and model == "logistic":  # the rule is P's own order
         assert (accepted == (probability >= gate.threshold)).all()
     loaded = Gate.load(gate.save(tmp_path / "gate.json"))
     assert loaded.accept(scores).tolist() == accepted.tolist()
@@ -50,9 +50,12 @@ def test_gate_file_records_what_made_it(corridor_dir, corridor_matches_dir, tmp_
     gate = calibrate(retrieval, target_precision=0.9, delta=0.1, seed=0)
     data = json.loads(gate.save(tmp_path / "gate.json").read_text())
     assert data["format"] == "vpr-uncertainty gate" and data["k"] == 10
-    # 111 labelled queries: the gate tests SU alone, and its P is Platt scaling of SU
-    assert data["rankings"] == ["SU"] and data["certificate"]["ranking"] == "SU"
-    assert data["calibrator"]["features"] == ["SU"] and data["calibrator"]["ranking"] == "SU"
+    # the margin, SU and the cross-fitted model at δ/3 each, each one's outcome and δ recorded; P is the selection's
+    assert data["rankings"] == pytest.approx({"margin": 0.1 / 3, "SU": 0.1 / 3, "CAL": 0.1 / 3})
+    winner = data["certificate"]["ranking"]
+    assert data["certificate"]["rankings"][winner]["certified"] and data["rule"]["ranking"] == winner
+    assert [o["delta"] for o in data["certificate"]["rankings"].values()] == pytest.approx([0.1 / 3] * 3)
+    assert data["calibrator"]["ranking"] == data["selection"]["chosen"]
     assert data["calibration"]["n_queries"] == 111 and len(data["calibration"]["fingerprint"]) == 16
     assert data["toolkit_version"] and data["target_precision"] == 0.9 and data["delta"] == 0.1
     assert gate.precision_lower_bound >= 0.9 and 0 < gate.expected_recall <= 1
@@ -96,8 +99,8 @@ def test_one_query_errors(row, message):
         ("{", "not a JSON gate file"),
         ('{"format": "other"}', "not a gate file"),
         ('{"format": "vpr-uncertainty gate", "format_version": 1, "k": 1}', "format_version 1 "),
-        ('{"format": "vpr-uncertainty gate", "format_version": 2, "k": 10}', "no digest"),
-        ('{"format": "vpr-uncertainty gate", "format_version": 2, "k": 1, "digest": {}}', "k must be >= 2"),
+        ('{"format": "vpr-uncertainty gate", "format_version": 3, "k": 10}', "no digest"),
+        ('{"format": "vpr-uncertainty gate", "format_version": 3, "k": 1, "digest": {}}', "k must be >= 2"),
     ],
 )
 def test_load_errors_name_the_file(content, message, tmp_path):

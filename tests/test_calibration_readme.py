@@ -18,7 +18,7 @@ def test_readme_calibration_example(corridor_dir, corridor_matches_dir, tmp_path
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
     exec(compile(block, str(README), "exec"), namespace)
-    threshold, bound, recall = (float(value) for value in capsys.readouterr().out.split())
-    expected = re.search(r"# ([\d.]+) ([\d.]+) ([\d.]+)", block).groups()
-    assert [round(threshold, 3), round(bound, 3), round(recall, 3)] == [float(value) for value in expected]
+    ranking, bound, recall = capsys.readouterr().out.split()
+    expected = re.search(r"# (\w+) ([\d.]+) ([\d.]+)", block).groups()
+    assert [ranking, round(float(bound), 3), round(float(recall), 3)] == [expected[0], *map(float, expected[1:])]
     assert isinstance(namespace["accept"], bool) and (tmp_path / "gate.json").is_file()

@@ -24,37 +24,41 @@ def _label_all(session: SequentialCalibration, correct: np.ndarray):
     return status
 
 
-def _reference(confidence: np.ndarray, correct: np.ndarray, tests: list[int], p_star: float, delta: float) -> int:
-    """The batch fixed sequence with the whole pool labelled, written out: the largest count certified."""
-    ranked = correct[np.argsort(-confidence, kind="stable")]
-    certified = 0
-    for m in tests:
-        if stats.binom.sf(ranked[:m].sum() - 1, m, p_star) > delta:
-            break
-        certified = m
-    return certified
-
-
-def test_a_clean_pool_is_certified_at_the_hand_computed_steps():
-    # 40 queries, p* = 0.9, δ = 0.1, one ranking: tests at 22 (no wrong answer allowed) and 38 (one)
+def test_the_chain_stops_at_the_hand_computed_count():
+    # 40 queries, p* = 0.9, δ = 0.1, one ranking: the chain's first test is at 26 (0.9^26 = 0.065 <= 0.07 = 0.7 δ)
+    # and from there every count (n/4 = 10 < 26); the fallback count (one wrong answer at 0.03 δ) lies beyond 40
     session = SequentialCalibration(_pool(40), target_precision=0.9, delta=0.1, rankings=["SU"])
-    assert session.chains[0].tests.tolist() == [22, 38]
+    assert session.chains[0].tests.tolist() == list(range(26, 41))
     correct = np.ones(40, bool)
-    order = session.chains[0].order
-    correct[order[30]] = False  # one wrong answer between the two steps: 37 of 38 correct still passes
+    correct[session.chains[0].order[30]] = False  # the 31st most confident answer is wrong
     status = _label_all(session, correct)
-    assert (status.certified, status.accepted, status.correct_accepted, status.finished) == (True, 38, 37, True)
-    assert status.labelled == 38  # the last two queries are never asked for
-    assert status.precision_lower_bound == pytest.approx(stats.beta.ppf(0.1, 37, 2))
+    # 30 of 30 pass; 30 of 31: P[Bin(31, 0.9) >= 30] = 0.17 > 0.07 fails, and no later test holds any level
+    assert (status.certified, status.accepted, status.correct_accepted, status.finished) == (True, 30, 30, True)
+    assert status.labelled == 31  # the last nine queries are never asked for
+    assert status.precision_lower_bound == pytest.approx(stats.beta.ppf(0.07, 30, 1))
 
 
-def test_an_early_wrong_answer_ends_the_chain_at_once():
+@pytest.mark.parametrize(("wrong_ranks", "certified", "labelled"), [([1], 200, 200), ([1, 2], 0, 3)])
+def test_one_early_wrong_answer_does_not_end_the_chain_two_do(wrong_ranks, certified, labelled):
+    # the fallback test (52 accepted, one wrong answer allowed at 0.03) takes over when the first test (26) fails
     session = SequentialCalibration(_pool(200), target_precision=0.9, delta=0.1, rankings=["SU"])
     correct = np.ones(200, bool)
-    correct[session.chains[0].order[1]] = False  # the second most confident answer is wrong: the test at 22 fails
+    correct[session.chains[0].order[wrong_ranks]] = False
     status = _label_all(session, correct)
-    assert not status.certified and status.finished and status.labelled == 2
+    assert (status.accepted, status.labelled, status.finished) == (certified, labelled, True)
     assert session.next_query() is None and "done" in status.message
+
+
+def _reference(confidence, correct, counts, levels, p_star):
+    """The batch chain with the whole pool labelled, written out (Wiens' fallback): the largest count certified."""
+    ranked = correct[np.argsort(-confidence, kind="stable")]
+    certified, carried, passed = 0, 0.0, False
+    for m, own in zip(counts, levels, strict=True):
+        level = own + (carried if passed else 0.0)
+        passed = stats.binom.sf(ranked[:m].sum() - 1, m, p_star) <= level
+        carried = level
+        certified = m if passed else certified
+    return certified
 
 
 def test_sequential_certifies_what_the_batch_sequence_would_with_every_label(corridor_dir, corridor_matches_dir):
@@ -71,8 +75,8 @@ def test_sequential_certifies_what_the_batch_sequence_would_with_every_label(cor
             status = _label_all(session, correct)
             feature, sign = RANKINGS[ranking]
             confidence = sign * feature_columns(retrieval.scores, 10, required=(feature,))[feature]
-            tests = session.chains[0].tests.tolist()
-            assert status.accepted == _reference(confidence, correct, tests, 0.9, 0.1), (method, ranking)
+            chain = session.chains[0]
+            assert status.accepted == _reference(confidence, correct, chain.tests, chain.levels, 0.9), (method, ranking)
             if status.certified:  # the cut accepts exactly the certified queries of the pool
                 assert (confidence >= status.cut).sum() == status.accepted
 
@@ -121,10 +125,6 @@ def test_the_gate_accepts_what_the_status_certifies():
     session = SequentialCalibration(scores, target_precision=0.9, delta=0.1)
     with pytest.raises(ValueError, match="no gate yet: nothing certified"):
         session.gate()
-    status = _label_all(session, correct)
-    with pytest.raises(ValueError, match=r"all \d+ labelled answers are correct"):
-        session.gate()
-    session = SequentialCalibration(scores, target_precision=0.9, delta=0.1)
     correct[session.chains[0].order[40]] = False
     status = _label_all(session, correct)
     gate = session.gate()

@@ -56,6 +56,7 @@ __all__ = [
     "fit_calibrator",
     "fit_model",
     "platt",
+    "ranking_rule",
     "row_features",
     "select_calibrator",
     "stratified_folds",
@@ -572,6 +573,13 @@ def platt(name: str, feature: str, sign: float, column: np.ndarray, correct: np.
         intercept=float(intercept),
         ranking=name,
     )
+
+
+def ranking_rule(name: str) -> Calibrator:
+    """The confidence sign × feature of a training-free ranking, as a linear :class:`Calibrator` (its P is not
+    meant to be read: a gate cuts this confidence)."""
+    feature, sign = RANKINGS[name]
+    return Calibrator("logistic", (feature,), mean=[0.0], scale=[1.0], coef=[sign], intercept=0.0, ranking=name)
 
 
 def select_calibrator(

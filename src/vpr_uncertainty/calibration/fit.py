@@ -3,12 +3,12 @@ many labels that takes and how often the guarantee holds: :mod:`~vpr_uncertainty
 
 Every label is spent; nothing is held back for a second look. P(correct) (the doubt ``CAL``) is the best of the
 fixed scores and a cross-fitted logistic model (:func:`~vpr_uncertainty.calibration.calibrator.select_calibrator`).
-With a target precision every candidate ranking is certified at δ / R on all labelled queries
+With a target precision every candidate ranking is certified at its share of δ on all labelled queries
 (:mod:`~vpr_uncertainty.calibration.guarantee`): cuts are fixed from the scores alone, the fitted model is
 cross-fitted (each labelled query is judged by the fold model that did not see it), and the certified rule that
-accepts the most correct labelled queries is kept. For a training-free ranking the gate applies exactly that rule;
-for ``"CAL"`` it applies the model refitted on all labels at the certified coverage, so the guarantee is
-approximate there (``tests/test_calibration_guarantee.py`` measures it).
+accepts the most correct labelled queries is kept. The gate gives P from the selected calibrator and accepts what
+that rule accepts: for a training-free ranking exactly the certified rule; for ``"CAL"`` the model refitted on all
+labels at the certified coverage, so the guarantee is approximate there.
 """
 
 from __future__ import annotations
@@ -38,10 +38,9 @@ from vpr_uncertainty.calibration.calibrator import (
 )
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.calibration.guarantee import (
+    DEFAULT_SHARES,
     certify_rankings,
     check_rankings,
-    cuts_at_coverage,
-    default_rankings,
     needed_message,
 )
 from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n
@@ -71,7 +70,7 @@ def calibrate_arrays(
     seed: int = 0,
     model: str = "logistic",
     features: Sequence[str] | None = None,
-    rankings: Sequence[str] | None = None,
+    rankings: Sequence[str] | dict[str, float] | None = None,
     unlabelled: np.ndarray | None = None,
     folds: int = FOLDS,
 ) -> Gate:
@@ -97,9 +96,7 @@ def calibrate_arrays(
     pool_features = feature_columns(pool_scores, k, model_features if features is not None else ())
     labelled_features = {name: column[: correct.size] for name, column in pool_features.items()}
     model_features = tuple(name for name in model_features if name in pool_features)
-    if model == "isotonic":
-        rankings = ("SU",)
-    names = check_rankings(default_rankings(correct.size) if rankings is None else rankings, labelled_features)
+    shares = check_rankings(DEFAULT_SHARES if rankings is None else rankings, labelled_features)
     info: dict[str, Any] = {
         "toolkit_version": __version__,
         "target_precision": target_precision,
@@ -130,18 +127,19 @@ def calibrate_arrays(
         return calibrator
 
     info["selection"] = None
+
+    calibrator = fallback()  # P: the selection's calibrator, certified or not
     if target_precision is None:
-        calibrator = fallback()
         info.update(precision_lower_bound=None, expected_recall=None, expected_coverage=None, certificate=None)
         return Gate(calibrator, k, _half_way_cut(calibrator), info)
     if not 0.0 < delta < 1.0:
         raise ValueError(f"delta must lie in (0, 1), got {delta}")
-    certificate, calibrator, cut = certify_rankings(
+    certificate, rule, cut = certify_rankings(
         labelled_features,
         pool_features,
         correct,
         answerable,
-        rankings=names,
+        shares=shares,
         model_features=model_features,
         target_precision=target_precision,
         delta=delta,
@@ -149,23 +147,18 @@ def calibrate_arrays(
         seed=seed,
     )
     message = certificate.message
-    if calibrator is None:  # nothing certified: the gate accepts nothing, P from the best doubt
-        calibrator = fallback()
+    if rule is None:  # nothing certified: the gate accepts nothing
         message += "; " + needed_message(
             calibrator.confidence(columns(labelled_features, calibrator.features)), correct, target_precision, delta
         )
-    elif model == "isotonic":  # the isotonic P, in the order of −SU: the cut on −SU
-        calibrator = fallback()
-        cut = float(cuts_at_coverage(-pool_features["SU"], np.array([certificate.coverage]))[0])
-        certificate.cut = cut
-    info["rankings"] = list(names)
+    info["rankings"] = {name: share * delta for name, share in shares.items()}
     info.update(
         precision_lower_bound=certificate.precision_lower_bound,
         expected_recall=certificate.expected_recall,
         expected_coverage=certificate.expected_coverage,
         certificate={**certificate.to_dict(), "message": message},
     )
-    return Gate(calibrator, k, cut, info)
+    return Gate(calibrator, k, cut, info, rule=rule)
 
 
 def _half_way_cut(calibrator: Calibrator) -> float:
@@ -189,7 +182,7 @@ def calibrate(
     seed: int = 0,
     model: str = "logistic",
     features: Sequence[str] | None = None,
-    rankings: Sequence[str] | None = None,
+    rankings: Sequence[str] | dict[str, float] | None = None,
     unlabelled: Retrieval | np.ndarray | None = None,
     folds: int = FOLDS,
 ) -> Gate:
@@ -204,20 +197,21 @@ def calibrate(
         answers on new queries from the same distribution is ≥ p*. Without it the gate accepts P ≥ 0.5 and
         certifies nothing.
     delta : float in (0, 1), default=0.1
-        The risk δ, split evenly over the candidate rankings.
+        The risk δ, shared by the candidate rankings (``rankings``).
     k : int, default=10
         Candidates per query the features read.
     seed : int, default=0
         Seed of the cross-fitting folds.
     model : {"logistic", "isotonic"}, default="logistic"
         ``"logistic"``: P from the best of the fixed scores and a logistic model (:func:`select_calibrator`);
-        ``"isotonic"``: isotonic regression on SU, certified on the SU ranking.
+        ``"isotonic"``: isotonic regression on SU. P only: the certified rule does not depend on it.
     features : sequence of str, optional
         Features of the logistic model; given, the model is used as it is (no choice among fixed scores).
         Default :data:`~vpr_uncertainty.calibration.calibrator.DEFAULT_FEATURES`.
-    rankings : sequence of str, optional
-        Candidate rankings of the certified threshold, from :data:`RANKINGS` and ``"CAL"`` (the cross-fitted
-        model); default :func:`default_rankings` (SU, plus CAL from :data:`CAL_MIN_LABELLED` labelled queries).
+    rankings : sequence of str or dict of str to float, optional
+        Candidate rankings of the certified rule, from :data:`RANKINGS` and ``"CAL"`` (the cross-fitted model): a
+        list shares δ evenly, a dict gives each name its share. Default
+        :data:`~vpr_uncertainty.calibration.guarantee.DEFAULT_SHARES`.
     unlabelled : Retrieval or ndarray of shape (U, K), optional
         Further queries without labels (e.g. the rest of the traversal): the candidate cuts are quantiles over
         these and the labelled ones. Their labels are never read. The cuts then accept a random number of
@@ -229,9 +223,9 @@ def calibrate(
     Returns
     -------
     Gate
-        With ``threshold``, ``precision_lower_bound`` and ``expected_recall``; ``gate.info["certificate"]``
-        names the winning ranking, and each ranking's outcome. When nothing can be certified the gate accepts
-        nothing and the message says why and how many labelled queries would be needed.
+        With ``precision_lower_bound``, ``expected_recall`` and ``threshold``; ``gate.info["certificate"]``
+        names the winning ``ranking`` and gives each ranking's outcome and δ (``rankings``). When nothing can be
+        certified the gate accepts nothing and the message says why and how many labelled queries would be needed.
 
     Examples
     --------

@@ -1,15 +1,17 @@
 """The gate: P(correct top-1) and an accept/reject decision, for many queries or one at a time, saved as JSON.
 
-A :class:`Gate` is made by :func:`vpr_uncertainty.calibrate` (or read back with :meth:`Gate.load`). It accepts a
-query when its confidence (the calibrator's linear score, or −SU) is at least the cut, which is the same as
-P(correct) ≥ :attr:`Gate.threshold`. ``gate(row)`` decides one query in pure Python, with everything it needs
-folded into a few precomputed numbers: a couple of microseconds, like :class:`~vpr_uncertainty.StatisticalUncertainty`.
+A :class:`Gate` is made by :func:`vpr_uncertainty.calibrate` (or read back with :meth:`Gate.load`). It holds two
+maps of the features: the calibrator, which gives P(correct), and the rule, a linear confidence (the certified
+ranking: the margin, −SU, the fitted model, …; without a certificate the calibrator's own order) that it accepts
+at or above the cut. ``gate(row)`` decides one query in pure Python, with everything it needs folded into a few
+precomputed numbers: a couple of microseconds, like :class:`~vpr_uncertainty.StatisticalUncertainty`.
 
-The JSON file holds numbers only (no pickle): the calibrator (features, scaling, coefficients), k, the cut and the
-threshold, the certificate, the toolkit version, the calibration set's size and a fingerprint of its scores and
-labels; and a ``digest``, SHA-256 of each field (``cut``, ``calibrator.coef``, …), by which :meth:`Gate.load`
-refuses and names a field edited or written twice (against edits, not forgery). The gate refuses a row unlike its
-calibration rows: other than k scores, or fewer of them finite (not ``-inf``) than any calibration row held.
+The JSON file holds numbers only (no pickle): the calibrator and the rule (features, scaling, coefficients), k,
+the cut and the threshold, the certificate, the toolkit version, the calibration set's size and a fingerprint of
+its scores and labels; and a ``digest``, SHA-256 of each field (``cut``, ``calibrator.coef``, ``rule.coef``, …), by
+which :meth:`Gate.load` refuses and names a field edited or written twice (against edits, not forgery). The gate
+refuses a row unlike its calibration rows: other than k scores, or fewer of them finite (not ``-inf``) than any
+calibration row held.
 """
 
 from __future__ import annotations
@@ -27,14 +29,21 @@ import numpy as np
 from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty._validation import check_k, check_top_k_scores
 from vpr_uncertainty.cache import write_text
-from vpr_uncertainty.calibration.calibrator import FEATURES, Calibrator, aliasing_ratio, feature_matrix, row_features
+from vpr_uncertainty.calibration.calibrator import (
+    FEATURES,
+    Calibrator,
+    aliasing_ratio,
+    feature_matrix,
+    ranking_rule,
+    row_features,
+)
 from vpr_uncertainty.scores import one_row, row_statistics
 
 __all__ = ["FORMAT", "Gate"]
 
 #: The ``format`` field of a gate file.
 FORMAT = "vpr-uncertainty gate"
-_FORMAT_VERSION = 2  # 2: the digest
+_FORMAT_VERSION = 3  # 2: the digest; 3: the rule apart from the calibrator
 _FIX = "; write the gate again with `vpr-uncertainty calibrate`"
 
 
@@ -48,17 +57,20 @@ class Gate:
     k : int
         Candidates per query the features read.
     cut : float
-        Accept a query when its confidence (:meth:`Calibrator.confidence`) is ≥ ``cut``; ``inf`` accepts none.
+        Accept a query when the rule's confidence is ≥ ``cut``; ``inf`` accepts none.
     info : dict, optional
         What :func:`~vpr_uncertainty.calibrate` recorded: ``target_precision``, ``delta``,
         ``precision_lower_bound``, ``expected_recall``, ``expected_coverage``, ``certificate``, ``calibration``
         (size, fingerprint, seed, ``min_candidates``: the fewest finite scores of a calibration row, default k)
         and ``toolkit_version``.
+    rule : Calibrator, optional
+        A linear map whose confidence the gate cuts (default: the calibrator's order; −SU for an isotonic one).
 
     Attributes
     ----------
-    threshold : float
-        P(correct) at the cut: the gate accepts P ≥ threshold (1.0 when it accepts nothing).
+    threshold : float or None
+        P(correct) at the cut when the rule is the calibrator's own confidence, so that the gate accepts P ≥
+        threshold (1.0 when it accepts nothing); None when the rule is another ranking.
     precision_lower_bound : float or None
         The certified lower bound of the precision of accepted answers (None without a target or certificate).
     expected_recall : float or None
@@ -82,12 +94,24 @@ class Gate:
         "cut",
         "info",
         "k",
+        "rule",
     )
 
-    def __init__(self, calibrator: Calibrator, k: int, cut: float, info: dict[str, Any] | None = None) -> None:
-        if not isinstance(calibrator, Calibrator):
-            raise TypeError(f"calibrator must be a Calibrator, got {type(calibrator).__name__}")
-        self.calibrator = calibrator
+    def __init__(
+        self,
+        calibrator: Calibrator,
+        k: int,
+        cut: float,
+        info: dict[str, Any] | None = None,
+        rule: Calibrator | None = None,
+    ) -> None:
+        rule = rule or (ranking_rule("SU") if getattr(calibrator, "model", None) == "isotonic" else calibrator)
+        for name, value in (("calibrator", calibrator), ("rule", rule)):
+            if not isinstance(value, Calibrator):
+                raise TypeError(f"{name} must be a Calibrator, got {type(value).__name__}")
+        if rule.model != "logistic":
+            raise ValueError("the rule must be a linear (logistic) map of the features")
+        self.calibrator, self.rule = calibrator, rule
         self.k = check_k(k)
         cut = float(cut)
         if math.isnan(cut):
@@ -103,16 +127,12 @@ class Gate:
     # --- the one-query fast path --------------------------------------------------------------------------------
 
     def _prepare(self) -> None:
-        """Fold the features, the scaling and the coefficients into the weights of the row statistics."""
+        """Fold the rule's features, scaling and coefficients into the weights of the row statistics."""
         self._k, self._cut = self.k, self.cut
-        if self.calibrator.model == "isotonic":  # confidence = −SU = −(½ runners-up + ½ median) / s_1
-            self._bias, self._w_best, self._w_second, self._w_spread, self._w_ratio = 0.0, 0.0, 0.0, 0.0, 0.0
-            self._w_runners, self._w_median, self._w_nonpositive, self._w_aliasing = -0.5, -0.5, -1.0, 0.0
-            return
-        bias, raw = self.calibrator.raw_weights()
+        bias, raw = self.rule.raw_weights()
         w = dict.fromkeys(FEATURES, 0.0)
         # plain floats: numpy scalars make every operation of the one-query path slower
-        w.update(zip(self.calibrator.features, (float(value) for value in raw), strict=True))
+        w.update(zip(self.rule.features, (float(value) for value in raw), strict=True))
         self._bias = float(bias)
         self._w_aliasing = w["PA"]
         self._w_best = w["s1"] + w["gap"]
@@ -150,17 +170,17 @@ class Gate:
         if self._w_aliasing:
             z += self._w_aliasing * aliasing_ratio(best, second)
         if not -math.inf < z < math.inf:  # huge scores: each feature on its own (ratios before sums), as in batch
-            z = self._confidence_by_features(values)
+            z = self._confidence_by_features(values, self.rule)
         return z
 
-    def _confidence_by_features(self, values: list[float]) -> float:
-        """The confidence from :func:`row_features` and the raw weights: slower, but overflows only where the
-        features themselves do (the same numbers as :meth:`confidence`)."""
-        features = row_features(values, k=self._k, features=self.calibrator.features)
-        if self.calibrator.model == "isotonic":
+    def _confidence_by_features(self, values: list[float], calibrator: Calibrator) -> float:
+        """``calibrator``'s confidence from :func:`row_features` and the raw weights: slower, but overflows only
+        where the features themselves do (the same numbers as the batch path)."""
+        features = row_features(values, k=self._k, features=calibrator.features)
+        if calibrator.model == "isotonic":
             z = -features[0]
         else:
-            bias, weights = self.calibrator.raw_weights()
+            bias, weights = calibrator.raw_weights()
             z = bias + sum(weight * value for weight, value in zip(weights, features, strict=True))
         if not -math.inf < z < math.inf:
             raise ValueError(f"scores are too large: the gate's confidence overflows float64 ({values})")
@@ -168,7 +188,9 @@ class Gate:
 
     def probability_one(self, scores: Sequence[float] | np.ndarray) -> float:
         """P(correct) of one query (same input as ``gate(scores)``)."""
-        confidence = self._confidence_of(one_row(scores, shapes="(K,) or (1, K)"))
+        values = one_row(scores, shapes="(K,) or (1, K)")
+        self._confidence_of(values)  # the same refusals as gate(row)
+        confidence = self._confidence_by_features(values, self.calibrator)
         return float(self.calibrator.probability_from_confidence(np.array([confidence]))[0])
 
     def _refuse(self, got: str, *, finite: bool = False) -> None:
@@ -180,8 +202,10 @@ class Gate:
 
     # --- many queries -------------------------------------------------------------------------------------------
 
-    def confidence(self, scores: object) -> np.ndarray:
-        """The calibrator's confidence of shape (Q,) (higher = more likely correct), from scores of shape (Q, k)."""
+    def confidence(self, scores: object, *, of: str = "calibrator") -> np.ndarray:
+        """The confidence of shape (Q,) (higher = more likely correct) of the calibrator (``of="calibrator"``) or
+        of the rule (``of="rule"``), from scores of shape (Q, k)."""
+        calibrator = self.rule if of == "rule" else self.calibrator
         scores = check_top_k_scores(scores)
         if scores.shape[1] != self.k:
             self._refuse(f"scores of shape {scores.shape}")
@@ -189,7 +213,7 @@ class Gate:
         if short.size:
             self._refuse(f"fewer in {short.size} scores rows ({short[:10].tolist()} first)", finite=True)
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is checked below
-            confidence = self.calibrator.confidence(feature_matrix(scores, k=self.k, features=self.calibrator.features))
+            confidence = calibrator.confidence(feature_matrix(scores, k=self.k, features=calibrator.features))
         if not np.isfinite(confidence).all():
             row = int(np.flatnonzero(~np.isfinite(confidence))[0])
             raise ValueError(f"scores row {row} is too large: the gate's confidence overflows float64")
@@ -201,15 +225,16 @@ class Gate:
 
     def accept(self, scores: object) -> np.ndarray:
         """Whether each query is accepted, shape (Q,), bool."""
-        return self.confidence(scores) >= self.cut
+        return self.confidence(scores, of="rule") >= self.cut
 
     # --- what calibrate recorded --------------------------------------------------------------------------------
 
     @property
-    def threshold(self) -> float:
+    def threshold(self) -> float | None:
         if math.isinf(self.cut):
             return 1.0 if self.cut > 0 else 0.0
-        return float(self.calibrator.probability_from_confidence(np.array([self.cut]))[0])
+        same = self.rule == (ranking_rule("SU") if self.calibrator.model == "isotonic" else self.calibrator)
+        return float(self.calibrator.probability_from_confidence(np.array([self.cut]))[0]) if same else None
 
     @property
     def precision_lower_bound(self) -> float | None:
@@ -224,10 +249,11 @@ class Gate:
         return self.info.get("expected_coverage")
 
     def __repr__(self) -> str:
-        bound = self.precision_lower_bound
+        bound, threshold = self.precision_lower_bound, self.threshold
         return (
             f"Gate(model={self.calibrator.model!r}, features={list(self.calibrator.features)}, k={self.k}, "
-            f"threshold={self.threshold:.4g}, precision_lower_bound={None if bound is None else round(bound, 4)})"
+            f"rule={self.rule.ranking!r}, threshold={None if threshold is None else round(threshold, 4)}, "
+            f"precision_lower_bound={None if bound is None else round(bound, 4)})"
         )
 
     # --- JSON -----------------------------------------------------------------------------------------------------
@@ -241,6 +267,7 @@ class Gate:
             "cut": None if math.isinf(self.cut) else self.cut,
             "threshold": self.threshold,
             "calibrator": self.calibrator.to_dict(),
+            "rule": self.rule.to_dict(),
             **{key: value for key, value in self.info.items() if key not in {"k", "cut", "threshold", "digest"}},
         }
         data = json.loads(json.dumps(data))  # as load reads it back (lists, string keys): the digest is of that
@@ -257,7 +284,8 @@ class Gate:
         if version != _FORMAT_VERSION or not isinstance(digest, dict):
             problem = "no digest" if version == _FORMAT_VERSION else f"format_version {version!r}"
             raise ValueError(
-                f"{where}: {problem} (gate files carry a digest since format_version {_FORMAT_VERSION}){_FIX}"
+                f"{where}: {problem} (this toolkit reads gate files of format_version {_FORMAT_VERSION}, with a digest)"
+                f"{_FIX}"
             )
         found = _digest(data)
         edited = ", ".join(sorted(name for name in found.keys() | digest if found.get(name) != digest.get(name)))
@@ -267,8 +295,9 @@ class Gate:
             if cut is not None and (not isinstance(cut, (int, float)) or not math.isfinite(cut)):
                 raise ValueError(f"cut must be a finite number or null (accept nothing), got {cut!r}")
             calibrator = Calibrator.from_dict(data.get("calibrator"))
-            info = {key: value for key, value in data.items() if key not in {"format", "format_version", "calibrator"}}
-            gate = cls(calibrator, k, math.inf if cut is None else float(cut), info)
+            rule = Calibrator.from_dict(data.get("rule"), where="rule")
+            info = {k: v for k, v in data.items() if k not in {"format", "format_version", "calibrator", "rule"}}
+            gate = cls(calibrator, k, math.inf if cut is None else float(cut), info, rule)
         # with the edited fields, which may be the cause (k edited: then min_candidates > k)
         except (TypeError, ValueError) as error:
             raise ValueError(f"{where}: {error}{f'; {edited}' if edited else ''}{_FIX}") from None

@@ -4,21 +4,20 @@ The question: accept the answers whose confidence is at least a cut t. Which t m
 answers on new queries at least p*, with probability at least 1 − δ over the draw of the calibration queries?
 
 Method (Angelopoulos et al., "Learn then Test", 2021)
-    1. The candidate cuts t_1 > t_2 > … (strictest first) are fixed **before** any label is read: they are the
-       quantiles of the ranking's confidence over the queries the caller passes, labelled or not, at the coverages
-       of :func:`coverage_grid`, which depend on nothing but the number of labelled queries, p* and δ.
+    1. The candidate cuts t_1 > t_2 > … (strictest first) are fixed **before** any label is read: quantiles of the
+       ranking's confidence over the queries the caller passes, labelled or not, accepting the counts of
+       :func:`cut_chain`, which depend on nothing but the number of labelled queries, p* and the ranking's level.
     2. For each cut, H_j: "precision(t_j) < p*". Given n_j accepted labelled queries of which c_j are correct, the
        number correct is Binomial(n_j, precision(t_j)), so p_j = P[Binomial(n_j, p*) ≥ c_j] is a valid p-value
        (the exact binomial test; its inversion is the Clopper–Pearson bound).
-    3. Fixed-sequence testing: reject H_1, H_2, … while p_j ≤ δ; stop at the first p_j > δ. The last rejected cut
-       is chosen. This controls the family-wise error at δ, so with probability ≥ 1 − δ the chosen cut has
-       precision ≥ p* (the label-free order is what makes testing every cut free of a multiplicity cost).
+    3. The fallback procedure (:func:`fallback_test`) along the chain controls the family-wise error at the
+       ranking's level, so with probability ≥ 1 − level every rejected cut has precision ≥ p*; the loosest one is
+       chosen. Unlike the plain fixed sequence, a wrong answer among the most confident does not end the chain.
 
-Several rankings (SU, the margin, a cross-fitted model, …) are tested each at δ / R (Bonferroni), so that every
-certified rule holds at once with probability ≥ 1 − δ and the loosest of them may be kept.
-
-Nothing can be certified with fewer than ⌈log δ / log p*⌉ accepted queries (even all correct, the p-value p*^n
-stays above δ): :func:`min_accepted` gives that number, and the grid starts there.
+Several rankings (the margin, SU, a cross-fitted model, …) are tested each at its share of δ (a weighted union
+bound), so that every certified rule holds at once with probability ≥ 1 − δ and the one accepting the most correct
+labelled queries may be kept. Nothing can be certified with fewer than ⌈log δ / log p*⌉ accepted queries (even all
+correct, the p-value p*^n stays above δ): :func:`min_accepted`.
 """
 
 from __future__ import annotations
@@ -32,24 +31,29 @@ import numpy as np
 from scipy import stats
 
 from vpr_uncertainty._validation import check_count
-from vpr_uncertainty.calibration.calibrator import RANKINGS, Calibrator, columns, cross_fitted, fit_model, platt
+from vpr_uncertainty.calibration.calibrator import RANKINGS, Calibrator, columns, cross_fitted, fit_model, ranking_rule
 
-#: With many labelled queries, the coverage grid starts at the first step that accepts at least this share.
-START_COVERAGE = 0.05
+#: The candidate rankings of the default gate and the share of δ each is given (docs/evidence/calibration.md).
+DEFAULT_SHARES: dict[str, float] = {"margin": 1 / 3, "SU": 1 / 3, "CAL": 1 / 3}
+#: The share of a ranking's level its chain holds for the fallback count (:func:`cut_chain`).
+FALLBACK = 0.3
+#: From this share of the labelled queries on, a chain tests every count (:func:`cut_chain`).
+DENSE_FROM = 0.25
 
 __all__ = [
-    "CAL_MIN_LABELLED",
+    "DEFAULT_SHARES",
     "Certificate",
     "certify_rankings",
     "certify_threshold",
     "check_rankings",
     "clopper_pearson_lower",
-    "coverage_grid",
+    "cut_chain",
     "cuts_at_coverage",
-    "default_rankings",
+    "fallback_test",
     "fixed_sequence",
     "min_accepted",
     "needed_message",
+    "tolerant_steps",
 ]
 
 
@@ -116,11 +120,9 @@ class Certificate:
         The ranking whose rule was certified (``"SU"``, ``"margin"``, ``"CAL"``, …), None when none was.
     coverage : float or None
         The certified share of the queries accepted (the coverage of the grid at the chosen cut).
-    delta_per_ranking : float or None
-        δ / R, the risk each of the R candidate rankings was tested at.
     rankings : dict
-        Per candidate ranking: ``certified``, ``accepted``, ``correct_accepted`` (labelled queries at its last
-        certified cut) and ``cuts_tested``.
+        Per candidate ranking: ``delta`` (its share of δ), ``certified``, ``accepted``, ``correct_accepted``
+        (labelled queries at its loosest certified cut) and ``cuts_tested`` (the counts of its chain).
     """
 
     certified: bool
@@ -136,7 +138,6 @@ class Certificate:
     message: str = ""
     ranking: str | None = None
     coverage: float | None = None
-    delta_per_ranking: float | None = None
     rankings: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -149,32 +150,84 @@ def _uncertified(message: str, **fields: Any) -> Certificate:
     return Certificate(certified=False, cut=None, precision_lower_bound=None, message=message, **zero, **fields)
 
 
-def coverage_grid(n_labelled: int, target_precision: float, delta: float) -> np.ndarray:
-    """The candidate coverages, strictest first: fixed by the number of labelled queries, p* and δ alone.
-
-    The w-th coverage accepts m_w of the ``n_labelled`` queries: the fewest accepted queries among which w wrong
-    answers can still be certified (P[Binomial(m_w, p*) ≥ m_w − w] ≤ δ). It starts at m_0 = :func:`min_accepted`
-    (all correct needed; stricter cuts cannot be certified and would stop the sequence at once) and each step
-    makes room for one more wrong answer, so that a single wrong answer between two cuts cannot stop the sequence
-    by itself. For p* = 0.9, δ = 0.1: 22, 38, 52, 65, … accepted. With many labels the grid starts at the first
-    step that accepts at least :data:`START_COVERAGE` of them, where a few wrong answers are allowed (among the
-    22 most confident of 1,000 queries a single wrong answer would otherwise stop everything). Empty when n < m_0.
+def tolerant_steps(n: int, target_precision: float, level: float) -> np.ndarray:
+    """The tolerant steps up to ``n``: for w = 0, 1, 2, …, the fewest accepted queries among which w wrong answers
+    still pass the exact binomial test at ``level`` (P[Binomial(m_w, p*) ≥ m_w − w] ≤ level), increasing.
 
     Examples
     --------
-    >>> (coverage_grid(100, 0.9, 0.1) * 100).round().astype(int).tolist()
+    >>> tolerant_steps(100, 0.9, 0.1).tolist()
     [22, 38, 52, 65, 78, 91]
     """
-    _check_target(target_precision, delta)
+    accepted = np.arange(1, n + 1)
+    room = accepted - (stats.binom.isf(level, accepted, target_precision) + 1)  # wrong answers allowed
+    widened = room > np.maximum.accumulate(np.concatenate([[-1], room[:-1]]))
+    return accepted[(room >= 0) & widened]
+
+
+def cut_chain(
+    n_labelled: int,
+    target_precision: float,
+    level: float,
+    *,
+    fallback: float = FALLBACK,
+    dense_from: float = DENSE_FROM,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The accepted counts one ranking tests, strictest first, and the level each holds before any is passed on.
+
+    Fixed by n, p* and the ranking's level alone (never by a label). The first count, m_0 at (1 − f)·level, holds
+    (1 − f)·level; the fallback count, the fewest among which one wrong answer passes at f·level, holds f·level;
+    the counts between are the tolerant steps at ``level`` (each allows one more wrong answer, 22, 38, 52, 65, …
+    for p* = 0.9 at 0.1), and from ``dense_from``·n on every count is tested, where the cut is found. Tested by
+    :func:`fallback_test`, so a wrong answer among the most confident stops the chain's first level only.
+
+    Returns
+    -------
+    counts : ndarray of shape (m,), int
+        Labelled queries accepted at each tested cut, increasing (empty when n is too small).
+    levels : ndarray of shape (m,)
+        The level (share of δ) each count holds on its own; they sum to ``level``.
+
+    Examples
+    --------
+    >>> counts, levels = cut_chain(60, 0.9, 0.1, fallback=0.3, dense_from=0.5)
+    >>> counts[:4].tolist(), counts[-1].item(), levels[levels > 0].round(3).tolist()
+    ([26, 30, 31, 32], 60, [0.07, 0.03])
+    """
+    _check_target(target_precision, level)
     check_count(n_labelled, "n_labelled", 0)
-    accepted = np.arange(1, n_labelled + 1)
-    # the fewest correct answers that certify among m accepted: P[Binomial(m, p*) >= c] <= δ
-    needed = stats.binom.isf(delta, accepted, target_precision) + 1
-    room = accepted - needed  # wrong answers that can still be certified (negative: none can)
-    first = np.flatnonzero((room >= 0) & (room > np.maximum.accumulate(np.concatenate([[-1], room[:-1]]))))
-    counts = accepted[first]
-    start = np.searchsorted(counts, START_COVERAGE * n_labelled)  # the first step of at least that coverage
-    return counts[min(start, max(counts.size - 1, 0)) :] / max(n_labelled, 1)
+    first = min_accepted(target_precision, (1 - fallback) * level)
+    spare = tolerant_steps(n_labelled, target_precision, fallback * level)[1:2] if fallback > 0 else []
+    dense = np.arange(max(first, math.ceil(dense_from * n_labelled)), n_labelled + 1)
+    steps = tolerant_steps(n_labelled, target_precision, level)
+    counts = np.unique(np.concatenate([[first], spare, steps[steps > first], dense]).astype(int))
+    counts = counts[counts <= n_labelled]
+    levels = np.zeros(counts.size)
+    if counts.size:
+        levels[0] = (1 - fallback) * level
+        levels[np.searchsorted(counts, spare)] += fallback * level
+    return counts, levels
+
+
+def fallback_test(p_values: np.ndarray, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which hypotheses of a chain the fallback procedure rejects (Wiens 2003), and the level each was tested at,
+    both of shape (m,).
+
+    Hypothesis j is tested at its own level plus the level of hypothesis j − 1 when that one was rejected: a
+    graphical procedure on the chain H_1 → H_2 → …, which controls the family-wise error at Σ levels. With the
+    whole level on H_1 it is the fixed sequence.
+
+    Examples
+    --------
+    >>> fallback_test(np.array([0.2, 0.02, 0.03, 0.2, 0.01]), np.array([0.07, 0.03, 0.0, 0.0, 0.0]))[0].tolist()
+    [False, True, True, False, False]
+    """
+    rejected, tested_at = np.zeros(len(p_values), bool), np.zeros(len(p_values))
+    carried = 0.0
+    for j, (p_value, level) in enumerate(zip(p_values, levels, strict=True)):
+        carried = tested_at[j] = level + (carried if j and rejected[j - 1] else 0.0)
+        rejected[j] = p_value <= carried
+    return rejected, tested_at
 
 
 def cuts_at_coverage(confidence: np.ndarray, coverage: np.ndarray) -> np.ndarray:
@@ -299,18 +352,9 @@ def certify_threshold(
     )
 
 
-#: From this many labelled queries on, the gate also tests the cross-fitted model (at δ/2 beside SU at δ/2);
-#: below it, splitting δ costs more than the model gains (corridor simulations, docs/evidence/calibration.md).
-CAL_MIN_LABELLED = 150
-
-
-def default_rankings(n_labelled: int) -> tuple[str, ...]:
-    """The rankings the gate tests by default: SU, and the cross-fitted model from :data:`CAL_MIN_LABELLED` on."""
-    return ("SU", "CAL") if n_labelled >= CAL_MIN_LABELLED else ("SU",)
-
-
-def check_rankings(rankings: Sequence[str], available: dict[str, np.ndarray]) -> tuple[str, ...]:
-    """The names of ``rankings``, checked: known, distinct, and their feature among ``available``."""
+def check_rankings(rankings: Sequence[str] | dict[str, float], available: dict[str, np.ndarray]) -> dict[str, float]:
+    """Each ranking's share of δ: a list of names shares it evenly, a dict gives each its share (positive, summing
+    to at most 1). Checked: names known, distinct, and their feature among ``available``."""
     if isinstance(rankings, str) or not rankings:
         raise ValueError(f"rankings must be a non-empty list of names from {[*RANKINGS, 'CAL']}, got {rankings!r}")
     names = tuple(rankings)
@@ -322,7 +366,12 @@ def check_rankings(rankings: Sequence[str], available: dict[str, np.ndarray]) ->
     missing = [name for name in names if name != "CAL" and RANKINGS[name][0] not in available]
     if missing:
         raise ValueError(f"ranking(s) {missing} need cosine similarities in [-1, 1] (d² = 2 − 2s)")
-    return names
+    if not isinstance(rankings, dict):
+        return dict.fromkeys(names, 1.0 / len(names))
+    shares = {name: float(share) for name, share in rankings.items()}
+    if not all(0 < share <= 1 for share in shares.values()) or sum(shares.values()) > 1 + 1e-9:
+        raise ValueError(f"the shares of δ must be positive and sum to at most 1, got {shares}")
+    return shares
 
 
 def certify_rankings(
@@ -331,111 +380,75 @@ def certify_rankings(
     correct: np.ndarray,
     answerable: np.ndarray,
     *,
-    rankings: tuple[str, ...],
+    shares: dict[str, float],
     model_features: tuple[str, ...],
     target_precision: float,
     delta: float,
     folds: int,
     seed: int,
+    fallback: float = FALLBACK,
+    dense_from: float = DENSE_FROM,
 ) -> tuple[Certificate, Calibrator | None, float]:
-    """Every ranking tested at δ / R on all labelled queries; the winner's calibrator and cut.
+    """Each ranking's chain (:func:`cut_chain`) tested at its share of δ on all labelled queries; the winner's rule.
 
-    Parameters
-    ----------
-    labelled, pool : dict of str to ndarray of shape (L,) and (N,)
-        Feature columns (:func:`~vpr_uncertainty.calibration.calibrator.feature_columns`) of the labelled queries
-        and of every query passed (labelled first, then unlabelled); the cuts are quantiles over ``pool``.
-    correct, answerable : ndarray of shape (L,), bool
-        Top-1 correctness of the labelled queries, and which have a positive (the recall denominator).
-    rankings : tuple of str
-        Names from :data:`~vpr_uncertainty.calibration.calibrator.RANKINGS` and ``"CAL"``.
-    model_features : tuple of str
-        Features of the cross-fitted model ``"CAL"``.
-    target_precision, delta : float in (0, 1)
-        p* and the total risk δ (each ranking gets δ / R).
-    folds, seed : int
-        Cross-fitting of ``"CAL"``.
+    ``labelled`` and ``pool`` hold feature columns of shape (L,) and (N,) (labelled first, then unlabelled: the
+    cuts are quantiles over the pool); ``correct`` and ``answerable`` (L,) the labels and the recall denominator;
+    ``shares`` each ranking's share of δ (a union bound: all certified rules hold at once with probability
+    ≥ 1 − δ); ``model_features``, ``folds`` and ``seed`` the cross-fitted ``"CAL"``.
 
-    Returns
-    -------
-    certificate : Certificate
-        With the winning ``ranking`` and every ranking's outcome.
-    calibrator : Calibrator or None
-        P in the winner's order (Platt scaling of a fixed score, or the model refitted on all labels); None when
-        nothing is certified.
-    cut : float
-        The certified cut on ``calibrator.confidence`` (``inf`` when nothing is certified).
+    Returns the :class:`Certificate` (the winner: the certified rule accepting the most correct labelled queries;
+    every ranking's outcome and δ), the rule (a linear confidence in the winner's order: the fixed score itself, or
+    the model refitted on all labels; None when nothing is certified) and its cut (``inf``: accept nothing).
     """
     n = int(correct.size)
-    share = delta / len(rankings)
-    grid = coverage_grid(n, target_precision, share)
     outcomes: dict[str, dict[str, Any]] = {}
-    best: tuple[int, str, int, np.ndarray, np.ndarray] | None = None
-    for name in rankings:
-        if grid.size == 0:
-            outcomes[name] = {"certified": False, "accepted": 0, "correct_accepted": 0, "cuts_tested": 0}
+    best: tuple[int, str, float, int, float] | None = None
+    for name, share in shares.items():
+        counts, levels = cut_chain(n, target_precision, share * delta, fallback=fallback, dense_from=dense_from)
+        outcome = outcomes[name] = {"delta": share * delta, "certified": False, "accepted": 0, "correct_accepted": 0}
+        outcome["cuts_tested"] = int(counts.size)
+        matrix = columns(labelled, model_features) if name == "CAL" else None
+        crossed = None if matrix is None else cross_fitted(matrix, correct, model_features, folds, seed)
+        if counts.size == 0 or (name == "CAL" and crossed is None):
             continue
-        if name == "CAL":
-            matrix = columns(labelled, model_features)
-            crossed = cross_fitted(matrix, correct, model_features, folds, seed)
-            if crossed is None:
-                outcomes[name] = {"certified": False, "accepted": 0, "correct_accepted": 0, "cuts_tested": 0}
-                continue
+        coverage = counts / n
+        if crossed is not None:
             assignment, models = crossed
-            pool_matrix = columns(pool, model_features)
-            acceptance = np.zeros((grid.size, n), dtype=bool)
+            acceptance = np.zeros((counts.size, n), dtype=bool)
             for fold, model in enumerate(models):
                 rows = assignment == fold
-                cuts = cuts_at_coverage(model.confidence(pool_matrix), grid)
+                cuts = cuts_at_coverage(model.confidence(columns(pool, model_features)), coverage)
                 acceptance[:, rows] = model.confidence(matrix[rows])[None, :] >= cuts[:, None]
         else:
             feature, sign = RANKINGS[name]
-            cuts = cuts_at_coverage(sign * pool[feature], grid)
+            cuts = cuts_at_coverage(sign * pool[feature], coverage)
             acceptance = (sign * labelled[feature])[None, :] >= cuts[:, None]
         accepted = acceptance.sum(axis=1)
         good = (acceptance & correct[None, :]).sum(axis=1)
-        rejected, _ = fixed_sequence(accepted, good, target_precision=target_precision, delta=share)
-        chosen = rejected - 1
-        outcomes[name] = {
-            "certified": rejected > 0,
-            "accepted": int(accepted[chosen]) if rejected else 0,
-            "correct_accepted": int(good[chosen]) if rejected else 0,
-            "cuts_tested": min(rejected + 1, grid.size),
-        }
-        if rejected and (best is None or good[chosen] > best[0]):
-            best = (int(good[chosen]), name, chosen, accepted, good)
-    n_needed = min_accepted(target_precision, share)
-    common = {"n_test": n, "min_accepted": n_needed, "delta_per_ranking": share, "rankings": outcomes}
+        _, p_values = fixed_sequence(accepted, good, target_precision=target_precision, delta=share * delta)
+        rejected, tested_at = fallback_test(p_values, levels)
+        if rejected.any():
+            chosen = int(np.flatnonzero(rejected)[-1])  # the loosest certified cut
+            outcome.update(certified=True, accepted=int(accepted[chosen]), correct_accepted=int(good[chosen]))
+            if best is None or good[chosen] > best[0]:
+                best = (int(good[chosen]), name, float(coverage[chosen]), int(accepted[chosen]), tested_at[chosen])
+    n_needed = min(min_accepted(target_precision, (1 - fallback) * share * delta) for share in shares.values())
+    common = {"n_test": n, "min_accepted": n_needed, "rankings": outcomes}
+    given = ", ".join(f"{ranking} {o['delta']:.3g}" for ranking, o in outcomes.items())
     if best is None:
-        if n < n_needed:
-            why = f"the {n} labelled queries are fewer than the {n_needed} accepted ones needed at δ/{len(rankings)}"
-        else:
-            tried = "; ".join(
-                f"{name}: {o['cuts_tested']} cut(s) tested" for name, o in outcomes.items() if o["cuts_tested"]
-            )
-            why = (
-                f"the strictest cut ({n_needed} of {n} labelled queries) already holds a wrong answer for every "
-                f"ranking ({tried})"
-            )
-        certificate = _uncertified(
-            f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why}",
-            cuts_tested=max((o["cuts_tested"] for o in outcomes.values()), default=0),
-            **common,
-        )
-        return certificate, None, math.inf
-    n_good, name, chosen, accepted, good = best
-    coverage = grid[chosen : chosen + 1]
+        why = f"{n} labelled queries, fewer than the {n_needed} needed" if n < n_needed else "every chain failed"
+        message = f"nothing certified at precision {target_precision:g} with risk {delta:g}: {why} (δ given: {given})"
+        tested = sum(o["cuts_tested"] for o in outcomes.values())
+        return _uncertified(message, cuts_tested=tested, **common), None, math.inf
+    n_good, name, coverage, n_acc, level = best
     if name == "CAL":
-        calibrator = replace(fit_model(columns(labelled, model_features), correct, model_features), ranking="CAL")
-        cut = float(cuts_at_coverage(calibrator.confidence(columns(pool, model_features)), coverage)[0])
+        rule = replace(fit_model(columns(labelled, model_features), correct, model_features), ranking="CAL")
+        confidence = rule.confidence(columns(pool, model_features))
     else:
-        feature, sign = RANKINGS[name]
-        calibrator = platt(name, feature, sign, labelled[feature], correct)
-        cut_on_score = float(cuts_at_coverage(sign * pool[feature], coverage)[0])
-        slope = calibrator.coef[0] * sign  # > 0: the calibrator's confidence is slope · (sign · f) + intercept
-        cut = slope * cut_on_score + calibrator.intercept
-    n_acc = int(accepted[chosen])
-    bound = float(clopper_pearson_lower(n_good, n_acc, share))
+        rule = ranking_rule(name)
+        confidence = rule.confidence(pool[rule.features[0]][:, None])
+    cut = float(cuts_at_coverage(confidence, np.array([coverage]))[0])
+    bound = float(clopper_pearson_lower(n_good, n_acc, level))
     certificate = Certificate(
         certified=True,
         cut=cut,
@@ -447,14 +460,13 @@ def certify_rankings(
         cuts_tested=outcomes[name]["cuts_tested"],
         message=(
             f"precision >= {target_precision:g} certified with probability >= {1 - delta:g} by the {name} ranking: "
-            f"{n_good} of {n_acc} accepted labelled queries correct, lower bound {bound:.3f} "
-            f"({len(rankings)} ranking(s) tested, each at risk {share:.3g})"
+            f"{n_good} of {n_acc} accepted labelled queries correct, lower bound {bound:.3f} (δ given: {given})"
         ),
         ranking=name,
-        coverage=float(coverage[0]),
+        coverage=coverage,
         **common,
     )
-    return certificate, calibrator, cut
+    return certificate, rule, cut
 
 
 def needed_message(confidence: np.ndarray, correct: np.ndarray, p_star: float, delta: float) -> str:

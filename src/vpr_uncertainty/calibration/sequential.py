@@ -1,19 +1,19 @@
 """Labelling that stops when the proof is in: the tool picks the next query to label and says after every label
 whether the target precision is certified.
 
-Why labelling the most confident answers first is exact: the batch gate (:mod:`.guarantee`) tests, strictest cut
-first, "precision < p*" at cuts fixed from unlabelled scores, and stops at the first test that fails. The test of a
-cut reads only the labels of the queries that cut accepts. So labelling the pool in the order of one training-free
-ranking, most confident first, and testing each cut as soon as every query it accepts is labelled, gives exactly the
-tests the batch procedure would make with the *whole pool* labelled, each made once: whenever the user stops, the
-certified cuts are a subset of that procedure's, and its family-wise error ≤ δ holds (the order of the queries is
-fixed by the scores alone, so choosing them costs no δ). Labels beyond the accepted region are never needed: a pool of
-N queries certifies with about coverage · N labels plus the few that end the sequence, where the batch procedure
-needs a random sample large enough that coverage · n accepted labelled queries pass the same test.
+Why labelling the most confident answers first is exact: the batch gate (:mod:`.guarantee`) tests, per ranking, a
+chain of "precision < p*" hypotheses at cuts fixed from unlabelled scores, strictest first
+(:func:`~vpr_uncertainty.calibration.guarantee.cut_chain`), by the fallback procedure, whose decision on a cut depends
+on the cuts before it only. The test of a cut reads only the labels of the queries it accepts. So labelling the pool
+in the ranking's order, most confident first, and testing each cut as soon as every query it accepts is labelled,
+makes exactly the tests the batch gate would make with the *whole pool* labelled, each once: whenever the user stops,
+the certified cuts are a subset of that procedure's, and its family-wise error ≤ δ holds (the order is fixed by the
+scores alone, so choosing the queries costs no δ). Labels below the certified region are asked for only as far as
+the chain can still pass.
 
-Several rankings (default SU and the margin, each at δ / R) are labelled side by side: the next query is the
-first unlabelled one of the ranking whose next test needs the fewest further labels, and the certified ranking that
-accepts the most correct answers is kept (a union bound over the rankings' chains, each exact on its own).
+Several rankings (default SU and the margin, each at δ / R: a union bound) are labelled side by side: the next query
+is the first unlabelled one of the ranking whose next test needs the fewest further labels, and the certified ranking
+that accepts the most correct answers is kept.
 
 The guarantee is the batch gate's with n = N: with probability ≥ 1 − δ over the draw of the pool (i.i.d. with the
 queries to come), the precision of the answers accepted at the certified cut is ≥ p*.
@@ -29,12 +29,13 @@ import numpy as np
 from scipy import stats
 
 from vpr_uncertainty._validation import check_top_k_scores
-from vpr_uncertainty.calibration.calibrator import RANKINGS, feature_columns, platt
+from vpr_uncertainty.calibration.calibrator import RANKINGS, feature_columns, platt, ranking_rule
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.calibration.guarantee import (
     check_rankings,
     clopper_pearson_lower,
-    coverage_grid,
+    cut_chain,
+    fallback_test,
     fixed_sequence,
     min_accepted,
 )
@@ -95,17 +96,23 @@ class SequentialStatus:
 
 
 class _Chain:
-    """One ranking's fixed sequence of tests over the pool, strictest cut first."""
+    """One ranking's chain of tests over the pool (:func:`~vpr_uncertainty.calibration.guarantee.cut_chain`, tested
+    by the fallback procedure, as the batch gate does), strictest cut first."""
 
-    def __init__(self, name: str, confidence: np.ndarray, target_precision: float, delta: float) -> None:
-        self.name, self.confidence, self.delta, self.target_precision = name, confidence, delta, target_precision
+    def __init__(self, name: str, confidence: np.ndarray, target_precision: float, level: float) -> None:
+        self.name, self.level, self.target_precision = name, level, target_precision
         self.order = np.argsort(-confidence, kind="stable")
         self.ranked = confidence[self.order]
-        n = confidence.size
-        counts = np.rint(coverage_grid(n, target_precision, delta) * n).astype(int)
+        counts, levels = cut_chain(confidence.size, target_precision, level)
         # a cut accepts every query tied with the last one it accepts: test it once that whole group is labelled
-        self.tests = np.unique(np.searchsorted(-self.ranked, -self.ranked[counts - 1], side="right"))
-        self.allowed = self.tests - (stats.binom.isf(delta, self.tests, target_precision).astype(int) + 1)
+        grown = np.searchsorted(-self.ranked, -self.ranked[counts - 1], side="right")
+        self.tests, where = np.unique(grown, return_inverse=True)
+        self.levels = np.zeros(self.tests.size)
+        np.add.at(self.levels, where, levels)
+
+    def _allowed(self, count: int, level: float) -> int:
+        """Wrong answers among ``count`` accepted that still pass the exact binomial test at ``level``."""
+        return int(count - (stats.binom.isf(level, count, self.target_precision) + 1))
 
     def outcome(self, labels: np.ndarray) -> dict[str, Any]:
         in_order = labels[self.order]
@@ -113,29 +120,33 @@ class _Chain:
         prefix = int(gaps[0]) if gaps.size else in_order.size
         tested = self.tests[self.tests <= prefix]
         correct = tested - np.cumsum(in_order[:prefix] == 0)[tested - 1] if tested.size else tested
-        passed, _ = fixed_sequence(tested, correct, target_precision=self.target_precision, delta=self.delta)
-        finished = passed < tested.size or tested.size == self.tests.size
-        # the wrong answers labelled already among the queries the next test reads may fail it for certain
-        finished = finished or (in_order[: self.tests[tested.size]] == 0).sum() > self.allowed[tested.size]
-        accepted = int(tested[passed - 1]) if passed else 0
+        _, p_values = fixed_sequence(tested, correct, target_precision=self.target_precision, delta=self.level)
+        rejected, tested_at = fallback_test(p_values, self.levels[: tested.size])
+        # the next test that can still pass: one with a level, and no more wrong answers labelled than it allows
+        j, carried = tested.size, tested_at[-1] if tested.size and rejected[-1] else 0.0
+        while j < self.tests.size:
+            level = self.levels[j] + carried
+            if level > 0 and (in_order[: self.tests[j]] == 0).sum() <= self._allowed(self.tests[j], level):
+                break
+            j, carried = j + 1, 0.0
+        chosen = int(np.flatnonzero(rejected)[-1]) if rejected.any() else None
+        finished = j >= self.tests.size
         return {
-            "certified": bool(passed),
-            "accepted": accepted,
-            "correct_accepted": int(correct[passed - 1]) if passed else 0,
-            "finished": bool(finished),
-            "next_test": None if finished else int(self.tests[tested.size]),
-            "wrong_allowed": None if finished else int(self.allowed[tested.size]),
-            "more": None
-            if finished
-            else int(self.tests[tested.size] - (in_order[: self.tests[tested.size]] >= 0).sum()),
+            "certified": chosen is not None,
+            "accepted": 0 if chosen is None else int(tested[chosen]),
+            "correct_accepted": 0 if chosen is None else int(correct[chosen]),
+            "level": 0.0 if chosen is None else float(tested_at[chosen]),
+            "finished": finished,
+            "next_test": None if finished else int(self.tests[j]),
+            "wrong_allowed": None if finished else self._allowed(self.tests[j], level),
+            "more": None if finished else int(self.tests[j] - (in_order[: self.tests[j]] >= 0).sum()),
         }
 
     def cut(self, accepted: int) -> float:
         """Halfway between the lowest accepted confidence and the next lower one (as :func:`cuts_at_coverage`)."""
-        below = (
-            self.ranked[accepted] if accepted < self.ranked.size else self.ranked[-1] - max(1.0, abs(self.ranked[-1]))
-        )
-        return 0.5 * (float(self.ranked[accepted - 1]) + float(below))
+        ranked = self.ranked
+        below = ranked[accepted] if accepted < ranked.size else ranked[-1] - max(1.0, abs(ranked[-1]))
+        return 0.5 * (float(ranked[accepted - 1]) + float(below))
 
 
 class SequentialCalibration:
@@ -149,10 +160,10 @@ class SequentialCalibration:
         p* and the risk δ.
     k : int, default=10
         Candidates per query the features read.
-    rankings : sequence of str, default=("SU", "margin")
+    rankings : sequence of str or dict of str to float, default=("SU", "margin")
         The training-free rankings the queries are labelled in (names of
-        :data:`~vpr_uncertainty.calibration.calibrator.RANKINGS`), each tested at δ / R. SU is the stronger on the
-        corridor; on other data SU's most confident answers can hold an early wrong one, which ends its chain, while
+        :data:`~vpr_uncertainty.calibration.calibrator.RANKINGS`), each tested at δ / R (or at its share of δ). SU
+        is the stronger on the corridor; on other data SU's most confident answers can hold early wrong ones, and
         the margin's rarely do.
 
     Examples
@@ -163,7 +174,7 @@ class SequentialCalibration:
     >>> while (query := session.next_query()) is not None:
     ...     status = session.add_label(query, True)          # here every answer is correct
     >>> status.certified, status.coverage
-    (True, 0.955)
+    (True, 1.0)
     """
 
     def __init__(
@@ -173,19 +184,18 @@ class SequentialCalibration:
         target_precision: float,
         delta: float = 0.1,
         k: int = 10,
-        rankings: Sequence[str] = ("SU", "margin"),
+        rankings: Sequence[str] | dict[str, float] = ("SU", "margin"),
     ) -> None:
         min_accepted(target_precision, delta)  # checks p* and δ
         scores = check_top_k_scores(scores, name="scores")
         self.target_precision, self.delta, self.k = float(target_precision), float(delta), int(k)
-        names = check_rankings(rankings, feature_columns(scores[:1], k))
-        if "CAL" in names:
+        shares = check_rankings(rankings, feature_columns(scores[:1], k))
+        if "CAL" in shares:
             raise ValueError("sequential labelling needs training-free rankings, not 'CAL'")
-        features = feature_columns(scores, k, required=[RANKINGS[name][0] for name in names])
-        share = self.delta / len(names)
+        features = feature_columns(scores, k, required=[RANKINGS[name][0] for name in shares])
         self.chains = [
-            _Chain(name, RANKINGS[name][1] * features[RANKINGS[name][0]], self.target_precision, share)
-            for name in names
+            _Chain(name, RANKINGS[name][1] * features[RANKINGS[name][0]], self.target_precision, share * self.delta)
+            for name, share in shares.items()
         ]
         self._features = features
         self._least = int(min(np.isfinite(scores[:, :k]).sum(axis=1).min(), k))
@@ -219,7 +229,7 @@ class SequentialCalibration:
         waiting = sorted((o["more"], name) for name, o in outcomes.items() if not o["finished"])
         upcoming = outcomes[waiting[0][1]] if waiting else {"next_test": None, "wrong_allowed": None}
         bound = (
-            clopper_pearson_lower(won["correct_accepted"], won["accepted"], best.delta) if won["certified"] else None
+            clopper_pearson_lower(won["correct_accepted"], won["accepted"], won["level"]) if won["certified"] else None
         )
         status = SequentialStatus(
             labelled=int((self._labels >= 0).sum()),
@@ -259,22 +269,17 @@ class SequentialCalibration:
         )
 
     def gate(self) -> Gate:
-        """The certified rule as a :class:`~vpr_uncertainty.calibration.gate.Gate` (P by Platt scaling of the
-        certified ranking on the labelled queries)."""
+        """The certified rule as a :class:`~vpr_uncertainty.calibration.gate.Gate`: it accepts what the status
+        certifies (the ranking's confidence ≥ its cut); P(correct) by Platt scaling of that ranking on the labelled
+        queries, which are the most confident ones (so P is optimistic below the cut)."""
         status = self.status()
-        labelled = self._labels >= 0
         if not status.certified:
             raise ValueError(f"no gate yet: {status.message}")
-        if np.unique(self._labels[labelled]).size < 2:
-            raise ValueError(
-                f"no gate yet: all {int(labelled.sum())} labelled answers are correct, and P(correct) needs a wrong "
-                "one too; label on (next_query) or accept by status().cut on the ranking"
-            )
+        labelled = self._labels >= 0
         feature, sign = RANKINGS[status.ranking]
         calibrator = platt(
             status.ranking, feature, sign, self._features[feature][labelled], self._labels[labelled] == 1
         )
-        cut = calibrator.coef[0] * sign * status.cut + calibrator.intercept
         info = {
             "target_precision": self.target_precision,
             "delta": self.delta,
@@ -283,4 +288,4 @@ class SequentialCalibration:
             "sequential": status.to_dict(),
             "calibration": {"size": status.labelled, "min_candidates": self._least},
         }
-        return Gate(calibrator, self.k, cut, info=info)
+        return Gate(calibrator, self.k, status.cut, info=info, rule=ranking_rule(status.ranking))

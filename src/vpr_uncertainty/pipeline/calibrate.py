@@ -39,9 +39,9 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
             "least 1 - delta over the draw of the calibration queries, the precision of accepted answers on new\n"
             "queries from the same distribution is at least p*. The gate is written as JSON (no pickle); use it\n"
             "with Gate.load in Python, or as the uncertainty method CAL:gate=GATE.json in evaluate.\n\n"
-            "Every label is used: each candidate ranking (--rankings; default SU, plus the cross-fitted model CAL\n"
-            "from 150 labelled queries on) is tested at delta/R on all labelled queries, at cuts fixed from the\n"
-            "scores alone (quantiles over the labelled and --unlabelled queries). Without --target-precision the\n"
+            "Every label is used: each candidate ranking (--rankings; default the margin and SU at delta/2) is\n"
+            "tested on all labelled queries, at cuts fixed from the scores alone (quantiles over the labelled and\n"
+            "--unlabelled queries), by a chain that one early wrong answer cannot end. Without --target-precision the\n"
             "gate accepts P >= 0.5 and certifies nothing.\n\n"
             "--plan answers, before more labelling, how many labelled queries would certify the target: SCORES holds\n"
             "the few labelled queries so far (at least 2 correct and 2 wrong), --unlabelled the queries not yet\n"
@@ -83,7 +83,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         type=_names,
         metavar="NAMES",
         help="candidate rankings of the certified threshold, comma-separated, from SU, RS, SD, BM, margin, PA, CAL "
-        "(each tested at delta/R; default SU, plus CAL from 150 labelled queries)",
+        "(delta shared evenly; default margin and SU at delta/2 each)",
     )
     parser.add_argument(
         "--plan",
@@ -158,8 +158,9 @@ def _handle(args: argparse.Namespace) -> int:
     else:
         print(gate.info["certificate"]["message"])
         if gate.precision_lower_bound is not None:
+            rule = f"{gate.rule.ranking} >= {gate.cut:.4g}" if gate.threshold is None else f"P >= {gate.threshold:.4f}"
             print(
-                f"threshold P >= {gate.threshold:.4f}; certified precision lower bound "
+                f"accept {rule}; certified precision lower bound "
                 f"{gate.precision_lower_bound:.3f}; expected recall {gate.expected_recall:.3f}, "
                 f"coverage {gate.expected_coverage:.3f} (on the labelled queries)"
             )
