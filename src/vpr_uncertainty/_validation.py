@@ -111,30 +111,11 @@ def check_best_scores(best: np.ndarray, *, name: str = "scores", offset: int = 0
 
 
 def check_top_k_scores(scores: object, *, name: str = "scores", sort: bool = False) -> np.ndarray:
-    """Validate top-k similarity scores and return them as a C-contiguous float array.
+    """Top-k similarity scores (Q, K), sorted descending per row (``-inf``, a missing candidate, after every finite
+    value), as a C-contiguous array: float32 for float32 input (and small integers), float64 otherwise.
 
-    Parameters
-    ----------
-    scores : array-like of shape (Q, K)
-        Similarities, higher = more similar, one row per query, sorted in descending order along axis 1.
-        ``-inf`` marks a missing candidate (a query with fewer than K retrieved images) and must come after
-        every finite value of its row.
-    name : str
-        Name of the argument, used in error messages.
-    sort : bool
-        Sort each row in descending order instead of rejecting unsorted rows. The input is not modified.
-
-    Returns
-    -------
-    ndarray of shape (Q, K)
-        float32 for float32 input (and small integers), float64 otherwise.
-
-    Raises
-    ------
-    TypeError
-        For non-numeric input.
-    ValueError
-        For a wrong number of dimensions, no columns, NaN or +inf, or rows that are not sorted.
+    ``sort`` sorts a copy's rows instead of rejecting unsorted ones. A TypeError for non-numeric input, a ValueError
+    naming ``name`` for a wrong number of dimensions, no columns, NaN or +inf, or unsorted rows.
     """
     array = as_score_array(scores, name=name, sort=sort)
     check_rows(array, name=name)

@@ -231,13 +231,9 @@ def payload_checksum(*parts: Any) -> str:
     >>> payload_checksum(np.arange(3), "text") == payload_checksum(np.arange(3), "texT")
     False
     """
-    arrays = [_as_bytes_array(part) if isinstance(part, (str, bytes)) else part for part in parts]
+    encoded = (part.encode("utf-8") if isinstance(part, str) else part for part in parts)
+    arrays = [np.frombuffer(bytes(part), dtype=np.uint8) if isinstance(part, bytes) else part for part in encoded]
     return "blake2b:" + array_digest(*arrays)
-
-
-def _as_bytes_array(part: str | bytes) -> np.ndarray:
-    data = part.encode("utf-8") if isinstance(part, str) else bytes(part)
-    return np.frombuffer(data, dtype=np.uint8)
 
 
 def verify_checksum(path: str | Path, stored: Any, *parts: Any, what: str = "payload") -> None:
@@ -451,16 +447,12 @@ def _file_mode(path: Path) -> int:
 
 
 def _fsync_folder(folder: Path) -> None:
-    try:
+    with contextlib.suppress(OSError):  # e.g. Windows: folders cannot be opened
         descriptor = os.open(folder, os.O_RDONLY)
-    except OSError:  # e.g. Windows: folders cannot be opened
-        return
-    try:
-        os.fsync(descriptor)
-    except OSError:
-        pass
-    finally:
-        os.close(descriptor)
+        try:
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
 
 
 @contextlib.contextmanager
@@ -541,10 +533,6 @@ def _png_chunks(data: bytes) -> list[tuple[int, bytes, bytes]] | None:
     return None
 
 
-def _png_chunk(kind: bytes, body: bytes) -> bytes:
-    return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
-
-
 def _head_checksum(head: bytes) -> str:
     return "blake2b:" + hashlib.blake2b(head, digest_size=16).hexdigest()
 
@@ -556,7 +544,8 @@ def stamp_png(data: bytes, inputs: str) -> bytes:
         raise ValueError("not a whole PNG file")
     head = data[: chunks[-1][0]]
     stamp = json.dumps({"inputs": str(inputs), "checksum": _head_checksum(head)}, sort_keys=True)
-    return head + _png_chunk(b"tEXt", FIGURE_STAMP + b"\0" + stamp.encode("latin-1")) + data[len(head) :]
+    chunk = b"tEXt" + FIGURE_STAMP + b"\0" + stamp.encode("latin-1")  # a PNG chunk's type and body
+    return head + (len(chunk) - 4).to_bytes(4, "big") + chunk + zlib.crc32(chunk).to_bytes(4, "big") + data[len(head) :]
 
 
 def figure_is_current(path: str | Path, inputs: str) -> bool:

@@ -150,10 +150,6 @@ def package_version() -> str:
         return __version__
 
 
-def _short_warning(message, category, filename, lineno, line=None) -> str:
-    return f"warning: {message}\n"
-
-
 def _task_cause(error: BaseException) -> BaseException:
     """The error a Ray task raised, for the ``RayTaskError`` that carries it (whose text is the remote traceback)."""
     cause = getattr(error, "cause", None)
@@ -206,7 +202,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     prefix = "vpr-uncertainty"
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
-        warnings.formatwarning = _short_warning  # from the first: a plugin that fails to load is one line too
+        # one line per warning, from the first: a plugin that fails to load is one line too
+        warnings.formatwarning = lambda message, *_: f"warning: {message}\n"
         plugins, command = _early_arguments(argv)
         args = build_parser(plugins, command=command).parse_args(argv)
         prefix = f"vpr-uncertainty {args.command}"

@@ -173,8 +173,7 @@ class RayExecutor(BaseExecutor):
     def _connect(self, address: str | None, start_timeout: float, log_file: str | Path | None) -> None:
         if not self.ray.is_initialized():
             # "local": a new cluster, never one that a `ray start` on this machine left behind
-            options: dict[str, Any] = {"address": address or "local", "include_dashboard": False}
-            options["log_to_driver"] = False
+            options: dict[str, Any] = dict(address=address or "local", include_dashboard=False, log_to_driver=False)
             if address is None and self.workers is not None:
                 options["num_cpus"] = self.workers
             with _stderr_to(log_file):

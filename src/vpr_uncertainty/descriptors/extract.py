@@ -79,22 +79,13 @@ def describe_left_out(left_out: Sequence[dict[str, str]], total: int, what: str,
     return f"left out {len(left_out)} of {total} {what} that cannot be used: {listed}{more}"
 
 
-def _unstorable_name(name: str) -> str | None:
+def _decode(item: _Item, model: DescriptorModel) -> tuple[_Item, np.ndarray | ImageDecodeError]:
+    _, name, path = item
     try:
         name.encode("utf-8")
     except UnicodeEncodeError:
-        return (
-            "its name is not valid UTF-8 and cannot be stored in descriptor or retrieval files; rename the file "
-            "(e.g. with convmv)"
-        )
-    return None
-
-
-def _decode(item: _Item, model: DescriptorModel) -> tuple[_Item, np.ndarray | ImageDecodeError]:
-    _, name, path = item
-    problem = _unstorable_name(name)
-    if problem is not None:
-        return item, ImageDecodeError(name, path, problem)
+        problem = "its name is not valid UTF-8 and cannot be stored in descriptor or retrieval files; rename the file"
+        return item, ImageDecodeError(name, path, problem + " (e.g. with convmv)")
     try:
         return item, load_image(path, model.preprocessing, name=name)
     except ImageDecodeError as error:
@@ -379,15 +370,6 @@ class WorkerDiedError(RuntimeError):
     """A batch of images killed its Ray worker more often than :data:`TASK_RETRIES` allows."""
 
 
-def _encode(text: str) -> bytes:
-    # surrogatepass: every Python str (also names decoded with surrogateescape) comes back unchanged
-    return text.encode("utf-8", "surrogatepass")
-
-
-def _decode_text(data: Any) -> str:
-    return bytes(data).decode("utf-8", "surrogatepass")
-
-
 class DescribeBatch:
     """The callable class of ``map_batches``: ``model`` (a DescriptorModel, or a function without arguments that
     loads one in the actor), applied to batches of image rows."""
@@ -399,7 +381,7 @@ class DescribeBatch:
         """``{index, name, path}`` (B rows; name and path as UTF-8 bytes) -> ``{index, error, descriptor}``
         (``error`` "" for a usable image; ``descriptor`` a float32 row of length D, or of length 0)."""
         items = [
-            (int(index), _decode_text(name), Path(os.fsdecode(bytes(path))))
+            (int(index), bytes(name).decode("utf-8", "surrogatepass"), Path(os.fsdecode(bytes(path))))
             for index, name, path in zip(batch["index"], batch["name"], batch["path"], strict=True)
         ]
         decoded = [_decode(item, self.model) for item in items]
@@ -451,7 +433,11 @@ def quiet_data_context(ray_data: Any) -> Iterator[Any]:
 
 
 def _rows(todo: Sequence[_Item]) -> list[dict[str, Any]]:
-    return [{"index": index, "name": _encode(name), "path": os.fsencode(path)} for index, name, path in todo]
+    # surrogatepass: every Python str (also names decoded with surrogateescape) comes back unchanged
+    return [
+        {"index": index, "name": name.encode("utf-8", "surrogatepass"), "path": os.fsencode(path)}
+        for index, name, path in todo
+    ]
 
 
 def ray_described_batches(

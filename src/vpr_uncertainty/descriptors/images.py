@@ -200,14 +200,6 @@ def _link_problem(path: Path) -> str | None:
     return None
 
 
-def _unidentified(path: Path) -> str:
-    try:
-        empty = path.stat().st_size == 0
-    except OSError:
-        empty = False
-    return "empty file (0 bytes)" if empty else "not a recognised image format"
-
-
 class _Unusable(ValueError):
     """Raised inside the loaders for an image whose size rules it out; the message is the reason."""
 
@@ -244,7 +236,10 @@ def _opened(path: str | Path, name: str | None, reading: str) -> Iterator[Any]:
     except FileNotFoundError:
         raise ImageDecodeError(name, path, "file not found") from None
     except UnidentifiedImageError:
-        raise ImageDecodeError(name, path, _unidentified(path)) from None
+        reason = "not a recognised image format"
+        with contextlib.suppress(OSError):
+            reason = "empty file (0 bytes)" if path.stat().st_size == 0 else reason
+        raise ImageDecodeError(name, path, reason) from None
     except Image.DecompressionBombError as error:
         claimed = re.search(r"\((\d+) pixels\)", str(error))
         pixels = f"{int(claimed.group(1)):,} pixels" if claimed else "too many pixels"

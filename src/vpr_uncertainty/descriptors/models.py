@@ -398,10 +398,6 @@ def _socket_timeout(seconds: float) -> Iterator[None]:
         socket.setdefaulttimeout(previous)
 
 
-def _hub_weights_id(spec: ModelSpec, kwargs: dict[str, Any]) -> str:
-    return f"torch.hub:{spec.hub_repo}:{spec.hub_entrypoint}:{json.dumps(kwargs, sort_keys=True)}"
-
-
 def _offline_message(spec: ModelSpec, kwargs: dict[str, Any], error: BaseException) -> str:
     hub_dir = hub_cache_dir()
     arguments = "".join(f", {key}={value!r}" for key, value in kwargs.items())
@@ -426,18 +422,19 @@ def _is_network_error(error: BaseException) -> bool:
 
 def hub_weights_id(spec: ModelSpec, **options: Any) -> str:
     """The weights identity of a torch.hub model loaded with ``options``: its entry point and arguments."""
-    return _hub_weights_id(spec, {**spec.hub_kwargs, **options})
+    kwargs = {**spec.hub_kwargs, **options}
+    return f"torch.hub:{spec.hub_repo}:{spec.hub_entrypoint}:{json.dumps(kwargs, sort_keys=True)}"
 
 
 def load_hub_model(spec: ModelSpec, *, device: Any = "cpu", **options: Any) -> DescriptorModel:
     """Load a hub model; ``options`` override the entry point's keyword arguments (e.g. ``fc_output_dim``)."""
     torch = require_torch(f"the model {spec.name!r}")
     kwargs = {**spec.hub_kwargs, **options}
-    descriptor_dim: int | None = spec.descriptor_dim
+    dimension: int | None = spec.descriptor_dim
     if options:
-        descriptor_dim = int(kwargs["fc_output_dim"]) if "fc_output_dim" in kwargs else None
+        dimension = int(kwargs["fc_output_dim"]) if "fc_output_dim" in kwargs else None
     if spec.hub_repo is None:
-        return _load_torchscript_export(spec, device=device, descriptor_dim=descriptor_dim, options=options)
+        return _load_torchscript_export(spec, device=device, descriptor_dim=dimension, options=options)
     call_kwargs = dict(kwargs)
     if spec.name == "anyloc":  # AnyLoc's entry point builds the model on the device it is given.
         call_kwargs["device"] = str(torch.device(device))
@@ -454,7 +451,7 @@ def load_hub_model(spec: ModelSpec, *, device: Any = "cpu", **options: Any) -> D
             f"{error}"
         ) from error
     return DescriptorModel(
-        spec.name, network, spec.preprocessing, weights_id=_hub_weights_id(spec, kwargs), descriptor_dim=descriptor_dim
+        spec.name, network, spec.preprocessing, weights_id=hub_weights_id(spec, **options), descriptor_dim=dimension
     ).to(device)
 
 

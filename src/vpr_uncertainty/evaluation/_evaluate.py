@@ -8,7 +8,7 @@ import statistics
 import tempfile
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -50,14 +50,8 @@ _TIMING_BUDGET_S = 0.5
 
 
 def time_per_query(compute: Callable[[], Any], n_queries: int, *, repeats: int = 5) -> tuple[Any, float]:
-    """Run ``compute`` once, then repeat it while the calls took under half a second (at most ``repeats`` in all).
-
-    Returns
-    -------
-    result : the first call's return value
-    seconds_per_query : float
-        Median wall-clock time of one call divided by ``n_queries``.
-    """
+    """``(first result, median seconds of a call / n_queries)``: ``compute`` run once, then again while the calls
+    took under half a second (at most ``repeats`` in all)."""
     result, first = _timed(compute)
     durations = [first]
     while len(durations) < repeats and sum(durations) < _TIMING_BUDGET_S:
@@ -241,7 +235,12 @@ def evaluate(
             n_distinct=ranking.n_distinct,
             tied_share=ranking.tied_share,
         )
-    note(_tied_note(evaluation.methods.values(), evaluation.n_queries))
+    tied = [method.name for method in evaluation.methods.values() if not method.informative]  # one value for all
+    if tied:
+        note(
+            f"{', '.join(tied)}: the same uncertainty for all {evaluation.n_queries} queries, so no ranking; their "
+            "AUC-PR and AP are chance level (marked uninformative) and they are never declared best"
+        )
     if bootstrap:
         add_bootstrap(evaluation, n_resamples=bootstrap, seed=seed, reference=reference)
     return evaluation
@@ -299,30 +298,12 @@ def _direction_note(retrieval: Retrieval, top_1_correct: float) -> str | None:
     )
 
 
-def _tied_note(methods: Iterable[Any], n_queries: int) -> str | None:
-    """A note naming the methods whose uncertainty is the same for every query (``informative`` is False)."""
-    tied = [method.name for method in methods if not method.informative]
-    if not tied:
-        return None
-    return (
-        f"{', '.join(tied)}: the same uncertainty for all {n_queries} queries, so no ranking; their AUC-PR and AP "
-        "are chance level (marked uninformative) and they are never declared best"
-    )
-
-
 #: Kinds of method whose batch-1 latency is measured (the others need images or a model per call).
 LATENCY_KINDS: frozenset[str] = frozenset({"score", "spatial", "calibrated"})
 
 
 def single_query_retrievals(retrieval: Any, n: int) -> list[Any]:
-    """``n`` one-query retrievals: the first ``n`` queries (cycled when there are fewer), each a (1, K) retrieval.
-
-    Parameters
-    ----------
-    retrieval : Retrieval
-    n : int
-        How many, >= 1.
-    """
+    """``n`` (>= 1) one-query retrievals: the first ``n`` queries (cycled when there are fewer), each (1, K)."""
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
     if retrieval.n_queries == 0:
@@ -332,26 +313,11 @@ def single_query_retrievals(retrieval: Any, n: int) -> list[Any]:
 
 
 def latency_batch1(call: Callable[[Any], Any], retrieval: Any, *, n_calls: int = 200, runs: int = 3) -> float:
-    """Seconds per single-query call: the median over ``runs`` runs of ``n_calls`` calls, one query each.
+    """Seconds (> 0) per ``call(one_query_retrieval)``: the median over ``runs`` (>= 3) runs of ``n_calls`` calls on
+    :func:`single_query_retrievals` of ``retrieval``, built before timing.
 
-    A latency, as a robot sees it (the paper's "0.03 ms per query" for SU), where ``time_per_query_ms`` is a
-    throughput (one call on every query, divided by their number). The one-query retrievals are built before timing.
-
-    Parameters
-    ----------
-    call : callable
-        ``call(one_query_retrieval)``, e.g. ``lambda r: get_method("SU")(r, k=10)``.
-    retrieval : Retrieval
-        The queries are taken from it (see :func:`single_query_retrievals`).
-    n_calls : int, default=200
-        Calls per run (>= 1).
-    runs : int, default=3
-        Runs (>= 3, as the paper's figure is a median over repeated runs).
-
-    Returns
-    -------
-    float
-        Seconds per call (> 0).
+    A latency, as a robot sees it (the paper's "0.03 ms per query" for SU, a median over repeated runs), where
+    ``time_per_query_ms`` is a throughput (one call on every query, divided by their number).
     """
     if runs < 3:
         raise ValueError(f"runs must be >= 3 (a median over repeated runs), got {runs}")
@@ -374,28 +340,12 @@ def _snapshot(folder: Path) -> set[str]:
 def time_geometric(
     call: Callable[[Mapping[str, Any]], Any], options: Mapping[str, Any], *, repeats: int = 3
 ) -> tuple[Any, float, float | None]:
-    """A geometric method's result with its cold and warm time per call.
+    """``(first result, cold seconds, warm seconds)`` of ``call(options)``, a geometric method on every query.
 
-    Cold: one call that extracts every local feature it needs (with a fresh temporary cache when ``cache_dir``
-    already held features); warm: the median of calls that read every feature from the cache (matching and RANSAC
-    only).
-
-    Parameters
-    ----------
-    call : callable
-        ``call(options)``: the method on every query with those options (``cache_dir`` among them, or not).
-    options : mapping
-        The method's options.
-    repeats : int, default=3
-        Warm calls at most (at least one, more while they take under half a second in all).
-
-    Returns
-    -------
-    result : the first call's result
-    cold_seconds : float
-        Seconds of a call that extracted every feature.
-    warm_seconds : float or None
-        Median seconds of the calls that read every feature from the cache; None without ``cache_dir``.
+    Cold: one call that extracts every local feature it needs (with a fresh temporary cache when
+    ``options["cache_dir"]`` already held features); warm: the median of at most ``repeats`` calls (at least one, more
+    while they take under half a second in all) that read every feature from the cache (matching and RANSAC only);
+    None without ``cache_dir``.
     """
     if options.get("cache_dir") is None:
         result, seconds = _timed(lambda: call(options))

@@ -562,7 +562,7 @@ def get_method(name: str) -> UncertaintyMethod:
     entry = _lookup(base)
     if not options:
         return entry
-    text = ",".join(f"{key}={value}" for key, value in _spec_items(name))
+    text = ",".join("=".join(part.strip() for part in item.split("=", 1)) for item in name.partition(":")[2].split(","))
     return dataclasses.replace(entry, name=f"{base}:{text}", bound={**entry.bound, **options}, base=base)
 
 
@@ -582,10 +582,6 @@ def _lookup(name: str) -> UncertaintyMethod:
             if separator in name:
                 return compose(name)
     return METHODS.get(name)
-
-
-def _spec_items(spec: str) -> list[tuple[str, str]]:
-    return [tuple(part.strip() for part in item.split("=", 1)) for item in spec.partition(":")[2].split(",")]
 
 
 def available_methods(**attributes: Any) -> list[str]:

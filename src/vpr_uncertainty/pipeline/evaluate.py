@@ -21,7 +21,7 @@ from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.data import DEFAULT_TOP_K
 from vpr_uncertainty.evaluation.metrics import RECALL_NS, check_recall_ns
-from vpr_uncertainty.methods import default_method_names, get_method
+from vpr_uncertainty.methods import available_methods, default_method_names, get_method
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
@@ -221,21 +221,11 @@ def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_tru
 
 # --- what the command reads besides SCORES -------------------------------------------------------------------
 
-_IMAGES_HINT = (
-    "give --images DIR (a dataset folder with query/ and ref/, or queries/ and database/) or --query-images and "
-    "--database-images"
-)
 
-
-def _verifying(methods: list[str]) -> list[str]:
-    def verifies(name: str) -> bool:
-        entry = get_method(name)
-        accepted = entry.accepted_options()
-        if accepted is None:  # takes any option (a cascade SCORE+GV, a plugin): what it requires says
-            return "images" in entry.requires
-        return "query_paths" in accepted
-
-    return [name for name in methods if verifies(name)]
+def _verifies(name: str) -> bool:
+    entry = get_method(name)
+    accepted = entry.accepted_options()  # None: any option (a cascade SCORE+GV, a plugin), what it requires says
+    return "images" in entry.requires if accepted is None else "query_paths" in accepted
 
 
 def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list[str], dict[str, Any], list[str]]:
@@ -266,7 +256,7 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
             higher_is_better=higher_is_better,
         )
     methods = conf.method_names(retrieval)
-    verifying = _verifying(methods)
+    verifying = [name for name in methods if _verifies(name)]
     folders = {"images": args.images, "query_images": args.query_images, "database_images": args.database_images}
     given = any(value is not None for value in folders.values())
     if given and not verifying:
@@ -285,19 +275,15 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
             notes.append("images: the folders named in the log folder's info.log")
         else:
             raise ValueError(
-                f"{', '.join(verifying)} verif{'ies' if len(verifying) == 1 else 'y'} images: {_IMAGES_HINT}"
+                f"{', '.join(verifying)} verif{'ies' if len(verifying) == 1 else 'y'} images: give --images DIR (a "
+                "dataset folder with query/ and ref/, or queries/ and database/) or --query-images and "
+                "--database-images"
             )
         options = {"query_paths": [str(p) for p in query_paths], "database_paths": [str(p) for p in database_paths]}
     return retrieval, methods, options, notes
 
 
 # --- command line --------------------------------------------------------------------------------------------
-
-
-def _method_help() -> str:
-    from vpr_uncertainty.methods import available_methods
-
-    return "\n".join(f"  {name:<8} {get_method(name).description}" for name in available_methods())
 
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
@@ -319,7 +305,10 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
             "  precomputed_data_*.npy       VPR-Bench precomputed matches (legacy object array, read safely)\n"
             "  LOGDIR/                      a VPR-methods-evaluation log folder saved with --save_descriptors\n"
             "                               (ground truth derived from its image names when --gt is not given)\n\n"
-            "Uncertainty methods:\n" + _method_help() + "\n\n" + METHOD_SPEC_HELP
+            "Uncertainty methods:\n"
+            + "\n".join(f"  {name:<8} {get_method(name).description}" for name in available_methods())
+            + "\n\n"
+            + METHOD_SPEC_HELP
         ),
         epilog=(
             "example:\n  vpr-uncertainty evaluate \\\n"
@@ -460,8 +449,12 @@ def _handle(args: argparse.Namespace) -> int:
                 "--bootstrap and --calibration-fraction cannot be combined: the held-out evaluation reports its "
                 "spread over the random splits instead"
             )
-        if args.executor != "local":
-            _check_verifies(methods)
+        # nothing of evaluate but geometric verification would run on Ray
+        if args.executor != "local" and not any(get_method(name).kind in ("geometric", "cascade") for name in methods):
+            raise ValueError(
+                f"--executor ray: evaluate runs only geometric verification (GV-*, SCORE+GV) on Ray, and none of the "
+                f"selected methods ({', '.join(methods)}) verifies images; drop --executor or add e.g. GV-SIFT"
+            )
         with executor_from_args(args) as executor:
             inputs = {} if executor.name == "local" else {"executor": executor}  # GV-* verify their pairs there
             if args.calibration_fraction is not None:
@@ -469,7 +462,12 @@ def _handle(args: argparse.Namespace) -> int:
             evaluation = compute(conf, retrieval, inputs=inputs, latency=args.latency).evaluation
     print(format_table(evaluation, markdown=args.markdown, title=f"{args.scores}"))
     if args.latency:
-        print(_latency_line(evaluation))
+        pairs = [
+            f"{name} {method.timings['latency_ms_batch1']:.4f}"
+            for name, method in evaluation.methods.items()
+            if "latency_ms_batch1" in method.timings
+        ]
+        print("latency at batch size 1 (ms/query, median of 3 runs of 200 calls): " + (", ".join(pairs) or "none"))
     if args.json:
         write_json(args.json, evaluation.to_dict())
     if args.csv:
@@ -480,24 +478,6 @@ def _handle(args: argparse.Namespace) -> int:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None, width=args.figure_width)
         print(f"wrote {args.plot}")
     return 0
-
-
-def _check_verifies(methods: list[str]) -> None:
-    """Refuse ``--executor ray`` when no selected method verifies images (nothing of evaluate would run there)."""
-    if not any(get_method(name).kind in ("geometric", "cascade") for name in methods):
-        raise ValueError(
-            f"--executor ray: evaluate runs only geometric verification (GV-*, SCORE+GV) on Ray, and none of the "
-            f"selected methods ({', '.join(methods)}) verifies images; drop --executor or add e.g. GV-SIFT"
-        )
-
-
-def _latency_line(evaluation: Any) -> str:
-    pairs = [
-        f"{name} {method.timings['latency_ms_batch1']:.4f}"
-        for name, method in evaluation.methods.items()
-        if "latency_ms_batch1" in method.timings
-    ]
-    return "latency at batch size 1 (ms/query, median of 3 runs of 200 calls): " + (", ".join(pairs) or "none")
 
 
 def _held_out(args: argparse.Namespace, conf: EvaluateConf, retrieval: Any, inputs: dict[str, Any]) -> int:

@@ -20,7 +20,9 @@ import numpy as np
 
 from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
-from vpr_uncertainty.descriptors import DEFAULT_MODEL
+from vpr_uncertainty.data import load_dataset
+from vpr_uncertainty.data.images import IMAGE_SPLIT_FOLDERS, ImageListingError, MalformedImageNameError, list_images
+from vpr_uncertainty.descriptors import DEFAULT_MODEL, available_models, get_model_spec
 from vpr_uncertainty.pipeline.options import (
     DECODING_THREADS,
     add_executor_options,
@@ -53,8 +55,6 @@ __all__ = [
 SPLITS = ("database", "queries")
 #: Image files a dataset folder scan picks up (case-insensitive).
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".ppm", ".pgm", ".tif", ".tiff", ".webp")
-#: (database folder, queries folder) pairs a dataset folder may have: VPR-Bench, then VPR-methods-evaluation.
-SPLIT_FOLDERS = (("ref", "query"), ("database", "queries"))
 
 
 @dataclass(frozen=True)
@@ -264,8 +264,6 @@ def main(conf: ExtractConf, dataset: str | Path, out: str | Path, *, executor: A
 
 
 def _scan(folder: Path, root: Path, unlisted: list[dict[str, str]]) -> tuple[list[Path], list[str]]:
-    from vpr_uncertainty.data.images import ImageListingError, list_images
-
     found: list[dict[str, str]] = []
     paths = list_images(folder, problems=found)
     unlisted.extend(found)
@@ -277,7 +275,7 @@ def _scan(folder: Path, root: Path, unlisted: list[dict[str, str]]) -> tuple[lis
 
 
 def _scan_dataset(folder: Path, unlisted: list[dict[str, str]]) -> dict[str, tuple[list[Path], list[str]]] | None:
-    for database, queries in SPLIT_FOLDERS:
+    for queries, database in IMAGE_SPLIT_FOLDERS:  # VPR-Bench, then VPR-methods-evaluation
         if (folder / database).is_dir() and (folder / queries).is_dir():
             return {
                 "database": _scan(folder / database, folder, unlisted),
@@ -293,18 +291,10 @@ def dataset_images(
 
     Reads the dataset with :func:`vpr_uncertainty.data.load_dataset` (any format or registered name); a folder it
     cannot read (images without ground truth) with ``ref/`` and ``query/`` (VPR-Bench) or ``database/`` and
-    ``queries/`` subfolders is scanned for images, named by their POSIX path relative to the folder.
-
-    Parameters
-    ----------
-    dataset : str or Path
-    unlisted : list, optional
-        Receives ``{"path", "error"}`` of each folder or link that could not be listed. By default such a problem
-        raises :class:`~vpr_uncertainty.data.images.ImageListingError` naming it.
+    ``queries/`` subfolders is scanned for images, named by their POSIX path relative to the folder. ``unlisted``
+    receives ``{"path", "error"}`` of each folder or link that could not be listed; without it, such a problem raises
+    :class:`~vpr_uncertainty.data.images.ImageListingError` naming it.
     """
-    from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.data.images import ImageListingError, MalformedImageNameError
-
     folder = Path(dataset)
     found: list[dict[str, str]] = []
     try:
@@ -332,12 +322,6 @@ def dataset_images(
 # --- command line --------------------------------------------------------------------------------------------
 
 
-def _model_help() -> str:
-    from vpr_uncertainty.descriptors import available_models, get_model_spec
-
-    return "\n".join(f"  {name:<24}{get_model_spec(name).description}" for name in available_models())
-
-
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """The ``extract`` command."""
     parser = subparsers.add_parser(
@@ -349,7 +333,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
             "store them in an HDF5 file keyed by image name. A rerun resumes an interrupted extraction; a file\n"
             "made by another model or preprocessing is recomputed.\n\n"
             "Models (torch.hub models download code and weights into the torch.hub cache on first use):\n"
-            + _model_help()
+            + "\n".join(f"  {name:<24}{get_model_spec(name).description}" for name in available_models())
             + f"\n  {'FILE.pt':<24}your own TorchScript model: normalised images (B, 3, H, W) -> (B, D)"
         ),
         epilog=(

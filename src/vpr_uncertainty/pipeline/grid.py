@@ -176,16 +176,7 @@ STAGE = "grid cell"
 
 
 def candidates_needed(config: GridConfig) -> int:
-    """Candidates per query a cell needs: the largest k asked for (k and the k ablation) and recall@20.
-
-    Parameters
-    ----------
-    config : GridConfig
-
-    Returns
-    -------
-    int
-    """
+    """Candidates per query a cell needs: the largest k asked for (k and the k ablation) and recall@20."""
     return max([config.k, *config.ks, max(RECALL_NS)])
 
 
@@ -270,16 +261,6 @@ def _images_key(dataset: Any) -> str | None:
     return cache.fingerprint("images", {}, {**keys, "ground_truth": ground_truth_key(dataset.retrieval_fields())})
 
 
-def _method_names(config: GridConfig) -> list[str]:
-    """Every method a cell runs: those of the evaluation and the held-out splits, and the ablations' RS, SD, SU."""
-    return list(dict.fromkeys([*evaluate_conf(config).methods, *config.methods, "RS", "SD", "SU"]))
-
-
-def _option_files(methods: list[str]) -> dict[str, str]:
-    """The content key of every file the methods' options name (``CAL:gate=gate.json``), by resolved path."""
-    return {path: key for name in methods for path, key in get_method(name).identity()["files"].items()}
-
-
 def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None) -> str | None:
     """The one key of a cell: the grid's settings, the content of its inputs (files, images by name and content),
     its model's identity, and the code of every method and of the toolkit and plugins that compute it; None when
@@ -294,11 +275,13 @@ def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None
         model = fingerprint_of(_run_conf(entry, config).extract)
         if model is None:
             return None
+    # every method a cell runs: those of the evaluation and the held-out splits, and the ablations' RS, SD, SU
+    methods = dict.fromkeys([*evaluate_conf(config).methods, *config.methods, "RS", "SD", "SU"])
     inputs = {
         "input": entry.fingerprint(),
         "images": _images_key(dataset),
         "model": model,
-        "methods": [get_method(name).identity() for name in _method_names(config)],
+        "methods": [get_method(name).identity() for name in methods],
         "code": {"toolkit": code_identity(__name__), **registered_code()},
     }
     return cache.fingerprint(STAGE, {**config.settings(), "candidates": candidates_needed(config)}, inputs)
@@ -307,18 +290,9 @@ def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None
 def save_cell(
     cell: Cell, json_path: Path, npz_path: Path, fingerprint: str, input_digests: dict[str, str] | None = None
 ) -> None:
-    """Write a cell's cache: its arrays to ``npz_path``, then its document to ``json_path``, each atomically.
-
-    Parameters
-    ----------
-    cell : Cell
-    json_path, npz_path : Path
-        The two files of the cell's cache.
-    fingerprint : str
-        The fingerprint of the cell's inputs and settings, stored in both files and checked by :func:`load_cell`.
-    input_digests : dict of str to str, optional
-        :func:`~vpr_uncertainty.cache.file_digest` of the input files that the fingerprint hashes only in part.
-    """
+    """Write a cell's cache: its arrays to ``npz_path``, then its document to ``json_path``, each atomically, both
+    with ``fingerprint`` (checked by :func:`load_cell`); ``input_digests``: the
+    :func:`~vpr_uncertainty.cache.file_digest` of the input files that the fingerprint hashes only in part."""
     arrays = cell.arrays()
     with cache.atomic_write(npz_path, "wb") as file:
         np.savez_compressed(file, **arrays, **{_FINGERPRINT: np.array(fingerprint)})
@@ -343,20 +317,8 @@ def load_cell(json_path: Path, npz_path: Path, fingerprint: str, verify_files: t
 
     A cell that cannot be used (cut short, foreign, of an earlier layout, changed on disk after it was written, or
     whose two files come from two different runs) is reported in one line
-    (:class:`~vpr_uncertainty.cache.CacheWarning`).
-
-    Parameters
-    ----------
-    json_path, npz_path : Path
-        The two files written by :func:`save_cell`.
-    fingerprint : str
-        The fingerprint the cache must hold.
-    verify_files : tuple of Path
-        Input files to hash whole and compare with the digests recorded when the cell was computed.
-
-    Returns
-    -------
-    Cell or None
+    (:class:`~vpr_uncertainty.cache.CacheWarning`). ``verify_files``: input files to hash whole and compare with the
+    digests recorded when the cell was computed.
     """
     if not (json_path.is_file() and npz_path.is_file()):
         return None
@@ -397,13 +359,6 @@ def _checksum_parts(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> tupl
     return (text, *(part for name in sorted(arrays) for part in (name, arrays[name])))
 
 
-def _partly_hashed(entry: InputEntry, config: GridConfig) -> tuple[Path, ...]:
-    """The cell's input files that :func:`~vpr_uncertainty.cache.content_key` hashes only in part (the large ones)."""
-    paths = [path for path in (entry.scores, entry.ground_truth) if path is not None]
-    paths += [Path(path) for path in _option_files(config.methods)]
-    return tuple(path for path in paths if path.is_file() and cache.is_partly_hashed(path))
-
-
 def run_cell(
     entry: InputEntry, config: GridConfig, *, force: bool = False, verify: bool = False, dataset: Any = None
 ) -> Cell:
@@ -434,7 +389,10 @@ def run_cell(
     json_path, npz_path = cells / f"{entry.key}.json", cells / f"{entry.key}.npz"
     dataset = _image_dataset(entry) if dataset is None else dataset
     fingerprint = _cell_fingerprint(entry, config, dataset)
-    large = _partly_hashed(entry, config)
+    # the cell's input files (and those its methods' options name) that content_key hashes only in part
+    large = [path for path in (entry.scores, entry.ground_truth) if path is not None]
+    large += [Path(path) for name in config.methods for path in get_method(name).identity()["files"]]
+    large = [path for path in large if path.is_file() and cache.is_partly_hashed(path)]
     if not force and fingerprint is not None:
         cached = load_cell(json_path, npz_path, fingerprint, large if verify else ())
         if cached is not None:
@@ -456,10 +414,12 @@ def run_cell(
     start = time.perf_counter()
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     alpha_curve, k_curve = ablation_curves(retrieval, correct, k=config.k, alphas=config.alphas, ks=config.ks)
-    left_out = ks_left_out_note(config.ks, retrieval.k)
+    left_out = [value for value in config.ks if value > retrieval.k]  # more than the candidates per query
     if left_out:
-        evaluation.notes.append(left_out)
-        warnings.warn(f"{entry.key}: {left_out}", FewerCandidatesWarning, stacklevel=2)
+        shown = ", ".join(map(str, left_out))
+        note = f"k ablation: k = {shown} left out, the retrieval holds {retrieval.k} candidates per query"
+        evaluation.notes.append(note)
+        warnings.warn(f"{entry.key}: {note}", FewerCandidatesWarning, stacklevel=2)
     seconds["ablations"] = time.perf_counter() - start
     cell = Cell(
         vpr_method=entry.vpr_method,
@@ -538,28 +498,9 @@ def run_grid(
 def ablation_curves(
     retrieval: Retrieval, correct: np.ndarray, *, k: int, alphas: Sequence[float], ks: Sequence[int]
 ) -> tuple[dict[float, float | None], dict[str, dict[int, float | None]]]:
-    """AUC-PR of SU for every α (at ``k``) and of RS and SD for every k the retrieval holds.
-
-    Parameters
-    ----------
-    retrieval : Retrieval
-        The cell's retrieval.
-    correct : ndarray of shape (Q,), bool
-        Whether each query's top-1 answer is correct.
-    k : int
-        The k of the α ablation (at most the candidates per query are used).
-    alphas : sequence of float
-        Weights α of SU.
-    ks : sequence of int
-        Values of k for RS and SD; those above the candidates per query are left out.
-
-    Returns
-    -------
-    alpha_curve : dict of float to float or None
-        α -> AUC-PR of SU; None when every answer is correct, or none is.
-    k_curve : dict of str to dict of int to float or None
-        ``"RS"`` and ``"SD"`` -> k -> AUC-PR.
-    """
+    """``({α: AUC-PR of SU at k}, {"RS" or "SD": {k: AUC-PR}})`` for the cell's top-1 ``correct`` (Q,): ``k`` capped
+    at the candidates per query, the ``ks`` above them left out; every AUC-PR None when every answer is correct, or
+    none is."""
     both = bool(correct.any() and not correct.all())
     su, rs, sd = get_method("SU"), get_method("RS"), get_method("SD")
     k = min(k, retrieval.k)
@@ -571,17 +512,6 @@ def ablation_curves(
         for name, method in (("RS", rs), ("SD", sd)):
             k_curve[name][value] = auc_pr(correct, method(retrieval, k=value)) if both else None
     return alpha_curve, k_curve
-
-
-def ks_left_out_note(ks: Sequence[int], available: int) -> str | None:
-    """A note when the k ablation leaves out ks larger than the ``available`` candidates per query (else None)."""
-    left_out = [value for value in ks if value > available]
-    if not left_out:
-        return None
-    return (
-        f"k ablation: k = {', '.join(map(str, left_out))} left out, the retrieval holds {available} candidates "
-        "per query"
-    )
 
 
 def held_out_evaluation(retrieval: Retrieval, config: GridConfig, **options: Any) -> dict[str, Any]:

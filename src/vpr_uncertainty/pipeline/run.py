@@ -128,18 +128,6 @@ def _positions_of(names: Sequence[str], kept: np.ndarray) -> np.ndarray:
     return np.array([position[name] for name in kept], dtype=np.int64)
 
 
-def _left_out(dataset: Any, descriptors: Any) -> dict[str, Any] | None:
-    """The images left out of the run, by split, with their reasons (None when there is none)."""
-    report_: dict[str, Any] = {"count": 0}
-    for split, requested in (("database", dataset.database_names), ("queries", dataset.query_names)):
-        reasons = {entry["name"]: entry for entry in descriptors.failed.get(split, [])}
-        kept = {str(name) for name in descriptors.names[split]}
-        missing = [name for name in requested if name not in kept]
-        report_[split] = [reasons.get(name, {"name": name, "error": "no descriptor"}) for name in missing]
-        report_["count"] += len(missing)
-    return report_ if report_["count"] else None
-
-
 def load_and_check(conf: RunConf, dataset: Any) -> Any:
     """The dataset (a folder, a registered name or a loaded Dataset), after every check that can fail before
     extraction (the slow part)."""
@@ -286,7 +274,13 @@ def run(conf: RunConf, dataset: Any, out: str | Path, *, executor: Any = None) -
         reranking = {"method": conf.rerank, "top_k": conf.evaluate.k, **verified.reranking.recall}
         seconds["reranking"] = time.perf_counter() - start
 
-    left_out = _left_out(dataset, descriptors)
+    left_out: dict[str, Any] = {"count": 0}  # the images left out of the run, by split, with their reasons
+    for split, requested in (("database", dataset.database_names), ("queries", dataset.query_names)):
+        reasons = {entry["name"]: entry for entry in descriptors.failed.get(split, [])}
+        kept = {str(name) for name in descriptors.names[split]}
+        missing = [name for name in requested if name not in kept]
+        left_out[split] = [reasons.get(name, {"name": name, "error": "no descriptor"}) for name in missing]
+        left_out["count"] += len(missing)
     summary = dataset.summary()
     paths = report.main(
         evaluated.evaluation,
@@ -298,7 +292,7 @@ def run(conf: RunConf, dataset: Any, out: str | Path, *, executor: Any = None) -
                 "dataset": str(dataset.root if dataset.root is not None else name or dataset.name),
                 **conf.to_dict(),
             },
-            "dataset": {**summary, **({"images_left_out": left_out} if left_out else {})},
+            "dataset": {**summary, **({"images_left_out": left_out} if left_out["count"] else {})},
         },
         stage_seconds=seconds,
         reranking=reranking,

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from html import escape
 from pathlib import Path
 from typing import Any
@@ -245,28 +246,15 @@ def _table1(cells: Sequence[Any], config: Any, metric: str):
     return build_table1(chosen, metric, bootstrap=getattr(config, "bootstrap", 0), seed=getattr(config, "seed", 0))
 
 
-def _write_table1(cells: Sequence[Any], config: Any, out_dir: Path, metric: str, stem: str) -> list[Path]:
+def _write_table1(cells: Sequence[Any], config: Any, out_dir: Path, *, metric: str, stem: str) -> list[Path]:
+    """``STEM.md``, ``STEM.csv`` and ``STEM.tex`` (booktabs): Table 1 of ``metric``, with intervals when
+    bootstrapped."""
     table = _table1(cells, config, metric)
     note = table1_note(cells) if metric == "auc_pr" else None
     return [
         write_text(out_dir / f"{stem}.{suffix}", render(table) + (f"\n{note}\n" if note and suffix == "md" else ""))
         for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex))
     ]
-
-
-def write_table1(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
-    """``table1.md``, ``table1.csv`` and ``table1.tex`` (booktabs): AUC-PR, with intervals when bootstrapped."""
-    return _write_table1(cells, config, out_dir, "auc_pr", "table1")
-
-
-def write_table1_ap(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
-    """``table1_ap.{md,csv,tex}``: Table 1 of average precision."""
-    return _write_table1(cells, config, out_dir, "average_precision", "table1_ap")
-
-
-def write_table1_aurc(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
-    """``table1_aurc.{md,csv,tex}``: Table 1 of AURC (lower is better)."""
-    return _write_table1(cells, config, out_dir, "aurc", "table1_aurc")
 
 
 def _section(metric: str):
@@ -278,11 +266,6 @@ def _section(metric: str):
 
     section.__name__ = f"{metric}_section"
     return section
-
-
-table1_section = _section("auc_pr")
-table1_ap_section = _section("average_precision")
-table1_aurc_section = _section("aurc")
 
 
 def write_ties(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
@@ -463,11 +446,11 @@ def reliability_section(cells: Sequence[Any], config: Any, written: list[Path], 
 
 register_report_figure(
     "table1",
-    write_table1,
+    partial(_write_table1, metric="auc_pr", stem="table1"),
     title="Table 1: AUC-PR averaged over datasets",
     description="AUC-PR of each uncertainty method for each VPR method, averaged over datasets (md, csv, tex)",
     requires=("evaluation",),
-    section=table1_section,
+    section=_section("auc_pr"),
 )
 register_report_figure(
     "heatmaps",
@@ -519,19 +502,19 @@ register_report_figure(
 )
 register_report_figure(
     "table1_ap",
-    write_table1_ap,
+    partial(_write_table1, metric="average_precision", stem="table1_ap"),
     title="Table 1 by average precision",
     description="average precision (step-wise area, no interpolation between tied groups), as Table 1 (md, csv, tex)",
     requires=("evaluation",),
-    section=table1_ap_section,
+    section=_section("average_precision"),
 )
 register_report_figure(
     "table1_aurc",
-    write_table1_aurc,
+    partial(_write_table1, metric="aurc", stem="table1_aurc"),
     title="Table 1 by AURC (lower is better)",
     description="area under the risk-coverage curve, as Table 1 (md, csv, tex)",
     requires=("evaluation",),
-    section=table1_aurc_section,
+    section=_section("aurc"),
 )
 register_report_figure(
     "ties",

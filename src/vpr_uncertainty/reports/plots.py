@@ -151,18 +151,6 @@ def _subplots(plt, n_panels: int, columns: int | None, legend_entries: int, widt
     return figure, axes
 
 
-def _legend_below(figure, handles: dict, columns: int, width: str) -> None:
-    """One legend for the whole figure, below the panels (outside the data)."""
-    if handles:
-        figure.legend(
-            list(handles.values()),
-            list(handles),
-            loc="outside lower center",
-            ncol=_legend_columns(len(handles), columns, width, labels=list(handles)),
-            frameon=False,
-        )
-
-
 def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None = None) -> None:
     """Label the y axes of the first column, draw the legend of ``spec``'s series below the panels and the title."""
     for axis in axes[:, 0]:
@@ -170,7 +158,14 @@ def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None =
     handles = {
         s.label: plt.Line2D([], [], **{"markersize": 8 if s.style is _STAR else 4, **s.style}) for s in spec.series
     }
-    _legend_below(figure, handles, axes.shape[1], width)
+    if handles:  # one legend for the whole figure, below the panels (outside the data)
+        figure.legend(
+            list(handles.values()),
+            list(handles),
+            loc="outside lower center",
+            ncol=_legend_columns(len(handles), axes.shape[1], width, labels=list(handles)),
+            frameon=False,
+        )
     figure.suptitle(_fitted(title or spec.what, figure))
 
 

@@ -313,14 +313,6 @@ _EXPECTED = (
 )
 
 
-def _is_boolean_rows(rows: list[object]) -> bool:
-    """A list of non-empty lists of booleans: a mask written as Python lists."""
-    return bool(rows) and all(
-        isinstance(row, (list, tuple)) and len(row) > 0 and all(isinstance(x, (bool, np.bool_)) for x in row)
-        for row in rows
-    )
-
-
 def _from_sparse(value: object) -> sparse.csr_array:
     matrix = sparse.csr_array(value)
     if matrix.ndim != 2:
@@ -350,7 +342,10 @@ def coerce_positives(value: object, *, n_database: int | None, indices: np.ndarr
     if isinstance(value, (str, bytes, dict)) or not isinstance(value, Iterable):
         raise ValueError(f"positives must be {_EXPECTED}; got {type(value).__name__}")
     rows = list(value)
-    if _is_boolean_rows(rows):
+    if rows and all(  # non-empty lists of booleans: a mask written as Python lists
+        isinstance(row, (list, tuple)) and len(row) > 0 and all(isinstance(x, (bool, np.bool_)) for x in row)
+        for row in rows
+    ):
         widths = {len(row) for row in rows}
         if len(widths) > 1:
             raise ValueError(f"positives as a boolean mask needs rows of one length, got lengths {sorted(widths)}")

@@ -409,9 +409,7 @@ def _block_top_k(searcher: _Searcher, batch: np.ndarray, kept: int, n_block: int
     if depth > kept:
         tied = np.flatnonzero((indices[:, kept] >= 0) & (scores[:, kept - 1] == scores[:, kept]))
         if tied.size:
-            settled_scores, settled_indices = _settle_ties(searcher, batch[tied], kept, n_block)
-            scores[tied, :kept] = settled_scores
-            indices[tied, :kept] = settled_indices
+            scores[tied, :kept], indices[tied, :kept] = _settle_ties(searcher, batch[tied], kept, n_block)
     width = min(kept, n_block)
     return scores[:, :width], indices[:, :width]
 
