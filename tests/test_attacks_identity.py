@@ -23,7 +23,7 @@ from vpr_uncertainty.cache import CacheWarning
 
 pytestmark = pytest.mark.filterwarnings("ignore:reading the legacy VPR-Bench file")
 
-_ENTROPY = '''
+_ENTROPY = """
 import numpy as np
 from vpr_uncertainty.methods import register_method
 
@@ -34,7 +34,7 @@ def entropy(retrieval, *, k=10):
     return SIGN * (p * np.log(p)).sum(1)
 
 register_method("ENT", entropy, description="entropy of the top-k softmax")
-'''
+"""
 
 _HELPER = "SIGN = {sign}\n"
 
@@ -162,7 +162,7 @@ def test_replacing_query_images_of_a_results_cell_recomputes_its_verification(gr
 # --- row 2: the user's registered model changes (its weights_id) ---------------------------------------------
 
 
-_MODEL_PLUGIN = '''
+_MODEL_PLUGIN = """
 from vpr_uncertainty.descriptors import Preprocessing
 from vpr_uncertainty.descriptors.models import DescriptorModel, ModelSpec, register_model
 
@@ -178,7 +178,7 @@ def load(spec, *, device="cpu"):
 
 register_model(ModelSpec(name="tiny-stats", description="channel statistics", descriptor_dim=6, backbone="none",
                          preprocessing=Preprocessing(), loader=load, identify=lambda spec: WEIGHTS))
-'''
+"""
 
 
 def test_a_changed_plugin_model_recomputes_the_cell(tmp_path, corridor_dir):
@@ -244,8 +244,9 @@ def test_an_edited_row_of_an_interrupted_extraction_is_recomputed_when_it_resume
         raise KeyboardInterrupt  # the user kills the run after the first batch was written
 
     with pytest.raises(KeyboardInterrupt):
-        extract_descriptors(make(), paths, names, path, "database", batch_size=3, progress=False,
-                            on_batch=stop_after_one_batch)
+        extract_descriptors(
+            make(), paths, names, path, "database", batch_size=3, progress=False, on_batch=stop_after_one_batch
+        )
     with h5py.File(path, "r+") as handle:
         assert not handle["database"].attrs["complete"] and handle["database/names"].shape == (3,)
         handle["database/descriptors"][1] = handle["database/descriptors"][1] + 1.0  # edited on disk
