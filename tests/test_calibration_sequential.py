@@ -145,6 +145,13 @@ def test_bad_labels_and_rankings_are_refused():
         session.add_label(3, False)
     with pytest.raises(ValueError, match="training-free"):
         SequentialCalibration(_pool(50), target_precision=0.9, rankings=["CAL"])
+    with pytest.raises(ValueError, match="holds no query"):
+        SequentialCalibration(np.zeros((0, 10)), target_precision=0.9)
+    small = SequentialCalibration(
+        _pool(10), target_precision=0.9
+    )  # 0.9^32 <= 0.7 · δ/2: 32 all-correct answers start a chain
+    assert small.next_query() is None
+    assert "the pool's 10 queries are fewer than the 32 a first test needs" in small.status().message
     with pytest.raises(ValueError, match="target_precision"):
         SequentialCalibration(_pool(50), target_precision=1.5)
 

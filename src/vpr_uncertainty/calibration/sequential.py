@@ -32,6 +32,7 @@ from vpr_uncertainty._validation import check_top_k_scores
 from vpr_uncertainty.calibration.calibrator import RANKINGS, feature_columns, platt, ranking_rule
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.calibration.guarantee import (
+    FALLBACK,
     check_rankings,
     clopper_pearson_lower,
     cut_chain,
@@ -188,6 +189,8 @@ class SequentialCalibration:
     ) -> None:
         min_accepted(target_precision, delta)  # checks p* and δ
         scores = check_top_k_scores(scores, name="scores")
+        if len(scores) == 0:
+            raise ValueError("scores holds no query: sequential labelling needs a pool of unlabelled queries")
         self.target_precision, self.delta, self.k = float(target_precision), float(delta), int(k)
         shares = check_rankings(rankings, feature_columns(scores[:1], k))
         if "CAL" in shares:
@@ -260,6 +263,9 @@ class SequentialCalibration:
             if status.certified
             else f"nothing certified yet at precision {self.target_precision:g}"
         )
+        if not any(chain.tests.size for chain in self.chains):
+            needed = min_accepted(self.target_precision, min(chain.level for chain in self.chains) * (1 - FALLBACK))
+            return f"{what}; the pool's {self._labels.size} queries are fewer than the {needed} a first test needs"
         if waiting is None:
             return f"{what}; done: no further label can certify more"
         more, name = waiting
