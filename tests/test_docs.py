@@ -17,6 +17,7 @@ import subprocess
 import sys
 import warnings
 from pathlib import Path
+from urllib.parse import unquote, urlsplit
 
 import pytest
 
@@ -50,8 +51,9 @@ def _ci() -> bool:
 # --- the site builds --------------------------------------------------------------------------------------------
 
 
-def test_docs_build_strict(tmp_path):
-    """``mkdocs build --strict`` (warnings are errors) into a temporary folder, offline."""
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Path:
+    """``mkdocs build --strict`` (warnings are errors) into a temporary folder, offline; the built site."""
     needed = ("mkdocs", "material", "mkdocstrings_handlers")
     missing = [name for name in needed if importlib.util.find_spec(name) is None]
     if missing:
@@ -59,7 +61,7 @@ def test_docs_build_strict(tmp_path):
         if _ci():
             pytest.fail(message)
         pytest.skip(message)
-    site = tmp_path / "site"
+    site = tmp_path_factory.mktemp("docs") / "site"
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
     result = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"), "-d", str(site)],
@@ -69,12 +71,51 @@ def test_docs_build_strict(tmp_path):
         timeout=600,
     )
     assert result.returncode == 0, result.stderr[-4000:]
+    return site
+
+
+def test_docs_build_strict(site):
     home = (site / "index.html").read_text(encoding="utf-8")
     assert "Two commands" in home  # the front page is the README
-    config_page = (site / "reference" / "reproduce-config" / "index.html").read_text(encoding="utf-8")
+    config_page = (site / "reference" / "reproduce-config.html").read_text(encoding="utf-8")
     assert "verify_fraction" in config_page and "precomputed_matches" in config_page
-    api = (site / "api" / "scores" / "index.html").read_text(encoding="utf-8")
+    api = (site / "api" / "scores.html").read_text(encoding="utf-8")
     assert "statistical_uncertainty" in api
+    assert (site / "search" / "search_index.js").is_file()  # search from file:// (the offline plugin)
+
+
+def test_site_navigates_from_the_file_system(site):
+    """Every internal ``href``/``src`` of every page names an existing file (a folder would need a web server to
+    show its index.html) and, with a ``#fragment``, an element with that id. The 404 page is left out: only a web
+    server shows it, and its links are absolute on purpose."""
+    pages = sorted(page for page in site.rglob("*.html") if page.name != "404.html")
+    ids = {page: set(re.findall(r'\sid="([^"]*)"', page.read_text(encoding="utf-8"))) for page in pages}
+    broken, checked = [], 0
+    for page in pages:
+        for link in re.findall(r'\s(?:href|src)="([^"]*)"', page.read_text(encoding="utf-8")):
+            parts = urlsplit(link)
+            if parts.scheme or parts.netloc:
+                continue
+            checked += 1
+            target = (page.parent / unquote(parts.path)).resolve() if parts.path else page
+            if not target.is_file():
+                broken.append(f"{page.relative_to(site)}: {link} (no such file)")
+            elif parts.fragment and target.suffix == ".html" and unquote(parts.fragment) not in ids[target]:
+                broken.append(f"{page.relative_to(site)}: {link} (no such anchor)")
+    assert checked > 1000 and not broken, broken[:20]
+
+
+def test_api_pages_render_roles_and_lists(site):
+    """The docstrings' Sphinx roles become links or code (docs/hooks/docstrings.py), none is left raw, and the
+    numpydoc lists that follow their introducing line render as lists."""
+    api = "".join(page.read_text(encoding="utf-8") for page in sorted((site / "api").glob("*.html")))
+    raw = re.findall(r":(?:func|class|meth|data|attr|mod|exc|obj):[`<]", api)
+    assert not raw, f"{len(raw)} raw roles"
+    assert api.count("autorefs-internal") > 300  # the roles that name an API object link to it
+    paragraphs = re.findall(r"<p>(.*?)</p>", api, re.S)
+    assert not [text for text in paragraphs if re.search(r"\n\s*(?:[*-]|\d+\.) ", text)]
+    scores = (site / "api" / "scores.html").read_text(encoding="utf-8")
+    assert re.search(r'<li><a class="autorefs[^>]*href="#vpr_uncertainty.scores.ratio_spread"', scores)
 
 
 def test_config_reference_is_generated_from_the_schema():

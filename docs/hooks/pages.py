@@ -49,6 +49,7 @@ def top_level_api() -> str:
         value = getattr(vpr_uncertainty, name)
         module = value.__module__
         summary = (inspect.getdoc(value) or "").split("\n\n")[0].replace("\n", " ").replace("|", "\\|")
+        summary = re.sub(r":\w+:`~?([^`]+)`", r"`\1`", summary)  # Sphinx roles as code (the link is the name's)
         rows.append(f"| [`{name}`][{module}.{name}] | `{module}` | {summary} |")
     return "\n".join(rows) + "\n"
 
