@@ -46,6 +46,8 @@ FORMAT_VERSION = 1
 
 def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
     """Write a retrieval file (see the module docstring for the layout) and return its path."""
+    if not isinstance(retrieval, Retrieval):  # numpy.save's order, (path, array), given by habit
+        raise TypeError(f"save_retrieval(retrieval, path): the Retrieval comes first, got {type(retrieval).__name__}")
     path = Path(path)
     arrays: dict[str, Any] = {
         "format_version": np.array(FORMAT_VERSION),
