@@ -1,6 +1,7 @@
 """The documentation site builds (``mkdocs build --strict``) and its examples run as written.
 
-Every fenced Python block of ``docs/`` runs in an empty folder. A block that reads the real data takes its path from
+Every fenced Python block of ``docs/`` runs in an empty folder, and every ``bash`` block of the tutorials from an
+empty folder of the development layout. A block that reads the real data takes its path from
 ``VPR_UNCERTAINTY_DATA`` (skipped without it, a failure under ``CI=true``, as the other real-data tests). A block
 that cannot run here (a GPU, the internet, a cluster) must say so on the line before it, visibly:
 ``<!-- not run: REASON -->``; the test then reports it as skipped with that reason. A ``print(...)  # EXPECTED``
@@ -221,6 +222,78 @@ def test_architecture_stage_example_runs(tmp_path, monkeypatch, capsys):
     path, auc_pr = capsys.readouterr().out.split()
     assert path == "runs/stages/retrieval.npz" and abs(float(auc_pr) - 0.956) <= 0.002  # another BLAS may round apart
     assert (tmp_path / "runs" / "stages" / "uncertainties.npz").is_file()
+
+
+# --- the tutorials' shell blocks run as written -------------------------------------------------------------------
+
+SHELL_BLOCK = re.compile(r"(?:<!-- not run: (?P<reason>[^>]*?) -->\n)?```bash\n(?P<code>.*?)```", re.S)
+TUTORIALS = DOCS / "tutorials"
+
+
+def _shell_blocks() -> list:
+    params = []
+    for page in sorted(TUTORIALS.glob("*.md")):
+        for number, match in enumerate(SHELL_BLOCK.finditer(page.read_text(encoding="utf-8"))):
+            params.append(pytest.param(page, match["reason"], match["code"], id=f"{page.name}:{number + 1}"))
+    return params
+
+
+def _expected_numbers(code: str) -> list[str]:
+    """The numbers of a block's output comments (``#   ...``, three spaces): the output must hold each."""
+    output = "\n".join(line for line in code.splitlines() if line.startswith("#   "))
+    return re.findall(r"\d+(?:\.\d+)?", output)
+
+
+@pytest.mark.parametrize(("page", "reason", "code"), _shell_blocks())
+def test_tutorial_shell_block_runs(page, reason, code, request, tmp_path):
+    """Each ``bash`` block of a tutorial runs with ``bash -e`` from an empty folder, as the tutorials say, in the
+    development layout (``../shared/data`` is the real data, ``VPR_UNCERTAINTY_DATA`` points to it), with this
+    checkout's ``vpr-uncertainty``; the page's first TOML block is there as ``reproduce.toml`` (the config its
+    commands name). The numbers of its output comments appear in what it prints. A block that cannot run here says
+    so on the line before it: ``<!-- not run: REASON -->``."""
+    if reason is not None:
+        pytest.skip(f"not run ({page.name}): {reason}")
+    text = page.read_text(encoding="utf-8")
+    folder = tmp_path / "work"
+    folder.mkdir()
+    data = None
+    if "VPR_UNCERTAINTY_DATA" in code or "shared/data" in text:
+        data = request.getfixturevalue("data_dir")  # skipped without the real data, a failure under CI
+        (tmp_path / "shared").mkdir()
+        (tmp_path / "shared" / "data").symlink_to(data.resolve())
+    configs = re.findall(r"```toml\n(.*?)```", text, re.S)
+    if configs:
+        (folder / "reproduce.toml").write_text(configs[0], encoding="utf-8")
+    bin_dir = Path(sys.executable).parent  # the environment's python and vpr-uncertainty entry point
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}", "NO_COLOR": "1"}
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")]))
+    if data is not None:
+        env["VPR_UNCERTAINTY_DATA"] = str(tmp_path / "shared" / "data")
+    done = subprocess.run(["bash", "-e", "-c", code], cwd=folder, env=env, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, f"{page.name}: exit {done.returncode}\n{done.stdout[-2000:]}\n{done.stderr[-3000:]}"
+    missing = [number for number in _expected_numbers(code) if number not in done.stdout]
+    assert not missing, f"{page.name}: {missing} not in the output:\n{done.stdout[-3000:]}"
+    if page.name == "reproduce-the-study.md":
+        _table1_evidence_matches(folder / "runs" / "reproduce" / "table1.md")
+
+
+def _table1_evidence_matches(table1: Path) -> None:
+    """The evidence page's Table 1 (the config's first input) has the cells of the tutorial's own run: the same
+    AUC-PR, intervals and bold marks in each VPR-method column (the Mean and ms/query columns are the run's own)."""
+
+    def columns(table: str) -> dict[str, list[str]]:
+        lines = [line.strip("|").split("|") for line in table.strip().splitlines() if line.startswith("|")]
+        header = [cell.strip() for cell in lines[0]]
+        return {name: [line[index].strip() for line in lines[2:]] for index, name in enumerate(header)}
+
+    spec = importlib.util.spec_from_file_location("table1_evidence", ROOT / "benchmarks" / "table1_evidence.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    page = columns(script.page_table((DOCS / "evidence" / "table1.md").read_text(encoding="utf-8")))
+    run = columns(table1.read_text(encoding="utf-8").split("\n\n")[0])
+    vpr_methods = [name for name in page if name not in ("method", "Mean", "ms/query")]
+    assert len(vpr_methods) == 10 and page["method"] == run["method"]
+    assert {name: page[name] for name in vpr_methods} == {name: run[name] for name in vpr_methods}
 
 
 # --- shell examples name real commands --------------------------------------------------------------------------
