@@ -108,13 +108,15 @@ def test_site_navigates_from_the_file_system(site):
 
 def test_api_pages_render_roles_and_lists(site):
     """The docstrings' Sphinx roles become links or code (docs/hooks/docstrings.py), none is left raw, and the
-    numpydoc lists that follow their introducing line render as lists."""
+    numpydoc lists that follow their introducing line render as lists, reST tables as tables."""
     api = "".join(page.read_text(encoding="utf-8") for page in sorted((site / "api").glob("*.html")))
     raw = re.findall(r":(?:func|class|meth|data|attr|mod|exc|obj):[`<]", api)
     assert not raw, f"{len(raw)} raw roles"
     assert api.count("autorefs-internal") > 300  # the roles that name an API object link to it
     paragraphs = re.findall(r"<p>(.*?)</p>", api, re.S)
     assert not [text for text in paragraphs if re.search(r"\n\s*(?:[*-]|\d+\.) ", text)]
+    assert not [text for text in paragraphs if "=====" in text]  # reST tables became tables
+    assert "<td><code>descriptors.h5</code></td>" in api  # the table of pipeline.run's docstring
     scores = (site / "api" / "scores.html").read_text(encoding="utf-8")
     assert re.search(r'<li><a class="autorefs[^>]*href="#vpr_uncertainty.scores.ratio_spread"', scores)
 

@@ -10,7 +10,8 @@ The docstrings stay as they are in ``src/`` (readable in ``help()`` and an edito
   ``numpy.memmap``) is shown as code, without a link and without a warning;
 * a bullet (or numbered) list that follows its introducing line without a blank line (numpydoc's habit) gets the
   blank line, and is dedented to that line's indentation (indented by four, it would be a code block), so it
-  renders as a list.
+  renders as a list;
+* a reST simple table (columns under ``=====  =====`` borders) becomes a Markdown table.
 
 ``mkdocs.yml`` loads it into mkdocstrings' Python handler (``extensions:``); ``tests/test_docs.py`` checks that the
 built API pages hold no raw role and that the lists are lists.
@@ -28,6 +29,7 @@ import griffe
 ROOT = Path(__file__).resolve().parents[2]
 ROLE = re.compile(r":(?:py:)?(?:func|class|meth|data|attr|mod|exc|obj|const):`(?P<target>[^`]+)`")
 BULLET = re.compile(r"^(?P<indent> *)(?:[*-]|\d+\.) \S")
+BORDER = re.compile(r"^ *=+(?: +=+)+ *$")
 
 
 def _indent(line: str) -> int:
@@ -61,6 +63,38 @@ def markdown_lists(text: str) -> str:
     return "\n".join(out)
 
 
+def markdown_tables(text: str) -> str:
+    """Each reST simple table as a Markdown table (a row whose first cell is empty continues the row above)."""
+    lines, out, i = text.split("\n"), [], 0
+    while i < len(lines):
+        end = i + 1
+        while end < len(lines) and lines[end].strip():  # a simple table holds no blank line
+            end += 1
+        borders = [k for k in range(i, end) if BORDER.match(lines[k])] if BORDER.match(lines[i]) else []
+        if len(borders) not in (2, 3) or borders[-1] != end - 1:
+            out.append(lines[i])
+            i += 1
+            continue
+        starts = [match.start() for match in re.finditer(r"=+", lines[i])]
+        rows: list[list[str]] = []
+        for line in lines[i + 1 : end - 1]:
+            if BORDER.match(line):
+                rows.append([])  # the header's end
+                continue
+            cells = [line[a:b].strip().replace("|", "\\|") for a, b in zip(starts, [*starts[1:], None], strict=True)]
+            if rows and rows[-1] and not cells[0]:
+                rows[-1] = [f"{before} {after}".strip() for before, after in zip(rows[-1], cells, strict=True)]
+            else:
+                rows.append(cells)
+        header = rows[: rows.index([])] if [] in rows else [[""] * len(starts)]
+        body = rows[rows.index([]) + 1 :] if [] in rows else rows
+        indent = " " * (len(lines[i]) - len(lines[i].lstrip()))
+        table = [*header[:1], ["---"] * len(starts), *body]
+        out += ["", *(indent + "| " + " | ".join(row) + " |" for row in table), ""]
+        i = end
+    return "\n".join(out)
+
+
 class Docstrings(griffe.Extension):
     """Rewrite every docstring of the package once it is loaded (before mkdocstrings parses any)."""
 
@@ -71,8 +105,8 @@ class Docstrings(griffe.Extension):
             obj = stack.pop()
             stack.extend(member for member in obj.members.values() if not member.is_alias)
             if obj.docstring is not None:
-                text = ROLE.sub(lambda match, obj=obj: self.reference(obj, match["target"]), obj.docstring.value)
-                obj.docstring.value = markdown_lists(text)
+                text = markdown_lists(markdown_tables(obj.docstring.value))
+                obj.docstring.value = ROLE.sub(lambda match, obj=obj: self.reference(obj, match["target"]), text)
 
     def reference(self, obj: griffe.Object, target: str) -> str:
         """An optional cross-reference to ``target`` as seen from ``obj``, or a code span when it does not resolve."""
