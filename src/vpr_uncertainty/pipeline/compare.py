@@ -30,8 +30,6 @@ from vpr_uncertainty.pipeline.options import (
     write_json,
 )
 
-__all__ = ["CompareConf", "add_cli", "compute", "default_conf", "main", "side_labels"]
-
 
 def _pair(text: str) -> tuple[str, str]:
     """``--uncertainty U1,U2``: two different method names."""

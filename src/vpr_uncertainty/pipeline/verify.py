@@ -31,8 +31,6 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = ["Verified", "VerifyConf", "add_cli", "compute", "default_conf", "main"]
-
 
 @dataclass(frozen=True)
 class VerifyConf:
