@@ -249,12 +249,7 @@ def similarity_distribution(
 
 
 def statistical_uncertainty(
-    scores: object,
-    k: int = 10,
-    alpha: float = 0.5,
-    *,
-    sort: bool = False,
-    on_nonpositive: str = "most_uncertain",
+    scores: object, k: int = 10, alpha: float = 0.5, *, sort: bool = False, on_nonpositive: str = "most_uncertain"
 ) -> np.ndarray:
     """Statistical Uncertainty: SU = α·RS + (1−α)·SD, the paper's training-free default.
 

@@ -441,12 +441,7 @@ def _rows(todo: Sequence[_Item]) -> list[dict[str, Any]]:
 
 
 def ray_described_batches(
-    todo: Sequence[_Item],
-    model: Any,
-    executor: Any,
-    *,
-    batch_size: int,
-    model_factory: Callable[[], Any] | None = None,
+    todo: Sequence[_Item], model: Any, executor: Any, *, batch_size: int, model_factory: Callable[[], Any] | None = None
 ) -> Iterator[tuple[list[tuple[_Item, Any]], np.ndarray | None]]:
     """The images of ``todo`` in batches of ``batch_size``, decoded and described by Ray Data actors, in order.
 

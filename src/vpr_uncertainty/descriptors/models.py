@@ -226,11 +226,7 @@ def _file_sha256(path: Path) -> str:
 
 
 def from_torchscript(
-    path: str | Path,
-    *,
-    preprocessing: Preprocessing | None = None,
-    name: str | None = None,
-    device: Any = "cpu",
+    path: str | Path, *, preprocessing: Preprocessing | None = None, name: str | None = None, device: Any = "cpu"
 ) -> DescriptorModel:
     """A model from a TorchScript file (``torch.jit.save``), identified by the file's SHA-256."""
     torch = require_torch("a TorchScript model")

@@ -70,11 +70,7 @@ def side_labels(paths: Sequence[str | Path]) -> tuple[str, ...]:
 
 
 def compute(
-    conf: CompareConf,
-    retrieval_a: Any,
-    retrieval_b: Any | None = None,
-    *,
-    labels: Sequence[str] = ("A", "B"),
+    conf: CompareConf, retrieval_a: Any, retrieval_b: Any | None = None, *, labels: Sequence[str] = ("A", "B")
 ) -> Any:
     """The :class:`~vpr_uncertainty.evaluation.Comparison` of two retrievals of the same queries (each evaluated with
     ``conf.evaluate``), or, with ``conf.uncertainty`` and no ``retrieval_b``, of two uncertainty methods of one."""
@@ -132,11 +128,7 @@ def _check_same_ground_truth(retrieval_a: Any, retrieval_b: Any, labels: Sequenc
 
 
 def main(
-    conf: CompareConf,
-    inputs: Sequence[str | Path],
-    out: str | Path,
-    *,
-    ground_truth: str | Path | None = None,
+    conf: CompareConf, inputs: Sequence[str | Path], out: str | Path, *, ground_truth: str | Path | None = None
 ) -> Path:
     """Compare the results files ``inputs`` (A and B, or A alone with ``conf.uncertainty``) and write the JSON
     document of the comparison to ``out``."""

@@ -116,12 +116,7 @@ def compute(
     return Verified(path=path, reranking=reranking)
 
 
-def main(
-    conf: VerifyConf,
-    retrieval_file: str | Path,
-    images: str | Path,
-    out: str | Path,
-) -> Path:
+def main(conf: VerifyConf, retrieval_file: str | Path, images: str | Path, out: str | Path) -> Path:
     """Verify the retrieval file's candidates against the images of the dataset folder ``images``; ``out``."""
     from vpr_uncertainty.data.images import retrieval_image_paths
     from vpr_uncertainty.retrieval import load_retrieval
