@@ -70,7 +70,8 @@ def test_sdist_and_wheel_build_and_pass_twine_check(tmp_path):
         metadata = next(wheel.read(name).decode() for name in names if name.endswith(".dist-info/METADATA"))
         entry_points = next(wheel.read(name).decode() for name in names if name.endswith(".dist-info/entry_points.txt"))
     # The package data the readers need at run time, the command, and the extras documented in the README.
-    assert {"vpr_uncertainty/data/named_datasets.json", "vpr_uncertainty/data/corridor_sha256.json"} <= names
+    data = ("data/named_datasets.json", "data/corridor_sha256.json", "descriptors/hub_models.json")
+    assert {f"vpr_uncertainty/{name}" for name in data} <= names
     assert "vpr-uncertainty = vpr_uncertainty.cli:main" in entry_points
     assert "Description-Content-Type: text/markdown" in metadata
     for extra in ("torch", "opencv", "gv", "yaml", "pandas", "all", "test"):

@@ -18,7 +18,7 @@ from hypothesis.extra import numpy as hnp
 from conftest import assert_close
 from vpr_uncertainty import (
     _fast,
-    _onepass,
+    _validation,
     best_match,
     l2_distance,
     margin,
@@ -164,7 +164,7 @@ def test_kernel_raises_for_nonpositive_best_under_raise(metric, monkeypatch):
 @pytest.mark.parametrize("metric", BASELINES)
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_baselines_over_many_blocks_match_the_formulas(metric, dtype, monkeypatch):
-    monkeypatch.setattr(_onepass, "_SCAN_ELEMENTS", 64)  # 6 rows a block: many blocks, a short last one
+    monkeypatch.setattr(_validation, "_SCAN_ELEMENTS", 64)  # 6 rows a block: many blocks, a short last one
     rng = np.random.default_rng(1)
     array = -np.sort(-rng.uniform(-1, 1, size=(100, 10)), axis=1).astype(dtype)
     array[3, 4:] = -np.inf  # missing candidates after the columns read
@@ -192,7 +192,7 @@ def test_baselines_over_many_blocks_match_the_formulas(metric, dtype, monkeypatc
     ],
 )
 def test_baselines_name_the_bad_row_in_a_later_block(metric, row, message, monkeypatch):
-    monkeypatch.setattr(_onepass, "_SCAN_ELEMENTS", 16)  # 4 rows a block
+    monkeypatch.setattr(_validation, "_SCAN_ELEMENTS", 16)  # 4 rows a block
     array = np.tile([0.9, 0.5, 0.1, 0.0], (20, 1))
     array[13, : len(row)] = row
     with pytest.raises(ValueError, match=message):
@@ -201,7 +201,7 @@ def test_baselines_name_the_bad_row_in_a_later_block(metric, row, message, monke
 
 @pytest.mark.parametrize("metric", [perceptual_aliasing, margin])
 def test_a_short_row_in_a_later_block_is_named(metric, monkeypatch):
-    monkeypatch.setattr(_onepass, "_SCAN_ELEMENTS", 16)
+    monkeypatch.setattr(_validation, "_SCAN_ELEMENTS", 16)
     array = np.tile([0.9, 0.5, 0.1, 0.0], (20, 1))
     array[17, 1:] = -np.inf
     with pytest.raises(ValueError, match=r"fewer than 2 candidates \(rows 17\)"):

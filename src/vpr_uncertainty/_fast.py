@@ -25,8 +25,6 @@ import sys
 
 import numpy as np
 
-__all__ = ["ENVIRONMENT_VARIABLE", "LOAD_ELEMENTS", "MIN_ELEMENTS", "SPECIALISED", "ratio_metric", "two_column"]
-
 ENVIRONMENT_VARIABLE = "VPR_UNCERTAINTY_NUMBA"
 
 #: Scores (rows x columns) from which a loaded kernel beats the numpy path (measured: benchmarks/bench_scores.py).

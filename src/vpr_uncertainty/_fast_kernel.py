@@ -15,8 +15,6 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["make_ratio", "make_two_column", "ratio_kernel"]
-
 _OPTIONS = {"cache": True, "nogil": True, "boundscheck": False, "error_model": "numpy"}
 
 

@@ -7,8 +7,6 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["compact_repr", "describe_value"]
-
 
 def describe_value(value: Any) -> str:
     """One short text for one field: an array as ``<(Q, K) float32>``, a float to 4 significant digits, a mapping or

@@ -16,8 +16,6 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-__all__ = ["progress_bar", "progress_default", "progress_enabled", "progress_requested", "progress_status"]
-
 T = TypeVar("T")
 
 _DEFAULT: list[bool | None] = [None]

@@ -49,7 +49,6 @@ from collections.abc import Sequence
 import numpy as np
 
 from vpr_uncertainty import _fast
-from vpr_uncertainty._onepass import scan
 from vpr_uncertainty._validation import (
     as_score_array,
     check_best_scores,
@@ -58,6 +57,7 @@ from vpr_uncertainty._validation import (
     check_rows,
     check_top_k_scores,
     raise_for_short_rows,
+    scan,
 )
 
 __all__ = [
@@ -249,12 +249,7 @@ def similarity_distribution(
 
 
 def statistical_uncertainty(
-    scores: object,
-    k: int = 10,
-    alpha: float = 0.5,
-    *,
-    sort: bool = False,
-    on_nonpositive: str = "most_uncertain",
+    scores: object, k: int = 10, alpha: float = 0.5, *, sort: bool = False, on_nonpositive: str = "most_uncertain"
 ) -> np.ndarray:
     """Statistical Uncertainty: SU = α·RS + (1−α)·SD, the paper's training-free default.
 
@@ -507,7 +502,7 @@ def _baseline(scores: object, k: object, sort: bool, columns: int, reference, co
 def _fused_baseline(
     scores: object, k: object, sort: bool, columns: int, compute, kernel: str | None
 ) -> np.ndarray | None:
-    """A baseline's result in one pass over the scores (:func:`~vpr_uncertainty._onepass.scan`), or None (reference).
+    """A baseline's result in one pass over the scores (:func:`~vpr_uncertainty._validation.scan`), or None (reference).
 
     ``compute(block, out_block)`` writes the result of a block of sorted, NaN-free rows and returns None or, for
     the baselines that convert similarities to distances, the values 2 − 2s of the columns it read. The result is

@@ -68,10 +68,11 @@ def read_btl_descriptors(value: object, split: str, names: object = None) -> obj
         return value
     from vpr_uncertainty.data import load_descriptors
 
-    option = "query_descriptors" if split == "queries" else "database_descriptors"
     file_names, array = load_descriptors(value, split)
     if file_names is not None and names is not None and list(file_names) != [str(name) for name in names]:
-        raise ValueError(f"{option}: the image names in the descriptor file differ from the retrieval's {split} names")
+        raise ValueError(
+            f"{_OPTIONS[split]}: the image names in the descriptor file differ from the retrieval's {split} names"
+        )
     return array
 
 
@@ -140,13 +141,8 @@ def read_training_inputs(
     from vpr_uncertainty.retrieval import load_retrieval
 
     if run is not None:
-        exclusive = {
-            "descriptors": descriptors,
-            "query_descriptors": query_descriptors,
-            "positions": positions,
-            "query_positions": query_positions,
-            "positives": positives,
-        }
+        exclusive = dict(descriptors=descriptors, query_descriptors=query_descriptors, positions=positions)
+        exclusive.update(query_positions=query_positions, positives=positives)
         given = [f"argument {name}" for name, value in exclusive.items() if value is not None]
         if given:
             raise ValueError(
@@ -403,35 +399,29 @@ def btl_protocol(name: str, n_queries: int, *, split_at: int | None = None) -> B
     0
     """
     n_queries = check_count(n_queries, "n_queries", 2)
-    if name == "database":
-        if split_at is not None:
-            raise ValueError(
-                "split_at applies to the 'query-split' protocol only; the 'database' one tests every query"
-            )
-        return BTLProtocol(
-            name=name,
-            anchors="database",
-            train_queries=np.empty(0, dtype=np.int64),
-            test_queries=np.arange(n_queries, dtype=np.int64),
-            description=f"trained on the database images as anchors, tested on all {n_queries} queries",
-        )
+    if name not in PROTOCOLS:
+        raise ValueError(f"unknown BTL protocol {name!r}; expected one of {', '.join(PROTOCOLS)}")
+    if name == "database" and split_at is not None:
+        raise ValueError("split_at applies to the 'query-split' protocol only; the 'database' one tests every query")
+    first_test = 0  # the database protocol trains on no query
+    description = f"trained on the database images as anchors, tested on all {n_queries} queries"
     if name == "query-split":
-        split_at = n_queries // 2 if split_at is None else check_count(split_at, "split_at", 2)
-        if split_at > n_queries - 1:
+        first_test = n_queries // 2 if split_at is None else check_count(split_at, "split_at", 2)
+        if first_test > n_queries - 1:
             raise ValueError(
-                f"split_at must leave at least one test query: got {split_at} with {n_queries} queries "
+                f"split_at must leave at least one test query: got {first_test} with {n_queries} queries "
                 f"(expected 2 <= split_at <= {n_queries - 1})"
             )
-        return BTLProtocol(
-            name=name,
-            anchors="queries",
-            train_queries=np.arange(split_at, dtype=np.int64),
-            test_queries=np.arange(split_at, n_queries, dtype=np.int64),
-            description=(
-                f"trained on queries 0..{split_at - 1} as anchors, tested on queries {split_at}..{n_queries - 1}"
-            ),
+        description = (
+            f"trained on queries 0..{first_test - 1} as anchors, tested on queries {first_test}..{n_queries - 1}"
         )
-    raise ValueError(f"unknown BTL protocol {name!r}; expected one of {', '.join(PROTOCOLS)}")
+    return BTLProtocol(
+        name=name,
+        anchors="database" if name == "database" else "queries",
+        train_queries=np.arange(first_test, dtype=np.int64),
+        test_queries=np.arange(first_test, n_queries, dtype=np.int64),
+        description=description,
+    )
 
 
 def database_frame_positives(n_database: int, frame_tolerance: int | float) -> sparse.csr_array:

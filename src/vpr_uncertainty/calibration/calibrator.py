@@ -37,32 +37,6 @@ from vpr_uncertainty import scores as _scores
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty._validation import check_k, check_top_k_scores
 
-__all__ = [
-    "DEFAULT_FEATURES",
-    "FEATURES",
-    "FOLDS",
-    "MODELS",
-    "RANKINGS",
-    "Calibrator",
-    "aliasing_ratio",
-    "average_precision",
-    "check_both_outcomes",
-    "check_features",
-    "check_model",
-    "columns",
-    "cross_fitted",
-    "feature_columns",
-    "feature_matrix",
-    "fit_calibrator",
-    "fit_model",
-    "platt",
-    "ranking_rule",
-    "row_features",
-    "select_calibrator",
-    "stratified_folds",
-    "stratified_split",
-]
-
 #: The calibrator models :func:`fit_calibrator` fits.
 MODELS: tuple[str, ...] = ("logistic", "isotonic")
 

@@ -24,17 +24,6 @@ from vpr_uncertainty.evaluation.metrics import check_labels
 from vpr_uncertainty.methods import get_method, register_method
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = [
-    "HeldOutEvaluation",
-    "Reliability",
-    "brier_score",
-    "cal_uncertainty",
-    "evaluate_held_out",
-    "expected_calibration_error",
-    "reliability_diagram",
-    "resolve_gate",
-]
-
 
 def _check(probability: object, correct: object) -> tuple[np.ndarray, np.ndarray]:
     correct, probability = check_labels(correct, probability, name="probability")

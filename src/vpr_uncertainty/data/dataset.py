@@ -202,11 +202,7 @@ class Dataset:
 
 
 def latlon_to_utm(
-    latitude: object,
-    longitude: object,
-    *,
-    zone_number: int | None = None,
-    northern: bool | None = None,
+    latitude: object, longitude: object, *, zone_number: int | None = None, northern: bool | None = None
 ) -> tuple[np.ndarray, int, bool]:
     """Project WGS84 latitude/longitude (N,) to UTM easting/northing (N, 2) in metres, all in one zone.
 

@@ -310,8 +310,7 @@ def extract_descriptors(
             stored = cache.keys(split)
             keys = {name: _content_key(path) for name, path in zip(names, paths, strict=True)}
             done = {name for name in names if keys[name] and stored.get(name) == keys[name]}
-        todo = [(index, name, path) for index, (name, path) in enumerate(zip(names, paths, strict=True))]
-        todo = [item for item in todo if item[1] not in done]
+        todo = [(i, name, path) for i, (name, path) in enumerate(zip(names, paths, strict=True)) if name not in done]
         with (
             progress_bar(
                 total=len(names),
@@ -441,12 +440,7 @@ def _rows(todo: Sequence[_Item]) -> list[dict[str, Any]]:
 
 
 def ray_described_batches(
-    todo: Sequence[_Item],
-    model: Any,
-    executor: Any,
-    *,
-    batch_size: int,
-    model_factory: Callable[[], Any] | None = None,
+    todo: Sequence[_Item], model: Any, executor: Any, *, batch_size: int, model_factory: Callable[[], Any] | None = None
 ) -> Iterator[tuple[list[tuple[_Item, Any]], np.ndarray | None]]:
     """The images of ``todo`` in batches of ``batch_size``, decoded and described by Ray Data actors, in order.
 

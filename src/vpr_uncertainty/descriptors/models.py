@@ -47,6 +47,7 @@ import socket
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -225,11 +226,7 @@ def _file_sha256(path: Path) -> str:
 
 
 def from_torchscript(
-    path: str | Path,
-    *,
-    preprocessing: Preprocessing | None = None,
-    name: str | None = None,
-    device: Any = "cpu",
+    path: str | Path, *, preprocessing: Preprocessing | None = None, name: str | None = None, device: Any = "cpu"
 ) -> DescriptorModel:
     """A model from a TorchScript file (``torch.jit.save``), identified by the file's SHA-256."""
     torch = require_torch("a TorchScript model")
@@ -472,116 +469,26 @@ def _load_torchscript_export(
     return model
 
 
-_NATIVE = Preprocessing(min_side=DEFAULT_MIN_SIDE)
+#: The preprocessing named in ``hub_models.json``; a [height, width] there is a fixed image size.
+_PREPROCESSING = {
+    "native": Preprocessing(min_side=DEFAULT_MIN_SIDE),
+    "dino": Preprocessing(multiple_of=14, min_side=DEFAULT_MIN_SIDE),
+    "openibl": _OPENIBL,
+}
 
-_DINO = Preprocessing(multiple_of=14, min_side=DEFAULT_MIN_SIDE)
 
-_hub_spec = functools.partial(ModelSpec, loader=load_hub_model, identify=hub_weights_id)
+def _hub_spec(record: dict[str, Any]) -> ModelSpec:
+    """A record of ``hub_models.json`` as a spec; one without ``hub_repo`` is a TorchScript export in the torch.hub
+    cache, identified by its file's hash (via torch) once loaded."""
+    size = record["preprocessing"]
+    preprocessing = Preprocessing(image_size=tuple(size)) if isinstance(size, list) else _PREPROCESSING[size]
+    identify = hub_weights_id if "hub_repo" in record else None
+    return ModelSpec(**{**record, "preprocessing": preprocessing}, loader=load_hub_model, identify=identify)
 
-#: The nine methods of the benchmark, in the order of the paper's tables.
-HUB_MODELS: tuple[ModelSpec, ...] = (
-    _hub_spec(
-        "eigenplaces",
-        "EigenPlaces (ICCV 2023), ResNet-50, 512-D",
-        512,
-        "ResNet-50",
-        _NATIVE,
-        hub_repo="gmberton/eigenplaces",
-        hub_entrypoint="get_trained_model",
-        hub_kwargs={"backbone": "ResNet50", "fc_output_dim": 512},
-        source="torch.hub (authors)",
-    ),
-    _hub_spec(
-        "cosplace",
-        "CosPlace (CVPR 2022), ResNet-50, 512-D",
-        512,
-        "ResNet-50",
-        _NATIVE,
-        hub_repo="gmberton/cosplace",
-        hub_entrypoint="get_trained_model",
-        hub_kwargs={"backbone": "ResNet50", "fc_output_dim": 512},
-        source="torch.hub (authors)",
-    ),
-    _hub_spec(
-        "convap",
-        "Conv-AP (GSV-Cities, Neurocomputing 2022), ResNet-50, 512-D, 320x320",
-        512,
-        "ResNet-50",
-        Preprocessing(image_size=(320, 320)),
-        source="TorchScript export in the torch.hub cache",
-        notes="weights resnet50_ConvAP_128_2x2.ckpt: "
-        "https://drive.google.com/drive/folders/1VYPw9uGD11NgiGFgfWueLt3noJYOIuhL",
-        identify=None,  # a TorchScript export: its file's hash, via torch
-    ),
-    _hub_spec(
-        "mixvpr",
-        "MixVPR (WACV 2023), ResNet-50, 4096-D, 320x320",
-        4096,
-        "ResNet-50",
-        Preprocessing(image_size=(320, 320)),
-        hub_repo="jarvisyjw/MixVPR",
-        hub_entrypoint="get_trained_model",
-        hub_kwargs={"pretrained": True},
-        source="torch.hub (community fork, endorsed in amaralibey/MixVPR#33)",
-        notes="the hub serves the 4096-D model only",
-    ),
-    _hub_spec(
-        "apgem",
-        "AP-GeM (ICCV 2019), ResNet-101, 2048-D",
-        2048,
-        "ResNet-101",
-        _NATIVE,
-        source="TorchScript export in the torch.hub cache",
-        notes="weights Resnet-101-AP-GeM.pt of naver/deep-image-retrieval (dirtorch): "
-        "https://docs.google.com/uc?export=download&id=1UWJGDuHtzaQdFhSMojoYVQjmCXhIwVvy",
-        identify=None,  # a TorchScript export: its file's hash, via torch
-    ),
-    _hub_spec(
-        "salad",
-        "SALAD (CVPR 2024), DINOv2 ViT-B/14, 8448-D",
-        8448,
-        "DINOv2 ViT-B/14",
-        _DINO,
-        hub_repo="serizba/salad",
-        hub_entrypoint="dinov2_salad",
-        source="torch.hub (authors)",
-    ),
-    _hub_spec(
-        "anyloc",
-        "AnyLoc-VLAD-DINOv2 (RA-L 2023), ViT-G/14, urban vocabulary, 49152-D",
-        49152,
-        "DINOv2 ViT-G/14",
-        _DINO,
-        hub_repo="AnyLoc/DINO",
-        hub_entrypoint="get_vlad_model",
-        hub_kwargs={"backbone": "DINOv2", "domain": "urban"},
-        source="torch.hub (authors)",
-        notes="domain= selects the VLAD vocabulary: urban, indoor, aerial, structured, unstructured, global",
-    ),
-    _hub_spec(
-        "cricavpr",
-        "CricaVPR (CVPR 2024), DINOv2 ViT-B/14, 10752-D, 224x224",
-        10752,
-        "DINOv2 ViT-B/14",
-        Preprocessing(image_size=(224, 224)),
-        hub_repo="Lu-Feng/CricaVPR",
-        hub_entrypoint="trained_model",
-        source="torch.hub (authors)",
-        notes="descriptors depend on the other images of the batch (cross-image encoder)",
-    ),
-    _hub_spec(
-        "netvlad",
-        "NetVLAD (CVPR 2016), VGG-16 + PCA whitening, 4096-D (OpenIBL weights)",
-        4096,
-        "VGG-16",
-        _OPENIBL,
-        hub_repo="yxgeee/OpenIBL",
-        hub_entrypoint="vgg16_netvlad",
-        hub_kwargs={"pretrained": True},
-        source="torch.hub (OpenIBL, SFRS-trained weights)",
-        notes="the original MATLAB Pitts30k weights have no torch.hub entry point",
-    ),
-)
+
+_HUB_RECORDS = resources.files(__package__).joinpath("hub_models.json").read_text(encoding="utf-8")
+#: The nine methods of the benchmark, in the order of the paper's tables (records of ``hub_models.json``).
+HUB_MODELS: tuple[ModelSpec, ...] = tuple(_hub_spec(record) for record in json.loads(_HUB_RECORDS)["models"])
 
 
 def _key(name: str) -> str:

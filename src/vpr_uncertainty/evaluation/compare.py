@@ -37,8 +37,6 @@ from vpr_uncertainty.evaluation.bootstrap import bootstrap_metrics, holm, paired
 if TYPE_CHECKING:  # pragma: no cover
     from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 
-__all__ = ["COMPARED_METRICS", "Comparison", "Difference", "McNemar", "compare", "mcnemar"]
-
 #: The metrics compared, and how they are named in tables.
 COMPARED_METRICS: dict[str, str] = {"auc_pr": "AUC-PR", "average_precision": "AP"}
 #: Defaults shared with ``evaluate --bootstrap`` and :func:`~vpr_uncertainty.evaluation.bootstrap.bootstrap_metrics`.

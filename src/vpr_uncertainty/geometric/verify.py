@@ -385,9 +385,7 @@ class GeometricVerifier:
         return features, ExtractionStats(cached=len(features), seconds=time.perf_counter() - start)
 
     def verify_names(
-        self,
-        pairs: Sequence[tuple[str, str]],
-        paths: dict[str, Path] | None = None,
+        self, pairs: Sequence[tuple[str, str]], paths: dict[str, Path] | None = None
     ) -> VerificationResult:
         """Inliers of pairs of image names (``paths`` maps names to files; not needed with ``features_path``)."""
         needed = list(dict.fromkeys(name for pair in pairs for name in pair))

@@ -17,8 +17,6 @@ from vpr_uncertainty.pipeline.options import (
 )
 from vpr_uncertainty.retrieval import Retrieval
 
-__all__ = ["add_cli"]
-
 
 def _names(text: str) -> tuple[str, ...]:
     names = tuple(name.strip() for name in text.split(",") if name.strip())

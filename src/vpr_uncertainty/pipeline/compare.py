@@ -30,8 +30,6 @@ from vpr_uncertainty.pipeline.options import (
     write_json,
 )
 
-__all__ = ["CompareConf", "add_cli", "compute", "default_conf", "main", "side_labels"]
-
 
 def _pair(text: str) -> tuple[str, str]:
     """``--uncertainty U1,U2``: two different method names."""
@@ -72,11 +70,7 @@ def side_labels(paths: Sequence[str | Path]) -> tuple[str, ...]:
 
 
 def compute(
-    conf: CompareConf,
-    retrieval_a: Any,
-    retrieval_b: Any | None = None,
-    *,
-    labels: Sequence[str] = ("A", "B"),
+    conf: CompareConf, retrieval_a: Any, retrieval_b: Any | None = None, *, labels: Sequence[str] = ("A", "B")
 ) -> Any:
     """The :class:`~vpr_uncertainty.evaluation.Comparison` of two retrievals of the same queries (each evaluated with
     ``conf.evaluate``), or, with ``conf.uncertainty`` and no ``retrieval_b``, of two uncertainty methods of one."""
@@ -134,11 +128,7 @@ def _check_same_ground_truth(retrieval_a: Any, retrieval_b: Any, labels: Sequenc
 
 
 def main(
-    conf: CompareConf,
-    inputs: Sequence[str | Path],
-    out: str | Path,
-    *,
-    ground_truth: str | Path | None = None,
+    conf: CompareConf, inputs: Sequence[str | Path], out: str | Path, *, ground_truth: str | Path | None = None
 ) -> Path:
     """Compare the results files ``inputs`` (A and B, or A alone with ``conf.uncertainty``) and write the JSON
     document of the comparison to ``out``."""

@@ -7,8 +7,6 @@ from pathlib import Path
 
 from vpr_uncertainty.pipeline.options import output_file, write_json
 
-__all__ = ["add_cli"]
-
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``datasets`` command."""

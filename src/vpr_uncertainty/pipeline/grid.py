@@ -443,12 +443,7 @@ def run_cell(
 
 
 def run_grid(
-    config: GridConfig,
-    *,
-    force: bool = False,
-    progress: bool | None = None,
-    executor: Any = None,
-    verify: bool = False,
+    config: GridConfig, *, force: bool = False, progress: bool | None = None, executor: Any = None, verify: bool = False
 ) -> list[Cell]:
     """Run (or read from the cache) every cell of the grid, with a progress bar.
 

@@ -30,17 +30,6 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = [
-    "RetrieveConf",
-    "Retrieved",
-    "add_cli",
-    "compute",
-    "default_conf",
-    "ground_truth_key",
-    "main",
-    "search_device",
-]
-
 STAGE = "retrieval"
 
 

@@ -251,11 +251,7 @@ def run(conf: RunConf, dataset: Any, out: str | Path, *, executor: Any = None) -
     if executor is not None:
         inputs["executor"] = executor  # a stage input: the GV-* methods verify their pairs there
     evaluated = evaluate.compute(
-        conf.evaluate,
-        retrieval,
-        out / "uncertainties.npz",
-        inputs=inputs,
-        retrieval_fingerprint=found.fingerprint,
+        conf.evaluate, retrieval, out / "uncertainties.npz", inputs=inputs, retrieval_fingerprint=found.fingerprint
     )
     seconds["uncertainty_and_evaluation"] = time.perf_counter() - start
 

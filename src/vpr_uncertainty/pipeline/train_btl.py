@@ -16,8 +16,6 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = ["add_cli"]
-
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """Register the ``train-btl`` command."""

@@ -31,8 +31,6 @@ from vpr_uncertainty.pipeline.options import (
     positive_int,
 )
 
-__all__ = ["Verified", "VerifyConf", "add_cli", "compute", "default_conf", "main"]
-
 
 @dataclass(frozen=True)
 class VerifyConf:
@@ -118,12 +116,7 @@ def compute(
     return Verified(path=path, reranking=reranking)
 
 
-def main(
-    conf: VerifyConf,
-    retrieval_file: str | Path,
-    images: str | Path,
-    out: str | Path,
-) -> Path:
+def main(conf: VerifyConf, retrieval_file: str | Path, images: str | Path, out: str | Path) -> Path:
     """Verify the retrieval file's candidates against the images of the dataset folder ``images``; ``out``."""
     from vpr_uncertainty.data.images import retrieval_image_paths
     from vpr_uncertainty.retrieval import load_retrieval
