@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty.evaluation.metrics import RejectionCurve, rank_queries
+from vpr_uncertainty.evaluation.metrics import RejectionCurve, answerable_queries, rank_queries
 from vpr_uncertainty.plugins import import_or_explain
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -176,9 +176,55 @@ class Evaluation:
     k: int | None = None
     k_requested: int | None = None
     bootstrap: dict[str, Any] | None = None
+    #: The retrieval evaluated (set by :func:`~vpr_uncertainty.evaluate`, None when read back): the names and scores
+    #: of :meth:`per_query_columns`.
+    retrieval: Any = field(default=None, compare=False)
 
     def __repr__(self) -> str:
         return evaluation_summary(self)
+
+    def per_query_columns(self, retrieval: Any = None) -> dict[str, np.ndarray]:
+        """One row per query, as columns of shape (Q,) (no pandas needed): ``query_index``, ``query``,
+        ``top1_index``, ``top1`` (names; empty where the retrieval has none), ``answerable``, ``correct`` (0/1),
+        ``s_1`` ... ``s_k`` (the k scores the methods used), then each method's uncertainty under its name, in the
+        order evaluated. ``retrieval``: the one evaluated, for an evaluation read back (:meth:`from_dict`).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from vpr_uncertainty import Retrieval, evaluate
+        >>> retrieval = Retrieval(scores=np.array([[0.9, 0.2], [0.6, 0.5]]), indices=np.array([[0, 1], [0, 1]]),
+        ...                       positives=[[0], [1]], query_names=np.array(["q0.jpg", "q1.jpg"]))
+        >>> columns = evaluate(retrieval, ["SU", "BM"], k=2).per_query_columns()
+        >>> list(columns)
+        ['query_index', 'query', 'top1_index', 'top1', 'answerable', 'correct', 's_1', 's_2', 'SU', 'BM']
+        >>> columns["query"].tolist(), columns["correct"].tolist(), columns["s_1"].tolist()
+        (['q0.jpg', 'q1.jpg'], [1, 0], [0.9, 0.6])
+        """
+        retrieval = self.retrieval if retrieval is None else retrieval
+        if retrieval is None or retrieval.n_queries != self.n_queries:
+            raise ValueError(
+                f"the per-query table needs the retrieval of these {self.n_queries} queries (argument retrieval)"
+            )
+        top1, names = retrieval.indices[:, 0], retrieval.database_names
+        columns = {
+            "query_index": np.arange(self.n_queries),
+            "query": np.full(self.n_queries, "") if retrieval.query_names is None else retrieval.query_names,
+            "top1_index": top1,
+            "top1": np.full(self.n_queries, "") if names is None else np.append(names, "")[top1],  # -1: none
+            "answerable": answerable_queries(retrieval.positives).astype(np.int8),
+            "correct": self.correct.astype(np.int8),
+        }
+        scores = retrieval.scores[:, : self.k or retrieval.k]
+        columns.update({f"s_{rank + 1}": scores[:, rank] for rank in range(scores.shape[1])})
+        return {**columns, **{name: method.uncertainty for name, method in self.methods.items()}}
+
+    def per_query_frame(self, retrieval: Any = None) -> pandas.DataFrame:
+        """:meth:`per_query_columns` as a DataFrame (the table of ``evaluate --per-query``); needs pandas."""
+        pandas = import_or_explain(
+            "pandas", "Evaluation.per_query_frame() needs pandas: pip install 'vpr-uncertainty[pandas]'"
+        )
+        return pandas.DataFrame(self.per_query_columns(retrieval))
 
     def to_frame(self) -> pandas.DataFrame:
         """One row per method: AUC-PR, AP, AURC, recall at 100 % precision, time per query, and the bootstrap

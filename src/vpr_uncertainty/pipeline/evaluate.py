@@ -44,9 +44,11 @@ from vpr_uncertainty.pipeline.options import (
     write_json,
     write_output,
 )
+from vpr_uncertainty.plugins import import_or_explain
 from vpr_uncertainty.scores import check_alpha
 
 __all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "compute", "default_conf", "main", "method_list"]
+__all__ += ["write_per_query"]
 
 STAGE = "uncertainty"
 
@@ -211,6 +213,32 @@ def compute(
     return Evaluated(evaluation=evaluation, fingerprint=fingerprint, path=path)
 
 
+def per_query_file(text: str) -> Path:
+    """An argparse type for ``--per-query``: a writable ``.csv`` or ``.parquet`` file."""
+    path = output_file(text)
+    if path.suffix.lower() not in (".csv", ".parquet"):
+        raise argparse.ArgumentTypeError(f"expected a .csv or .parquet file name, got {text!r}")
+    return path
+
+
+def write_per_query(evaluation: Any, path: str | Path) -> Path:
+    """Write :meth:`~vpr_uncertainty.evaluation.Evaluation.per_query_columns` to ``path``: CSV (no pandas needed)
+    or, for a ``.parquet`` name, Parquet (the ``pandas`` extra)."""
+    path = Path(path)
+    if path.suffix.lower() != ".parquet":
+        from vpr_uncertainty.reports.tables import per_query_csv
+
+        write_output(path, per_query_csv(evaluation))
+        return path
+    message = f"--per-query {path.name} needs pandas and pyarrow: pip install 'vpr-uncertainty[pandas]'"
+    import_or_explain("pyarrow", message)
+    frame = import_or_explain("pandas", message).DataFrame(evaluation.per_query_columns())
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with cache.atomic_write(path, "wb") as handle:
+        frame.to_parquet(handle, index=False)
+    return path
+
+
 def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_truth: str | Path | None = None) -> Path:
     """Evaluate the uncertainties of ``results`` (any file :func:`vpr_uncertainty.read_results` reads) into ``out``."""
     from vpr_uncertainty.data import read_results
@@ -363,6 +391,14 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         help="write the table as CSV to FILE: one row per method, the numbers of --json at full precision",
     )
     parser.add_argument(
+        "--per-query",
+        type=per_query_file,
+        metavar="FILE",
+        help="write one row per query to FILE (.csv, or .parquet with the pandas extra): query_index, query, "
+        "top1_index, top1 (names empty when SCORES has none), answerable, correct (0/1), s_1..s_k, then each "
+        "method's uncertainty under its name",
+    )
+    parser.add_argument(
         "--latex",
         type=output_file,
         metavar="FILE",
@@ -444,10 +480,10 @@ def _handle(args: argparse.Namespace) -> int:
         conf = dataclasses.replace(conf, methods=methods, options={**conf.options, **image_options})
         for note in notes:
             print(f"note: {note}")
-        if args.calibration_fraction is not None and args.bootstrap:
+        if args.calibration_fraction is not None and (args.bootstrap or args.per_query):
             raise ValueError(
-                "--bootstrap and --calibration-fraction cannot be combined: the held-out evaluation reports its "
-                "spread over the random splits instead"
+                f"{'--bootstrap' if args.bootstrap else '--per-query'} and --calibration-fraction cannot be combined: "
+                "the held-out evaluation reports its spread over random splits of the queries instead"
             )
         # nothing of evaluate but geometric verification would run on Ray
         if args.executor != "local" and not any(get_method(name).kind in ("geometric", "cascade") for name in methods):
@@ -474,6 +510,9 @@ def _handle(args: argparse.Namespace) -> int:
         write_output(args.csv, evaluation_csv(evaluation))
     if args.latex:
         write_output(args.latex, evaluation_latex(evaluation, intervals=args.latex_intervals))
+    if args.per_query:
+        write_per_query(evaluation, args.per_query)
+        print(f"wrote {args.per_query}")
     if args.plot:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None, width=args.figure_width)
         print(f"wrote {args.plot}")
