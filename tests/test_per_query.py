@@ -137,7 +137,6 @@ def test_evaluate_writes_the_per_query_table(netvlad, tmp_path, capsys):
     out = tmp_path / "tables" / "per_query.csv"
     argv = ["evaluate", str(matrix), "--gt", str(gt), "--per-query", str(out), "--json", str(tmp_path / "r.json")]
     assert main(argv) == 0
-    assert f"wrote {out}" in capsys.readouterr().out
     rows = list(csv.DictReader(out.open(newline="")))
     assert len(rows) == 111 and list(rows[0]) == [*HEAD, *(f"s_{rank}" for rank in range(1, 11)), *DEFAULT_METHODS]
     assert_close(np.array([float(row["SU"]) for row in rows]), _reference_su(similarity), dtype="float32")
@@ -155,9 +154,8 @@ def test_per_query_parquet_without_pyarrow_names_the_extra(netvlad, tmp_path, mo
     monkeypatch.setitem(sys.modules, "pyarrow", None)  # as if not installed
     assert main(["evaluate", str(matrix), "--gt", str(gt), "--per-query", str(tmp_path / "t.parquet")]) == 2
     assert "pip install 'vpr-uncertainty[pandas]'" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as exit_:  # the name is checked before any work
-        main(["evaluate", str(matrix), "--gt", str(gt), "--per-query", str(tmp_path / "t.xlsx")])
-    assert exit_.value.code == 2 and "expected a .csv or .parquet file name" in capsys.readouterr().err
+    assert main(["evaluate", str(matrix), "--gt", str(gt), "--per-query", str(tmp_path / "t.xlsx")]) == 2
+    assert "--per-query: expected a .csv or .parquet file name" in capsys.readouterr().err
     assert (
         main(["evaluate", str(matrix), "--gt", str(gt), "--per-query", "t.csv", "--calibration-fraction", "0.3"]) == 2
     )

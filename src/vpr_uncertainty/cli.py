@@ -77,16 +77,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser(plugins: Sequence[str] = (), *, command: str | None = None) -> argparse.ArgumentParser:
-    """The parser of every command, after loading the plugins (entry points and ``plugins``).
-
-    Parameters
-    ----------
-    plugins : sequence of str
-        Modules to import first (``--plugin``).
-    command : str, optional
-        Build only this command's parser (importing only its stage module), as :func:`main` does for the command
-        it runs; by default every command's.
-    """
+    """The parser of every command, after loading the plugins (entry points, then ``plugins``: the ``--plugin``
+    modules and files); with ``command``, only that command's (importing only its stage module), as :func:`main`
+    builds it for the command it runs."""
     from vpr_uncertainty.plugins import load_plugins
 
     load_plugins(plugins)

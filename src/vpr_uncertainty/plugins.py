@@ -101,40 +101,34 @@ def load_plugins(modules: Iterable[str] = ()) -> None:
                     stacklevel=2,
                 )
     for module in modules:
-        if module.endswith(".py"):  # a file: by its absolute path, which a Ray worker imports too
-            _import_plugin(str(Path(module).resolve()))
-            continue
-        try:
-            _import_plugin(module)
-        except ModuleNotFoundError as error:
-            if not error.name or not module.startswith(error.name):
-                raise
-            if str(Path.cwd()) in sys.path:
-                raise ImportError(
-                    f"plugin module {module!r} not found (on the Python path, or in this folder as {module}.py)"
-                ) from None
+        if not module.endswith(".py") and str(Path.cwd()) not in sys.path:
             sys.path.append(str(Path.cwd()))  # a module in the current folder, as `python -m` finds it
-            load_plugins([module])
+        try:  # a file by its absolute path, which a Ray worker imports too
+            _import_plugin(str(Path(module).resolve()) if module.endswith(".py") else module)
+        except ModuleNotFoundError as error:
+            if error.name and module.startswith(error.name):
+                message = f"plugin module {module!r} not found (on the Python path, or in this folder as {module}.py)"
+                raise ImportError(message) from None
+            raise
 
 
 def _import_file(path: Path) -> Any:
     """The module of the file ``path``, imported once under its stem (a stable name: what it defines pickles by
     it), with its folder on the Python path (for the modules beside it, as for a script)."""
     module = sys.modules.get(path.stem)
-    if module is not None and getattr(module, "__file__", None) == str(path):
-        return module
-    if module is not None or not path.is_file():
+    if module is None and path.is_file():
+        if str(path.parent) not in sys.path:
+            sys.path.append(str(path.parent))
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        sys.modules[path.stem] = module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+        try:
+            spec.loader.exec_module(module)  # type: ignore[union-attr]
+        except BaseException:
+            del sys.modules[path.stem]
+            raise
+    elif getattr(module, "__file__", None) != str(path):
         taken = f"the module {path.stem!r} is already imported, from {getattr(module, '__file__', None)}; rename it"
-        raise ImportError(f"plugin file {path}: {taken if module is not None else 'not found'}")
-    if str(path.parent) not in sys.path:
-        sys.path.append(str(path.parent))
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    sys.modules[path.stem] = module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    try:
-        spec.loader.exec_module(module)  # type: ignore[union-attr]
-    except BaseException:
-        del sys.modules[path.stem]
-        raise
+        raise ImportError(f"plugin file {path}: {'not found' if module is None else taken}")
     return module
 
 

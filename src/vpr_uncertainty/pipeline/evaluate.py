@@ -48,7 +48,6 @@ from vpr_uncertainty.plugins import import_or_explain
 from vpr_uncertainty.scores import check_alpha
 
 __all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "compute", "default_conf", "main", "method_list"]
-__all__ += ["write_per_query"]
 
 STAGE = "uncertainty"
 
@@ -213,32 +212,6 @@ def compute(
     return Evaluated(evaluation=evaluation, fingerprint=fingerprint, path=path)
 
 
-def per_query_file(text: str) -> Path:
-    """An argparse type for ``--per-query``: a writable ``.csv`` or ``.parquet`` file."""
-    path = output_file(text)
-    if path.suffix.lower() not in (".csv", ".parquet"):
-        raise argparse.ArgumentTypeError(f"expected a .csv or .parquet file name, got {text!r}")
-    return path
-
-
-def write_per_query(evaluation: Any, path: str | Path) -> Path:
-    """Write :meth:`~vpr_uncertainty.evaluation.Evaluation.per_query_columns` to ``path``: CSV (no pandas needed)
-    or, for a ``.parquet`` name, Parquet (the ``pandas`` extra)."""
-    path = Path(path)
-    if path.suffix.lower() != ".parquet":
-        from vpr_uncertainty.reports.tables import per_query_csv
-
-        write_output(path, per_query_csv(evaluation))
-        return path
-    message = f"--per-query {path.name} needs pandas and pyarrow: pip install 'vpr-uncertainty[pandas]'"
-    import_or_explain("pyarrow", message)
-    frame = import_or_explain("pandas", message).DataFrame(evaluation.per_query_columns())
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with cache.atomic_write(path, "wb") as handle:
-        frame.to_parquet(handle, index=False)
-    return path
-
-
 def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_truth: str | Path | None = None) -> Path:
     """Evaluate the uncertainties of ``results`` (any file :func:`vpr_uncertainty.read_results` reads) into ``out``."""
     from vpr_uncertainty.data import read_results
@@ -392,11 +365,10 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--per-query",
-        type=per_query_file,
+        type=output_file,
         metavar="FILE",
-        help="write one row per query to FILE (.csv, or .parquet with the pandas extra): query_index, query, "
-        "top1_index, top1 (names empty when SCORES has none), answerable, correct (0/1), s_1..s_k, then each "
-        "method's uncertainty under its name",
+        help="write one row per query to FILE.csv or FILE.parquet (pandas extra): query_index, query, top1_index, "
+        "top1 (names, empty when SCORES has none), answerable, correct (0/1), s_1..s_k, each method's uncertainty",
     )
     parser.add_argument(
         "--latex",
@@ -470,7 +442,7 @@ def method_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.reports import format_table, plot_rejection_curves
-    from vpr_uncertainty.reports.tables import evaluation_csv, evaluation_latex
+    from vpr_uncertainty.reports.tables import evaluation_csv, evaluation_latex, per_query_csv
 
     conf = conf_from_args(EvaluateConf, args, options=method_options(args))
     executor_options(args)  # bad executor options fail before any work
@@ -485,6 +457,8 @@ def _handle(args: argparse.Namespace) -> int:
                 f"{'--bootstrap' if args.bootstrap else '--per-query'} and --calibration-fraction cannot be combined: "
                 "the held-out evaluation reports its spread over random splits of the queries instead"
             )
+        if args.per_query and args.per_query.suffix not in (".csv", ".parquet"):  # before any work
+            raise ValueError(f"--per-query: expected a .csv or .parquet file name, got {args.per_query}")
         # nothing of evaluate but geometric verification would run on Ray
         if args.executor != "local" and not any(get_method(name).kind in ("geometric", "cascade") for name in methods):
             raise ValueError(
@@ -510,9 +484,13 @@ def _handle(args: argparse.Namespace) -> int:
         write_output(args.csv, evaluation_csv(evaluation))
     if args.latex:
         write_output(args.latex, evaluation_latex(evaluation, intervals=args.latex_intervals))
-    if args.per_query:
-        write_per_query(evaluation, args.per_query)
-        print(f"wrote {args.per_query}")
+    if args.per_query and args.per_query.suffix == ".parquet":
+        import_or_explain("pyarrow", "--per-query FILE.parquet needs pyarrow: pip install 'vpr-uncertainty[pandas]'")
+        args.per_query.parent.mkdir(parents=True, exist_ok=True)
+        with cache.atomic_write(args.per_query, "wb") as handle:
+            evaluation.per_query_frame().to_parquet(handle, index=False)
+    elif args.per_query:
+        write_output(args.per_query, per_query_csv(evaluation))
     if args.plot:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None, width=args.figure_width)
         print(f"wrote {args.plot}")

@@ -534,19 +534,10 @@ def evaluation_latex(
 ) -> str:
     """One evaluation as a booktabs ``table`` float for a paper: uncertainty methods as rows, the metrics of
     :func:`evaluation_csv` as columns (precision at each recall level included), the retrieval's recall@N in the
-    caption. The tabular is shrunk to ``width`` if it is wider, never enlarged. The best AUC-PR is bold (as starred
-    by :func:`format_table`); ``$^\\dagger$`` marks an uninformative method. Needs :data:`LATEX_PACKAGES`.
-
-    Parameters
-    ----------
-    evaluation : Evaluation
-    caption : str, optional
-        Default: the queries, recall@N and what the columns and marks mean.
-    label : str, default="tab:uncertainty"
-    intervals : bool, default=False
-        Show the 95 % bootstrap intervals of AUC-PR, AP and AURC (when computed).
-    width : str or None, default=r"\\columnwidth"
-        The most the table may take; None: its natural width.
+    caption. The tabular is shrunk to ``width`` (None: its natural width) if it is wider, never enlarged. The best
+    AUC-PR is bold (as starred by :func:`format_table`); ``$^\\dagger$`` marks an uninformative method. The default
+    ``caption`` gives the queries, recall@N and what the columns and marks mean; ``intervals`` shows the 95 %
+    bootstrap intervals of AUC-PR, AP and AURC (when computed). Needs :data:`LATEX_PACKAGES`.
     """
     marked, levels = _marked(evaluation), _recall_levels(evaluation)
     if caption is None:
