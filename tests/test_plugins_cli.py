@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-from vpr_uncertainty import plugins
+from vpr_uncertainty import identity, plugins
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.methods import METHODS
 
@@ -41,6 +41,8 @@ def isolated(tmp_path, monkeypatch):
     monkeypatch.setattr(METHODS, "_entries", dict(METHODS._entries))
     monkeypatch.setattr(METHODS, "_aliases", dict(METHODS._aliases))
     monkeypatch.setattr(sys, "path", [entry for entry in sys.path if entry not in ("", ".")])
+    # code identities are cached by module name: my_unc of an earlier test is another file
+    monkeypatch.setattr(identity, "_CLOSURES", {})
     folder = tmp_path / "user"
     folder.mkdir()
     (folder / "my_unc.py").write_text(_PLUGIN)

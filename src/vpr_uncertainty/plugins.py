@@ -141,9 +141,7 @@ def _import_plugin(target: str) -> None:
     if function:
         getattr(module, function)()
     if target not in _loaded or module is not before:  # the code of the module as it was executed
-        from vpr_uncertainty.identity import _CLOSURES, code_identity
-
-        _CLOSURES.pop(name, None)  # what a module of that name read before may be another file's
+        from vpr_uncertainty.identity import code_identity
 
         file, own = getattr(module, "__file__", None), name.split(".")[0] == "vpr_uncertainty"
         depth = name.count(".") + (file is not None and file.endswith("__init__.py"))
