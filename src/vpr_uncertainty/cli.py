@@ -132,7 +132,7 @@ def command_names() -> list[str]:
 def _early_arguments(argv: Sequence[str]) -> argparse.Namespace:
     """The ``plugin`` modules, ``debug`` and ``command`` (None when there is none) of ``argv``, wherever they are, read
     before the parser is built so that only that command's module is imported."""
-    early = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    early = argparse.ArgumentParser(add_help=False)
     early.add_argument("--plugin", action="append", default=[])
     early.add_argument("--debug", action="store_true")
     known, rest = early.parse_known_args(list(argv))
