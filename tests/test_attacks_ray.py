@@ -236,6 +236,29 @@ def test_a_plugin_method_on_ray_gives_the_numbers_of_the_local_run(
         assert abs(local["SU"] - builtin) > 0.01  # the plugin's SU, not the built-in one
 
 
+def test_a_plugin_file_reaches_the_workers_by_its_path(
+    ray_cluster, plugin_folder, tmp_path, corridor_dir, corridor_matches_dir, monkeypatch
+):
+    """Before: ``--plugin ./file.py`` failed ("the 'package' argument is required to perform a relative import");
+    the file, in a folder on no Python path, is imported on the workers by its absolute path."""
+    folder = plugin_folder / "not_on_the_path"
+    folder.mkdir()
+    (folder / "attack_plugin_file.py").write_text(_PLUGIN.format(name="ENT", function="entropy"))
+    monkeypatch.chdir(folder)
+    local = _auc_pr(
+        _ran(
+            _grid(tmp_path / "local", corridor_dir, corridor_matches_dir, ["ENT"]),
+            "--plugin",
+            "./attack_plugin_file.py",
+        )
+    )
+    on_ray = _grid(tmp_path / "ray", corridor_dir, corridor_matches_dir, ["ENT"])
+    remote = _auc_pr(
+        _ran(on_ray, "--plugin", "./attack_plugin_file.py", executor=("--executor", "ray", "--workers", "2"))
+    )
+    assert_close(remote["ENT"], local["ENT"], dtype="float64")
+
+
 def _ran(grid: Path, *plugin: str, executor: tuple[str, ...] = ()) -> Path:
     assert main([*plugin, "reproduce", str(grid), "--no-report", *executor]) == 0
     return grid

@@ -70,11 +70,12 @@ def test_evaluation_latex_structure_and_numbers(evaluated, tmp_path):
     text = evaluation_latex(evaluated)
     rows = _check_structure(text, "tab:uncertainty")
     header, body = rows[0], rows[1:]
-    assert [cell.strip() for cell in header] == ["Method", "AUC-PR", "AP", "AURC", r"R@100\%P", "ms/query"]
+    precisions = ["P@R=0.25", "P@R=0.5", "P@R=0.75"]
+    assert [cell.strip() for cell in header] == ["Method", "AUC-PR", "AP", "AURC", r"R@100\%P", *precisions, "ms/query"]
     document = json.loads(json.dumps(evaluated.to_dict()))
     for row in body:
         name = row[0].strip()
-        numbers = [float(re.sub(r"\\textbf\{|\}", "", cell).split()[0]) for cell in row[1:]]
+        numbers = [float(re.sub(r"\\textbf\{|\}", "", cell).split()[0].replace("--", "nan")) for cell in row[1:]]
         method = document["methods"][name]
         expected = [method[key] for key in ("auc_pr", "average_precision", "aurc", "recall_at_100_precision")]
         assert numbers[:4] == [round(value, 4 if i < 3 else 3) for i, value in enumerate(expected)]

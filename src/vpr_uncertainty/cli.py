@@ -1,8 +1,9 @@
 """Command line: ``vpr-uncertainty <command> --help`` explains each command.
 
 It only collects the commands of the stage modules (:mod:`vpr_uncertainty.pipeline`), loads the plugins (the
-entry-point group ``vpr_uncertainty.plugins`` and ``--plugin MODULE``), and turns what goes wrong into one line on
-stderr and an exit status (see :data:`EXIT_STATUS_HELP`).
+entry-point group ``vpr_uncertainty.plugins``, ``--plugin MODULE`` and ``--plugin FILE.py``), and turns what goes
+wrong into one line on stderr and an exit status (see :data:`EXIT_STATUS_HELP`). Its global options (``--plugin``,
+``--debug``, ``--progress``) are accepted before or after the command name.
 """
 
 from __future__ import annotations
@@ -76,16 +77,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser(plugins: Sequence[str] = (), *, command: str | None = None) -> argparse.ArgumentParser:
-    """The parser of every command, after loading the plugins (entry points and ``plugins``).
-
-    Parameters
-    ----------
-    plugins : sequence of str
-        Modules to import first (``--plugin``).
-    command : str, optional
-        Build only this command's parser (importing only its stage module), as :func:`main` does for the command
-        it runs; by default every command's.
-    """
+    """The parser of every command, after loading the plugins (entry points, then ``plugins``: the ``--plugin``
+    modules and files); with ``command``, only that command's (importing only its stage module), as :func:`main`
+    builds it for the command it runs."""
     from vpr_uncertainty.plugins import load_plugins
 
     load_plugins(plugins)
@@ -97,29 +91,36 @@ def build_parser(plugins: Sequence[str] = (), *, command: str | None = None) -> 
         epilog=EXIT_STATUS_HELP,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
-    parser.add_argument(
-        "--debug",
-        action="store_true",
-        help=f"show the full Python traceback of an error (also: environment variable {DEBUG_VARIABLE}=1)",
-    )
-    parser.add_argument(
-        "--plugin",
-        action="append",
-        default=[],
-        metavar="MODULE",
-        help="import MODULE (on the Python path) before anything else: its uncertainty methods, models, formats and "
-        "figures are then available to every command (repeatable; installed packages register theirs through the "
-        "entry-point group vpr_uncertainty.plugins)",
-    )
-    add_progress_options(parser, top_level=True)
+    _add_global_options(parser, top_level=True)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     modules = (COMMANDS[command],) if command in COMMANDS else COMMAND_MODULES
     for module in modules:
         importlib.import_module(f"vpr_uncertainty.pipeline.{module}").add_cli(subparsers)
-    for command in subparsers.choices.values():
-        if "--progress" not in command._option_string_actions:  # every command takes the progress flags
-            add_progress_options(command)
+    for command in subparsers.choices.values():  # the global options are accepted after the command name too
+        _add_global_options(command, progress="--progress" not in command._option_string_actions)
     return parser
+
+
+def _add_global_options(parser: argparse.ArgumentParser, *, top_level: bool = False, progress: bool = True) -> None:
+    """``--debug``, ``--plugin`` and the progress flags; on a command, they add to those given before it."""
+    default = {} if top_level else {"default": argparse.SUPPRESS}
+    parser.add_argument(
+        "--debug",
+        action="store_true",
+        help=f"show the full Python traceback of an error (also: environment variable {DEBUG_VARIABLE}=1)",
+        **default,
+    )
+    parser.add_argument(
+        "--plugin",
+        action="append",
+        default=[] if top_level else argparse.SUPPRESS,
+        metavar="MODULE|FILE.py",
+        help="import MODULE (on the Python path or in this folder) or the file FILE.py before anything else: its "
+        "uncertainty methods, models, formats and figures are then available to every command (repeatable; "
+        "installed packages register theirs through the entry-point group vpr_uncertainty.plugins)",
+    )
+    if progress:
+        add_progress_options(parser, top_level=top_level)
 
 
 def command_names() -> list[str]:
@@ -128,14 +129,15 @@ def command_names() -> list[str]:
     return [name for action in parser._subparsers._group_actions for name in action.choices]  # type: ignore[union-attr]
 
 
-def _early_arguments(argv: Sequence[str]) -> tuple[list[str], str | None]:
-    """The ``--plugin`` modules of ``argv`` and its command (None when there is none), read before the parser is
-    built so that only that command's module is imported."""
+def _early_arguments(argv: Sequence[str]) -> argparse.Namespace:
+    """The ``plugin`` modules, ``debug`` and ``command`` (None when there is none) of ``argv``, wherever they are, read
+    before the parser is built so that only that command's module is imported."""
     early = argparse.ArgumentParser(add_help=False)
     early.add_argument("--plugin", action="append", default=[])
+    early.add_argument("--debug", action="store_true")
     known, rest = early.parse_known_args(list(argv))
-    command = next((word for word in rest if not word.startswith("-")), None)
-    return known.plugin, command
+    known.command = next((word for word in rest if not word.startswith("-")), None)
+    return known
 
 
 def package_version() -> str:
@@ -204,8 +206,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv = sys.argv[1:] if argv is None else list(argv)
         # one line per warning, from the first: a plugin that fails to load is one line too
         warnings.formatwarning = lambda message, *_: f"warning: {message}\n"
-        plugins, command = _early_arguments(argv)
-        args = build_parser(plugins, command=command).parse_args(argv)
+        args = _early_arguments(argv)  # until parsed: a plugin that fails to load shows its traceback with --debug
+        args = build_parser(args.plugin, command=args.command).parse_args(argv)
         prefix = f"vpr-uncertainty {args.command}"
         from vpr_uncertainty.progress import progress_default
 

@@ -3,7 +3,8 @@ and results formats, executors, report figures.
 
 Plugins are modules that register entries when imported. :func:`load_plugins` imports the modules of the
 entry-point group ``vpr_uncertainty.plugins`` (the package's own higher layers register their methods this way, as a
-user's package does) and those named by ``--plugin MODULE``. A :class:`Registry` loads them when a name is not
+user's package does) and those named by ``--plugin MODULE`` (on the Python path or in the current folder) or
+``--plugin path/to/file.py`` (imported under its stem). A :class:`Registry` loads them when a name is not
 found; functions that list a registry's names call :func:`load_plugins` first. Entries are declarative (a ``name``;
 most also a ``description``, what they ``requires``, their pip ``extra`` and default ``options``); a target may be a
 dotted path imported on first use (:func:`load_target`), and a user's options are merged over the defaults
@@ -34,6 +35,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import importlib.util
 import sys
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -99,18 +101,43 @@ def load_plugins(modules: Iterable[str] = ()) -> None:
                     stacklevel=2,
                 )
     for module in modules:
-        try:
-            _import_plugin(module)
+        if not module.endswith(".py") and str(Path.cwd()) not in sys.path:
+            sys.path.append(str(Path.cwd()))  # a module in the current folder, as `python -m` finds it
+        try:  # a file by its absolute path, which a Ray worker imports too
+            _import_plugin(str(Path(module).resolve()) if module.endswith(".py") else module)
         except ModuleNotFoundError as error:
             if error.name and module.startswith(error.name):
-                raise ImportError(f"plugin module {module!r} not found (is it on the Python path?)") from None
+                message = f"plugin module {module!r} not found (on the Python path, or in this folder as {module}.py)"
+                raise ImportError(message) from None
             raise
 
 
+def _import_file(path: Path) -> Any:
+    """The module of the file ``path``, imported once under its stem (a stable name: what it defines pickles by
+    it), with its folder on the Python path (for the modules beside it, as for a script)."""
+    module = sys.modules.get(path.stem)
+    if module is None and path.is_file():
+        if str(path.parent) not in sys.path:
+            sys.path.append(str(path.parent))
+        spec = importlib.util.spec_from_file_location(path.stem, path)
+        sys.modules[path.stem] = module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+        try:
+            spec.loader.exec_module(module)  # type: ignore[union-attr]
+        except BaseException:
+            del sys.modules[path.stem]
+            raise
+    elif getattr(module, "__file__", None) != str(path):
+        taken = f"the module {path.stem!r} is already imported, from {getattr(module, '__file__', None)}; rename it"
+        raise ImportError(f"plugin file {path}: {'not found' if module is None else taken}")
+    return module
+
+
 def _import_plugin(target: str) -> None:
-    name, _, function = (part.strip() for part in target.partition(":"))
+    name, _, function = (target, "", "") if target.endswith(".py") else (p.strip() for p in target.partition(":"))
+    path = Path(name) if name.endswith(".py") else None
+    name = path.stem if path else name
     before = sys.modules.get(name)
-    module = importlib.import_module(name)
+    module = _import_file(path) if path else importlib.import_module(name)
     if function:
         getattr(module, function)()
     if target not in _loaded or module is not before:  # the code of the module as it was executed

@@ -158,6 +158,7 @@ def evaluate(
         recall_at_n=recalls,
         k=min(int(k), retrieval.k),
         k_requested=int(k),
+        retrieval=retrieval,
     )
 
     def note(text: str | None, warning: type[Warning] | None = None) -> None:

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty.evaluation.metrics import RejectionCurve, rank_queries
+from vpr_uncertainty.evaluation.metrics import RejectionCurve, answerable_queries, rank_queries
 from vpr_uncertainty.plugins import import_or_explain
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -21,6 +21,7 @@ TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms
 #: Numbers a method reports about its own run (:class:`~vpr_uncertainty.methods.DetailedUncertainty`), written
 #: beside its metrics and read back by :meth:`MethodEvaluation.from_dict`.
 DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries", "trained_on_queries")
+_NEEDS_PANDAS = "{} needs pandas, which the core install leaves out: pip install 'vpr-uncertainty[pandas]'"
 #: The metrics with a bootstrap interval (``<metric>_ci``).
 _INTERVALS = ("auc_pr", "average_precision", "aurc")
 
@@ -176,14 +177,51 @@ class Evaluation:
     k: int | None = None
     k_requested: int | None = None
     bootstrap: dict[str, Any] | None = None
+    #: The retrieval evaluated (set by :func:`~vpr_uncertainty.evaluate`, None when read back): the names and scores
+    #: of :meth:`per_query_columns`.
+    retrieval: Any = field(default=None, compare=False)
 
     def __repr__(self) -> str:
         return evaluation_summary(self)
 
+    def per_query_columns(self, retrieval: Any = None) -> dict[str, np.ndarray]:
+        """One row per query, as columns of shape (Q,) (no pandas needed): ``query_index``, ``query``,
+        ``top1_index``, ``top1`` (names; empty where the retrieval has none), ``answerable``, ``correct`` (0/1),
+        ``s_1`` ... ``s_k`` (the k scores the methods used), then each method's uncertainty under its name, in the
+        order evaluated. ``retrieval``: the one evaluated, for an evaluation read back (:meth:`from_dict`).
+        """
+        retrieval = self.retrieval if retrieval is None else retrieval
+        if retrieval is None or retrieval.n_queries != self.n_queries:
+            raise ValueError(
+                f"the per-query table needs the retrieval of these {self.n_queries} queries (argument retrieval)"
+            )
+        top1, names = retrieval.indices[:, 0], retrieval.database_names
+        columns = {
+            "query_index": np.arange(self.n_queries),
+            "query": np.full(self.n_queries, "") if retrieval.query_names is None else retrieval.query_names,
+            "top1_index": top1,
+            "top1": np.full(self.n_queries, "") if names is None else np.append(names, "")[top1],  # -1: none
+            "answerable": answerable_queries(retrieval.positives).astype(np.int8),
+            "correct": self.correct.astype(np.int8),
+        }
+        scores = retrieval.scores[:, : self.k or retrieval.k]
+        columns.update({f"s_{rank + 1}": scores[:, rank] for rank in range(scores.shape[1])})
+        return {**columns, **{name: method.uncertainty for name, method in self.methods.items()}}
+
+    def per_query_frame(self, retrieval: Any = None) -> pandas.DataFrame:
+        """:meth:`per_query_columns` as a DataFrame (the table of ``evaluate --per-query``); needs pandas."""
+        pandas = import_or_explain("pandas", _NEEDS_PANDAS.format("Evaluation.per_query_frame()"))
+        return pandas.DataFrame(self.per_query_columns(retrieval))
+
     def to_frame(self) -> pandas.DataFrame:
-        """One row per method: AUC-PR, AP, AURC, recall at 100 % precision, time per query, and the bootstrap
-        intervals when computed (columns: :func:`evaluation_frame`). Needs pandas (the ``pandas``
-        extra).
+        """One row per method, indexed by its name, in the order evaluated; needs pandas (the ``pandas`` extra).
+
+        Columns, named as in ``results.json``: ``auc_pr``, ``average_precision`` (NaN when every answer is correct,
+        or none is), ``aurc`` (lower is better), ``recall_at_100_precision``, ``time_per_query_ms``,
+        ``informative``, ``tied_share``, ``precision_at_recall_<level>``; with a bootstrap
+        ``<metric>_ci_low``/``_high`` and ``delta_auc_pr``, ``p_value_holm``, ``significant``; ``own_recall@1`` for a
+        method with its own retrieval; and the method's optional timings and details (a cascade's
+        ``verified_fraction``). The frame's ``attrs`` hold ``n_queries``, ``n_answerable``, ``k`` and the recall@N.
 
         Examples
         --------
@@ -195,7 +233,19 @@ class Evaluation:
         >>> list(frame.index), frame.loc["SU", ["auc_pr", "aurc"]].round(3).tolist()
         (['SU', 'BM'], [1.0, 0.111])
         """
-        return evaluation_frame(self)
+        pandas = import_or_explain("pandas", _NEEDS_PANDAS.format("Evaluation.to_frame()"))
+        rows = [method_row(method) for method in self.methods.values()]
+        columns = list(dict.fromkeys(key for row in rows for key in row))
+        frame = pandas.DataFrame(rows, index=pandas.Index(list(self.methods), name="method"), columns=columns)
+        floats = [name for name in columns if name not in ("informative", "significant")]
+        frame[floats] = frame[floats].astype(float)  # None (an undefined AUC-PR) becomes NaN, not an object column
+        frame.attrs.update(
+            n_queries=self.n_queries,
+            n_answerable=self.n_answerable,
+            k=self.k,
+            **{f"recall@{n}": value for n, value in self.recall_at_n.items()},
+        )
+        return frame
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON schema of ``evaluate --json``."""
@@ -302,49 +352,6 @@ def method_row(method: MethodEvaluation) -> dict[str, Any]:
     row.update(method.timings)
     row.update(method.details)
     return row
-
-
-def evaluation_frame(evaluation: Evaluation) -> pandas.DataFrame:
-    """One row per method, indexed by its name, in the order evaluated; needs pandas (the ``pandas`` extra).
-
-    Columns, named as in ``results.json``: ``auc_pr``, ``average_precision`` (NaN when every answer is correct, or
-    none is), ``aurc`` (lower is better), ``recall_at_100_precision``, ``time_per_query_ms``, ``informative``,
-    ``tied_share``, ``precision_at_recall_<level>``; with a bootstrap ``<metric>_ci_low``/``_high`` and
-    ``delta_auc_pr``, ``p_value_holm``, ``significant``; ``own_recall@1`` for a method with its own retrieval; and
-    the method's optional timings and details (a cascade's ``verified_fraction``).
-
-    Parameters
-    ----------
-    evaluation : Evaluation
-        The result of :func:`vpr_uncertainty.evaluate`.
-
-    Returns
-    -------
-    pandas.DataFrame
-        The frame's ``attrs`` hold ``n_queries``, ``n_answerable``, ``k`` and the recall@N of the retrieval.
-
-    Raises
-    ------
-    ImportError
-        When pandas is not installed (it names the extra to install).
-    """
-    pandas = import_or_explain(
-        "pandas",
-        "Evaluation.to_frame() needs pandas, which the core install leaves out: pip install 'vpr-uncertainty[pandas]' "
-        "(or pip install pandas)",
-    )
-    rows = [method_row(method) for method in evaluation.methods.values()]
-    columns = list(dict.fromkeys(key for row in rows for key in row))
-    frame = pandas.DataFrame(rows, index=pandas.Index(list(evaluation.methods), name="method"), columns=columns)
-    floats = [name for name in columns if name not in ("informative", "significant")]
-    frame[floats] = frame[floats].astype(float)  # None (an undefined AUC-PR) becomes NaN, not an object column
-    frame.attrs.update(
-        n_queries=evaluation.n_queries,
-        n_answerable=evaluation.n_answerable,
-        k=evaluation.k,
-        **{f"recall@{n}": value for n, value in evaluation.recall_at_n.items()},
-    )
-    return frame
 
 
 def _number(value: float | None, digits: int = 4) -> str:

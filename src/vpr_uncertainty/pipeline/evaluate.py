@@ -44,6 +44,7 @@ from vpr_uncertainty.pipeline.options import (
     write_json,
     write_output,
 )
+from vpr_uncertainty.plugins import import_or_explain
 from vpr_uncertainty.scores import check_alpha
 
 __all__ = ["METHOD_SPEC_HELP", "EvaluateConf", "Evaluated", "add_cli", "compute", "default_conf", "main", "method_list"]
@@ -363,6 +364,13 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         help="write the table as CSV to FILE: one row per method, the numbers of --json at full precision",
     )
     parser.add_argument(
+        "--per-query",
+        type=output_file,
+        metavar="FILE",
+        help="write one row per query to FILE.csv or FILE.parquet (pandas extra): query_index, query, top1_index, "
+        "top1 (names, empty when SCORES has none), answerable, correct (0/1), s_1..s_k, each method's uncertainty",
+    )
+    parser.add_argument(
         "--latex",
         type=output_file,
         metavar="FILE",
@@ -434,7 +442,7 @@ def method_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.reports import format_table, plot_rejection_curves
-    from vpr_uncertainty.reports.tables import evaluation_csv, evaluation_latex
+    from vpr_uncertainty.reports.tables import evaluation_csv, evaluation_latex, per_query_csv
 
     conf = conf_from_args(EvaluateConf, args, options=method_options(args))
     executor_options(args)  # bad executor options fail before any work
@@ -444,11 +452,13 @@ def _handle(args: argparse.Namespace) -> int:
         conf = dataclasses.replace(conf, methods=methods, options={**conf.options, **image_options})
         for note in notes:
             print(f"note: {note}")
-        if args.calibration_fraction is not None and args.bootstrap:
+        if args.calibration_fraction is not None and (args.bootstrap or args.per_query):
             raise ValueError(
-                "--bootstrap and --calibration-fraction cannot be combined: the held-out evaluation reports its "
-                "spread over the random splits instead"
+                f"{'--bootstrap' if args.bootstrap else '--per-query'} and --calibration-fraction cannot be combined: "
+                "the held-out evaluation reports its spread over random splits of the queries instead"
             )
+        if args.per_query and args.per_query.suffix not in (".csv", ".parquet"):  # before any work
+            raise ValueError(f"--per-query: expected a .csv or .parquet file name, got {args.per_query}")
         # nothing of evaluate but geometric verification would run on Ray
         if args.executor != "local" and not any(get_method(name).kind in ("geometric", "cascade") for name in methods):
             raise ValueError(
@@ -474,6 +484,13 @@ def _handle(args: argparse.Namespace) -> int:
         write_output(args.csv, evaluation_csv(evaluation))
     if args.latex:
         write_output(args.latex, evaluation_latex(evaluation, intervals=args.latex_intervals))
+    if args.per_query and args.per_query.suffix == ".parquet":
+        import_or_explain("pyarrow", "--per-query FILE.parquet needs pyarrow: pip install 'vpr-uncertainty[pandas]'")
+        args.per_query.parent.mkdir(parents=True, exist_ok=True)
+        with cache.atomic_write(args.per_query, "wb") as handle:
+            evaluation.per_query_frame().to_parquet(handle, index=False)
+    elif args.per_query:
+        write_output(args.per_query, per_query_csv(evaluation))
     if args.plot:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None, width=args.figure_width)
         print(f"wrote {args.plot}")

@@ -10,9 +10,7 @@ the same for every query ranks nothing (chance-level AUC-PR): it is marked ``†
 
 from __future__ import annotations
 
-import csv
-import io
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from html import escape
 from typing import Any
@@ -40,6 +38,7 @@ __all__ = [
     "format_table",
     "markdown_cell",
     "marks_note",
+    "per_query_csv",
     "table1_cells",
     "table1_csv",
     "table1_html",
@@ -123,19 +122,30 @@ def best_auc_pr(evaluation: Evaluation) -> float | None:
 
 def csv_cell(value: object) -> object:
     """``value`` as a CSV cell: text that a spreadsheet would run as a formula (it starts with = + - @, a tab or a
-    carriage return, and is no number) gets a leading ``'`` (OWASP's advice on CSV injection)."""
+    carriage return, and is no signed number) gets a leading ``'`` (OWASP's advice on CSV injection); numbers stay."""
     if isinstance(value, str) and value.startswith(("=", "+", "-", "@", "\t", "\r")):
         try:
-            float(value)
+            float(value if value[0] in "+-" else "x")
         except ValueError:
             return "'" + value
     return value
 
 
-def _csv_text(rows: list[list[object]]) -> str:
-    buffer = io.StringIO()
-    csv.writer(buffer, lineterminator="\n").writerows([csv_cell(cell) for cell in row] for row in rows)
-    return buffer.getvalue()
+def _csv_field(value: object) -> str:
+    """A CSV field (RFC 4180): :func:`csv_cell`, quoted when it holds a comma, a quote or a line break (also a lone
+    carriage return, which Python's ``csv`` writer leaves bare when lines end with ``\\n``)."""
+    text = "" if value is None else str(csv_cell(value))
+    return '"' + text.replace('"', '""') + '"' if any(char in text for char in ',"\r\n') else text
+
+
+def _csv_text(rows: Iterable[Sequence[object]]) -> str:
+    return "".join(",".join(map(_csv_field, row)) + "\n" for row in rows)
+
+
+def per_query_csv(evaluation: Evaluation) -> str:
+    """:meth:`Evaluation.per_query_columns` as CSV text (``evaluate --per-query FILE.csv``), without pandas."""
+    columns = evaluation.per_query_columns()
+    return _csv_text([list(columns), *zip(*columns.values(), strict=True)])
 
 
 def markdown_cell(text: str) -> str:
@@ -478,25 +488,38 @@ _EVALUATION_COLUMNS = (
 )
 
 
+def _exact(value: float | None) -> str:
+    return "" if value is None else repr(float(value))
+
+
+def _recall_levels(evaluation: Evaluation) -> list[float]:
+    """The recall levels of the methods' precision at recall (:data:`~vpr_uncertainty.evaluation.RECALL_LEVELS`)."""
+    return list(dict.fromkeys(level for method in evaluation.methods.values() for level in method.precision_at_recall))
+
+
 def evaluation_csv(evaluation: Evaluation) -> str:
     """One row per uncertainty method, the numbers of ``evaluate --json`` at full precision (empty: undefined).
 
     Columns: ``method``, ``auc_pr``, ``average_precision``, ``aurc``, ``recall_at_100_precision``,
-    ``time_per_query_ms``, ``informative``, ``best`` (marked as in :func:`format_table`), with a bootstrap
-    ``<metric>_ci_low``/``_ci_high`` of AUC-PR, AP and AURC; a ``recall@N`` row-independent header is left to the
-    JSON.
+    ``time_per_query_ms``, ``precision_at_recall_<level>``, the retrieval's ``recall@N`` (the same in every row),
+    ``informative``, ``best`` (marked as in :func:`format_table`), with a bootstrap ``<metric>_ci_low``/``_ci_high``
+    of AUC-PR, AP and AURC.
     """
-    marked = _marked(evaluation)
+    marked, levels = _marked(evaluation), _recall_levels(evaluation)
     with_ci = evaluation.bootstrap is not None
     metrics = [key for key, _, _ in _EVALUATION_COLUMNS]
     intervals = [f"{key}_ci_{end}" for key in _WITH_CI for end in ("low", "high")]
-    csv_rows: list[list[object]] = [["method", *metrics, "informative", "best", *(intervals if with_ci else [])]]
+    header = ["method", *metrics, *(f"precision_at_recall_{level:g}" for level in levels)]
+    header += [*(f"recall@{n}" for n in evaluation.recall_at_n), "informative", "best", *(intervals if with_ci else [])]
+    csv_rows: list[list[object]] = [header]
     for name, method in evaluation.methods.items():
         numbers = method.to_dict()
-        row = [name, *("" if numbers[key] is None else repr(float(numbers[key])) for key in metrics)]
+        row = [name, *(_exact(numbers[key]) for key in metrics)]
+        row += [_exact(method.precision_at_recall.get(level)) for level in levels]
+        row += [_exact(value) for value in evaluation.recall_at_n.values()]
         row += [str(method.informative).lower(), str(name in marked and method.informative).lower()]
         for interval in (getattr(method, f"{key}_ci") for key in _WITH_CI) if with_ci else ():
-            row += ["", ""] if interval is None else [repr(float(interval[0])), repr(float(interval[1]))]
+            row += ["", ""] if interval is None else [_exact(interval[0]), _exact(interval[1])]
         csv_rows.append(row)
     return _csv_text(csv_rows)
 
@@ -509,29 +532,21 @@ def evaluation_latex(
     intervals: bool = False,
     width: str | None = r"\columnwidth",
 ) -> str:
-    """One evaluation as a booktabs ``table`` float for a paper: uncertainty methods as rows, five metric columns.
-
-    Six columns fit ``\\columnwidth`` at the body font; the tabular is still shrunk to ``width`` if it is wider
-    (long method names, intervals), never enlarged. The best AUC-PR is bold (as starred by :func:`format_table`);
-    ``$^\\dagger$`` marks an uninformative method. Needs :data:`LATEX_PACKAGES`.
-
-    Parameters
-    ----------
-    evaluation : Evaluation
-    caption : str, optional
-        Default: the queries, recall@1 and what the marks mean.
-    label : str, default="tab:uncertainty"
-    intervals : bool, default=False
-        Show the 95 % bootstrap intervals of AUC-PR, AP and AURC (when computed).
-    width : str or None, default=r"\\columnwidth"
-        The most the table may take; None: its natural width.
+    """One evaluation as a booktabs ``table`` float for a paper: uncertainty methods as rows, the metrics of
+    :func:`evaluation_csv` as columns (precision at each recall level included), the retrieval's recall@N in the
+    caption. The tabular is shrunk to ``width`` (None: its natural width) if it is wider, never enlarged. The best
+    AUC-PR is bold (as starred by :func:`format_table`); ``$^\\dagger$`` marks an uninformative method. The default
+    ``caption`` gives the queries, recall@N and what the columns and marks mean; ``intervals`` shows the 95 %
+    bootstrap intervals of AUC-PR, AP and AURC (when computed). Needs :data:`LATEX_PACKAGES`.
     """
-    marked = _marked(evaluation)
+    marked, levels = _marked(evaluation), _recall_levels(evaluation)
     if caption is None:
-        recall = evaluation.recall_at_n.get(1)
+        recalls = {n: value for n, value in evaluation.recall_at_n.items() if value is not None}
         caption = f"Uncertainty methods on {evaluation.n_queries} queries"
-        caption += f" (recall@1 {recall:.3f})" if recall is not None else ""
-        caption += ". AUC-PR, AP: higher is better; AURC: lower is better. Bold: "
+        numbers = "/".join(f"{value:.3f}" for value in recalls.values())
+        caption += f" (recall@{'/'.join(map(str, recalls))} {numbers})" if recalls else ""
+        caption += ". AUC-PR, AP: higher is better; AURC: lower is better; P@R=r: precision of the answers accepted "
+        caption += "down to recall r. Bold: "
         caption += "best AUC-PR." if evaluation.bootstrap is None else "AUC-PR leaders (none significantly worse)."
         if intervals and evaluation.bootstrap is not None:
             caption += f" [low, high]: {evaluation.bootstrap['confidence']:.0%} bootstrap interval."
@@ -548,9 +563,12 @@ def evaluation_latex(
             if interval is not None:
                 text += rf" {{\scriptsize [{interval[0]:.3f}, {interval[1]:.3f}]}}"
             cells.append(text)
+        precisions = (method.precision_at_recall.get(level) for level in levels)
+        cells[-1:-1] = ["--" if value is None else f"{value:.3f}" for value in precisions]
         rows.append(cells)
     header = ["Method", *(title for _, title, _ in _EVALUATION_COLUMNS)]
-    lines = latex_float(caption, label, "l" + "r" * len(_EVALUATION_COLUMNS), header, rows, width)
+    header[-1:-1] = [f"P@R={level:g}" for level in levels]
+    lines = latex_float(caption, label, "l" + "r" * (len(header) - 1), header, rows, width)
     return _end_latex(lines, any(not m.informative for m in evaluation.methods.values()))
 
 
