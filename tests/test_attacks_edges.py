@@ -247,7 +247,7 @@ def test_the_command_line_suggests_scores_distance_once(corridor_dir, corridor_m
 def test_similarities_read_as_distances_get_the_reverse_notice(corridor_dir, corridor_matches_dir, capsys):
     path = corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy"
     argv = ["evaluate", str(path), "--gt", str(corridor_dir / "ground_truth_new.npy"), "--scores", "distance"]
-    with pytest.warns(UserWarning, match=r"read as distances \(--scores distance\).*drop --scores distance"):
+    with pytest.warns(UserWarning, match=r"read as distances \(--scores\).*drop --scores"):
         assert main([*argv, "--methods", "BM"]) == 0
 
 

@@ -21,7 +21,7 @@ from vpr_uncertainty.data.images import is_hidden
 from vpr_uncertainty.plugins import Registry, load_plugins, load_target
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, MappedRows, top_k_blocks
 from vpr_uncertainty.retrieval.file_format import load_retrieval
-from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
+from vpr_uncertainty.retrieval.result import SCORE_KINDS, Retrieval, check_positive_int
 from vpr_uncertainty.retrieval.search import retrieve
 
 #: Candidates kept per query when a full matrix is read, unless a larger k asks for more (recall@20 needs 20).
@@ -42,7 +42,7 @@ class ResultsFormat:
     name, description : str
     reader : callable or str
         ``reader(path, *, ground_truth, top_k) -> Retrieval``, or its dotted path ``"module:function"``; with
-        ``reads_distances``, it also takes ``higher_is_better=False``.
+        ``reads_distances``, it also takes ``scores=`` a kind of :data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`.
     detect : callable or None
         ``detect(path) -> bool``: whether ``file_format="auto"`` reads ``path`` with this format (formats are tried
         in registration order). None: only read when named.
@@ -51,7 +51,7 @@ class ResultsFormat:
     extra : str or None
         The pip extra its reader needs.
     reads_distances : bool
-        Whether a file of this format may hold lower-is-better scores (``read_results(higher_is_better=False)``).
+        Whether a file of this format may hold distances (``read_results(scores=...)``).
     """
 
     name: str
@@ -84,6 +84,7 @@ def read_results(
     ground_truth: str | Path | None = None,
     file_format: str = "auto",
     top_k: int = DEFAULT_TOP_K,
+    scores: str = "similarity",
     higher_is_better: bool = True,
 ) -> Retrieval:
     """Read precomputed results and their ground truth into a Retrieval.
@@ -104,28 +105,33 @@ def read_results(
     top_k : int
         Candidates kept per query when a full matrix is read (all of them when the database is smaller); pass at
         least the largest k the methods will use. A retrieval file keeps the candidates it holds.
+    scores : str, default="similarity"
+        What a matrix holds (:data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`): similarities, higher = more
+        similar; or distances, whose k smallest values per query are kept and converted by
+        :meth:`~vpr_uncertainty.retrieval.Retrieval.from_distances` (``"cosine-distance"`` and ``"l2-distance"``
+        of unit-norm descriptors into exact cosine similarities, ``"distance"`` negated). A retrieval file stores
+        similarities (other kinds are refused); a log folder is searched again by cosine similarity (the ranking of
+        its L2 distances), so ``"l2-distance"`` and ``"cosine-distance"`` are accepted there and ``"distance"`` not.
     higher_is_better : bool, default=True
-        False when a matrix holds distances (or any score where lower is better): its k smallest values per query
-        are kept, as the retrieval's ``distances`` and negated as its ``scores`` (see
-        :meth:`~vpr_uncertainty.retrieval.Retrieval.from_distances`). Only matrix formats hold either kind; a
-        retrieval file or log folder stores similarities, and False is refused for it.
+        False: ``scores="distance"`` (the earlier spelling).
     """
     path = Path(path)
     if not isinstance(higher_is_better, bool):
         raise TypeError(f"higher_is_better must be True or False, got {higher_is_better!r}")
+    if scores not in SCORE_KINDS:
+        raise ValueError(f"scores must be one of {SCORE_KINDS}, got {scores!r}")
+    scores = "distance" if not higher_is_better and scores == "similarity" else scores
     if file_format == "auto":  # among the formats registered so far (the CLI loads the plugins first)
         entry = next((entry for entry in RESULTS_FORMAT_REGISTRY if entry.detect and entry.detect(path)), None)
         if entry is None:
-            return _read_matrix(
-                path, ground_truth=ground_truth, top_k=top_k, file_format="auto", higher_is_better=higher_is_better
-            )
+            return _read_matrix(path, ground_truth=ground_truth, top_k=top_k, file_format="auto", scores=scores)
     else:
         try:
             entry = RESULTS_FORMAT_REGISTRY.get(file_format)  # a miss loads the plugins
         except KeyError:
             raise ValueError(f"file_format must be one of {input_formats()}, got {file_format!r}") from None
     reader = load_target(entry.reader, what=f"results format {entry.name!r}", extra=entry.extra)
-    if higher_is_better:
+    if scores == "similarity" or (entry.name == "vpr-methods-evaluation" and scores != "distance"):
         return reader(path, ground_truth=ground_truth, top_k=top_k)
     if not entry.reads_distances:
         raise ValueError(
@@ -133,7 +139,7 @@ def read_results(
             "(distances) are read from a similarity or distance matrix only (formats: "
             f"{', '.join(e.name for e in RESULTS_FORMAT_REGISTRY if e.reads_distances)})"
         )
-    return reader(path, ground_truth=ground_truth, top_k=top_k, higher_is_better=False)
+    return reader(path, ground_truth=ground_truth, top_k=top_k, scores=scores)
 
 
 def _read_retrieval_file(path: Path, *, ground_truth: str | Path | None, **_: Any) -> Retrieval:
@@ -159,7 +165,7 @@ def _read_matrix(
     ground_truth: str | Path | None,
     top_k: int,
     file_format: str = "matrix",
-    higher_is_better: bool = True,
+    scores: str = "similarity",
     **_: Any,
 ) -> Retrieval:
     from vpr_uncertainty.evaluation.metrics import positives_against_mean
@@ -168,25 +174,28 @@ def _read_matrix(
         raise ValueError(
             f"{path} is a similarity matrix without ground truth; give the ground truth (argument ground_truth)"
         )
-    read: dict[str, Any] = {"ordering": [0, 0]}  # queries whose positives score above / below their row's mean
+    higher_is_better = scores == "similarity"
+    read: dict[str, Any] = {"ordering": [0, 0], "largest": 0.0}  # queries whose positives score above / below
 
     def measure(block: np.ndarray, first_row: int, shape: tuple[int, int]) -> None:
         if first_row == 0:  # sized by the matrix: a positive beyond its columns is an error naming the file
             read["positives"] = load_ground_truth(ground_truth, n_queries=shape[0], n_database=shape[1])
         rows, columns = read["positives"][first_row : first_row + len(block)].nonzero()
         for side, count in enumerate(positives_against_mean(block if higher_is_better else -block, rows, columns)):
-            read["ordering"][side] += count
+            read["ordering"][side] += count  # ... their row's mean
+        if not higher_is_better and np.isfinite(block).any():
+            read["largest"] = max(read["largest"], float(block[np.isfinite(block)].max()))
 
     # Memory-mapped and cut to its top-k one block of queries at a time: never the whole matrix in memory.
-    scores, indices, _ = read_similarity_top_k(
+    top, indices, _ = read_similarity_top_k(
         path, top_k, file_format=file_format, higher_is_better=higher_is_better, on_block=measure
     )
-    config = {"source": str(path), "ground_truth": str(ground_truth), "top_k": int(scores.shape[1])}
+    config = {"source": str(path), "ground_truth": str(ground_truth), "top_k": int(top.shape[1])}
     config["positives_vs_mean"], positives = read["ordering"], read["positives"]
-    if higher_is_better or (scores > 0).any():  # lower-is-better scores below 0 are no squared L2 distances: negated
-        config.update({} if higher_is_better else {"scores": "distance"})
-        return Retrieval(scores=scores, indices=indices, positives=positives, config=config)
-    return Retrieval.from_distances(-scores, indices, positives=positives, config=config)
+    if higher_is_better:
+        return Retrieval(scores=top, indices=indices, positives=positives, config=config)
+    kind, largest = scores, read["largest"]
+    return Retrieval.from_distances(-top, indices, kind=kind, largest=largest, positives=positives, config=config)
 
 
 def _read_log(path: Path, *, ground_truth: str | Path | None, top_k: int, **_: Any) -> Retrieval:
@@ -488,12 +497,12 @@ def read_vpr_methods_evaluation(
     for block in database.row_blocks():
         worst = max(worst, float(np.abs(np.linalg.norm(block, axis=1) - 1.0).max(initial=0.0)))
         del block  # before the next block is read
-    notes = []
+    notes, config = [], {"source": str(folder), "format": "vpr-methods-eval"}
     if worst > 1e-3:
         notes.append("the descriptors are not L2-normalised: ranked by cosine similarity, not by L2 distance")
-    retrieval = retrieve(
-        database, queries, min(int(top_k), len(database)), config={"source": str(folder), "format": "vpr-methods-eval"}
-    )
+    else:  # what that tool's Faiss IndexFlatL2 ranks by: d² = 2 - 2s
+        config["score_conversion"] = "L2-normalised descriptors searched by cosine similarity s = 1 - d²/2 (d: L2)"
+    retrieval = retrieve(database, queries, min(int(top_k), len(database)), config=config)
     lists = _image_lists(arguments, len(queries), len(database), folder)
     query_paths, database_paths = lists if lists is not None else (None, None)
     names = {}

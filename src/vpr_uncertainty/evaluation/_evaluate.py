@@ -290,8 +290,8 @@ def _direction_note(retrieval: Retrieval, top_1_correct: float) -> str | None:
     if below - above < 3 * np.sqrt(above + below) or below == 0:
         return None
     reading, advice = ("similarities", "if lower means more similar, read them as distances: --scores distance")
-    if retrieval.score_kind == "distance":
-        reading, advice = "distances (--scores distance)", "if higher means more similar, drop --scores distance"
+    if retrieval.score_kind == "distance" or "score_conversion" in retrieval.config:
+        reading, advice = "distances (--scores)", "if higher means more similar, drop --scores"
     return (
         f"the scores rank the ground truth backwards: read as {reading}, {below} of {above + below} queries score "
         f"their positives below the mean of their row (top-1 correct: {top_1_correct:.3f}); {advice}"

@@ -11,6 +11,11 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+#: What the scores given to :meth:`Retrieval.from_distances` (and ``--scores``) are; all but ``"distance"`` become
+#: exact similarities.
+SCORE_KINDS = ("similarity", "cosine-distance", "l2-distance", "l2-distance:squared", "l2-distance:plain", "distance")
+_UNIT_TOLERANCE = 1e-3  # rounding of distances between unit-norm descriptors (Faiss: -1e-7 for an exact match)
+
 
 @dataclass(repr=False)
 class Retrieval:
@@ -51,18 +56,31 @@ class Retrieval:
         check_retrieval_fields(self)
 
     @classmethod
-    def from_distances(cls, distances: object, indices: object, **fields: Any) -> Retrieval:
-        """A retrieval from distances (or any score where lower is better) sorted ascending.
+    def from_distances(
+        cls, distances: object, indices: object, *, kind: str = "distance", largest: float | None = None, **fields: Any
+    ) -> Retrieval:
+        """A retrieval from distances sorted ascending: the one place lower-is-better scores are converted.
 
-        The one conversion of lower-is-better scores: ``distances`` are kept as :attr:`distances` and negated as
-        :attr:`scores` (higher = better, as every method reads them), and ``config["scores"]`` says ``"distance"``,
-        so that the methods that need similarities (RS, SD, SU divide by s_1) are left out of the default list.
+        ``kind`` says what they are (:data:`SCORE_KINDS`):
+
+        - ``"cosine-distance"`` (d = 1 − cos): the scores are the exact cosine similarities 1 − d;
+        - ``"l2-distance"`` between unit-norm descriptors: the exact cosine similarities, s = 1 − d/2 of squared
+          distances (what Faiss ``IndexFlatL2`` returns), s = 1 − d²/2 of plain ones; ``"l2-distance:squared"`` and
+          ``"l2-distance:plain"`` say which, ``"l2-distance"`` detects it (a value above 2 is a squared distance,
+          otherwise squared is assumed) and says so in ``config["score_conversion"]``; :attr:`distances` keeps the
+          squared distances. Every uncertainty method then runs as on the similarities;
+        - ``"distance"``: any other lower-is-better score, negated as :attr:`scores` (kept as :attr:`distances` when
+          none is below 0), with ``config["scores"] = "distance"``, so that the methods that need similarities (RS,
+          SD, SU divide by s_1) are left out of the default list.
 
         Parameters
         ----------
         distances : array-like of shape (Q, K)
             Ascending per row; ``+inf`` marks a missing candidate.
         indices : array-like of shape (Q, K), int
+        kind : str, default="distance"
+        largest : float, optional
+            The largest distance of the whole matrix when ``distances`` hold only the nearest (detects squared L2).
         **fields
             The other fields of :class:`Retrieval` (``positives``, names, positions, ``config``).
 
@@ -71,10 +89,38 @@ class Retrieval:
         >>> retrieval = Retrieval.from_distances([[0.2, 0.5, 0.9]], [[4, 0, 7]])
         >>> retrieval.scores, retrieval.score_kind
         (array([[-0.2, -0.5, -0.9]]), 'distance')
+        >>> Retrieval.from_distances([[0.2, 0.5]], [[4, 0]], kind="cosine-distance").scores
+        array([[0.8, 0.5]])
         """
         distances = _check_real("distances", distances)
-        config = {**fields.pop("config", {}), "scores": "distance"}
-        return cls(scores=-distances, indices=indices, distances=distances, config=config, **fields)
+        if kind not in SCORE_KINDS[1:]:
+            raise ValueError(f"kind must be one of {SCORE_KINDS[1:]}, got {kind!r}")
+        config = fields.pop("config", {})
+        if kind == "distance":
+            kept = None if (distances < 0).any() else distances  # below 0: no squared L2 distances
+            config = {**config, "scores": "distance"}
+            return cls(scores=-distances, indices=indices, distances=kept, config=config, **fields)
+        finite = distances[np.isfinite(distances)]
+        low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+        high = max(high, largest if largest is not None else high)
+        note = "cosine distances d = 1 - cos: scores are the cosine similarities 1 - d"
+        if kind == "l2-distance":
+            kind = "l2-distance:squared"
+            how = "a value above 2" if high > 2 else "assumed, as Faiss IndexFlatL2 returns; else l2-distance:plain"
+            note = f"squared L2 distances of unit-norm descriptors ({how}): scores are the cosine similarities 1 - d/2"
+        elif kind != "cosine-distance":
+            note = f"{kind.split(':')[1]} L2 distances of unit-norm descriptors: scores are the cosine similarities"
+        bound = 2.0 if kind != "l2-distance:squared" else 4.0
+        if low < -_UNIT_TOLERANCE or high > bound + _UNIT_TOLERANCE:
+            raise ValueError(
+                f"distances lie in [{low:.4g}, {high:.4g}]; {kind} between unit-norm descriptors lie in "
+                f"[0, {bound:g}]: these are other distances (read them as kind 'distance')"
+            )
+        squared = distances if kind == "l2-distance:squared" else distances**2 if kind == "l2-distance:plain" else None
+        scores = 1 - distances if squared is None else 1 - squared / 2
+        config = {**config, "scores": "similarity", "score_conversion": note}
+        squared = None if squared is None else np.maximum(squared, 0)  # Faiss rounds an exact match to -1e-7
+        return cls(scores=scores, indices=indices, distances=squared, config=config, **fields)
 
     @property
     def score_kind(self) -> str:
