@@ -24,8 +24,8 @@ from numpy.lib import format as npy_format
 from vpr_uncertainty import read_results
 from vpr_uncertainty.cli import main as cli_main
 from vpr_uncertainty.data import load_ground_truth, load_similarity_matrix, load_vprbench_dataset, positives_from_lists
-from vpr_uncertainty.data.ground_truth import UnsafePickleError, load_vprbench_ground_truth, read_npy
-from vpr_uncertainty.data.results import load_vprbench_similarity
+from vpr_uncertainty.formats.ground_truth import UnsafePickleError, load_vprbench_ground_truth, read_npy
+from vpr_uncertainty.formats.matrix import load_vprbench_similarity
 
 # --------------------------------------------------------------------------------------------------------------
 # Helpers: legacy-looking files and malicious payloads

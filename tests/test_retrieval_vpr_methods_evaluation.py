@@ -10,7 +10,7 @@ import pytest
 
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import read_results
-from vpr_uncertainty.data.results import read_arguments, read_vpr_methods_evaluation
+from vpr_uncertainty.formats.vpr_methods_evaluation import read_arguments, read_vpr_methods_evaluation
 
 pytest.importorskip("faiss")
 

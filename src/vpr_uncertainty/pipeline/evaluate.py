@@ -231,7 +231,7 @@ def _verifies(name: str) -> bool:
 def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list[str], dict[str, Any], list[str]]:
     """SCORES and the image folders of the command's arguments: (retrieval, methods, image options, notes)."""
     from vpr_uncertainty.data import read_results
-    from vpr_uncertainty.data.results import read_vpr_methods_evaluation
+    from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
 
     top_k = conf.candidates  # a full matrix gives as many candidates as k and the largest recall@N ask
     notes: list[str] = []
