@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty._files import is_regular_file
-from vpr_uncertainty.data.images import is_hidden
 from vpr_uncertainty.formats.ground_truth import load_ground_truth
 from vpr_uncertainty.formats.matrix import load_descriptors, open_descriptors
 from vpr_uncertainty.retrieval.ground_truth import attach_ground_truth, ground_truth_fields
@@ -69,7 +68,7 @@ def read_arguments(log: str | Path) -> dict[str, Any]:
 
 def _jpg_images(folder: Path) -> list[Path]:
     """That tool's image list: every ``*.jpg`` under ``folder``, recursively, sorted by path, hidden ones left out."""
-    found = (path for path in folder.glob("**/*.jpg") if not any(map(is_hidden, path.relative_to(folder).parts)))
+    found = (p for p in folder.glob("**/*.jpg") if not any(part.startswith(".") for part in p.relative_to(folder).parts))
     return sorted(found, key=lambda path: str(path))
 
 
