@@ -68,7 +68,7 @@ def read_arguments(log: str | Path) -> dict[str, Any]:
 
 def _jpg_images(folder: Path) -> list[Path]:
     """That tool's image list: every ``*.jpg`` under ``folder``, recursively, sorted by path, hidden ones left out."""
-    found = (p for p in folder.glob("**/*.jpg") if not any(part.startswith(".") for part in p.relative_to(folder).parts))
+    found = (p for p in folder.glob("**/*.jpg") if not any(s.startswith(".") for s in p.relative_to(folder).parts))
     return sorted(found, key=lambda path: str(path))
 
 
