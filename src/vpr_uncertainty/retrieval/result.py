@@ -606,7 +606,7 @@ def load_retrieval(path: str | Path) -> Retrieval:
     path = Path(path)
     if not is_regular_file(path, "a retrieval file"):
         raise FileNotFoundError(f"retrieval file not found: {path}")
-    arrays = _read_arrays(path)
+    arrays = read_npz(path, _RETRIEVAL_FILE)
     missing = {"scores", "indices"} - set(arrays)
     if missing:
         raise ValueError(f"{path} is not a retrieval file: missing {sorted(missing)} (found {sorted(arrays)})")
@@ -614,7 +614,7 @@ def load_retrieval(path: str | Path) -> Retrieval:
         _format_version(arrays)
         scores = check_scores(arrays["scores"])  # first, so that the positives are checked against them
         check_indices(arrays["indices"], scores)
-        positives = _positives(arrays, scores.shape[0])
+        positives = positives_from_csr(arrays, scores.shape[0])
         optional = ("distances", "query_names", "database_names", "query_positions", "database_positions")
         retrieval = Retrieval(
             scores=scores,
@@ -640,27 +640,25 @@ def load_retrieval(path: str | Path) -> Retrieval:
 # --- reading, field by field ----------------------------------------------------------------------------------
 
 _READ_ERRORS = (EOFError, OSError, ValueError, zipfile.BadZipFile, zlib.error, KeyError)
+_RETRIEVAL_FILE = "a retrieval file (a .npz archive with scores and indices; a .npy is read as a similarity matrix)"
 
 
-def _read_arrays(path: Path) -> dict[str, np.ndarray]:
-    if path.stat().st_size == 0:
-        raise ValueError(f"retrieval file {path} is empty (0 bytes); write it again")
+def read_npz(path: Path, what: str) -> dict[str, np.ndarray]:
+    """Every array of the ``.npz`` archive ``path`` (no pickles); a ValueError naming it and ``what`` it should be
+    for an empty, truncated or foreign file (a ``.npy`` array included)."""
+    with path.open("rb") as handle:
+        head = handle.read(6)
+    if head[:4] not in (b"PK\x03\x04", b"PK\x05\x06"):
+        kind = "empty (0 bytes)" if not head else "a .npy array" if head == b"\x93NUMPY" else "no zip archive"
+        raise ValueError(f"{path} is {kind}, not {what}")
     try:
-        archive = np.load(path, allow_pickle=False)
-        if isinstance(archive, np.lib.npyio.NpzFile):
-            with archive:
-                return {key: archive[key] for key in archive.files}
+        with np.load(path, allow_pickle=False) as archive:
+            return {key: archive[key] for key in archive.files}
     except PermissionError:
         raise
     except _READ_ERRORS as error:
         detail = str(error) or type(error).__name__
-        raise ValueError(
-            f"retrieval file {path} cannot be read as a .npz archive (truncated or not a retrieval file?): {detail}"
-        ) from None
-    raise ValueError(
-        f"{path} is a .npy array, not a retrieval file (a .npz archive with scores and indices); read it as a "
-        "similarity matrix (format 'matrix' or 'auto')"
-    )
+        raise ValueError(f"{path} is not a readable .npz archive (truncated?): {detail}; expected {what}") from None
 
 
 def _scalar_int(name: str, value: np.ndarray) -> int:
@@ -681,11 +679,15 @@ def _format_version(arrays: dict[str, np.ndarray]) -> int:
     return int(value)
 
 
-def _positives(arrays: dict[str, np.ndarray], n_queries: int) -> sparse.csr_array | None:
+def positives_from_csr(
+    arrays: dict[str, np.ndarray], n_queries: int | None = None, n_database: int | None = None
+) -> sparse.csr_array | None:
+    """The ground truth stored as ``positives_indptr``, ``positives_indices`` and optionally ``n_database`` (retrieval
+    files, ground-truth ``.npz``), every array checked; None when neither is stored. ``n_queries``, ``n_database``:
+    the sizes expected (a stored ``n_database`` must agree)."""
     present = [key for key in ("positives_indptr", "positives_indices") if key in arrays]
+    stored = check_n_database(_scalar_int("n_database", arrays["n_database"])) if "n_database" in arrays else None
     if not present:
-        if "n_database" in arrays:
-            _scalar_int("n_database", arrays["n_database"])
         return None
     if len(present) == 1:
         other = ({"positives_indptr", "positives_indices"} - set(present)).pop()
@@ -696,23 +698,22 @@ def _positives(arrays: dict[str, np.ndarray], n_queries: int) -> sparse.csr_arra
         raise ValueError(
             f"positives_indptr and positives_indices must be 1-D, got shapes {indptr.shape} and {indices.shape}"
         )
-    if len(indptr) != n_queries + 1:
+    if n_queries is not None and len(indptr) != n_queries + 1:
         raise ValueError(f"positives_indptr has {len(indptr)} entries, expected {n_queries + 1} (queries + 1)")
-    if indptr[0] != 0 or indptr[-1] != len(indices) or (np.diff(indptr) < 0).any():
+    decreases = (np.diff(indptr) < 0).any()
+    if not len(indptr) or indptr[0] != 0 or indptr[-1] != len(indices) or decreases:
         raise ValueError(
             f"positives_indptr must rise from 0 to the {len(indices)} entries of positives_indices without "
-            f"decreasing, got {indptr[0]} ... {indptr[-1]}" + (" (it decreases)" if (np.diff(indptr) < 0).any() else "")
+            f"decreasing, got {indptr[:1].tolist()} ... {indptr[-1:].tolist()}" + (" (it decreases)" * bool(decreases))
         )
-    if "n_database" in arrays:
-        n_database = _scalar_int("n_database", arrays["n_database"])
-        if n_database < 1:
-            raise ValueError(f"n_database must be >= 1, got {n_database}")
-    else:
-        n_database = int(indices.max()) + 1 if indices.size else 0
-    if indices.size and (indices.min() < 0 or indices.max() >= n_database):
-        bad = int(indices[(indices < 0) | (indices >= n_database)][0])
-        raise ValueError(f"positives_indices holds {bad}, outside the database of n_database = {n_database} images")
-    return sparse.csr_array((np.ones(indices.size, dtype=bool), indices, indptr), shape=(n_queries, n_database))
+    if stored is not None and n_database is not None and stored != n_database:
+        raise ValueError(f"the ground truth covers {stored} database images, expected {n_database}")
+    size = stored if stored is not None else n_database
+    size = size if size is not None else int(indices.max(initial=-1)) + 1
+    if indices.size and (indices.min() < 0 or indices.max() >= size):
+        bad = int(indices[(indices < 0) | (indices >= size)][0])
+        raise ValueError(f"positives_indices holds {bad}, outside the database of n_database = {size} images")
+    return sparse.csr_array((np.ones(indices.size, dtype=bool), indices, indptr), shape=(len(indptr) - 1, size))
 
 
 def _config(arrays: dict[str, np.ndarray]) -> dict[str, Any]:
