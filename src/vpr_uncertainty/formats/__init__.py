@@ -1,23 +1,13 @@
 """What users bring, read in one room: one module per external format, each with a cheap ``sniff(path) -> bool``
-and a ``read(path, ...)`` returning the toolkit's types, and the one dispatch of results formats (:func:`read_results`).
+and a ``read(path, ...)`` returning the toolkit's types, and the one dispatch of results formats (:func:`read_results`):
+:mod:`.matrix` (similarity or distance matrices ``.npy``, VPR-Bench's precomputed matches, descriptor files),
+:mod:`.hloc` (HDF5 global descriptors), :mod:`.vpr_methods_evaluation` (log folders), :mod:`.ground_truth`
+(``.npy`` masks and VPR-Bench's, ``.npz``, ``.json``, text) and :mod:`.per_query` (``evaluate --per-query`` tables).
 
-==========================  ==================================================================================
-module                      format
-==========================  ==================================================================================
-:mod:`.matrix`              full (queries × database) similarity or distance matrices (``.npy``), VPR-Bench's
-                            precomputed matches, plain ``.npy`` descriptors (and the descriptor-file dispatch)
-:mod:`.hloc`                hloc's HDF5 global descriptors
-:mod:`.vpr_methods_evaluation`  VPR-methods-evaluation log folders (``--save_descriptors``)
-:mod:`.ground_truth`        ground truth in ``.npy`` (mask, VPR-Bench), ``.npz``, ``.json``, text; ``.npy`` read safely
-:mod:`.per_query`           the per-query table of ``evaluate --per-query`` (``.csv``, ``.parquet``)
-==========================  ==================================================================================
-
-Every file a user names is checked once, before a reader opens it: a regular file (links followed; a FIFO, device or
-socket refused, :mod:`vpr_uncertainty._files`), HDF5 without links or storage outside the file
-(:func:`vpr_uncertainty.cache.hard_links`), ``.npy`` without running its code. The toolkit's own artefacts (the
-retrieval ``.npz`` of :func:`~vpr_uncertainty.retrieval.save_retrieval`, the descriptor cache) stay with the cache.
-Dataset formats (how ``load_dataset`` reads a dataset folder or table) are another registry,
-:data:`vpr_uncertainty.data.formats.DATASET_FORMAT_REGISTRY`.
+Each reader refuses what is not a regular file (a FIFO or device, :mod:`vpr_uncertainty._files`), HDF5 links or
+storage outside the file (:func:`vpr_uncertainty.cache.hard_links`) and code in ``.npy`` files. The toolkit's own
+artefacts (retrieval ``.npz``, descriptor cache) stay with the cache; dataset formats (``load_dataset``) are another
+registry, :data:`vpr_uncertainty.data.formats.DATASET_FORMAT_REGISTRY`.
 """
 
 from __future__ import annotations
