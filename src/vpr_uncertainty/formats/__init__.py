@@ -38,11 +38,11 @@ class ResultsFormat:
     ----------
     name, description : str
     reader : callable or str
-        ``reader(path, *, ground_truth, top_k) -> Retrieval``, or its dotted path ``"module:function"``; with
-        ``reads_distances``, it also takes ``scores=`` a kind of :data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`.
+        A format module's ``read(path, *, ground_truth, top_k) -> Retrieval`` (or ``"module:function"``); with
+        ``reads_distances``, it also takes ``scores=`` (:data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`).
     detect : callable or None
-        ``detect(path) -> bool``: whether ``file_format="auto"`` reads ``path`` with this format (formats are tried
-        in registration order). None: only read when named.
+        Its ``sniff(path) -> bool``: whether ``file_format="auto"`` reads ``path`` with this format (tried in
+        registration order). None: only read when named.
     provides : tuple of str
         What a file of this format gives the methods (``"scores"``, ``"distances"``, ``"positives"``, ``"names"``).
     extra : str or None
@@ -82,7 +82,6 @@ def read_results(
     file_format: str = "auto",
     top_k: int = DEFAULT_TOP_K,
     scores: str = "similarity",
-    higher_is_better: bool = True,
 ) -> Retrieval:
     """Read precomputed results and their ground truth into a Retrieval.
 
@@ -96,28 +95,20 @@ def read_results(
         Ground-truth file; required unless the results hold their positives. When given, it replaces the positives
         stored in a retrieval file.
     file_format : str, default="auto"
-        A name of :data:`RESULTS_FORMAT_REGISTRY` (``"retrieval"``, ``"matrix"``, ``"vprbench"``,
-        ``"vpr-methods-evaluation"``, or a plugin's); ``"auto"``: the first registered format whose ``detect``
-        accepts the path, else a similarity matrix, plain or VPR-Bench's, as the file holds.
+        A name of :data:`RESULTS_FORMAT_REGISTRY` (or a plugin's); ``"auto"``: the first registered format whose
+        ``detect`` accepts the path, else a similarity matrix, plain or VPR-Bench's, as the file holds.
     top_k : int
         Candidates kept per query when a full matrix is read (all of them when the database is smaller); pass at
         least the largest k the methods will use. A retrieval file keeps the candidates it holds.
     scores : str, default="similarity"
-        What a matrix holds (:data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`): similarities, higher = more
-        similar; or distances, whose k smallest values per query are kept and converted by
-        :meth:`~vpr_uncertainty.retrieval.Retrieval.from_distances` (``"cosine-distance"`` and ``"l2-distance"``
-        of unit-norm descriptors into exact cosine similarities, ``"distance"`` negated). A retrieval file stores
-        similarities (other kinds are refused); a log folder is searched again by cosine similarity (the ranking of
-        its L2 distances), so ``"l2-distance"`` and ``"cosine-distance"`` are accepted there and ``"distance"`` not.
-    higher_is_better : bool, default=True
-        False: ``scores="distance"`` (the earlier spelling).
+        What a matrix holds (:data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`): similarities, or distances
+        whose k smallest values per query are kept and converted by
+        :meth:`~vpr_uncertainty.retrieval.Retrieval.from_distances`. A retrieval file holds similarities (other
+        kinds are refused); a log folder is searched by cosine similarity (``"distance"`` is refused).
     """
     path = Path(path)
-    if not isinstance(higher_is_better, bool):
-        raise TypeError(f"higher_is_better must be True or False, got {higher_is_better!r}")
     if scores not in SCORE_KINDS:
         raise ValueError(f"scores must be one of {SCORE_KINDS}, got {scores!r}")
-    scores = "distance" if not higher_is_better and scores == "similarity" else scores
     if file_format == "auto":  # among the formats registered so far (the CLI loads the plugins first)
         entry = next((entry for entry in RESULTS_FORMAT_REGISTRY if entry.detect and entry.detect(path)), None)
         if entry is None:  # a similarity or distance matrix, plain or VPR-Bench's, as the file holds
