@@ -75,3 +75,15 @@ def test_other_tables_are_not_sniffed_and_a_bad_row_is_named(tmp_path):
         read_results(bad)
     with pytest.raises(ValueError, match="its ground truth is its correct and answerable columns"):
         read_results(bad, ground_truth=tmp_path / "gt.json")
+
+
+def test_a_parquet_table_reads_as_its_csv(table, tmp_path):
+    pandas = pytest.importorskip("pandas")
+    pytest.importorskip("pyarrow")
+    path, _ = table
+    frame = pandas.read_csv(path)
+    frame.to_parquet(tmp_path / "per_query.parquet")
+    assert per_query.sniff(tmp_path / "per_query.parquet")
+    from_parquet, from_csv = read_results(tmp_path / "per_query.parquet"), read_results(path)
+    np.testing.assert_array_equal(from_parquet.scores, from_csv.scores)
+    np.testing.assert_array_equal(from_parquet.positives.toarray(), from_csv.positives.toarray())
