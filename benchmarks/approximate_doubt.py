@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vpr_uncertainty import evaluate
-from vpr_uncertainty.data.ground_truth import positives_from_lists
+from vpr_uncertainty.formats.ground_truth import positives_from_lists
 from vpr_uncertainty.retrieval import retrieve
 
 METHODS = ("RS", "SD", "SU")

@@ -35,7 +35,7 @@ IN_MEMORY = """
 import sys
 import numpy as np
 import vpr_uncertainty.retrieval as retrieval
-from vpr_uncertainty.data.ground_truth import load_ground_truth
+from vpr_uncertainty.formats.ground_truth import load_ground_truth
 from vpr_uncertainty.retrieval.result import Retrieval
 
 

@@ -34,8 +34,8 @@ import torch
 
 from vpr_uncertainty.btl.method import PROTOCOLS, btl_protocol, train_for_protocol
 from vpr_uncertainty.data.dataset import attach_ground_truth
-from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import evaluate
+from vpr_uncertainty.formats.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.pipeline.extract import ExtractConf
 from vpr_uncertainty.pipeline.extract import compute as extract
 from vpr_uncertainty.retrieval import retrieve

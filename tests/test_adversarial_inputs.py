@@ -20,7 +20,7 @@ import pytest
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import load_vprbench_dataset
 from vpr_uncertainty.data.images import list_images
-from vpr_uncertainty.data.results import _jpg_images
+from vpr_uncertainty.formats.vpr_methods_evaluation import _jpg_images
 
 # --- shared crafting helpers ----------------------------------------------------------------------------------
 

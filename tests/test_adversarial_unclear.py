@@ -29,10 +29,10 @@ from vpr_uncertainty.cli import EXIT_RUNTIME, _message, exit_status
 torch = pytest.importorskip("torch")
 Image = pytest.importorskip("PIL.Image")
 
-from vpr_uncertainty.data.results import open_descriptors  # noqa: E402
 from vpr_uncertainty.descriptors import Preprocessing, cache_info, extract_descriptors, read_descriptors  # noqa: E402
 from vpr_uncertainty.descriptors.cache import split_checksum  # noqa: E402
 from vpr_uncertainty.descriptors.models import from_callable  # noqa: E402
+from vpr_uncertainty.formats.matrix import open_descriptors  # noqa: E402
 
 
 @pytest.fixture
@@ -114,7 +114,7 @@ def test_address_space_limit_names_the_matrix_file(tmp_path):
 
 def test_a_block_that_cannot_be_mapped_names_the_file_and_a_smaller_block(tmp_path, monkeypatch):
     """The streaming reader maps one block at a time: a block over the limit names the file and the remedy."""
-    from vpr_uncertainty.data.ground_truth import read_npy
+    from vpr_uncertainty.formats.ground_truth import read_npy
     from vpr_uncertainty.retrieval.blocks import MappedRows
 
     path = tmp_path / "m.npy"

@@ -208,7 +208,7 @@ TURNED = {
 @pytest.mark.parametrize("turn", list(TURNED))
 def test_each_corridor_matrix_turned_into_distances_gets_the_notice(turn, corridor_dir, corridor_matches_dir, tmp_path):
     from vpr_uncertainty.data import read_results
-    from vpr_uncertainty.data.results import load_vprbench_similarity
+    from vpr_uncertainty.formats.matrix import load_vprbench_similarity
 
     for path in _corridor_matrices(corridor_matches_dir):
         matrix = tmp_path / "distances.npy"
@@ -222,7 +222,7 @@ def test_each_corridor_matrix_turned_into_distances_gets_the_notice(turn, corrid
 
 
 def test_the_command_line_suggests_scores_distance_once(corridor_dir, corridor_matches_dir, tmp_path, capsys):
-    from vpr_uncertainty.data.results import load_vprbench_similarity
+    from vpr_uncertainty.formats.matrix import load_vprbench_similarity
 
     similarity = load_vprbench_similarity(corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy")
     np.save(tmp_path / "distances.npy", np.sqrt(np.maximum(2 - 2 * similarity, 0)))
@@ -247,7 +247,7 @@ def test_the_command_line_suggests_scores_distance_once(corridor_dir, corridor_m
 def test_similarities_read_as_distances_get_the_reverse_notice(corridor_dir, corridor_matches_dir, capsys):
     path = corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy"
     argv = ["evaluate", str(path), "--gt", str(corridor_dir / "ground_truth_new.npy"), "--scores", "distance"]
-    with pytest.warns(UserWarning, match=r"read as distances \(--scores distance\).*drop --scores distance"):
+    with pytest.warns(UserWarning, match=r"read as distances \(--scores\).*drop --scores"):
         assert main([*argv, "--methods", "BM"]) == 0
 
 
@@ -264,7 +264,7 @@ def test_a_full_retrieval_read_backwards_gets_the_notice_without_the_readers_mea
 
 
 def test_reproduce_notes_a_distance_matrix_in_its_cell(corridor_dir, corridor_matches_dir, tmp_path):
-    from vpr_uncertainty.data.results import load_vprbench_similarity
+    from vpr_uncertainty.formats.matrix import load_vprbench_similarity
     from vpr_uncertainty.pipeline.grid import load_config, run_grid
 
     similarity = load_vprbench_similarity(corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy")

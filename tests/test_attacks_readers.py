@@ -199,7 +199,7 @@ def test_row8_numbers_without_padding_are_mapped_by_number(tmp_path, corridor_di
 def test_row8_images_given_to_evaluate_are_matched_by_name(tmp_path, corridor_dir, corridor_matches_dir):
     """``evaluate MATRIX --images FOLDER``: GV verified query 50 against the picture of query 51, exit 0."""
     from vpr_uncertainty.data.images import retrieval_image_paths
-    from vpr_uncertainty.data.results import read_results
+    from vpr_uncertainty.formats import read_results
 
     images = _corridor_copy(corridor_dir, tmp_path / "images")
     (images / "query" / "0000050.jpg").rename(images / "query" / "0000200.jpg")
@@ -242,7 +242,7 @@ def test_row9_an_hloc_image_hard_linked_under_two_names_is_read_under_both(tmp_p
 
 
 def test_row9_hard_link_cycles_end_and_multiplying_names_are_refused(tmp_path):
-    from vpr_uncertainty.descriptors.hloc import read_hloc_descriptors
+    from vpr_uncertainty.formats.hloc import read_hloc_descriptors
 
     path = _hloc(tmp_path / "loop.h5", {"a.jpg": np.ones(4, np.float32)})
     with h5py.File(path, "a") as handle:

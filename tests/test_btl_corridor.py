@@ -29,9 +29,9 @@ pytest.importorskip("efficientnet_lite_pytorch")
 from vpr_uncertainty.btl import btl_retrieval, load_btl_head, save_btl_head, train_btl_head  # noqa: E402
 from vpr_uncertainty.btl.method import resolve_btl_inputs  # noqa: E402
 from vpr_uncertainty.data.dataset import attach_ground_truth  # noqa: E402
-from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth  # noqa: E402
 from vpr_uncertainty.descriptors import extract_descriptors, load_model  # noqa: E402
 from vpr_uncertainty.evaluation import evaluate  # noqa: E402
+from vpr_uncertainty.formats.ground_truth import load_vprbench_ground_truth  # noqa: E402
 from vpr_uncertainty.reports.tables import format_table  # noqa: E402
 from vpr_uncertainty.retrieval import retrieve, save_retrieval  # noqa: E402
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.data import load_ground_truth, positives_from_lists, positives_from_mask, positives_to_lists
-from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
-from vpr_uncertainty.data.results import load_vprbench_similarity
+from vpr_uncertainty.formats.ground_truth import load_vprbench_ground_truth
+from vpr_uncertainty.formats.matrix import load_vprbench_similarity
 
 LISTS = [[0, 2], [], [1, 2, 3]]
 MASK = np.array([[1, 0, 1, 0], [0, 0, 0, 0], [0, 1, 1, 1]], dtype=bool)

@@ -12,7 +12,6 @@ from conftest import assert_close
 torch = pytest.importorskip("torch")
 pytest.importorskip("efficientnet_lite_pytorch")
 
-from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth  # noqa: E402
 from vpr_uncertainty.descriptors import (  # noqa: E402
     DEFAULT_MODEL,
     cache_info,
@@ -20,6 +19,7 @@ from vpr_uncertainty.descriptors import (  # noqa: E402
     load_model,
     read_descriptors,
 )
+from vpr_uncertainty.formats.ground_truth import load_vprbench_ground_truth  # noqa: E402
 
 pytestmark = pytest.mark.realdata
 

@@ -9,7 +9,7 @@ import pytest
 from conftest import assert_close
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import load_descriptors
-from vpr_uncertainty.descriptors.hloc import read_hloc_descriptors, write_hloc_descriptors
+from vpr_uncertainty.formats.hloc import read_hloc_descriptors, write_hloc_descriptors
 
 
 def _hloc_file(path, names, descriptors):

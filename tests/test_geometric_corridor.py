@@ -11,8 +11,8 @@ import pytest
 
 from conftest import assert_close
 from vpr_uncertainty import Retrieval, auc_pr, evaluate, read_results
-from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.evaluation import correct_at_n
+from vpr_uncertainty.formats.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.geometric import GeometricVerifier, gv_sift, rerank, verify_retrieval
 
 cv2 = pytest.importorskip("cv2")

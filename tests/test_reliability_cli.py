@@ -400,7 +400,7 @@ def test_ctrl_c_during_run_exits_130_and_the_rerun_resumes(tmp_path, tiny_datase
 
 
 def test_interrupted_retrieval_write_keeps_the_previous_file(tmp_path, monkeypatch):
-    from vpr_uncertainty.retrieval import Retrieval, file_format, load_retrieval, save_retrieval
+    from vpr_uncertainty.retrieval import Retrieval, load_retrieval, result, save_retrieval
 
     first = Retrieval(scores=np.array([[0.9, 0.5]]), indices=np.array([[0, 1]]))
     path = save_retrieval(first, tmp_path / "retrieval.npz")
@@ -409,7 +409,7 @@ def test_interrupted_retrieval_write_keeps_the_previous_file(tmp_path, monkeypat
         handle.write(b"PK\x03\x04 half an archive")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(file_format.np, "savez_compressed", cut_short)
+    monkeypatch.setattr(result.np, "savez_compressed", cut_short)
     with pytest.raises(KeyboardInterrupt):
         save_retrieval(Retrieval(scores=np.array([[0.8, 0.1]]), indices=np.array([[1, 0]])), path)
     np.testing.assert_array_equal(load_retrieval(path).indices, first.indices)  # the rerun reads a whole file

@@ -24,8 +24,8 @@ from numpy.lib import format as npy_format
 from vpr_uncertainty import read_results
 from vpr_uncertainty.cli import main as cli_main
 from vpr_uncertainty.data import load_ground_truth, load_similarity_matrix, load_vprbench_dataset, positives_from_lists
-from vpr_uncertainty.data.ground_truth import UnsafePickleError, load_vprbench_ground_truth, read_npy
-from vpr_uncertainty.data.results import load_vprbench_similarity
+from vpr_uncertainty.formats.ground_truth import UnsafePickleError, load_vprbench_ground_truth, read_npy
+from vpr_uncertainty.formats.matrix import load_vprbench_similarity
 
 # --------------------------------------------------------------------------------------------------------------
 # Helpers: legacy-looking files and malicious payloads
@@ -317,15 +317,20 @@ def _save_npz(path: Path, indptr, indices, **extra) -> Path:
 @pytest.mark.parametrize(
     ("indptr", "indices", "extra", "match"),
     [
-        ([0, 1, 2], [0, -5], {"n_database": 4}, r"gt\.npz: positives of query 1 must be database indices .* got -5"),
-        ([0, 1, 2], [0, 7], {"n_database": 4}, r"gt\.npz: positives of query 1 .* got 7"),
-        ([0, 1, 2], [0.0, 2.5], {}, r"gt\.npz: 'positives_indices' must be a 1-D array of integers, got dtype float"),
-        ([0, 1, 2], [True, False], {}, r"'positives_indices' must be a 1-D array of integers, got dtype bool"),
-        ([0, 1, 2], np.array([0, 2**64 - 1], np.uint64), {}, r"'positives_indices' holds 18446744073709551615"),
-        ([0, 2, 1], [0, 1], {}, r"'positives_indptr' must start at 0, never decrease"),
-        ([0, 1, 3], [0, 1], {}, r"'positives_indptr' must start at 0, never decrease and end at .* \(2\)"),
-        ([0, 1, 2], [0, 1], {"n_database": -3}, r"'n_database' must be non-negative, got -3"),
-        ([0, 1, 2], [0, 1], {"n_database": 9}, r"gt\.npz covers 9 database images, expected 4"),
+        (
+            [0, 1, 2],
+            [0, -5],
+            {"n_database": 4},
+            r"gt\.npz: positives_indices holds -5, outside the database of n_database = 4",
+        ),
+        ([0, 1, 2], [0, 7], {"n_database": 4}, r"gt\.npz: positives_indices holds 7"),
+        ([0, 1, 2], [0.0, 2.5], {}, r"gt\.npz: positives_indices must hold integers, got dtype float"),
+        ([0, 1, 2], [True, False], {}, r"positives_indices must hold integers, got dtype bool"),
+        ([0, 1, 2], np.array([0, 2**64 - 1], np.uint64), {}, r"positives_indices holds 18446744073709551615"),
+        ([0, 2, 1], [0, 1], {}, r"positives_indptr must rise from 0 .* \(it decreases\)"),
+        ([0, 1, 3], [0, 1], {}, r"positives_indptr must rise from 0 to the 2 entries"),
+        ([0, 1, 2], [0, 1], {"n_database": -3}, r"n_database must be a non-negative integer, got -3"),
+        ([0, 1, 2], [0, 1], {"n_database": 9}, r"gt\.npz: the ground truth covers 9 database images, expected 4"),
     ],
 )
 def test_npz_ground_truth_is_validated(tmp_path, indptr, indices, extra, match):

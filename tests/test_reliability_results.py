@@ -355,7 +355,7 @@ def test_a_npy_array_named_npz_is_a_clear_error(tmp_path):
     path = tmp_path / "array.npz"
     with path.open("wb") as handle:
         np.save(handle, np.zeros((2, 2)))
-    with pytest.raises(ValueError, match=r"array\.npz is a single \.npy array"):
+    with pytest.raises(ValueError, match=r"array\.npz is a \.npy array, not a retrieval file"):
         load_retrieval(path)
 
 

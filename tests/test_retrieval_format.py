@@ -1,4 +1,4 @@
-"""The retrieval file round trip (vpr_uncertainty.retrieval.file_format) and the Retrieval checks."""
+"""The retrieval file round trip (vpr_uncertainty.retrieval.result) and the Retrieval checks."""
 
 from __future__ import annotations
 

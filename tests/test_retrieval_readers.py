@@ -1,4 +1,4 @@
-"""Top-k from a full similarity matrix, reading precomputed results (data.results) and descriptor files."""
+"""Top-k from a full similarity matrix, reading precomputed results (vpr_uncertainty.formats) and descriptor files."""
 
 from __future__ import annotations
 
@@ -119,7 +119,7 @@ def test_empty_or_truncated_descriptor_npy_is_one_clear_error(tmp_path):
 def test_results_formats_are_a_registry_a_plugin_can_extend(tmp_path):
     from vpr_uncertainty.data import RESULTS_FORMAT_REGISTRY, ResultsFormat, input_formats, register_results_format
 
-    assert input_formats() == ("auto", "vpr-methods-evaluation", "retrieval", "matrix", "vprbench")
+    assert input_formats() == ("auto", "vpr-methods-evaluation", "retrieval", "per-query", "matrix", "vprbench")
     assert RESULTS_FORMAT_REGISTRY.get("matrix").provides == ("scores",)
 
     def read_pairs(path, *, ground_truth, top_k):  # one "query database score" line per candidate

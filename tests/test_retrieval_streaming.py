@@ -340,7 +340,7 @@ def test_open_descriptors_errors_match_load_descriptors(tmp_path):
 
 def test_a_vpr_methods_evaluation_log_folder_streams_its_database(tmp_path, spy_blocks, monkeypatch):
     from test_retrieval_vpr_methods_evaluation import _log_folder
-    from vpr_uncertainty.data.results import read_vpr_methods_evaluation
+    from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
 
     reads, searches = spy_blocks
     folder = _log_folder(tmp_path)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vpr_uncertainty.data import read_results, read_similarity_top_k
-from vpr_uncertainty.data.ground_truth import read_npy
+from vpr_uncertainty.formats.ground_truth import read_npy
 from vpr_uncertainty.retrieval import blocks as _top_k
 from vpr_uncertainty.retrieval import top_k_from_similarity
 from vpr_uncertainty.retrieval.blocks import top_k_blocks

@@ -10,7 +10,7 @@ import pytest
 
 from vpr_uncertainty.cli import main
 from vpr_uncertainty.data import read_results
-from vpr_uncertainty.data.results import read_arguments, read_vpr_methods_evaluation
+from vpr_uncertainty.formats.vpr_methods_evaluation import read_arguments, read_vpr_methods_evaluation
 
 pytest.importorskip("faiss")
 
@@ -107,3 +107,16 @@ def test_a_folder_without_descriptors_names_the_flag_that_writes_them(tmp_path, 
     assert main(["evaluate", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "queries_descriptors.npy, database_descriptors.npy missing" in err and "--save_descriptors" in err
+
+
+def test_the_log_folder_says_its_own_score_kind(tmp_path, capsys):
+    """That tool ranks by Faiss IndexFlatL2 on L2-normalised descriptors: --scores l2-distance is what it holds, read
+    as the cosine similarities that rank the same; the note says so; --scores distance is refused."""
+    log = _log_folder(tmp_path)
+    similar = read_results(log)
+    assert "s = 1 - d²/2" in similar.config["score_conversion"]
+    np.testing.assert_array_equal(read_results(log, scores="l2-distance").scores, similar.scores)
+    assert main(["evaluate", str(log), "--scores", "l2-distance", "--methods", "BM"]) == 0
+    assert "note: L2-normalised descriptors searched by cosine similarity" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="searched by similarity"):
+        read_results(log, scores="distance")

@@ -37,7 +37,7 @@ def files(tmp_path):
 
 def test_a_distance_matrix_keeps_the_nearest_as_distances_and_negated_scores(files):
     distances = np.load(files["distance"])
-    retrieval = read_results(files["distance"], ground_truth=files["gt"], top_k=10, higher_is_better=False)
+    retrieval = read_results(files["distance"], ground_truth=files["gt"], top_k=10, scores="distance")
     nearest = np.argsort(distances, axis=1, kind="stable")[:, :10]  # slow, obvious reference
     np.testing.assert_array_equal(retrieval.indices, nearest)
     np.testing.assert_array_equal(retrieval.distances, np.take_along_axis(distances, nearest, axis=1))
@@ -47,12 +47,12 @@ def test_a_distance_matrix_keeps_the_nearest_as_distances_and_negated_scores(fil
 
 
 def test_the_score_kind_survives_a_retrieval_file(files, tmp_path):
-    retrieval = read_results(files["distance"], ground_truth=files["gt"], higher_is_better=False)
+    retrieval = read_results(files["distance"], ground_truth=files["gt"], scores="distance")
     assert load_retrieval(save_retrieval(retrieval, tmp_path / "r.npz")).score_kind == "distance"
 
 
 def test_default_methods_on_distances_leave_out_the_ratios_with_one_warning(files):
-    retrieval = read_results(files["distance"], ground_truth=files["gt"], higher_is_better=False)
+    retrieval = read_results(files["distance"], ground_truth=files["gt"], scores="distance")
     with pytest.warns(UserWarning) as caught:
         evaluation = evaluate(retrieval, timing_repeats=1)
     messages = [str(warning.message) for warning in caught if "left out" in str(warning.message)]
@@ -103,14 +103,14 @@ def test_a_distance_matrix_refuses_nan_and_minus_infinity(files, tmp_path, value
     distances[3, 5] = value
     np.save(tmp_path / "bad.npy", distances)
     with pytest.raises(ValueError, match=rf"the distance matrix holds {where} at query 3, database image 5"):
-        read_results(tmp_path / "bad.npy", ground_truth=files["gt"], higher_is_better=False)
+        read_results(tmp_path / "bad.npy", ground_truth=files["gt"], scores="distance")
 
 
 def test_plus_infinity_in_a_distance_matrix_is_no_candidate(files, tmp_path):
     distances = np.load(files["distance"])
     distances[0, 1:] = np.inf
     np.save(tmp_path / "sparse.npy", distances)
-    retrieval = read_results(tmp_path / "sparse.npy", ground_truth=files["gt"], top_k=3, higher_is_better=False)
+    retrieval = read_results(tmp_path / "sparse.npy", ground_truth=files["gt"], top_k=3, scores="distance")
     assert retrieval.indices[0].tolist() == [0, -1, -1] and np.isinf(retrieval.distances[0, 1:]).all()
 
 

@@ -1,4 +1,5 @@
-"""Datasets, ground truth and the readers of what a user brings (dataset folders, results and descriptor files)."""
+"""Datasets and their ground truth; the readers of what a user brings live in :mod:`vpr_uncertainty.formats` (their
+public names are importable from here too)."""
 
 from vpr_uncertainty.data.dataset import Dataset, PlaceholderPositionsWarning, latlon_to_utm
 from vpr_uncertainty.data.formats import (
@@ -10,12 +11,6 @@ from vpr_uncertainty.data.formats import (
     load_vprbench_dataset,
     register_format,
 )
-from vpr_uncertainty.data.ground_truth import (
-    load_ground_truth,
-    positives_from_lists,
-    positives_from_mask,
-    positives_to_lists,
-)
 from vpr_uncertainty.data.images import MalformedImageNameError, load_folder_dataset, parse_image_name
 from vpr_uncertainty.data.named_datasets import (
     DATA_ROOT_VARIABLE,
@@ -26,17 +21,25 @@ from vpr_uncertainty.data.named_datasets import (
     get_named_dataset,
     load_dataset,
 )
-from vpr_uncertainty.data.results import (
+from vpr_uncertainty.formats import (
     DEFAULT_TOP_K,
     RESULTS_FORMAT_REGISTRY,
     ResultsFormat,
     input_formats,
+    read_results,
+    register_results_format,
+)
+from vpr_uncertainty.formats.ground_truth import (
+    load_ground_truth,
+    positives_from_lists,
+    positives_from_mask,
+    positives_to_lists,
+)
+from vpr_uncertainty.formats.matrix import (
     load_descriptors,
     load_similarity_matrix,
     open_descriptors,
-    read_results,
     read_similarity_top_k,
-    register_results_format,
 )
 from vpr_uncertainty.retrieval.ground_truth import (
     DEFAULT_RADIUS,

@@ -13,8 +13,8 @@ import numpy as np
 
 from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.data.dataset import Dataset, latlon_to_utm
-from vpr_uncertainty.data.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.data.images import find_split_folder, has_split, list_images, load_folder_dataset, numbered_order
+from vpr_uncertainty.formats.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.plugins import Registry
 from vpr_uncertainty.retrieval.ground_truth import (
     DEFAULT_RADIUS,

@@ -137,8 +137,9 @@ def evaluate(
         raise ValueError("no uncertainty method requested")
     entries = [get_method(name) for name in methods]  # unknown names fail before any work
     check_options(entries, options)  # and so do options that no selected method takes
+    ranked = int(retrieval.config.get("ranked_candidates", retrieval.k))  # a per-query table names the top-1 only
     if recall_at is None:  # every N is known when the candidates cover the database
-        recall_at = [n for n in RECALL_NS if n <= retrieval.k or retrieval.k >= retrieval.positives.shape[1]] or [1]
+        recall_at = [n for n in RECALL_NS if n <= ranked or ranked >= retrieval.positives.shape[1]] or [1]
     recall_at = check_recall_ns(recall_at)
     check_bootstrap(bootstrap, seed)
     if bootstrap:
@@ -147,10 +148,12 @@ def evaluate(
     answerable = answerable_queries(positives)
     first_rank = first_positive_rank(retrieval.indices, positives)  # one look-up for correct and every recall@N
     correct = first_rank < 1
-    recall_note = recall_candidates_note(recall_at, retrieval.k, positives.shape[1])
+    recall_note = recall_candidates_note(recall_at, ranked, positives.shape[1])
     with warnings.catch_warnings():  # the note below says it once, pointing at the caller
         warnings.simplefilter("ignore", FewerCandidatesWarning)
-        recalls = recall_at_n(retrieval.indices, positives, recall_at, first_rank=first_rank, answerable=answerable)
+        recalls = recall_at_n(
+            retrieval.indices[:, :ranked], positives, recall_at, first_rank=first_rank, answerable=answerable
+        )
     evaluation = Evaluation(
         n_queries=retrieval.n_queries,
         n_answerable=int(answerable.sum()),
@@ -291,8 +294,8 @@ def _direction_note(retrieval: Retrieval, top_1_correct: float) -> str | None:
     if below - above < 3 * np.sqrt(above + below) or below == 0:
         return None
     reading, advice = ("similarities", "if lower means more similar, read them as distances: --scores distance")
-    if retrieval.score_kind == "distance":
-        reading, advice = "distances (--scores distance)", "if higher means more similar, drop --scores distance"
+    if retrieval.score_kind == "distance" or "score_conversion" in retrieval.config:
+        reading, advice = "distances (--scores)", "if higher means more similar, drop --scores"
     return (
         f"the scores rank the ground truth backwards: read as {reading}, {below} of {above + below} queries score "
         f"their positives below the mean of their row (top-1 correct: {top_1_correct:.3f}); {advice}"

@@ -249,7 +249,8 @@ class UncertaintyMethod:
                 low, high = _score_range(retrieval.scores[:, :1])
                 return (
                     f"they divide by the best similarity s_1, and no query's is positive (s_1 in [{low:.4g}, "
-                    f"{high:.4g}]; for distances or negated distances, read them as distances: --scores distance)"
+                    f"{high:.4g}]; for distances or negated distances, read them as distances: --scores distance, "
+                    "or l2-distance / cosine-distance of unit-norm descriptors)"
                 )
         if self.scores == "cosine" and retrieval.distances is None:
             if retrieval.score_kind == "distance":

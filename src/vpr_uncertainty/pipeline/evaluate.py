@@ -232,14 +232,13 @@ def _verifies(name: str) -> bool:
 def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list[str], dict[str, Any], list[str]]:
     """SCORES and the image folders of the command's arguments: (retrieval, methods, image options, notes)."""
     from vpr_uncertainty.data import read_results
-    from vpr_uncertainty.data.results import read_vpr_methods_evaluation
+    from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
 
     top_k = conf.candidates  # a full matrix gives as many candidates as k and the largest recall@N ask
     notes: list[str] = []
     log_paths: tuple[Any, Any] = (None, None)
-    higher_is_better = args.score_kind == "similarity"
     if Path(args.scores).is_dir() and args.format == "auto":
-        if not higher_is_better:
+        if args.score_kind == "distance":
             raise ValueError("--scores distance: a VPR-methods-evaluation log folder is searched by similarity")
         log = read_vpr_methods_evaluation(args.scores, ground_truth=args.gt, radius=args.radius, top_k=top_k)
         retrieval, notes, log_paths = log.retrieval, log.notes, (log.query_paths, log.database_paths)
@@ -254,8 +253,9 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
             ground_truth=args.gt,
             file_format=args.format,
             top_k=top_k,
-            higher_is_better=higher_is_better,
+            scores=args.score_kind,
         )
+    notes += [retrieval.config["score_conversion"]] if "score_conversion" in retrieval.config else []
     methods = conf.method_names(retrieval)
     verifying = [name for name in methods if _verifies(name)]
     folders = {"images": args.images, "query_images": args.query_images, "database_images": args.database_images}

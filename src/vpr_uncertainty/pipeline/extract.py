@@ -406,7 +406,7 @@ def _handle(args: argparse.Namespace) -> int:
         print(f"{split}: {len(kept)} descriptors of size {descriptors.shape[1]}{note}")
     print(f"wrote {args.out}")
     if args.hloc is not None:
-        from vpr_uncertainty.descriptors.hloc import write_hloc_descriptors
+        from vpr_uncertainty.formats.hloc import write_hloc_descriptors
 
         partial_file = args.hloc.with_name(args.hloc.name + ".part")  # written whole, then renamed
         partial_file.unlink(missing_ok=True)

@@ -372,17 +372,20 @@ def add_executor_options(
 
 
 def add_score_kind_option(parser: argparse.ArgumentParser) -> None:
-    """``--scores similarity|distance``: which way the scores of a matrix file point (``higher_is_better``)."""
+    """``--scores KIND``: what a matrix file holds (:data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`)."""
+    from vpr_uncertainty.retrieval.result import SCORE_KINDS
+
     parser.add_argument(
         "--scores",
         dest="score_kind",
-        choices=("similarity", "distance"),
+        choices=SCORE_KINDS,
         default="similarity",
         help="what a matrix file holds: similarity, higher = more similar (default: cosine similarities, dot "
-        "products, HOG scores), or distance, lower = more similar (L2 distances, any lower-is-better score). "
-        "Distances are kept as the candidates' distances and negated as scores; the methods that assume "
-        "otherwise (RS, SD, SU divide by s_1; L2, PA, SUE need cosine similarities or distances) are left out "
-        "of the default list with one notice",
+        "products, HOG scores); cosine-distance (1 - cos) or l2-distance between unit-norm descriptors (squared, as "
+        "Faiss IndexFlatL2 returns, or plain: detected, or say l2-distance:squared / l2-distance:plain), converted "
+        "exactly to cosine similarities so that every method runs; or distance, any other lower-is-better score, "
+        "negated, with the methods that need similarities (RS, SD, SU divide by s_1; L2, PA, SUE need cosine "
+        "similarities or distances) left out of the default list with one notice",
     )
 
 

@@ -270,7 +270,7 @@ def _handle(args: argparse.Namespace) -> int:
     query_names, queries = load_descriptors(args.queries, "queries")
     positives = None
     if args.gt is not None:
-        from vpr_uncertainty.data.ground_truth import load_ground_truth
+        from vpr_uncertainty.formats.ground_truth import load_ground_truth
 
         positives = load_ground_truth(args.gt, n_queries=len(queries), n_database=len(database))
     ground_truth = ground_truth_fields(  # checked before the search, the slow part

@@ -1,8 +1,14 @@
 """Retrieval results: the top-k database images of every query, their file, and the search that finds them."""
 
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, top_k_from_similarity
-from vpr_uncertainty.retrieval.file_format import FORMAT_VERSION, load_retrieval, save_retrieval
-from vpr_uncertainty.retrieval.result import Retrieval, positives_from_lists, positives_from_mask
+from vpr_uncertainty.retrieval.result import (
+    FORMAT_VERSION,
+    Retrieval,
+    load_retrieval,
+    positives_from_lists,
+    positives_from_mask,
+    save_retrieval,
+)
 from vpr_uncertainty.retrieval.search import faiss_gpu_available, retrieve, search_descriptors
 
 __all__ = [

@@ -1,8 +1,38 @@
-"""The Retrieval type: the top-k database images of every query, with its ground truth, every field checked."""
+"""The Retrieval type: the top-k database images of every query, with its ground truth, every field checked; and its
+file.
+
+The retrieval file: a :class:`~vpr_uncertainty.retrieval.Retrieval` in one ``.npz`` archive.
+
+Retrieval file (``.npz``, no pickles), format version 1
+    ``format_version``   int, 1
+    ``scores``           (Q, K) float32, similarities sorted descending; ``-inf`` where a query has fewer than
+                         K candidates
+    ``indices``          (Q, K) int64, database index of each candidate; ``-1`` where missing
+    ``distances``        (Q, K) float32, squared L2 distances of the candidates, ascending; ``+inf`` where
+                         missing (optional)
+    ``positives_indptr``, ``positives_indices``, ``n_database``
+                         ground truth as a CSR matrix (optional)
+    ``query_names``, ``database_names``          (Q,), (D,) unicode (optional)
+    ``query_positions``, ``database_positions``  (Q, m), (D, m) float64, usually m = 2 (optional)
+    ``config``           JSON text describing what produced the file (optional)
+    ``checksum``         :func:`~vpr_uncertainty.cache.payload_checksum` of every other field, by name (written
+                         by :func:`save_retrieval`; verified on read when present, so a file changed on disk
+                         after it was written is refused, naming it; files of other tools may have none)
+
+    ``config`` keys written by ``retrieve`` and ``attach_ground_truth`` (readers ignore keys they do not know):
+    ``source``, ``metric``, ``k``, ``index``, ``device``, ``search_params``, ``dimension``, ``n_database``,
+    ``n_queries``, ``radius``, ``database``, ``queries`` and ``position_kind`` (absent = metres).
+
+Writes are atomic (written whole beside the target, then renamed). Reading checks every field as a Retrieval does,
+and what only a file has (version, CSR ground truth, JSON config, distinct candidates and names).
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import json
+import zipfile
+import zlib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,6 +40,14 @@ from typing import Any
 
 import numpy as np
 from scipy import sparse
+
+from vpr_uncertainty._files import is_regular_file
+from vpr_uncertainty.cache import ChecksumError, atomic_write, payload_checksum
+
+#: What the scores given to :meth:`Retrieval.from_distances` (and ``--scores``) are; all but ``"distance"`` become
+#: exact similarities.
+SCORE_KINDS = ("similarity", "cosine-distance", "l2-distance", "l2-distance:squared", "l2-distance:plain", "distance")
+_UNIT_TOLERANCE = 1e-3  # rounding of distances between unit-norm descriptors (Faiss: -1e-7 for an exact match)
 
 
 @dataclass(repr=False)
@@ -51,18 +89,31 @@ class Retrieval:
         check_retrieval_fields(self)
 
     @classmethod
-    def from_distances(cls, distances: object, indices: object, **fields: Any) -> Retrieval:
-        """A retrieval from distances (or any score where lower is better) sorted ascending.
+    def from_distances(
+        cls, distances: object, indices: object, *, kind: str = "distance", largest: float | None = None, **fields: Any
+    ) -> Retrieval:
+        """A retrieval from distances sorted ascending: the one place lower-is-better scores are converted.
 
-        The one conversion of lower-is-better scores: ``distances`` are kept as :attr:`distances` and negated as
-        :attr:`scores` (higher = better, as every method reads them), and ``config["scores"]`` says ``"distance"``,
-        so that the methods that need similarities (RS, SD, SU divide by s_1) are left out of the default list.
+        ``kind`` says what they are (:data:`SCORE_KINDS`):
+
+        - ``"cosine-distance"`` (d = 1 − cos): the scores are the exact cosine similarities 1 − d;
+        - ``"l2-distance"`` between unit-norm descriptors: the exact cosine similarities, s = 1 − d/2 of squared
+          distances (what Faiss ``IndexFlatL2`` returns), s = 1 − d²/2 of plain ones; ``"l2-distance:squared"`` and
+          ``"l2-distance:plain"`` say which, ``"l2-distance"`` detects it (a value above 2 is a squared distance,
+          otherwise squared is assumed) and says so in ``config["score_conversion"]``; :attr:`distances` keeps the
+          squared distances. Every uncertainty method then runs as on the similarities;
+        - ``"distance"``: any other lower-is-better score, negated as :attr:`scores` (kept as :attr:`distances` when
+          none is below 0), with ``config["scores"] = "distance"``, so that the methods that need similarities (RS,
+          SD, SU divide by s_1) are left out of the default list.
 
         Parameters
         ----------
         distances : array-like of shape (Q, K)
             Ascending per row; ``+inf`` marks a missing candidate.
         indices : array-like of shape (Q, K), int
+        kind : str, default="distance"
+        largest : float, optional
+            The largest distance of the whole matrix when ``distances`` hold only the nearest (detects squared L2).
         **fields
             The other fields of :class:`Retrieval` (``positives``, names, positions, ``config``).
 
@@ -71,10 +122,38 @@ class Retrieval:
         >>> retrieval = Retrieval.from_distances([[0.2, 0.5, 0.9]], [[4, 0, 7]])
         >>> retrieval.scores, retrieval.score_kind
         (array([[-0.2, -0.5, -0.9]]), 'distance')
+        >>> Retrieval.from_distances([[0.2, 0.5]], [[4, 0]], kind="cosine-distance").scores
+        array([[0.8, 0.5]])
         """
         distances = _check_real("distances", distances)
-        config = {**fields.pop("config", {}), "scores": "distance"}
-        return cls(scores=-distances, indices=indices, distances=distances, config=config, **fields)
+        if kind not in SCORE_KINDS[1:]:
+            raise ValueError(f"kind must be one of {SCORE_KINDS[1:]}, got {kind!r}")
+        config = fields.pop("config", {})
+        if kind == "distance":
+            kept = None if (distances < 0).any() else distances  # below 0: no squared L2 distances
+            config = {**config, "scores": "distance"}
+            return cls(scores=-distances, indices=indices, distances=kept, config=config, **fields)
+        finite = distances[np.isfinite(distances)]
+        low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+        high = max(high, largest if largest is not None else high)
+        note = "cosine distances d = 1 - cos: scores are the cosine similarities 1 - d"
+        if kind == "l2-distance":
+            kind = "l2-distance:squared"
+            how = "a value above 2" if high > 2 else "assumed, as Faiss IndexFlatL2 returns; else l2-distance:plain"
+            note = f"squared L2 distances of unit-norm descriptors ({how}): scores are the cosine similarities 1 - d/2"
+        elif kind != "cosine-distance":
+            note = f"{kind.split(':')[1]} L2 distances of unit-norm descriptors: scores are the cosine similarities"
+        bound = 2.0 if kind != "l2-distance:squared" else 4.0
+        if low < -_UNIT_TOLERANCE or high > bound + _UNIT_TOLERANCE:
+            raise ValueError(
+                f"distances lie in [{low:.4g}, {high:.4g}]; {kind} between unit-norm descriptors lie in "
+                f"[0, {bound:g}]: these are other distances (read them as kind 'distance')"
+            )
+        squared = distances if kind == "l2-distance:squared" else distances**2 if kind == "l2-distance:plain" else None
+        scores = 1 - distances if squared is None else 1 - squared / 2
+        config = {**config, "scores": "similarity", "score_conversion": note}
+        squared = None if squared is None else np.maximum(squared, 0)  # Faiss rounds an exact match to -1e-7
+        return cls(scores=scores, indices=indices, distances=squared, config=config, **fields)
 
     @property
     def score_kind(self) -> str:
@@ -476,3 +555,179 @@ def positives_from_mask(mask: object, *, source: str | Path | None = None) -> sp
             )
         array = array.astype(bool)
     return sparse.csr_array(array)
+
+
+# --- the retrieval file ---------------------------------------------------------------------------------------
+
+FORMAT_VERSION = 1
+
+
+def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
+    """Write a retrieval file (see the module docstring for the layout) and return its path."""
+    if not isinstance(retrieval, Retrieval):  # numpy.save's order, (path, array), given by habit
+        raise TypeError(f"save_retrieval(retrieval, path): the Retrieval comes first, got {type(retrieval).__name__}")
+    path = Path(path)
+    arrays: dict[str, Any] = {
+        "format_version": np.array(FORMAT_VERSION),
+        "scores": retrieval.scores.astype(np.float32, copy=False),
+        "indices": retrieval.indices,
+        "config": np.array(json.dumps(retrieval.config, sort_keys=True)),
+    }
+    if retrieval.distances is not None:
+        arrays["distances"] = retrieval.distances.astype(np.float32, copy=False)
+    if retrieval.positives is not None:
+        arrays["positives_indptr"] = retrieval.positives.indptr.astype(np.int64)
+        arrays["positives_indices"] = retrieval.positives.indices.astype(np.int64)
+        arrays["n_database"] = np.array(retrieval.positives.shape[1])
+    for name in ("query_names", "database_names", "query_positions", "database_positions"):
+        value = getattr(retrieval, name)
+        if value is not None:
+            arrays[name] = np.asarray(value, dtype=str if name.endswith("_names") else np.float64)
+    arrays["checksum"] = np.array(_checksum(arrays))
+    with atomic_write(path, "wb") as handle:  # written whole, then renamed: never a truncated file
+        np.savez_compressed(handle, **arrays)
+    return path
+
+
+def _checksum(arrays: dict[str, np.ndarray]) -> str:
+    """The payload checksum of a retrieval file's fields (every field but ``checksum``, in name order)."""
+    names = sorted(name for name in arrays if name != "checksum")
+    return payload_checksum(*(part for name in names for part in (name, arrays[name])))
+
+
+def load_retrieval(path: str | Path) -> Retrieval:
+    """Read a retrieval file written by :func:`save_retrieval` (or any ``.npz`` with ``scores``, ``indices``).
+
+    Raises
+    ------
+    FileNotFoundError
+        When ``path`` is not a file.
+    ValueError
+        Naming the file, the field and the problem; also for an empty, truncated or non-``.npz`` file.
+    """
+    path = Path(path)
+    if not is_regular_file(path, "a retrieval file"):
+        raise FileNotFoundError(f"retrieval file not found: {path}")
+    arrays = read_npz(path, _RETRIEVAL_FILE)
+    missing = {"scores", "indices"} - set(arrays)
+    if missing:
+        raise ValueError(f"{path} is not a retrieval file: missing {sorted(missing)} (found {sorted(arrays)})")
+    try:
+        _format_version(arrays)
+        scores = check_scores(arrays["scores"])  # first, so that the positives are checked against them
+        check_indices(arrays["indices"], scores)
+        positives = positives_from_csr(arrays, scores.shape[0])
+        optional = ("distances", "query_names", "database_names", "query_positions", "database_positions")
+        retrieval = Retrieval(
+            scores=scores,
+            indices=arrays["indices"],
+            positives=positives,
+            config=_config(arrays),
+            **{name: arrays.get(name) for name in optional},
+        )
+        names = {"query_names": retrieval.query_names, "database_names": retrieval.database_names}
+        check_distinct(retrieval.indices, names)
+    except ValueError as error:
+        raise ValueError(f"retrieval file {path}: {error}") from None
+    if "checksum" in arrays:  # last: a field that is wrong in itself is named first
+        stored = arrays["checksum"]
+        if stored.ndim != 0 or stored.dtype.kind != "U" or str(stored) != _checksum(arrays):
+            raise ChecksumError(
+                f"retrieval file {path}: its content does not match the checksum stored with it (changed on disk "
+                "after it was written); write it again (a run or retrieve rebuilds it)"
+            )
+    return retrieval
+
+
+# --- reading, field by field ----------------------------------------------------------------------------------
+
+_READ_ERRORS = (EOFError, OSError, ValueError, zipfile.BadZipFile, zlib.error, KeyError)
+_RETRIEVAL_FILE = "a retrieval file (a .npz archive with scores and indices; a .npy is read as a similarity matrix)"
+
+
+def read_npz(path: Path, what: str) -> dict[str, np.ndarray]:
+    """Every array of the ``.npz`` archive ``path`` (no pickles); a ValueError naming it and ``what`` it should be
+    for an empty, truncated or foreign file (a ``.npy`` array included)."""
+    with path.open("rb") as handle:
+        head = handle.read(6)
+    if head[:4] not in (b"PK\x03\x04", b"PK\x05\x06"):
+        kind = "empty (0 bytes)" if not head else "a .npy array" if head == b"\x93NUMPY" else "no zip archive"
+        raise ValueError(f"{path} is {kind}, not {what}")
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            return {key: archive[key] for key in archive.files}
+    except PermissionError:
+        raise
+    except _READ_ERRORS as error:
+        detail = str(error) or type(error).__name__
+        raise ValueError(f"{path} is not a readable .npz archive (truncated?): {detail}; expected {what}") from None
+
+
+def _scalar_int(name: str, value: np.ndarray) -> int:
+    if value.ndim != 0 or value.dtype == bool or not np.issubdtype(value.dtype, np.integer):
+        raise ValueError(f"{name} must be a single integer, got {value!r}")
+    return int(value)
+
+
+def _format_version(arrays: dict[str, np.ndarray]) -> int:
+    maximum = FORMAT_VERSION
+    if "format_version" not in arrays:
+        return maximum  # written by another tool: read as the current version
+    value = arrays["format_version"]
+    if value.ndim != 0 or value.dtype == bool or not np.issubdtype(value.dtype, np.integer) or value < 1:
+        raise ValueError(f"format_version must be an integer between 1 and {maximum}, got {value.tolist()!r}")
+    if value > maximum:
+        raise ValueError(f"format_version is {value}; this toolkit reads up to {maximum}. Upgrade vpr-uncertainty")
+    return int(value)
+
+
+def positives_from_csr(
+    arrays: dict[str, np.ndarray], n_queries: int | None = None, n_database: int | None = None
+) -> sparse.csr_array | None:
+    """The ground truth stored as ``positives_indptr``, ``positives_indices`` and optionally ``n_database`` (retrieval
+    files, ground-truth ``.npz``), every array checked; None when neither is stored. ``n_queries``, ``n_database``:
+    the sizes expected (a stored ``n_database`` must agree)."""
+    present = [key for key in ("positives_indptr", "positives_indices") if key in arrays]
+    stored = check_n_database(_scalar_int("n_database", arrays["n_database"])) if "n_database" in arrays else None
+    if not present:
+        return None
+    if len(present) == 1:
+        other = ({"positives_indptr", "positives_indices"} - set(present)).pop()
+        raise ValueError(f"{present[0]} is present without {other}; the ground truth needs both")
+    indptr = check_integers("positives_indptr", arrays["positives_indptr"])
+    indices = check_integers("positives_indices", arrays["positives_indices"])
+    if indptr.ndim != 1 or indices.ndim != 1:
+        raise ValueError(
+            f"positives_indptr and positives_indices must be 1-D, got shapes {indptr.shape} and {indices.shape}"
+        )
+    if n_queries is not None and len(indptr) != n_queries + 1:
+        raise ValueError(f"positives_indptr has {len(indptr)} entries, expected {n_queries + 1} (queries + 1)")
+    decreases = (np.diff(indptr) < 0).any()
+    if not len(indptr) or indptr[0] != 0 or indptr[-1] != len(indices) or decreases:
+        raise ValueError(
+            f"positives_indptr must rise from 0 to the {len(indices)} entries of positives_indices without "
+            f"decreasing, got {indptr[:1].tolist()} ... {indptr[-1:].tolist()}" + (" (it decreases)" * bool(decreases))
+        )
+    if stored is not None and n_database is not None and stored != n_database:
+        raise ValueError(f"the ground truth covers {stored} database images, expected {n_database}")
+    size = stored if stored is not None else n_database
+    size = size if size is not None else int(indices.max(initial=-1)) + 1
+    if indices.size and (indices.min() < 0 or indices.max() >= size):
+        bad = int(indices[(indices < 0) | (indices >= size)][0])
+        raise ValueError(f"positives_indices holds {bad}, outside the database of n_database = {size} images")
+    return sparse.csr_array((np.ones(indices.size, dtype=bool), indices, indptr), shape=(len(indptr) - 1, size))
+
+
+def _config(arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+    if "config" not in arrays:
+        return {}
+    value = arrays["config"]
+    if value.ndim != 0 or value.dtype.kind != "U":
+        raise ValueError(f"config must be JSON text, got dtype {value.dtype} and shape {value.shape}")
+    try:
+        config = json.loads(str(value))
+    except json.JSONDecodeError as error:
+        raise ValueError(f"config is not valid JSON ({error})") from None
+    if not isinstance(config, dict):
+        raise ValueError(f"config must be a JSON object, got {type(config).__name__}")
+    return config

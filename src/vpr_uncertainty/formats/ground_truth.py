@@ -7,7 +7,6 @@ import json
 import math
 import pickle
 import re
-import zipfile
 from pathlib import Path
 from typing import IO, Any
 
@@ -16,7 +15,14 @@ from numpy.lib import format as npy_format
 from scipy import sparse
 
 from vpr_uncertainty._files import is_regular_file
-from vpr_uncertainty.retrieval.result import check_n_database, is_index, positives_from_lists, positives_from_mask
+from vpr_uncertainty.retrieval.result import (
+    check_n_database,
+    is_index,
+    positives_from_csr,
+    positives_from_lists,
+    positives_from_mask,
+    read_npz,
+)
 
 _INTEGER_FIELD = re.compile(r"[+-]?[0-9]+")
 #: What VPR-Bench's ``ground_truth_new.npy`` holds, for error messages.
@@ -94,55 +100,16 @@ def _from_json(path: Path, n_database: int | None) -> sparse.csr_array:
     return positives_from_lists(lists, n_database, source=path)
 
 
-def _integer_array(contents: dict[str, np.ndarray], key: str, path: Path, ndim: int) -> np.ndarray:
-    array = contents[key]
-    if array.ndim != ndim or array.dtype.kind not in "iu":
-        shape = "a scalar" if ndim == 0 else "a 1-D array"
-        raise ValueError(f"{path}: '{key}' must be {shape} of integers, got dtype {array.dtype}, shape {array.shape}")
-    if array.dtype.kind == "u" and array.size and array.max() > np.iinfo(np.int64).max:
-        raise ValueError(f"{path}: '{key}' holds {array.max()}, beyond any database size")
-    return array.astype(np.int64)
-
-
-_NPZ_KEYS = ("positives_indptr", "positives_indices", "n_database")
-
-
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
-    with path.open("rb") as handle:
-        head = handle.read(4)
-    if head not in (b"PK\x03\x04", b"PK\x05\x06"):
-        kind = "empty (0 bytes)" if not head else "a .npy array" if head == b"\x93NUM" else "not a zip archive"
-        raise ValueError(f"{path} is {kind}; expected ground truth in a .npz archive")
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            found = sorted(archive.files)
-            contents = {key: archive[key] for key in _NPZ_KEYS if key in archive}
-    except (OSError, EOFError, zipfile.BadZipFile, ValueError) as error:
-        raise ValueError(f"{path} is not a readable .npz archive ({error}); expected ground truth arrays") from None
-    if "positives_indptr" not in contents or "positives_indices" not in contents:
-        raise ValueError(
-            f"{path} has no ground truth: expected arrays 'positives_indptr' and 'positives_indices', found {found}"
-        )
-    return contents
-
-
 def _from_npz(path: Path, n_database: int | None) -> sparse.csr_array:
-    contents = _read_npz(path)
-    indptr = _integer_array(contents, "positives_indptr", path, 1)
-    indices = _integer_array(contents, "positives_indices", path, 1)
-    stored = int(_integer_array(contents, "n_database", path, 0)) if "n_database" in contents else None
-    if indptr.size == 0 or indptr[0] != 0 or np.any(np.diff(indptr) < 0) or indptr[-1] != indices.size:
-        raise ValueError(
-            f"{path}: 'positives_indptr' must start at 0, never decrease and end at the number of "
-            f"'positives_indices' ({indices.size}); got {indptr[:3].tolist()}...{indptr[-1:].tolist()}"
-        )
-    if stored is not None and stored < 0:
-        raise ValueError(f"{path}: 'n_database' must be non-negative, got {stored}")
-    if stored is not None and n_database is not None and stored != n_database:
-        raise ValueError(f"ground truth {path} covers {stored} database images, expected {n_database}")
-    size = stored if stored is not None else n_database
-    lists = [indices[indptr[q] : indptr[q + 1]] for q in range(indptr.size - 1)]
-    return positives_from_lists(lists, size, source=path)
+    arrays = read_npz(path, "ground truth in a .npz archive (positives_indptr, positives_indices, n_database)")
+    try:
+        positives = positives_from_csr(arrays, n_database=n_database)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+    if positives is None:
+        found = ", ".join(sorted(arrays))
+        raise ValueError(f"{path} has no ground truth: expected positives_indptr and positives_indices, found {found}")
+    return positives
 
 
 def _from_npy(path: Path, n_database: int | None) -> sparse.csr_array:
