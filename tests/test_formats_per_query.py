@@ -87,3 +87,28 @@ def test_a_parquet_table_reads_as_its_csv(table, tmp_path):
     from_parquet, from_csv = read_results(tmp_path / "per_query.parquet"), read_results(path)
     np.testing.assert_array_equal(from_parquet.scores, from_csv.scores)
     np.testing.assert_array_equal(from_parquet.positives.toarray(), from_csv.positives.toarray())
+
+
+def test_the_table_evaluate_writes_reads_back_with_the_same_auc_pr(corridor_dir, corridor_matches_dir, tmp_path):
+    """The round trip through the real writer: ``evaluate --per-query`` then ``evaluate`` on what it wrote."""
+    matches = corridor_matches_dir / "NetVLAD" / "precomputed_data_corrected.npy"
+    written = tmp_path / "per_query.csv"
+    assert (
+        main(
+            [
+                "evaluate",
+                str(matches),
+                "--gt",
+                str(corridor_dir / "ground_truth_new.npy"),
+                "--per-query",
+                str(written),
+                "--json",
+                str(tmp_path / "a.json"),
+            ]
+        )
+        == 0
+    )
+    assert main(["evaluate", str(written), "--json", str(tmp_path / "b.json")]) == 0
+    first, again = (json.loads((tmp_path / name).read_text()) for name in ("a.json", "b.json"))
+    auc = {name: method["auc_pr"] for name, method in first["methods"].items()}
+    assert auc and {name: again["methods"][name]["auc_pr"] for name in auc} == pytest.approx(auc, abs=1e-6)
