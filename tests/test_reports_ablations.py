@@ -43,7 +43,7 @@ def test_alpha_figure_is_one_panel_of_deltas_with_one_line_per_vpr_method_and_it
     assert "α = 0.5" in axis.get_ylabel()
     assert figure.get_size_inches()[0] == 3.5
     spec = plots.alpha_ablation_spec(cells)
-    assert "mean over 2 datasets (corridor, CALC)" in spec.caption() and "Table 1's SU" in spec.caption()
+    assert "averaged over the 2 datasets (corridor and CALC)" in spec.caption() and "Table 1's SU" in spec.caption()
 
 
 def test_alpha_deltas_interpolate_the_reference_between_the_alphas_run():
@@ -82,10 +82,3 @@ def test_undefined_alpha_curves_are_left_out_and_ties_pick_the_smallest_alpha():
     assert list(plots.alpha_panels(cells)) == ["A"]
     assert plots.best_alpha({0.0: 0.7, 0.5: 0.7, 1.0: 0.6}) == 0.0
     assert plots.best_alpha({}) is None
-
-
-def test_k_panels_per_dataset_and_metric():
-    cells = [_cell("A", "d1", 0.5), _cell("B", "d1", 0.5), _cell("A", "d2", 0.5)]
-    panels = plots.k_panels(cells)
-    assert list(panels) == [("d1", "RS"), ("d1", "SD"), ("d2", "RS"), ("d2", "SD")]
-    assert list(panels[("d1", "SD")]) == ["A", "B"]

@@ -309,15 +309,17 @@ def write_ablations(cells: Sequence[Any], config: Any, out_dir: Path, *, width: 
     hold."""
     paths = []
     if any(cell.ablation_alpha for cell in cells):
-        paths.append(plot_alpha_ablation(cells, out_dir / "figures" / "ablation_alpha.png", width=width))
+        path = out_dir / "figures" / "ablation_alpha.png"
+        paths.append(plot_alpha_ablation(cells, path, width=width, reference=getattr(config, "alpha", 0.5)))
     if any(curve for cell in cells for curve in cell.ablation_k.values()):
         paths.append(plot_k_ablation(cells, out_dir / "figures" / "ablation_k.png", width=width))
     return _with_vectors(paths)
 
 
-def ablations_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
-    spec = alpha_ablation_spec(cells) if path.stem == "ablation_alpha" else k_ablation_spec(cells)
-    return spec.caption()
+def ablations_caption(cells: Sequence[Any], config: Any, path: Path, *, width: str = "page", **options: Any) -> str:
+    if path.stem == "ablation_alpha":
+        return alpha_ablation_spec(cells, getattr(config, "alpha", 0.5)).caption()
+    return k_ablation_spec(cells, width).caption()
 
 
 def _pr_title(cell: Any) -> str:

@@ -1,10 +1,8 @@
 """The figures of a grid: ablations (the paper's Figures 5 and 6), ΔAUC-PR heatmaps (Figure 3), the cascade, and
 qualitative examples (Figures 2 and 4). Each reads the cells' stored results and recomputes no uncertainty.
 
-- Ablations: AUC-PR of SU versus α (α = 1 is RS, α = 0 is SD) with one panel per VPR method (one y range shared by
-  all panels, so that a difference of 0.002 looks as small as it is; the best α of each line is starred and given
-  in its panel's title), one line per dataset; RS and SD versus k with one panel per (dataset, RS or SD), one line
-  per VPR method, one shared y range.
+- Ablations: ΔAUC-PR of SU against SU at α = 0.5 versus α (1: RS, 0: SD), one panel, one line per VPR method with
+  its best α starred; RS and SD versus k, at most :data:`MAX_SERIES` VPR methods per panel, one shared y range.
 - Heatmaps: Δ = AUC-PR(RS, SD or SU) − AUC-PR(baseline), > 0 (blue) when the proposed method is better; one panel
   per baseline (baselines with the same Δ everywhere, such as BM and L2, share one), rows = VPR methods, columns =
   datasets.
@@ -33,6 +31,7 @@ from vpr_uncertainty.cache import slug
 from vpr_uncertainty.evaluation import auc_pr
 from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, percentile_interval
 from vpr_uncertainty.methods.cascade import combine_cascade, most_uncertain, split_cascade_name
+from vpr_uncertainty.reports.html import averaged_over
 from vpr_uncertainty.reports.style import (
     DPI,
     OKABE_ITO,
@@ -88,21 +87,6 @@ def alpha_panels(cells: Sequence) -> dict[str, dict[str, dict[float, float]]]:
         curve = _defined(cell.ablation_alpha)
         if curve:
             panels.setdefault(cell.vpr_method, {})[cell.dataset] = curve
-    return panels
-
-
-def k_panels(cells: Sequence) -> dict[tuple[str, str], dict[str, dict[int, float]]]:
-    """(dataset, "RS" or "SD") -> VPR method -> {k: AUC-PR}: the panels of the k figure, in the order of the cells."""
-    panels: dict[tuple[str, str], dict[str, dict[int, float]]] = {}
-    for dataset in dict.fromkeys(c.dataset for c in cells):
-        for name in ("RS", "SD"):
-            lines = {
-                c.vpr_method: curve
-                for c in cells
-                if c.dataset == dataset and (curve := _defined(c.ablation_k.get(name, {})))
-            }
-            if lines:
-                panels[(dataset, name)] = lines
     return panels
 
 
@@ -196,11 +180,6 @@ def alpha_deltas(cells: Sequence, reference: float = 0.5) -> dict[str, dict[floa
     return deltas
 
 
-def _where(cells: Sequence) -> str:
-    datasets = list(dict.fromkeys(c.dataset for c in cells))
-    return f"on {datasets[0]}" if len(datasets) == 1 else f"mean over {len(datasets)} datasets ({', '.join(datasets)})"
-
-
 def alpha_ablation_spec(cells: Sequence, reference: float = 0.5) -> FigureSpec:
     """What :func:`plot_alpha_ablation` draws: one axis, a line per VPR method (its best α in its label)."""
     deltas = alpha_deltas(cells, reference)
@@ -208,7 +187,7 @@ def alpha_ablation_spec(cells: Sequence, reference: float = 0.5) -> FigureSpec:
     series = [SeriesSpec(f"{m} ({best_alpha(c):g})", "VPR method (best α)", styles[m]) for m, c in deltas.items()]
     series.append(SeriesSpec("best α (star)", "the highest AUC-PR of each line", _STAR))
     return FigureSpec(
-        what=f"SU = α·RS + (1−α)·SD, {_where([c for c in cells if _defined(c.ablation_alpha)])}: ΔAUC-PR against α",
+        what=f"SU = α·RS + (1−α)·SD, {averaged_over([c for c in cells if c.ablation_alpha])}: ΔAUC-PR against α",
         series=tuple(series),
         x="α (0: SD, 1: RS)",
         y=f"AUC-PR(α) − AUC-PR(α = {reference:g})",
@@ -377,7 +356,7 @@ def delta_matrix(
     """(VPR methods, datasets, Δ of shape (V, D), significant of shape (V, D)); Δ is NaN where a cell or an AUC-PR is
     missing; significant: the 95 % percentile interval of the paired bootstrap Δ excludes 0 (``distributions``:
     (VPR method, dataset) -> method -> resampled AUC-PR, :func:`heatmap_distributions`; without them, all False)."""
-    vpr_methods, datasets = list(dict.fromkeys(c.vpr_method for c in cells)), _datasets(cells)
+    vpr_methods, datasets = (list(dict.fromkeys(getattr(c, key) for c in cells)) for key in ("vpr_method", "dataset"))
     delta, significant = (
         np.full((len(vpr_methods), len(datasets)), np.nan),
         np.zeros((len(vpr_methods), len(datasets)), bool),
@@ -399,10 +378,6 @@ def heatmap_distributions(cells: Sequence, bootstrap: int, seed: int) -> dict | 
     if not bootstrap:
         return None
     return {(c.vpr_method, c.dataset): evaluation_distributions(c.evaluation, bootstrap, seed)["auc_pr"] for c in cells}
-
-
-def _datasets(cells: Sequence) -> list[str]:
-    return list(dict.fromkeys(c.dataset for c in cells))
 
 
 def _signed(value: float) -> str:

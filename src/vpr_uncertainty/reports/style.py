@@ -64,16 +64,8 @@ STYLED_NAMES: tuple[str, ...] = (
     "denseVLAD",
 )
 #: How a caption names a marker and a dash.
-_MARKER_WORDS = {
-    "o": "circles",
-    "s": "squares",
-    "^": "triangles up",
-    "v": "triangles down",
-    "D": "diamonds",
-    "P": "plus signs",
-    "X": "crosses",
-    "*": "stars",
-}
+_MARKER_WORDS = {"o": "circles", "s": "squares", "^": "triangles up", "v": "triangles down", "D": "diamonds"}
+_MARKER_WORDS |= {"P": "plus signs", "X": "crosses", "*": "stars"}
 _DASH_WORDS = {"-": "solid", "--": "dashed", "-.": "dash-dot", ":": "dotted", "None": "no line", "none": "no line"}
 
 #: Figure widths in inches: one column of a two-column paper, and the text width of a page.
@@ -109,25 +101,11 @@ def figure_rc(width: str = "page") -> Iterator[None]:
     import matplotlib
 
     figure_width(width)
-    rc = {
-        "font.size": FONT_SIZE,
-        "axes.titlesize": TITLE_SIZE,
-        "axes.labelsize": FONT_SIZE,
-        "xtick.labelsize": FONT_SIZE,
-        "ytick.labelsize": FONT_SIZE,
-        "legend.fontsize": FONT_SIZE,
-        "legend.title_fontsize": FONT_SIZE,
-        "figure.titlesize": TITLE_SIZE,
-        "figure.labelsize": FONT_SIZE,
-        "axes.linewidth": 0.6,
-        "grid.linewidth": 0.4,
-        "lines.linewidth": 1.2,
-        "lines.markersize": 4,
-        "xtick.major.width": 0.6,
-        "ytick.major.width": 0.6,
-        "axes.prop_cycle": matplotlib.cycler(color=list(OKABE_ITO)),
-        "pdf.fonttype": 42,  # TrueType in the PDF: editable text, accepted by publishers
-    }
+    sizes = ("font.", "axes.label", "xtick.label", "ytick.label", "legend.font", "legend.title_font", "figure.label")
+    rc = {f"{key}size": FONT_SIZE for key in sizes} | {"axes.titlesize": TITLE_SIZE, "figure.titlesize": TITLE_SIZE}
+    rc |= {"axes.linewidth": 0.6, "grid.linewidth": 0.4, "lines.linewidth": 1.2, "lines.markersize": 4}
+    rc |= {"xtick.major.width": 0.6, "ytick.major.width": 0.6, "axes.prop_cycle": matplotlib.cycler(color=OKABE_ITO)}
+    rc["pdf.fonttype"] = 42  # TrueType in the PDF: editable text, accepted by publishers
     with matplotlib.rc_context(rc):
         yield
 
