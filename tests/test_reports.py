@@ -14,7 +14,7 @@ from scipy import sparse
 from conftest import assert_close
 from vpr_uncertainty.pipeline.grid import load_config, run_grid, write_reports, write_results
 from vpr_uncertainty.reports.html import Section, embed_png, render_report
-from vpr_uncertainty.reports.plots import choose_queries, delta_matrix
+from vpr_uncertainty.reports.plots import choose_queries, delta_matrix, heatmap_distributions
 from vpr_uncertainty.reports.tables import build_table1, table1_csv, table1_latex, table1_markdown
 from vpr_uncertainty.retrieval import Retrieval, save_retrieval
 
@@ -92,11 +92,31 @@ def test_table1_with_missing_values():
 
 def test_delta_matrix(synthetic):
     _, cells, _ = synthetic
-    vpr, datasets, delta = delta_matrix(cells, "SU", "BM")
-    assert vpr == ["A", "B"] and datasets == ["d1", "d2"]
+    vpr, datasets, delta, significant = delta_matrix(cells, "SU", "BM")
+    assert vpr == ["A", "B"] and datasets == ["d1", "d2"] and not significant.any()  # no bootstrap: no marks
     methods = cells[3].evaluation.methods
     assert_close(delta[1, 1], methods["SU"].auc_pr - methods["BM"].auc_pr)
     assert np.isnan(delta_matrix(cells, "SU", "PA")[2]).all()
+
+
+def test_delta_matrix_marks_what_a_slow_paired_bootstrap_finds_significant(synthetic):
+    from sklearn.metrics import auc, precision_recall_curve
+
+    from vpr_uncertainty.evaluation.bootstrap import resample_indices
+
+    _, cells, _ = synthetic
+    _, _, _, significant = delta_matrix(cells, "SU", "RS", heatmap_distributions(cells, 300, 4))
+    for cell in cells:
+        i, j = ["A", "B"].index(cell.vpr_method), ["d1", "d2"].index(cell.dataset)
+        correct, methods = cell.evaluation.correct, cell.evaluation.methods
+        deltas = []
+        for rows in (row for block in resample_indices(len(correct), 300, 4) for row in block):
+            if correct[rows].all() or not correct[rows].any():
+                continue  # one class only: skipped, as the toolkit does
+            curves = [precision_recall_curve(correct[rows], -methods[m].uncertainty[rows]) for m in ("SU", "RS")]
+            deltas.append(auc(curves[0][1], curves[0][0]) - auc(curves[1][1], curves[1][0]))
+        low, high = np.percentile(deltas, [2.5, 97.5])
+        assert significant[i, j] == (low > 0 or high < 0)
 
 
 def test_html_embeds_pngs(tmp_path, synthetic):

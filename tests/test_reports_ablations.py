@@ -1,13 +1,13 @@
-"""The ablation figures (:mod:`vpr_uncertainty.reports.plots`): one panel per VPR method for α, one line per
-VPR method for k, each panel's best α marked."""
+"""The ablation figures (:mod:`vpr_uncertainty.reports.plots`): α as one panel of ΔAUC-PR against α = 0.5 with a
+line per VPR method and its best α marked; k with at most eight VPR methods per panel, each row's legend below."""
 
 from __future__ import annotations
 
-import struct
-from pathlib import Path
 from types import SimpleNamespace
 
 import matplotlib
+import numpy as np
+import pytest
 
 matplotlib.use("Agg")
 
@@ -25,50 +25,53 @@ def _cell(vpr_method: str, dataset: str, alpha_peak: float, k_shift: float = 0.0
     return SimpleNamespace(vpr_method=vpr_method, dataset=dataset, ablation_alpha=alpha_curve, ablation_k=k_curve)
 
 
-def _png_size(path: Path) -> tuple[int, int]:
-    with open(path, "rb") as file:
-        header = file.read(24)
-    return struct.unpack(">II", header[16:24])
-
-
-def test_alpha_figure_has_one_panel_per_vpr_method_with_its_best_alpha_starred(tmp_path, figures):
+def test_alpha_figure_is_one_panel_of_deltas_with_one_line_per_vpr_method_and_its_best_alpha_starred(tmp_path, figures):
     peaks = {"APGeM": 1.0, "EigenPlaces": 0.0, "NetVLAD": 0.5}
-    cells = [_cell(name, "corridor", peak) for name, peak in peaks.items()]
-    path = plots.plot_alpha_ablation(cells, tmp_path / "alpha.png")
+    cells = [_cell(name, dataset, peak) for name, peak in peaks.items() for dataset in ("corridor", "CALC")]
+    plots.plot_alpha_ablation(cells, tmp_path / "alpha.png", width="column")
+    (figure,) = figures
+    (axis,) = [axis for axis in figure.axes if axis.get_visible()]
+    curves = [line for line in axis.get_lines() if line.get_marker() != "*" and line.get_label()[0] != "_"]
+    assert [line.get_label() for line in curves] == ["APGeM (1)", "EigenPlaces (0)", "NetVLAD (0.5)"]
+    for line, peak in zip(curves, peaks.values(), strict=True):
+        # by hand: the mean over the two datasets of 0.8 - (a - peak)^2 minus its value at α = 0.5
+        expected = [(0.8 - (a - peak) ** 2) - (0.8 - (0.5 - peak) ** 2) for a in ALPHAS]
+        np.testing.assert_allclose(line.get_ydata(), expected, atol=1e-12)
+    stars = [line for line in axis.get_lines() if line.get_marker() == "*"]
+    assert [list(star.get_xdata()) for star in stars] == [[peak] for peak in peaks.values()]
+    assert [star.get_color() for star in stars] == [line.get_color() for line in curves]
+    assert "α = 0.5" in axis.get_ylabel()
+    assert figure.get_size_inches()[0] == 3.5
+    spec = plots.alpha_ablation_spec(cells)
+    assert "averaged over the 2 datasets (corridor and CALC)" in spec.caption() and "Table 1's SU" in spec.caption()
+
+
+def test_alpha_deltas_interpolate_the_reference_between_the_alphas_run():
+    cell = SimpleNamespace(vpr_method="A", dataset="d", ablation_alpha={0.0: 0.6, 1.0: 0.8}, ablation_k={})
+    assert plots.alpha_deltas([cell]) == {"A": {0.0: pytest.approx(-0.1), 1.0: pytest.approx(0.1)}}
+
+
+def test_k_figure_has_at_most_eight_lines_per_panel_and_the_legend_outside(tmp_path, figures):
+    names = [f"M{i}" for i in range(10)]
+    cells = [_cell(name, "corridor", 0.5, shift) for shift, name in enumerate(names)]
+    plots.plot_k_ablation(cells, tmp_path / "k.png", width="column")
     (figure,) = figures
     panels = [axis for axis in figure.axes if axis.get_visible()]
-    assert len(panels) == len(peaks)
-    for axis, (name, peak) in zip(panels, peaks.items(), strict=True):
-        assert axis.get_title().startswith(f"{name}\nbest α = {peak:g} (0.800)")
-        stars = [line for line in axis.get_lines() if line.get_marker() == "*"]
-        assert len(stars) == 1 and list(stars[0].get_xdata()) == [peak]
-    width, height = plots.ablation_figsize(3, None, 1)
-    assert _png_size(path) == (round(width * plots.DPI), round(height * plots.DPI))
-
-
-def test_alpha_figure_wraps_ten_methods_in_three_rows_and_draws_one_line_per_dataset(tmp_path, figures):
-    cells = [_cell(f"M{i}", dataset, i / 10) for i in range(10) for dataset in ("corridor", "CALC")]
-    plots.plot_alpha_ablation(cells, tmp_path / "alpha.png")
-    (figure,) = figures
-    panels = [axis for axis in figure.axes if axis.get_visible()]
-    assert len(panels) == 10
-    assert {round(axis.get_position().y0, 3) for axis in panels}.__len__() == 3  # rows of 4 in a page width
-    for axis in panels:
-        curves = [line for line in axis.get_lines() if line.get_marker() != "*"]
-        assert [line.get_label() for line in curves] == ["corridor", "CALC"]
-    assert [text.get_text() for text in figure.legends[0].get_texts()] == ["corridor", "CALC", "best α (star)"]
-
-
-def test_k_figure_has_one_line_per_vpr_method_in_an_rs_and_an_sd_panel(tmp_path, figures):
-    cells = [_cell(name, "corridor", 0.5, shift) for shift, name in enumerate(["A", "B", "C", "D"])]
-    plots.plot_k_ablation(cells, tmp_path / "k.png")
-    (figure,) = figures
-    panels = [axis for axis in figure.axes if axis.get_visible()]
-    assert [axis.get_title() for axis in panels] == ["RS · corridor", "SD · corridor"]
-    for axis in panels:
-        assert [line.get_label() for line in axis.get_lines()] == ["A", "B", "C", "D"]
-        styles = {(line.get_color(), line.get_linestyle(), line.get_marker()) for line in axis.get_lines()}
-        assert len(styles) == 4
+    assert [axis.get_title() for axis in panels] == [
+        "RS · corridor (1/2)",
+        "SD · corridor (1/2)",
+        "RS · corridor (2/2)",
+        "SD · corridor (2/2)",
+    ]
+    lines = [[line.get_label() for line in axis.get_lines()] for axis in panels]
+    assert lines == [names[:5], names[:5], names[5:], names[5:]]
+    legends = [legend for row in figure.subfigs for legend in row.legends]
+    assert [[text.get_text() for text in legend.get_texts()] for legend in legends] == [names[:5], names[5:]]
+    figure.canvas.draw()
+    for legend, row in zip(legends, figure.subfigs, strict=True):  # below the panels of its row, not on them
+        assert all(legend.get_window_extent().y1 <= axis.get_window_extent().y0 for axis in row.axes)
+    styles = {(line.get_color(), line.get_linestyle(), line.get_marker()) for line in panels[0].get_lines()}
+    assert len(styles) == 5 and len({style[0] for style in styles}) == 5  # five colours in one panel
 
 
 def test_undefined_alpha_curves_are_left_out_and_ties_pick_the_smallest_alpha():
@@ -79,10 +82,3 @@ def test_undefined_alpha_curves_are_left_out_and_ties_pick_the_smallest_alpha():
     assert list(plots.alpha_panels(cells)) == ["A"]
     assert plots.best_alpha({0.0: 0.7, 0.5: 0.7, 1.0: 0.6}) == 0.0
     assert plots.best_alpha({}) is None
-
-
-def test_k_panels_per_dataset_and_metric():
-    cells = [_cell("A", "d1", 0.5), _cell("B", "d1", 0.5), _cell("A", "d2", 0.5)]
-    panels = plots.k_panels(cells)
-    assert list(panels) == [("d1", "RS"), ("d1", "SD"), ("d2", "RS"), ("d2", "SD")]
-    assert list(panels[("d1", "SD")]) == ["A", "B"]

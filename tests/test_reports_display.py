@@ -81,7 +81,11 @@ def test_reliability_from_predictions_and_from_a_gate(retrieval):
     figure, ax = plt.subplots()
     display = ReliabilityDisplay.from_gate(gate, retrieval.scores, labels, n_bins=4, ax=ax)
     expected = reliability_diagram(gate.probability_correct(retrieval.scores), labels, n_bins=4)
-    assert display.ax_ is ax and display.reliability == expected and display.line_.get_label() == "gate P(correct)"
+    assert (
+        display.ax_ is ax
+        and display.reliability == expected
+        and display.line_.get_label().startswith("gate P(correct) (ECE ")
+    )
 
 
 def test_file_writers_draw_with_the_displays(retrieval, tmp_path, monkeypatch):

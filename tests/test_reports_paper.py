@@ -4,6 +4,7 @@ and a caption made from the same FigureSpec that draws it (every panel and legen
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 from pathlib import Path
 from types import SimpleNamespace
@@ -72,12 +73,14 @@ def _panels(figure) -> list:
 
 
 def _legend_entries(figure) -> list[tuple[str, object]]:
-    legends = list(figure.legends) + [a.get_legend() for a in figure.axes if a.get_legend() is not None]
-    return [
-        (text.get_text(), handle)
+    legends = [*figure.legends, *(legend for row in figure.subfigs for legend in row.legends)]
+    legends += [a.get_legend() for a in figure.axes if a.get_legend() is not None]
+    entries = {  # a row's legend (k ablation) repeats the VPR methods of another dataset's row
+        text.get_text(): handle
         for legend in legends
         for text, handle in zip(legend.get_texts(), legend.legend_handles, strict=True)
-    ]
+    }
+    return list(entries.items())
 
 
 def _check_paper_figure(figure, png: Path, width: str) -> None:
@@ -105,27 +108,34 @@ def _check_caption(figure, spec: style.FigureSpec, caption: str) -> None:
 
 
 @pytest.mark.parametrize("width", WIDTHS)
-def test_alpha_ablation_at_paper_width_shares_one_y_range_and_matches_its_caption(tmp_path, figures, width):
-    cells = _cells(5)
+def test_alpha_ablation_at_paper_width_is_one_panel_and_matches_its_caption(tmp_path, figures, width):
+    cells = _cells(10)
     path = plots.plot_alpha_ablation(cells, tmp_path / "alpha.png", width=width)
     (figure,) = figures
     _check_paper_figure(figure, path, width)
-    panels = _panels(figure)
-    assert len(panels) == 5 and len({a.get_ylim() for a in panels}) == 1  # a 0.001 difference looks small
+    (panel,) = _panels(figure)
+    low, high = panel.get_ylim()
+    assert high - low < 0.01  # differences of ~0.001 fill the axis: one Δ axis, not 0.5-1.0
     spec = plots.alpha_ablation_spec(cells)
     _check_caption(figure, spec, spec.caption())
 
 
 @pytest.mark.parametrize("width", WIDTHS)
 def test_k_ablation_at_paper_width(tmp_path, figures, width):
-    cells = _cells(4)
+    cells = _cells(11)
     path = plots.plot_k_ablation(cells, tmp_path / "k.png", width=width)
     (figure,) = figures
     _check_paper_figure(figure, path, width)
     assert len({a.get_ylim() for a in _panels(figure)}) == 1
-    spec = plots.k_ablation_spec(cells)
+    assert max(len(a.get_lines()) for a in _panels(figure)) <= plots.MAX_SERIES
+    spec = plots.k_ablation_spec(cells, width)
     _check_caption(figure, spec, spec.caption())
-    assert spec.panels == ("RS · corridor", "SD · corridor", "RS · CALC", "SD · CALC")
+    assert spec.panels[:4] == (
+        "RS · corridor (1/2)",
+        "SD · corridor (1/2)",
+        "RS · corridor (2/2)",
+        "SD · corridor (2/2)",
+    )
 
 
 @pytest.mark.parametrize("width", WIDTHS)
@@ -144,6 +154,25 @@ def test_heatmaps_at_paper_width_name_their_panels(tmp_path, figures, width, dat
         else:
             assert spec.panels == ("vs BM = L2", "vs PA")  # BM and L2 have the same Δ everywhere
         _check_caption(figure, spec, spec.caption())
+        assert "No significance marks" in spec.caption()
+
+
+def test_heatmaps_print_no_negative_zero_and_mark_significant_deltas(tmp_path, figures):
+    cells = _cells(3, ("corridor",))
+    for cell in cells:  # PA = SU shifted by a hair: Δ rounds to zero from below
+        methods = cell.evaluation.methods
+        methods["PA"] = dataclasses.replace(methods["SU"], name="PA", auc_pr=methods["SU"].auc_pr + 0.001)
+    plots.plot_delta_heatmaps(cells, tmp_path, bootstrap=200, seed=0)
+    texts = [text.get_text() for figure in figures for text in figure.axes[0].texts]
+    assert texts and not any(text.startswith(("-0.00", "−0.00", "+0.00")) for text in texts)
+    assert "0.00" in texts  # the PA column: SU − (SU + 0.001)
+    distributions = plots.heatmap_distributions(cells, 200, 0)
+    _, _, _, significant = plots.delta_matrix(cells, "SU", "BM", distributions)
+    su = [text for text in figures[-1].axes[0].texts]
+    assert [text.get_text().endswith("*") for text in su[::2]] == list(significant[:, 0])  # the BM = L2 column
+    assert significant.any() and not significant.all()
+    assert "* 95 % interval excludes 0" in figures[-1].axes[-1].get_xlabel() + figures[-1].axes[-1].get_ylabel()
+    assert "*: the 95 % interval of Δ excludes 0" in plots.heatmap_spec(cells, "SU", bootstrap=200).caption()
 
 
 @pytest.mark.parametrize("width", WIDTHS)
@@ -158,6 +187,8 @@ def test_pr_curves_at_paper_width_legend_the_area_of_the_curve_drawn(tmp_path, w
         _check_caption(figure, spec, caption)
         su = evaluation.methods["SU"].curve
         assert f"SU (area {np.trapezoid(su.precision, su.recall):.3f})" in spec.labels
+        recall_at_1 = max(float(m.curve.recall.max()) for m in evaluation.methods.values())
+        assert figure.axes[0].get_xlim() == (0, recall_at_1)  # the x axis ends where the curves do
         assert "area under the curve drawn" in caption and "not the AUC-PR of the uncertainty" in caption
         assert not figure.axes[0].texts  # no footnote inside the figure
     finally:
@@ -165,12 +196,29 @@ def test_pr_curves_at_paper_width_legend_the_area_of_the_curve_drawn(tmp_path, w
 
 
 def test_reliability_and_cascade_at_column_width(tmp_path, figures):
-    from vpr_uncertainty.calibration.quality import reliability_diagram
+    from vpr_uncertainty.calibration.quality import expected_calibration_error, reliability_diagram
 
     rng = np.random.default_rng(0)
     p = rng.random(200)
-    path = display.plot_reliability(reliability_diagram(p, rng.random(200) < p), tmp_path / "r.png", width="column")
+    correct = rng.random(200) < p
+    reliability = reliability_diagram(p, correct)
+    path = display.plot_reliability(reliability, tmp_path / "r.png", width="column", threshold=0.8)
     _check_paper_figure(figures[-1], path, "column")
+    axis = figures[-1].axes[0]
+    labels = [text.get_text() for text in axis.get_legend().get_texts()]
+    assert f"observed (ECE {expected_calibration_error(p, correct):.3f})" in labels
+    assert "gate threshold P ≥ 0.800" in labels
+    (threshold,) = [line for line in axis.get_lines() if line.get_label().startswith("gate threshold")]
+    assert list(threshold.get_xdata()) == [0.8, 0.8]
+    figure = figures[-1]
+    figure.canvas.draw()
+    ticks = [label.get_window_extent() for label in axis.get_xticklabels() + axis.get_yticklabels()]
+    counts = [text.get_window_extent() for text in axis.texts if text.get_text().startswith("n=")]
+    assert len(counts) == sum(count > 0 for count in reliability.counts)
+    assert not any(count.overlaps(tick) for count in counts for tick in ticks)  # no count on a tick label
+    assert all(
+        axis.get_window_extent().contains(c.x0, c.y0) and axis.get_window_extent().contains(c.x1, c.y1) for c in counts
+    )
     cells = []
     for i, dataset in enumerate(("corridor", "CALC", "corridor")):
         cell = _cell(f"M{i}", dataset, i)
@@ -178,8 +226,6 @@ def test_reliability_and_cascade_at_column_width(tmp_path, figures):
         methods["GV"] = methods["BM"]  # a stand-in GV: any uncertainty of the cell
         cells.append(cell)
     cell = cells[0]
-    import dataclasses
-
     su = cell.evaluation.methods["SU"]
     cell.evaluation.methods["SU+GV"] = dataclasses.replace(su, name="SU+GV", details={"verified_fraction": 0.3})
     paths = plots.plot_cascade(cells, tmp_path, width="column")

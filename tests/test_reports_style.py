@@ -6,15 +6,17 @@ from __future__ import annotations
 
 import struct
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from vpr_uncertainty import Retrieval, evaluate
+from vpr_uncertainty.reports import plots
 from vpr_uncertainty.reports.display import draw_rejection_curves, write_rejection_curves
 from vpr_uncertainty.reports.html import Section, png_display_width, render_report
 from vpr_uncertainty.reports.plots import FRACTIONS, cascade_curve
-from vpr_uncertainty.reports.style import DPI, coinciding, legend_outside, method_styles, pyplot, save_figure
+from vpr_uncertainty.reports.style import DPI, OKABE_ITO, coinciding, legend_outside, method_styles, pyplot, save_figure
 
 
 def _dpi(path: Path) -> float:
@@ -74,11 +76,46 @@ def test_pr_curves_say_that_bm_and_l2_coincide_with_the_legend_outside_the_axes(
     assert _dpi(png) == pytest.approx(300, rel=1e-3) and pdf.suffix == ".pdf"
 
 
-def test_method_styles_are_distinct_and_coinciding_groups_curves():
-    styles = method_styles([f"m{i}" for i in range(140)])
-    assert len({tuple(style.values()) for style in styles.values()}) == 140
+def test_method_styles_are_distinct_without_yellow_and_coinciding_groups_curves():
+    styles = method_styles([f"m{i}" for i in range(35)])
+    assert len({(s["color"], s["marker"]) for s in styles.values()}) == 35  # told apart in colour
+    assert len({(s["marker"], str(s["linestyle"])) for s in styles.values()}) == 35  # and in grey
+    assert "#F0E442" not in OKABE_ITO and len(OKABE_ITO) == 7  # Okabe-Ito without its yellow
+    assert method_styles(["x", "m7"])["m7"] == method_styles(["m7"])["m7"]  # by name, not by position
     x = np.linspace(0, 1, 5)
     assert coinciding({"a": (x, x), "b": (x, x + 1), "c": (x.copy(), x.copy())}) == [["a", "c"], ["b"]]
+
+
+def test_one_style_per_method_name_in_every_figure_of_every_command(tmp_path):
+    """evaluate --plot drew PA pink and BM orange, reproduce the reverse: styles came from the position."""
+    retrieval = _retrieval()
+    as_evaluate = evaluate(retrieval, ["RS", "SD", "SU", "PA", "L2", "BM"], k=5)  # the evaluate command's order
+    as_reproduce = evaluate(retrieval, ["SU", "BM", "L2", "PA", "margin"], k=5)  # a config's order
+    colours = []
+    for evaluation in (as_evaluate, as_reproduce):
+        figure = draw_rejection_curves(evaluation)
+        try:
+            lines = {line.get_label().split(" (")[0]: line for line in figure.axes[0].get_lines()}
+            colours.append({name: (line.get_color(), line.get_marker()) for name, line in lines.items()})
+        finally:
+            pyplot().close(figure)
+    first, second = colours
+    assert first["SU"] == second["SU"] and first["PA"] == second["PA"]
+    assert first["L2 = BM"] == second["BM = L2"] == tuple(method_styles(["BM"])["BM"][k] for k in ("color", "marker"))
+    # the VPR methods of the α and k ablations: the same name, the same style in both figures
+    cells = [
+        SimpleNamespace(
+            vpr_method=name,
+            dataset="d",
+            ablation_alpha={0.0: 0.5 + i / 100, 0.5: 0.6, 1.0: 0.7},
+            ablation_k={"RS": {2: 0.5, 5: 0.6 + i / 100}, "SD": {2: 0.5, 5: 0.6}},
+        )
+        for i, name in enumerate(["NetVLAD", "CosPlace", "HOG", "A", "B", "C", "D", "E", "F", "G"])
+    ]
+    alpha = {s.label.split(" (")[0]: s.style for s in plots.alpha_ablation_spec(cells).series}
+    k = {s.label: s.style for s in plots.k_ablation_spec(cells, "column").series}
+    assert all(alpha[name] == style for name, style in k.items())
+    assert alpha["NetVLAD"] == method_styles(["NetVLAD"])["NetVLAD"]
 
 
 def test_legend_outside_is_right_of_the_axes():

@@ -159,9 +159,9 @@ def test_figures_are_pngs_of_the_expected_size(grid):
     for path in pngs["heatmaps"]:
         assert _png_size(path) == (round(heatmap[0] * DPI), round(heatmap[1] * DPI))
     assert [p.name for p in pngs["ablations"]] == ["ablation_alpha.png", "ablation_k.png"]
-    # One α panel per VPR method (10, in two rows of five); RS and SD panels with one line per VPR method.
-    for path, size in zip(pngs["ablations"], (ablation_figsize(10, None, 1), ablation_figsize(2, 2, 10)), strict=True):
-        assert _png_size(path) == (round(size[0] * DPI), round(size[1] * DPI))
+    # One α panel (a line per VPR method); RS and SD panels for two groups of five VPR methods, page wide.
+    assert _png_size(pngs["ablations"][0]) == tuple(round(x * DPI) for x in ablation_figsize(1, 1, 11, aspect=0.55))
+    assert [_png_size(path)[0] for path in pngs["ablations"]] == [round(7.16 * DPI)] * 2
     assert len(pngs["pr_curves"]) == len(cells)
     for name in ("heatmaps", "ablations", "pr_curves"):  # each PNG has its vector PDF beside it
         assert [p.with_suffix(".png") for p in paths[name] if p.suffix == ".pdf"] == pngs[name]
@@ -190,6 +190,10 @@ def test_table1_files(grid):
     latex = paths["table1_tex"].read_text()
     for command in (r"\toprule", r"\midrule", r"\bottomrule", r"\textbf{", r"ap-gem-r101"):
         assert command in latex
+    # 14 columns: two columns wide (table*), and the caption says what is averaged: one dataset, so none
+    assert latex.startswith(r"\begin{table*}[t]") and latex.rstrip().endswith(r"\end{table*}")
+    assert r"\resizebox{\ifdim\width>\textwidth" in latex and "for each VPR method, on corridor." in latex
+    assert "averaged over datasets" not in latex
 
 
 @pytest.mark.realdata
@@ -222,6 +226,10 @@ def test_report_html_is_self_contained(grid):
     assert all(source.startswith("data:image/png;base64,") for source in sources)
     assert "http://" not in text and "https://" not in text
     assert '<table class="table1">' in text
+    assert "<h2>Table 1: AUC-PR on corridor</h2>" in text and "averaged over datasets" not in text
+    assert '<table class="ties">' in text and "<pre>" not in text  # the ties as a table, not raw Markdown
+    ties = text[text.index('<table class="ties">') :].split("</table>")[0]
+    assert "<th>NetVLAD</th>" in ties and ties.count("<tr>") == 1 + len(METHODS)
 
 
 @pytest.mark.realdata

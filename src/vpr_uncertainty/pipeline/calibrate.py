@@ -139,7 +139,11 @@ def _handle(args: argparse.Namespace) -> int:
         from vpr_uncertainty.reports.display import plot_reliability
 
         plot_reliability(
-            reliability_diagram(probability, correct), args.plot, title="in-sample reliability", width=args.figure_width
+            reliability_diagram(probability, correct),
+            args.plot,
+            title="in-sample reliability",
+            width=args.figure_width,
+            threshold=gate.threshold,
         )
     gate.save(args.out)
     calibration = gate.info["calibration"]

@@ -265,7 +265,7 @@ def write_reports(
     from html import escape
 
     from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
-    from vpr_uncertainty.reports.html import Section, settings_table, write_report
+    from vpr_uncertainty.reports.html import Section, averaged_over, settings_table, write_report
     from vpr_uncertainty.reports.style import figure_width
 
     if width is not None:
@@ -298,7 +298,8 @@ def write_reports(
             for path in written
             if path.suffix.lower() == ".png"
         ]
-        sections.append(Section(entry.heading, body, figures=pngs))
+        heading = entry.heading.replace("{where}", averaged_over(cells) if cells else "")  # "on corridor", ...
+        sections.append(Section(heading, body, figures=pngs))
     if html:
         intro = settings_table(cells, config)
         paths["report_html"] = write_report(

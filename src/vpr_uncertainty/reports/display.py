@@ -218,7 +218,8 @@ class RejectionCurveDisplay:
             )
             lowest.append(self.accept_all)
         ylim = (max(0.0, np.floor((min(lowest, default=0.0) - 0.05) * 10) / 10), 1.02)
-        ax.set(xlabel=_RECALL_LABEL, ylabel=_PRECISION_LABEL, xlim=(0, 1.0), ylim=ylim)
+        end = max((float(curve.recall.max()) for curve in self.curves.values() if len(curve.recall)), default=1.0)
+        ax.set(xlabel=_RECALL_LABEL, ylabel=_PRECISION_LABEL, xlim=(0, end or 1.0), ylim=ylim)  # ends at recall@1
         ax.grid(alpha=0.3)
         if legend:
             legend_outside(ax, title="uncertainty method")
@@ -370,17 +371,27 @@ class ReliabilityDisplay:
         self.reliability = reliability
         self.name = name
 
-    def plot(self, ax: Any = None, *, title: str | None = None) -> ReliabilityDisplay:
-        """Draw on ``ax`` (a new figure when None); returns ``self`` with ``ax_``, ``figure_`` and ``line_``."""
+    def plot(self, ax: Any = None, *, title: str | None = None, threshold: float | None = None) -> ReliabilityDisplay:
+        """Draw on ``ax`` (a new figure when None); returns ``self`` with ``ax_``, ``figure_`` and ``line_``.
+
+        The legend gives the ECE of the bins drawn; ``threshold`` (a gate's P threshold) is drawn as a vertical
+        line. The counts are written above and below their points in turn, inside the axes.
+        """
         ax = _axis(ax)
         ax.plot([0, 1], [0, 1], ":", color="grey", label="perfect calibration")
         reliability = self.reliability
         counted = zip(reliability.mean_probability, reliability.accuracy, reliability.counts, strict=True)
         bins = [(mean, accuracy, count) for mean, accuracy, count in counted if count]
-        (self.line_,) = ax.plot([b[0] for b in bins], [b[1] for b in bins], "o-", label=self.name)
-        for mean, accuracy, count in bins:
-            ax.annotate(f"n={count}", (mean, accuracy), textcoords="offset points", xytext=(4, -10), fontsize=FONT_SIZE)
-        ax.set(xlim=(0, 1), ylim=(0, 1.02))
+        ece = sum(count * abs(accuracy - mean) for mean, accuracy, count in bins) / max(sum(reliability.counts), 1)
+        label = f"{self.name} (ECE {ece:.3f})"
+        (self.line_,) = ax.plot([b[0] for b in bins], [b[1] for b in bins], "o-", label=label)
+        for i, (mean, accuracy, count) in enumerate(bins):  # above and below in turn: neighbours never overlap
+            ha = "left" if mean < 0.05 else "right" if mean > 0.95 else "center"
+            offset, va = ((0, 4), "bottom") if i % 2 == 0 else ((0, -4), "top")
+            ax.annotate(f"n={count}", (mean, accuracy), textcoords="offset points", xytext=offset, ha=ha, va=va)
+        if threshold is not None:
+            ax.axvline(threshold, color="0.3", linestyle="--", linewidth=1, label=f"gate threshold P ≥ {threshold:.3f}")
+        ax.set(xlim=(-0.02, 1.02), ylim=(-0.1, 1.1), yticks=np.linspace(0, 1, 6))
         ax.set(xlabel="predicted P(correct top-1), mean of the bin", ylabel="share of correct top-1 answers")
         ax.legend(loc="upper left")
         if title:
@@ -649,10 +660,15 @@ def write_rejection_curves(
 
 
 def plot_reliability(
-    reliability: Reliability, path: str | Path, *, title: str | None = None, width: str = "page"
+    reliability: Reliability,
+    path: str | Path,
+    *,
+    title: str | None = None,
+    width: str = "page",
+    threshold: float | None = None,
 ) -> Path:
-    """Draw observed accuracy against mean P per bin (with the count of each bin) and save it
-    (:class:`ReliabilityDisplay` draws on your own axis).
+    """Draw observed accuracy against mean P per bin (with the count of each bin and the ECE of the bins) and save
+    it (:class:`ReliabilityDisplay` draws on your own axis).
 
     Parameters
     ----------
@@ -664,13 +680,15 @@ def plot_reliability(
         Figure title.
     width : {"page", "column"}, default="page"
         3.5 or 7.16 inches wide (a square-ish diagram, at most 4.5 in tall), 8-pt fonts.
+    threshold : float, optional
+        A gate's threshold on P, drawn as a vertical line.
     """
     plt = pyplot()
     size = (figure_width(width), 3.4 if width == "column" else 4.5)
     with figure_rc(width):
         figure, axes = plt.subplots(figsize=size, dpi=DPI, layout="constrained")
         try:
-            ReliabilityDisplay.from_reliability(reliability, ax=axes, title=title)
+            ReliabilityDisplay(reliability).plot(axes, title=title, threshold=threshold)
             return write_figure(figure, path, dpi=DPI)
         finally:
             plt.close(figure)

@@ -38,7 +38,7 @@ from vpr_uncertainty.calibration.quality import Reliability
 from vpr_uncertainty.methods import typed_option
 from vpr_uncertainty.plugins import Registry, load_target, merge_options
 from vpr_uncertainty.reports.display import plot_reliability, rejection_curves_spec, write_rejection_curves
-from vpr_uncertainty.reports.html import cell_stem, figure_caption
+from vpr_uncertainty.reports.html import averaged_over, cell_stem, figure_caption, html_table
 from vpr_uncertainty.reports.plots import (
     alpha_ablation_spec,
     cascade_spec,
@@ -54,6 +54,7 @@ from vpr_uncertainty.reports.plots import (
 )
 from vpr_uncertainty.reports.style import VECTOR_SUFFIX
 from vpr_uncertainty.reports.tables import (
+    METRIC_NAMES,
     build_table1,
     build_ties_table,
     marks_note,
@@ -243,17 +244,19 @@ def _with_vectors(pngs: Sequence[Path]) -> list[Path]:
 def _table1(cells: Sequence[Any], config: Any, metric: str):
     # With the calibration option, Table 1 (AUC-PR) holds the held-out means; AP and AURC stay on all queries.
     chosen = table1_cells(cells) if metric == "auc_pr" else cells
-    return build_table1(chosen, metric, bootstrap=getattr(config, "bootstrap", 0), seed=getattr(config, "seed", 0))
+    return build_table1(chosen, metric, **_bootstrap(config))
 
 
 def _write_table1(cells: Sequence[Any], config: Any, out_dir: Path, *, metric: str, stem: str) -> list[Path]:
-    """``STEM.md``, ``STEM.csv`` and ``STEM.tex`` (booktabs): Table 1 of ``metric``, with intervals when
-    bootstrapped."""
+    """``STEM.md``, ``STEM.csv`` and ``STEM.tex`` (a booktabs ``table*``, two columns wide): Table 1 of ``metric``,
+    with intervals when bootstrapped; the caption says over what each value is averaged."""
     table = _table1(cells, config, metric)
     note = table1_note(cells) if metric == "auc_pr" else None
+    caption = f"{METRIC_NAMES[metric][0]} of each uncertainty method for each VPR method, {averaged_over(cells)}. "
+    latex = partial(table1_latex, caption=caption + marks_note(table).split(" [low")[0], width=r"\textwidth")
     return [
         write_text(out_dir / f"{stem}.{suffix}", render(table) + (f"\n{note}\n" if note and suffix == "md" else ""))
-        for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", table1_latex))
+        for suffix, render in (("md", table1_markdown), ("csv", table1_csv), ("tex", latex))
     ]
 
 
@@ -278,17 +281,27 @@ def write_ties(cells: Sequence[Any], config: Any, out_dir: Path) -> list[Path]:
 
 
 def ties_section(cells: Sequence[Any], config: Any, written: list[Path]) -> str:
-    """The ties table as preformatted Markdown."""
-    return f"<pre>{escape(ties_markdown(build_ties_table(cells)))}</pre>"
+    """The ties table in HTML: ``97 % (8)`` = 97 % of the queries tied, 8 distinct values; then what it means."""
+    table = build_ties_table(cells)
+    rows = [
+        [name, *("–" if s is None else f"{s:.0%} ({d:.0f})" for s, d in zip(shares, distinct, strict=True))]
+        for name, shares, distinct in zip(table.rows, table.tied_share, table.distinct, strict=True)
+    ]
+    note = ties_markdown(table).rstrip().split("\n\n")[-1]  # the sentence under the Markdown table
+    return html_table(["method", *table.columns], rows, "ties") + f'<p class="note">{escape(note)}</p>'
 
 
 def write_heatmaps(cells: Sequence[Any], config: Any, out_dir: Path, *, width: str = "page") -> list[Path]:
     """``figures/delta_<RS|SD|SU>.png`` (and ``.pdf``): ΔAUC-PR against each baseline."""
-    return _with_vectors(plot_delta_heatmaps(cells, out_dir / "figures", width=width))
+    return _with_vectors(plot_delta_heatmaps(cells, out_dir / "figures", width=width, **_bootstrap(config)))
+
+
+def _bootstrap(config: Any) -> dict[str, int]:
+    return {"bootstrap": getattr(config, "bootstrap", 0), "seed": getattr(config, "seed", 0)}
 
 
 def heatmaps_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
-    return heatmap_spec(cells, path.stem.removeprefix("delta_")).caption()
+    return heatmap_spec(cells, path.stem.removeprefix("delta_"), **_bootstrap(config)).caption()
 
 
 def write_ablations(cells: Sequence[Any], config: Any, out_dir: Path, *, width: str = "page") -> list[Path]:
@@ -296,15 +309,17 @@ def write_ablations(cells: Sequence[Any], config: Any, out_dir: Path, *, width: 
     hold."""
     paths = []
     if any(cell.ablation_alpha for cell in cells):
-        paths.append(plot_alpha_ablation(cells, out_dir / "figures" / "ablation_alpha.png", width=width))
+        path = out_dir / "figures" / "ablation_alpha.png"
+        paths.append(plot_alpha_ablation(cells, path, width=width, reference=getattr(config, "alpha", 0.5)))
     if any(curve for cell in cells for curve in cell.ablation_k.values()):
         paths.append(plot_k_ablation(cells, out_dir / "figures" / "ablation_k.png", width=width))
     return _with_vectors(paths)
 
 
-def ablations_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
-    spec = alpha_ablation_spec(cells) if path.stem == "ablation_alpha" else k_ablation_spec(cells)
-    return spec.caption()
+def ablations_caption(cells: Sequence[Any], config: Any, path: Path, *, width: str = "page", **options: Any) -> str:
+    if path.stem == "ablation_alpha":
+        return alpha_ablation_spec(cells, getattr(config, "alpha", 0.5)).caption()
+    return k_ablation_spec(cells, width).caption()
 
 
 def _pr_title(cell: Any) -> str:
@@ -352,19 +367,11 @@ def cascade_section(cells: Sequence[Any], config: Any, written: list[Path], **op
                 continue
             values = [methods[m] for m in (score, gv, name)]
             auc = ["n/a" if m.auc_pr is None else f"{m.auc_pr:.3f}" for m in values]
-            rows.append(
-                f"<tr><td>{escape(cell.vpr_method)} on {escape(cell.dataset)}</td><td>{escape(name)}</td>"
-                f"<td>{methods[name].details.get('verified_fraction', float('nan')):.2f}</td>"
-                + "".join(f"<td>{a}</td>" for a in auc)
-                + f"<td>{values[1].time_per_query_ms:.3g}</td><td>{values[2].time_per_query_ms:.3g}</td></tr>"
-            )
-    if not rows:
-        return ""
-    head = (
-        "<tr><th>cell</th><th>cascade</th><th>verified</th><th>AUC-PR score alone</th><th>AUC-PR GV alone</th>"
-        "<th>AUC-PR cascade</th><th>ms/query GV</th><th>ms/query cascade</th></tr>"
-    )
-    return f"<table><thead>{head}</thead><tbody>{''.join(rows)}</tbody></table>"
+            fraction = methods[name].details.get("verified_fraction", float("nan"))
+            times = [f"{m.time_per_query_ms:.3g}" for m in values[1:]]
+            rows.append([f"{cell.vpr_method} on {cell.dataset}", escape(name), f"{fraction:.2f}", *auc, *times])
+    head = ["cell", "cascade", "verified", "AUC-PR score alone", "AUC-PR GV alone", "AUC-PR cascade"]
+    return html_table([*head, "ms/query GV", "ms/query cascade"], rows) if rows else ""
 
 
 def write_qualitative(
@@ -401,7 +408,7 @@ def write_reliability(cells: Sequence[Any], config: Any, out_dir: Path, *, width
         quality = _quality(cell)
         if quality is None:
             continue
-        title = f"{cell.vpr_method} on {cell.dataset}: ECE {quality['ece']:.3f}, Brier {quality['brier']:.3f}"
+        title = f"{cell.vpr_method} on {cell.dataset}: mean Brier {quality['brier']:.3f}"
         path = out_dir / "figures" / "reliability" / f"{cell_stem(cell)}.png"
         paths.append(plot_reliability(Reliability(**quality["reliability"]), path, title=title, width=width))
     return paths
@@ -415,10 +422,6 @@ def _mean_std(mean: float | None, std: float | None) -> str:
 
 def reliability_section(cells: Sequence[Any], config: Any, written: list[Path], **options: Any) -> str:
     """An HTML table: per cell, CAL's held-out AUC-PR, ECE and Brier (mean ± std over the splits) and the split."""
-    head = "".join(
-        f"<th>{name}</th>"
-        for name in ("VPR method", "dataset", "AUC-PR of CAL", "ECE", "Brier", "calibration / held-out queries")
-    )
     rows = []
     for cell in cells:
         quality = _quality(cell)
@@ -426,29 +429,29 @@ def reliability_section(cells: Sequence[Any], config: Any, written: list[Path], 
             continue
         cal = cell.held_out["methods"].get("CAL", {})
         split = cell.held_out["calibration"]
-        values = [
-            _mean_std(cal.get("auc_pr"), cal.get("auc_pr_std")),
-            _mean_std(quality["ece"], quality.get("ece_std")),
-            _mean_std(quality["brier"], quality.get("brier_std")),
-            f"{split.get('n_calibration', '–')} / {split.get('n_held_out', '–')}",
-        ]
         rows.append(
-            f"<tr><th>{escape(cell.vpr_method)}</th><td>{escape(cell.dataset)}</td>"
-            + "".join(f"<td>{value}</td>" for value in values)
-            + "</tr>"
+            [
+                cell.vpr_method,
+                escape(cell.dataset),
+                _mean_std(cal.get("auc_pr"), cal.get("auc_pr_std")),
+                _mean_std(quality["ece"], quality.get("ece_std")),
+                _mean_std(quality["brier"], quality.get("brier_std")),
+                f"{split.get('n_calibration', '–')} / {split.get('n_held_out', '–')}",
+            ]
         )
+    head = ["VPR method", "dataset", "AUC-PR of CAL", "ECE", "Brier", "calibration / held-out queries"]
     note = (
         '<p class="note">Mean ± standard deviation over the random splits; each diagram pools the held-out '
-        "predictions of all splits, with the number of queries in each bin.</p>"
+        "predictions of all splits, with the number of queries in each bin (its legend: the ECE of those bins).</p>"
     )
-    return f'<table class="reliability"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>' + note
+    return html_table(head, rows, "reliability") + note
 
 
 register_report_figure(
     "table1",
     partial(_write_table1, metric="auc_pr", stem="table1"),
-    title="Table 1: AUC-PR averaged over datasets",
-    description="AUC-PR of each uncertainty method for each VPR method, averaged over datasets (md, csv, tex)",
+    title="Table 1: AUC-PR {where}",
+    description="AUC-PR of each uncertainty method for each VPR method (md, csv, tex)",
     requires=("evaluation",),
     section=_section("auc_pr"),
 )
@@ -503,7 +506,7 @@ register_report_figure(
 register_report_figure(
     "table1_ap",
     partial(_write_table1, metric="average_precision", stem="table1_ap"),
-    title="Table 1 by average precision",
+    title="Table 1 by average precision {where}",
     description="average precision (step-wise area, no interpolation between tied groups), as Table 1 (md, csv, tex)",
     requires=("evaluation",),
     section=_section("average_precision"),
@@ -511,7 +514,7 @@ register_report_figure(
 register_report_figure(
     "table1_aurc",
     partial(_write_table1, metric="aurc", stem="table1_aurc"),
-    title="Table 1 by AURC (lower is better)",
+    title="Table 1 by AURC {where} (lower is better)",
     description="area under the risk-coverage curve, as Table 1 (md, csv, tex)",
     requires=("evaluation",),
     section=_section("aurc"),

@@ -98,6 +98,28 @@ def _names(values: Sequence[str]) -> str:
     return values[0] if len(values) == 1 else ", ".join(values[:-1]) + " and " + values[-1]
 
 
+def averaged_over(cells: Sequence[Any]) -> str:
+    """What a number of several cells is: ``"on corridor"`` (one dataset), else ``"averaged over the 2 datasets (a
+    and b)"``."""
+    datasets = list(dict.fromkeys(cell.dataset for cell in cells))
+    return (
+        f"on {datasets[0]}"
+        if len(datasets) == 1
+        else f"averaged over the {len(datasets)} datasets ({_names(datasets)})"
+    )
+
+
+def html_table(head: Sequence[str], rows: Sequence[Sequence[Any]], css: str = "") -> str:
+    """A ``<table>``: the ``head`` texts escaped; in each row the first value (escaped) a header, the others HTML."""
+    body = "".join(
+        f"<tr><th>{escape(str(row[0]))}</th>" + "".join(f"<td>{value}</td>" for value in row[1:]) + "</tr>"
+        for row in rows
+    )
+    heads = "".join(f"<th>{escape(text)}</th>" for text in head)
+    css = f' class="{css}"' if css else ""
+    return f"<table{css}><thead><tr>{heads}</tr></thead><tbody>{body}</tbody></table>"
+
+
 def cell_stem(cell: Any) -> str:
     """``<vpr method>__<dataset>`` (slugged): how the file names of a cell's figures end."""
     return f"{slug(cell.vpr_method)}__{slug(cell.dataset)}"

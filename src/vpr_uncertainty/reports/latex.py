@@ -40,7 +40,8 @@ LATEX_PACKAGES = r"\usepackage{booktabs}\usepackage{graphicx}"
 def latex_float(
     caption: str, label: str, column_spec: str, header: Sequence[str], rows: Sequence[Sequence[str]], width: str | None
 ) -> list[str]:
-    """A ``table`` float: caption and label above, booktabs rules, the tabular shrunk to ``width`` when wider.
+    """A ``table`` float (``table*``, two columns wide, for ``width=r"\\textwidth"``): caption and label above,
+    booktabs rules, the tabular shrunk to ``width`` when wider.
 
     ``\\resizebox{\\ifdim\\width>W W\\else\\width\\fi}{!}{...}`` scales the tabular down to ``W`` only when its natural
     width exceeds it (never up), so a table fits ``\\columnwidth`` whatever the number of its columns.
@@ -57,7 +58,7 @@ def latex_float(
     if width is not None:
         tabular = [rf"\resizebox{{\ifdim\width>{width}{width}\else\width\fi}}{{!}}{{%", *tabular, "}"]
     return [
-        r"\begin{table}[t]",
+        r"\begin{table*}[t]" if width == r"\textwidth" else r"\begin{table}[t]",
         r"\centering",
         rf"\caption{{{latex_escape(caption)}}}",
         rf"\label{{{label}}}",

@@ -1,10 +1,8 @@
 """The figures of a grid: ablations (the paper's Figures 5 and 6), ΔAUC-PR heatmaps (Figure 3), the cascade, and
 qualitative examples (Figures 2 and 4). Each reads the cells' stored results and recomputes no uncertainty.
 
-- Ablations: AUC-PR of SU versus α (α = 1 is RS, α = 0 is SD) with one panel per VPR method (one y range shared by
-  all panels, so that a difference of 0.002 looks as small as it is; the best α of each line is starred and given
-  in its panel's title), one line per dataset; RS and SD versus k with one panel per (dataset, RS or SD), one line
-  per VPR method, one shared y range.
+- Ablations: ΔAUC-PR of SU against SU at α = 0.5 versus α (1: RS, 0: SD), one panel, one line per VPR method with
+  its best α starred; RS and SD versus k, at most :data:`MAX_SERIES` VPR methods per panel, one shared y range.
 - Heatmaps: Δ = AUC-PR(RS, SD or SU) − AUC-PR(baseline), > 0 (blue) when the proposed method is better; one panel
   per baseline (baselines with the same Δ everywhere, such as BM and L2, share one), rows = VPR methods, columns =
   datasets.
@@ -31,7 +29,9 @@ import numpy as np
 
 from vpr_uncertainty.cache import slug
 from vpr_uncertainty.evaluation import auc_pr
+from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, percentile_interval
 from vpr_uncertainty.methods.cascade import combine_cascade, most_uncertain, split_cascade_name
+from vpr_uncertainty.reports.html import averaged_over
 from vpr_uncertainty.reports.style import (
     DPI,
     OKABE_ITO,
@@ -90,21 +90,6 @@ def alpha_panels(cells: Sequence) -> dict[str, dict[str, dict[float, float]]]:
     return panels
 
 
-def k_panels(cells: Sequence) -> dict[tuple[str, str], dict[str, dict[int, float]]]:
-    """(dataset, "RS" or "SD") -> VPR method -> {k: AUC-PR}: the panels of the k figure, in the order of the cells."""
-    panels: dict[tuple[str, str], dict[str, dict[int, float]]] = {}
-    for dataset in dict.fromkeys(c.dataset for c in cells):
-        for name in ("RS", "SD"):
-            lines = {
-                c.vpr_method: curve
-                for c in cells
-                if c.dataset == dataset and (curve := _defined(c.ablation_k.get(name, {})))
-            }
-            if lines:
-                panels[(dataset, name)] = lines
-    return panels
-
-
 def _layout(n_panels: int, columns: int | None = None, width: str = "page") -> tuple[int, int]:
     columns = min(max(n_panels, 1), _MAX_COLUMNS[width]) if columns is None else columns
     return math.ceil(max(n_panels, 1) / columns), columns
@@ -119,7 +104,7 @@ def _legend_columns(n_entries: int, columns: int, width: str = "page", labels: S
 
 
 def ablation_figsize(
-    n_panels: int, columns: int | None = None, legend_entries: int = 1, *, width: str = "page"
+    n_panels: int, columns: int | None = None, legend_entries: int = 1, *, width: str = "page", aspect: float = 0.8
 ) -> tuple[float, float]:
     """Size in inches of a figure of ``n_panels`` small multiples (at most 2 per row in a column, 4 in a page, or
     ``columns`` per row), ``width`` wide, with room for the title above and a legend of ``legend_entries`` entries
@@ -135,14 +120,14 @@ def ablation_figsize(
     inches = figure_width(width)
     rows, columns = _layout(n_panels, columns, width)
     legend_rows = math.ceil(max(legend_entries, 1) / _legend_columns(legend_entries, columns, width))
-    panel_height = max(1.3, _PANEL_ASPECT * inches / columns) + 0.45  # + a two-line title and the tick labels
+    panel_height = max(1.3, aspect * inches / columns) + 0.45  # + a two-line title and the tick labels
     return inches, capped_height(panel_height * rows + _TITLE_HEIGHT + _LEGEND_ROW * legend_rows + 0.25, width)
 
 
-def _subplots(plt, n_panels: int, columns: int | None, legend_entries: int, width: str):
+def _subplots(plt, n_panels: int, columns: int | None, legend_entries: int, width: str, aspect: float = 0.8):
     """Constrained-layout small multiples sharing one y range (call inside :func:`figure_rc`)."""
     rows, columns = _layout(n_panels, columns, width)
-    size = ablation_figsize(n_panels, columns, legend_entries, width=width)
+    size = ablation_figsize(n_panels, columns, legend_entries, width=width, aspect=aspect)
     figure, axes = plt.subplots(rows, columns, figsize=size, dpi=DPI, squeeze=False, sharey=True, layout="constrained")
     for axis in axes.ravel()[n_panels:]:
         axis.set_visible(False)
@@ -151,7 +136,7 @@ def _subplots(plt, n_panels: int, columns: int | None, legend_entries: int, widt
     return figure, axes
 
 
-def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None = None) -> None:
+def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None = None, legend: str = "") -> None:
     """Label the y axes of the first column, draw the legend of ``spec``'s series below the panels and the title."""
     for axis in axes[:, 0]:
         axis.set_ylabel(spec.y)
@@ -165,6 +150,7 @@ def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None =
             loc="outside lower center",
             ncol=_legend_columns(len(handles), axes.shape[1], width, labels=list(handles)),
             frameon=False,
+            title=legend or None,
         )
     figure.suptitle(_fitted(title or spec.what, figure))
 
@@ -176,68 +162,93 @@ def _save(figure, path: Path) -> Path:
 
 
 _STAR = {"marker": "*", "linestyle": "none", "color": "0.3"}
+#: Most lines in one panel of the k figure (more VPR methods: several panels).
+MAX_SERIES = 8
 
 
-def alpha_ablation_spec(cells: Sequence) -> FigureSpec:
-    """What :func:`plot_alpha_ablation` draws: its panels (one per VPR method), its legend and its axes."""
-    panels = alpha_panels(cells)
-    datasets = list(dict.fromkeys(d for lines in panels.values() for d in lines))
-    styles = method_styles(datasets)
-    titles = []
-    for vpr_method, lines in panels.items():
-        bests = [f"{best:g} ({curve[best]:.3f})" for curve in lines.values() if (best := best_alpha(curve)) is not None]
-        titles.append(f"{vpr_method}\nbest α = {', '.join(bests)}")
-    series = [SeriesSpec(d, "dataset", styles[d]) for d in datasets] if len(datasets) > 1 else []
+def alpha_deltas(cells: Sequence, reference: float = 0.5) -> dict[str, dict[float, float]]:
+    """VPR method -> {α: AUC-PR of SU at α minus at α = ``reference`` (interpolated between the αs run)}, the mean
+    over the datasets of that VPR method where the curve is defined."""
+    deltas = {}
+    for vpr_method, lines in alpha_panels(cells).items():
+        curves = [
+            {a: v - float(np.interp(reference, list(c), list(c.values()))) for a, v in c.items()}
+            for c in lines.values()
+        ]
+        alphas = sorted({a for curve in curves for a in curve})
+        deltas[vpr_method] = {a: float(np.mean([c[a] for c in curves if a in c])) for a in alphas}
+    return deltas
+
+
+def alpha_ablation_spec(cells: Sequence, reference: float = 0.5) -> FigureSpec:
+    """What :func:`plot_alpha_ablation` draws: one axis, a line per VPR method (its best α in its label)."""
+    deltas = alpha_deltas(cells, reference)
+    styles = method_styles(list(deltas))
+    series = [SeriesSpec(f"{m} ({best_alpha(c):g})", "VPR method (best α)", styles[m]) for m, c in deltas.items()]
     series.append(SeriesSpec("best α (star)", "the highest AUC-PR of each line", _STAR))
-    where = f" on {datasets[0]}" if len(datasets) == 1 else f" on {', '.join(datasets)}"
     return FigureSpec(
-        what=f"SU = α·RS + (1−α)·SD: AUC-PR of SU against α{where}",
-        panels=tuple(titles),
-        panel_rule="one per VPR method, with its best α and that AUC-PR",
+        what=f"SU = α·RS + (1−α)·SD, {averaged_over([c for c in cells if c.ablation_alpha])}: ΔAUC-PR against α",
         series=tuple(series),
         x="α (0: SD, 1: RS)",
-        y="AUC-PR of SU",
-        shared_y=True,
+        y=f"AUC-PR(α) − AUC-PR(α = {reference:g})",
+        notes=(f"Each line is a VPR method's AUC-PR of SU relative to SU at α = {reference:g} (Table 1's SU)",),
     )
 
 
-def plot_alpha_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -> Path:
-    """AUC-PR of SU versus α: one panel per VPR method (one shared y range), one line per dataset, a star on each
-    line's best α; ``width`` "page" (7.16 in) or "column" (3.5 in). Described by :func:`alpha_ablation_spec`."""
+def plot_alpha_ablation(cells: Sequence, path: str | Path, *, width: str = "page", reference: float = 0.5) -> Path:
+    """ΔAUC-PR of SU (against α = ``reference``) versus α: one axis, one line per VPR method (the mean over its
+    datasets), a star on each line's best α; ``width`` "page" (7.16 in) or "column" (3.5 in). Described by
+    :func:`alpha_ablation_spec`."""
     plt = pyplot()
-    path = Path(path)
-    spec = alpha_ablation_spec(cells)
-    panels = alpha_panels(cells)
-    datasets = list(dict.fromkeys(d for lines in panels.values() for d in lines))
-    styles = method_styles(datasets)
+    spec = alpha_ablation_spec(cells, reference)
     with figure_rc(width):
-        figure, axes = _subplots(plt, len(panels), None, len(spec.series), width)
+        figure, axes = _subplots(plt, 1, 1, len(spec.series), width, aspect=0.55 if width == "page" else 0.75)
         try:
-            for axis, title, lines in zip(axes.ravel(), spec.panels, panels.values(), strict=False):
-                for dataset, curve in lines.items():
-                    style = styles[dataset]
-                    axis.plot(list(curve), list(curve.values()), label=dataset, **style)
-                    best = best_alpha(curve)
-                    axis.plot([best], [curve[best]], markersize=10, **{**_STAR, "color": style["color"]})
-                axis.set_title(title)
-                axis.set_xlim(-0.05, 1.05)
-                axis.set_xticks([0, 0.5, 1], ["0\nSD", "0.5", "1\nRS"])
-                axis.grid(alpha=0.3)
-            _finish(plt, figure, axes, spec, width)
-            return _save(figure, path)
+            axis = axes[0, 0]
+            for series, curve in zip(spec.series, alpha_deltas(cells, reference).values(), strict=False):
+                axis.plot(list(curve), list(curve.values()), label=series.label, markersize=3, **series.style)
+                best = best_alpha(curve)
+                axis.plot([best], [curve[best]], markersize=9, zorder=3, **{**_STAR, "color": series.style["color"]})
+            axis.axhline(0, color="0.5", linewidth=0.6)
+            axis.set(xlim=(-0.03, 1.03), xlabel=spec.x)
+            axis.set_xticks([0, 0.25, 0.5, 0.75, 1], ["0\nSD", "0.25", "0.5", "0.75", "1\nRS"])
+            axis.grid(alpha=0.3)
+            _finish(plt, figure, axes, spec, width, legend="VPR method (best α)")
+            return _save(figure, Path(path))
         finally:
             plt.close(figure)
 
 
-def k_ablation_spec(cells: Sequence) -> FigureSpec:
-    """What :func:`plot_k_ablation` draws: a panel per (dataset, RS or SD), a line per VPR method."""
-    panels = k_panels(cells)
-    methods = list(dict.fromkeys(m for lines in panels.values() for m in lines))
+def k_rows(cells: Sequence, width: str = "page") -> list[tuple[str, list[tuple[str, list[str]]]]]:
+    """The rows of the k figure: (dataset, [(part, VPR methods)]): the VPR methods of a dataset in groups of at most
+    :data:`MAX_SERIES` (as even as possible; ``part`` "1/2", or "" for one group), one RS and SD pair of panels per
+    group, one pair per row in a column width and two in a page width."""
+    rows = []
+    for dataset in dict.fromkeys(c.dataset for c in cells):
+        methods = list(
+            dict.fromkeys(c.vpr_method for c in cells if c.dataset == dataset and any(c.ablation_k.values()))
+        )
+        n = -(-len(methods) // MAX_SERIES)
+        size = -(-len(methods) // max(n, 1))
+        groups = [
+            (f"{i // size + 1}/{n}" if n > 1 else "", methods[i : i + size]) for i in range(0, len(methods), size)
+        ]
+        per_row = 1 if width == "column" else 2
+        rows += [(dataset, groups[i : i + per_row]) for i in range(0, len(groups), per_row)]
+    return rows
+
+
+def k_ablation_spec(cells: Sequence, width: str = "page") -> FigureSpec:
+    """What :func:`plot_k_ablation` draws: per dataset and group of VPR methods a panel for RS and one for SD."""
+    rows = k_rows(cells, width)
+    methods = list(dict.fromkeys(m for _, groups in rows for _, group in groups for m in group))
     styles = method_styles(methods)
     return FigureSpec(
         what="RS and SD: AUC-PR against k, the candidates used, per VPR method",
-        panels=tuple(f"{name} · {dataset}" for dataset, name in panels),
-        panel_rule="one per dataset and method, RS or SD",
+        panels=tuple(
+            f"{n} · {d}{f' ({part})' if part else ''}" for d, gs in rows for part, _ in gs for n in ("RS", "SD")
+        ),
+        panel_rule=f"per dataset, an RS and an SD panel for each group of at most {MAX_SERIES} VPR methods",
         series=tuple(SeriesSpec(m, "VPR method", styles[m]) for m in methods),
         x="k (candidates used)",
         y="AUC-PR",
@@ -246,30 +257,51 @@ def k_ablation_spec(cells: Sequence) -> FigureSpec:
 
 
 def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -> Path:
-    """AUC-PR of RS and SD versus k: per dataset a panel for RS and one for SD (one shared y range), one line per VPR
-    method; ``width`` "page" or "column". Described by :func:`k_ablation_spec`."""
+    """AUC-PR of RS and SD versus k: per dataset and group of at most :data:`MAX_SERIES` VPR methods an RS and an
+    SD panel (one shared y range), one line per VPR method, each row's legend below it; ``width`` "page" or
+    "column". Described by :func:`k_ablation_spec`."""
     import matplotlib.ticker
 
     plt = pyplot()
-    path = Path(path)
-    spec = k_ablation_spec(cells)
-    panels = k_panels(cells)
+    spec, rows = k_ablation_spec(cells, width), k_rows(cells, width)
     styles = {s.label: s.style for s in spec.series}
+    curves = {(c.dataset, n, c.vpr_method): _defined(c.ablation_k.get(n, {})) for c in cells for n in ("RS", "SD")}
+    values = [v for curve in curves.values() for v in curve.values()]
+    low, high = min(values, default=0.0), max(values, default=1.0)
+    ticks = sorted({k for curve in curves.values() for k in curve})
+    legends = [[m for _, group in groups for m in group] for _, groups in rows]
+    columns = 2 * max(len(groups) for _, groups in rows)
+    height = len(rows) * (max(1.3, _PANEL_ASPECT * figure_width(width) / columns) + 0.6) + _TITLE_HEIGHT
+    height += _LEGEND_ROW * sum(math.ceil(len(e) / _legend_columns(len(e), 0, width, e)) for e in legends)
     with figure_rc(width):
-        figure, axes = _subplots(plt, len(panels), min(max(len(panels), 1), 2), len(spec.series), width)
+        figure = plt.figure(figsize=(figure_width(width), capped_height(height, width)), dpi=DPI, layout="constrained")
         try:
-            ticks = sorted({k for lines in panels.values() for curve in lines.values() for k in curve})
-            for axis, title, lines in zip(axes.ravel(), spec.panels, panels.values(), strict=False):
-                for vpr_method, curve in lines.items():
-                    axis.plot(list(curve), list(curve.values()), label=vpr_method, **styles[vpr_method])
-                axis.set_xscale("log")
-                axis.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
-                axis.set_xticks(ticks, [str(t) for t in ticks], rotation=90 if width == "column" else 0)
-                axis.set_xlabel(spec.x)
-                axis.set_title(title)
-                axis.grid(alpha=0.3)
-            _finish(plt, figure, axes, spec, width)
-            return _save(figure, path)
+            titles = iter(spec.panels)
+            subfigures = figure.subfigures(len(rows), 1, squeeze=False)[:, 0]
+            for row, (dataset, groups), entries in zip(subfigures, rows, legends, strict=True):
+                axes = row.subplots(1, columns, sharey=True)
+                for axis, (group, name) in zip(axes, [(g, n) for _, g in groups for n in ("RS", "SD")], strict=False):
+                    for vpr_method in group:
+                        curve = curves[(dataset, name, vpr_method)]
+                        axis.plot(list(curve), list(curve.values()), label=vpr_method, **styles[vpr_method])
+                    axis.set_xscale("log")
+                    axis.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+                    axis.set_xticks(
+                        ticks,
+                        [f"{t}" if width == "page" or f"{t}".rstrip("0") in ("1", "2", "5") else "" for t in ticks],
+                    )
+                    margin = 0.05 * (high - low or 1)
+                    axis.set(xlabel=spec.x, title=next(titles), ylim=(low - margin, high + margin))
+                    axis.tick_params(labelleft=True)
+                    axis.grid(alpha=0.3)
+                for axis in axes[2 * len(groups) :]:
+                    axis.set_visible(False)
+                axes[0].set_ylabel(spec.y)
+                handles = [plt.Line2D([], [], **styles[m]) for m in entries]
+                ncol = _legend_columns(len(entries), 0, width, entries)
+                row.legend(handles, entries, loc="outside lower center", frameon=False, ncol=ncol)
+            figure.suptitle(_fitted(spec.what, figure))
+            return _save(figure, Path(path))
         finally:
             plt.close(figure)
 
@@ -318,27 +350,49 @@ def _colour_bar_side(width: str) -> str:
 _CHARACTER_INCHES = 0.06
 
 
-def delta_matrix(cells: Sequence, proposed: str, baseline: str) -> tuple[list[str], list[str], np.ndarray]:
-    """(VPR methods, datasets, Δ of shape (V, D)); NaN where a cell or an AUC-PR is missing."""
-    vpr_methods = list(dict.fromkeys(c.vpr_method for c in cells))
-    datasets = list(dict.fromkeys(c.dataset for c in cells))
-    delta = np.full((len(vpr_methods), len(datasets)), np.nan)
+def delta_matrix(
+    cells: Sequence, proposed: str, baseline: str, distributions: dict | None = None
+) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
+    """(VPR methods, datasets, Δ of shape (V, D), significant of shape (V, D)); Δ is NaN where a cell or an AUC-PR is
+    missing; significant: the 95 % percentile interval of the paired bootstrap Δ excludes 0 (``distributions``:
+    (VPR method, dataset) -> method -> resampled AUC-PR, :func:`heatmap_distributions`; without them, all False)."""
+    vpr_methods, datasets = (list(dict.fromkeys(getattr(c, key) for c in cells)) for key in ("vpr_method", "dataset"))
+    delta, significant = (
+        np.full((len(vpr_methods), len(datasets)), np.nan),
+        np.zeros((len(vpr_methods), len(datasets)), bool),
+    )
     for cell in cells:
-        methods = cell.evaluation.methods
+        methods, at = cell.evaluation.methods, (vpr_methods.index(cell.vpr_method), datasets.index(cell.dataset))
         if proposed in methods and baseline in methods:
             a, b = methods[proposed].auc_pr, methods[baseline].auc_pr
             if a is not None and b is not None:
-                delta[vpr_methods.index(cell.vpr_method), datasets.index(cell.dataset)] = a - b
-    return vpr_methods, datasets, delta
+                delta[at] = a - b
+            resampled = (distributions or {}).get((cell.vpr_method, cell.dataset))
+            interval = resampled and percentile_interval(resampled[proposed] - resampled[baseline])
+            significant[at] = bool(interval) and (interval[0] > 0 or interval[1] < 0)
+    return vpr_methods, datasets, delta, significant
 
 
-def _heatmap_panels(cells: Sequence, proposed: str) -> tuple[list[str], list[tuple[list[str], list[str], np.ndarray]]]:
-    """(panel titles, Δ matrices): one panel per baseline; baselines with the same Δ everywhere share one."""
+def heatmap_distributions(cells: Sequence, bootstrap: int, seed: int) -> dict | None:
+    """(VPR method, dataset) -> method -> AUC-PR on ``bootstrap`` paired resamples of its queries (None for 0)."""
+    if not bootstrap:
+        return None
+    return {(c.vpr_method, c.dataset): evaluation_distributions(c.evaluation, bootstrap, seed)["auc_pr"] for c in cells}
+
+
+def _signed(value: float) -> str:
+    """``+0.12``, ``-0.05``, and ``0.00`` for anything that rounds to zero (never "-0.00")."""
+    return "0.00" if round(value, 2) == 0 else f"{value:+.2f}"
+
+
+def _heatmap_panels(cells: Sequence, proposed: str, distributions: dict | None = None) -> tuple[list[str], list]:
+    """(panel titles, :func:`delta_matrix` of each): one panel per baseline; baselines with the same Δ everywhere
+    share one."""
     names = list(dict.fromkeys(name for c in cells for name in c.evaluation.methods))
-    matrices: list[tuple[list[str], list[str], np.ndarray]] = []
+    matrices: list[tuple[list[str], list[str], np.ndarray, np.ndarray]] = []
     titles: list[str] = []
     for baseline in (n for n in names if n not in PROPOSED):
-        matrix = delta_matrix(cells, proposed, baseline)
+        matrix = delta_matrix(cells, proposed, baseline, distributions)
         same = [i for i, m in enumerate(matrices) if np.array_equal(m[2], matrix[2], equal_nan=True)]
         if same:
             titles[same[0]] += f" = {baseline}"
@@ -348,22 +402,30 @@ def _heatmap_panels(cells: Sequence, proposed: str) -> tuple[list[str], list[tup
     return titles, matrices
 
 
-def heatmap_spec(cells: Sequence, proposed: str) -> FigureSpec:
+def heatmap_spec(cells: Sequence, proposed: str, *, bootstrap: int = 0, seed: int = 0) -> FigureSpec:
     """What the heatmap of ``proposed`` (RS, SD or SU) draws: one panel per baseline, rows VPR methods, columns
     datasets; with a single dataset, one panel whose columns are the baselines (a column of one cell per panel
-    would not fit a paper's column)."""
-    return _heatmap_spec(proposed, *_heatmap_panels(cells, proposed))
+    would not fit a paper's column). With ``bootstrap`` resamples, the caption says what the * marks mean."""
+    return _heatmap_spec(proposed, *_heatmap_panels(cells, proposed), _marks_note(bootstrap, seed))
 
 
-def _heatmap_spec(
-    proposed: str, titles: list[str], matrices: list[tuple[list[str], list[str], np.ndarray]]
-) -> FigureSpec:
+def _marks_note(bootstrap: int, seed: int) -> str:
+    return (
+        f"*: the 95 % interval of Δ excludes 0 (paired bootstrap over the cell's queries, {bootstrap} resamples, "
+        f"seed {seed}; not corrected for multiple comparisons)"
+        if bootstrap
+        else "No significance marks (bootstrap = 0)"
+    )
+
+
+def _heatmap_spec(proposed: str, titles: list[str], matrices: list, marks: str = "") -> FigureSpec:
     n_vpr = len(matrices[0][0]) if matrices else 0
     datasets = matrices[0][1] if matrices else []
     notes = (
         f"Each cell is AUC-PR({proposed}) − AUC-PR(baseline), printed in the cell and coloured on one diverging "
         f"scale{' for all panels' if len(datasets) > 1 else ''}: blue > 0 ({proposed} predicts correct answers "
         "better), red < 0",
+        marks,
     )
     one = len(datasets) == 1  # one panel, whose columns are the baselines
     return FigureSpec(
@@ -382,19 +444,19 @@ def _heatmap_spec(
     )
 
 
-def _heatmap(cells: Sequence, proposed: str) -> tuple[FigureSpec, list[str], list[tuple[list[str], np.ndarray]]] | None:
-    """The spec, the VPR methods (rows) and, per panel, (column labels, Δ of shape (rows, columns)) of the heatmap
-    of ``proposed``, from one computation of the Δ matrices; None without a baseline."""
-    titles, matrices = _heatmap_panels(cells, proposed)
+def _heatmap(cells: Sequence, proposed: str, distributions: dict | None = None, marks: str = "") -> tuple | None:
+    """The spec, the VPR methods (rows) and, per panel, (column labels, Δ and significant of shape (rows, columns))
+    of the heatmap of ``proposed``, from one computation of the Δ matrices; None without a baseline."""
+    titles, matrices = _heatmap_panels(cells, proposed, distributions)
     if not matrices:
         return None
-    spec = _heatmap_spec(proposed, titles, matrices)
+    spec = _heatmap_spec(proposed, titles, matrices, marks)
     datasets = matrices[0][1]
     if len(datasets) == 1:  # one panel: rows VPR methods, columns the baselines
         columns = [title.removeprefix("vs ") for title in titles]
-        panels = [(columns, np.column_stack([delta[:, 0] for _, _, delta in matrices]))]
+        panels = [(columns, *(np.column_stack([m[part][:, 0] for m in matrices]) for part in (2, 3)))]
     else:  # one panel per baseline, columns the datasets
-        panels = [(datasets, delta) for _, _, delta in matrices]
+        panels = [(datasets, delta, significant) for _, _, delta, significant in matrices]
     return spec, matrices[0][0], panels
 
 
@@ -407,21 +469,24 @@ def heatmap_figure_size(cells: Sequence, proposed: str, *, width: str = "page") 
     return heatmap_layout(vpr_methods, panels[0][0], spec.panels, width=width)[2]
 
 
-def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "page") -> list[Path]:
+def plot_delta_heatmaps(
+    cells: Sequence, out_dir: str | Path, *, width: str = "page", bootstrap: int = 0, seed: int = 0
+) -> list[Path]:
     """Write ``delta_<RS|SD|SU>.png`` for each proposed method present with at least one baseline; ``width``
-    "page" (7.16 in) or "column" (3.5 in). Described by :func:`heatmap_spec`."""
+    "page" (7.16 in) or "column" (3.5 in); with ``bootstrap`` resamples, a * after each Δ whose paired 95 %
+    interval excludes 0. Described by :func:`heatmap_spec`."""
     plt = pyplot()
     figure_width(width)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     names = list(dict.fromkeys(name for c in cells for name in c.evaluation.methods))
-    paths = []
+    paths, distributions = [], heatmap_distributions(cells, bootstrap, seed)
     for proposed in (p for p in PROPOSED if p in names):
-        found = _heatmap(cells, proposed)
+        found = _heatmap(cells, proposed, distributions, _marks_note(bootstrap, seed))
         if found is None:
             break
         spec, vpr_methods, panels = found
-        finite = np.concatenate([delta[np.isfinite(delta)] for _, delta in panels])
+        finite = np.concatenate([delta[np.isfinite(delta)] for _, delta, _ in panels])
         limit = max(float(np.abs(finite).max()) if finite.size else 0.0, 1e-3)
         rows, columns, size = heatmap_layout(vpr_methods, panels[0][0], spec.panels, width=width)
         with figure_rc(width):
@@ -430,16 +495,20 @@ def plot_delta_heatmaps(cells: Sequence, out_dir: str | Path, *, width: str = "p
             try:
                 for axis in axes[len(panels) :]:  # the last row's unused places
                     axis.set_axis_off()
-                for position, (axis, title, (labels, delta)) in enumerate(zip(axes, spec.panels, panels, strict=False)):
+                for position, (axis, title, (labels, delta, marked)) in enumerate(
+                    zip(axes, spec.panels, panels, strict=False)
+                ):
                     image = axis.imshow(delta, cmap="RdBu", vmin=-limit, vmax=limit, aspect="auto")
                     for (i, j), value in np.ndenumerate(delta):
                         if np.isfinite(value):
                             colour = "white" if abs(value) > 0.6 * limit else "black"
-                            axis.text(j, i, f"{value:+.2f}", ha="center", va="center", color=colour)
+                            text = _signed(value) + ("*" if marked[i, j] else "")
+                            axis.text(j, i, text, ha="center", va="center", color=colour)
                     axis.set_xticks(range(len(labels)), labels, rotation=30, ha="right")
                     axis.set_yticks(range(len(vpr_methods)), vpr_methods if position % columns == 0 else [])
                     axis.set_title(title)
-                figure.colorbar(image, ax=axes, shrink=0.8, label="Δ AUC-PR", location=_colour_bar_side(width))
+                label = "Δ AUC-PR" + ("   * 95 % interval excludes 0" if bootstrap else "")
+                figure.colorbar(image, ax=axes, shrink=0.8, label=label, location=_colour_bar_side(width))
                 figure.suptitle(_fitted(spec.what.split(" on ")[0], figure))
                 paths.append(_save(figure, out_dir / f"delta_{proposed}.png"))
             finally:

@@ -4,8 +4,9 @@ series, the figure specs that captions are written from, and atomic saving.
 Paper sizes: every figure function takes ``width="column"`` (3.5 in, one column of a two-column paper) or
 ``"page"`` (7.16 in, the text width); its height follows from its content, and its fonts are 8 pt (9 pt titles),
 set for that figure only (:func:`figure_rc`, a ``matplotlib.rc_context``; the global rcParams are left alone).
-Colours are Okabe and Ito's colour-blind-safe palette and every series also has its own marker and dash
-(:func:`method_styles`), so a figure printed in grey still tells them apart.
+Colours are Okabe and Ito's colour-blind-safe palette without its yellow (faint on white), and every series also has
+its own marker and dash, so a figure printed in grey still tells them apart. A name has the same style in every
+figure of every command (:func:`method_styles`: one table, by name, not by position).
 
 Captions: a figure is described by a :class:`FigureSpec` (its panels, its series with their styles, its axes,
 its notes) from which the drawing code takes its titles, legend labels and styles and from which
@@ -15,6 +16,7 @@ its notes) from which the drawing code takes its titles, legend labels and style
 from __future__ import annotations
 
 import contextlib
+import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +32,7 @@ __all__ = [
     "FONT_SIZE",
     "MAX_HEIGHTS",
     "OKABE_ITO",
+    "STYLED_NAMES",
     "VECTOR_SUFFIX",
     "FigureSpec",
     "SeriesSpec",
@@ -48,30 +51,21 @@ __all__ = [
 DPI = 300
 #: The vector format written beside each PNG.
 VECTOR_SUFFIX = ".pdf"
-#: Okabe and Ito's colour-blind-safe palette (yellow last: faint on white), as hex.
-OKABE_ITO: tuple[str, ...] = (
-    "#0072B2",  # blue
-    "#D55E00",  # vermillion
-    "#009E73",  # bluish green
-    "#CC79A7",  # reddish purple
-    "#E69F00",  # orange
-    "#56B4E9",  # sky blue
-    "#000000",  # black
-    "#F0E442",  # yellow
-)
+#: Okabe and Ito's colour-blind-safe palette without its yellow (faint on white): blue, vermillion, bluish green,
+#: reddish purple, orange, sky blue, black.
+OKABE_ITO: tuple[str, ...] = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000")
 _DASHES: tuple[Any, ...] = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
 _MARKERS = ("o", "s", "^", "v", "D", "P", "X")
+#: Names with a fixed style, by position (the toolkit's uncertainty methods, then VPR-Bench's VPR methods); any
+#: other name starts at a slot chosen by a hash of the name.
+STYLED_NAMES: tuple[str, ...] = (
+    *("RS", "SD", "SU", "BM", "L2", "PA", "margin", "SUE", "BTL", "GV-SIFT", "GV-DISK-LG", "CAL", "SU-adaptive"),
+    *("AMOSNet", "AlexNet_VPR", "CALC", "CoHOG", "HOG", "HybridNet", "NetVLAD", "RegionVLAD", "ap-gem-r101"),
+    "denseVLAD",
+)
 #: How a caption names a marker and a dash.
-_MARKER_WORDS = {
-    "o": "circles",
-    "s": "squares",
-    "^": "triangles up",
-    "v": "triangles down",
-    "D": "diamonds",
-    "P": "plus signs",
-    "X": "crosses",
-    "*": "stars",
-}
+_MARKER_WORDS = {"o": "circles", "s": "squares", "^": "triangles up", "v": "triangles down", "D": "diamonds"}
+_MARKER_WORDS |= {"P": "plus signs", "X": "crosses", "*": "stars"}
 _DASH_WORDS = {"-": "solid", "--": "dashed", "-.": "dash-dot", ":": "dotted", "None": "no line", "none": "no line"}
 
 #: Figure widths in inches: one column of a two-column paper, and the text width of a page.
@@ -107,25 +101,11 @@ def figure_rc(width: str = "page") -> Iterator[None]:
     import matplotlib
 
     figure_width(width)
-    rc = {
-        "font.size": FONT_SIZE,
-        "axes.titlesize": TITLE_SIZE,
-        "axes.labelsize": FONT_SIZE,
-        "xtick.labelsize": FONT_SIZE,
-        "ytick.labelsize": FONT_SIZE,
-        "legend.fontsize": FONT_SIZE,
-        "legend.title_fontsize": FONT_SIZE,
-        "figure.titlesize": TITLE_SIZE,
-        "figure.labelsize": FONT_SIZE,
-        "axes.linewidth": 0.6,
-        "grid.linewidth": 0.4,
-        "lines.linewidth": 1.2,
-        "lines.markersize": 4,
-        "xtick.major.width": 0.6,
-        "ytick.major.width": 0.6,
-        "axes.prop_cycle": matplotlib.cycler(color=list(OKABE_ITO)),
-        "pdf.fonttype": 42,  # TrueType in the PDF: editable text, accepted by publishers
-    }
+    sizes = ("font.", "axes.label", "xtick.label", "ytick.label", "legend.font", "legend.title_font", "figure.label")
+    rc = {f"{key}size": FONT_SIZE for key in sizes} | {"axes.titlesize": TITLE_SIZE, "figure.titlesize": TITLE_SIZE}
+    rc |= {"axes.linewidth": 0.6, "grid.linewidth": 0.4, "lines.linewidth": 1.2, "lines.markersize": 4}
+    rc |= {"xtick.major.width": 0.6, "ytick.major.width": 0.6, "axes.prop_cycle": matplotlib.cycler(color=OKABE_ITO)}
+    rc["pdf.fonttype"] = 42  # TrueType in the PDF: editable text, accepted by publishers
     with matplotlib.rc_context(rc):
         yield
 
@@ -219,24 +199,40 @@ def pyplot() -> Any:
     return plt
 
 
+def _slot_style(slot: int) -> dict[str, Any]:
+    """Slot ``i``: colour ``i % 7``, marker ``(i + i // 7) % 7`` (no two of 49 slots share both), dash ``i % 5``."""
+    colours = len(OKABE_ITO)
+    marker = _MARKERS[(slot + slot // colours) % len(_MARKERS)]
+    return {"color": OKABE_ITO[slot % colours], "linestyle": _DASHES[slot % len(_DASHES)], "marker": marker}
+
+
 def method_styles(names: Sequence[str]) -> dict[str, dict[str, Any]]:
-    """``{name: {"color", "linestyle", "marker"}}``: a colour-blind-safe colour (:data:`OKABE_ITO`), a dash and a
-    marker; no two of the first 35 names share a (marker, dash), no two of the first 280 all three.
+    """``{name: {"color", "linestyle", "marker"}}``, the same for a name in every figure: a colour-blind-safe colour
+    (:data:`OKABE_ITO`), a dash and a marker from the name's slot (its place in :data:`STYLED_NAMES`, else a hash of
+    it); a name whose (colour, marker) or (marker, dash) another name of ``names`` already has takes the next free
+    slot. Coinciding methods ``"BM = L2"`` take the style of the first of them in :data:`STYLED_NAMES`.
 
     Examples
     --------
-    >>> styles = method_styles(["RS", "SD", "SU"])
-    >>> styles["SD"]
-    {'color': '#D55E00', 'linestyle': '--', 'marker': 's'}
+    >>> styles = method_styles(["SU", "SD"])
+    >>> styles["SD"], styles["SU"]["color"] == method_styles(["BM", "L2", "SU"])["SU"]["color"]
+    ({'color': '#D55E00', 'linestyle': '--', 'marker': 's'}, True)
     """
-    return {
-        name: {
-            "color": OKABE_ITO[index % len(OKABE_ITO)],
-            "linestyle": _DASHES[index % len(_DASHES)],
-            "marker": _MARKERS[index % len(_MARKERS)],
-        }
-        for index, name in enumerate(names)
-    }
+    styles: dict[str, dict[str, Any]] = {}
+    for name in names:
+        first = slot = min(_slot(part) for part in name.split(" = "))
+        while any(_clashes(_slot_style(slot), taken) for taken in styles.values()) and slot < first + 245:
+            slot += 1
+        styles[name] = _slot_style(slot)
+    return styles
+
+
+def _slot(name: str) -> int:
+    return STYLED_NAMES.index(name) if name in STYLED_NAMES else 23 + zlib.crc32(name.encode()) % 26
+
+
+def _clashes(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
+    return a["marker"] == b["marker"] and (a["color"] == b["color"] or a["linestyle"] == b["linestyle"])
 
 
 def coinciding(curves: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> list[list[str]]:

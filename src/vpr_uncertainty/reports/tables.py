@@ -382,7 +382,8 @@ _LATEX_FOOTNOTE = r"\par\smallskip{\footnotesize $^\dagger$ uninformative: const
 
 def _end_latex(lines: list[str], uninformative: bool) -> str:
     """The float's ``lines``, the footnote on uninformative methods (when there are any) and ``\\end{table}``."""
-    return "\n".join([*lines, *([_LATEX_FOOTNOTE] if uninformative else []), r"\end{table}"]) + "\n"
+    end = lines[0].replace("begin", "end").removesuffix("[t]")  # table or table*
+    return "\n".join([*lines, *([_LATEX_FOOTNOTE] if uninformative else []), end]) + "\n"
 
 
 def _any_uninformative(table: Table1) -> bool:
