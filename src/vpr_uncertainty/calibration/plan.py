@@ -84,16 +84,19 @@ def _monotone(values: np.ndarray) -> list[np.ndarray]:
     return [values[:, block].mean(axis=1) for block in blocks for _ in block]
 
 
-def _imputed(pool_scores: np.ndarray, correct: np.ndarray, k: int) -> np.ndarray:
-    """P(correct) of each unlabelled query (the rows of ``pool_scores`` after the L labelled ones): the share of
-    correct answers among its 3 nearest labelled queries by the pool ranks of every feature (a neighbourhood small
-    enough that a ranking's clean top stays clean; wider ones, or a pseudo-label at the base rate, blurred errors
-    into every top and predicted too few certificates on the corridor: docs/evidence/calibration.md)."""
+def _neighbours(pool_scores: np.ndarray, n_labelled: int, k: int) -> np.ndarray:
+    """The 3 nearest labelled queries (the first ``n_labelled`` rows of ``pool_scores``) of each unlabelled one, by
+    the pool ranks of every feature (a neighbourhood small enough that a ranking's clean top stays clean; wider
+    ones blurred errors into every top and predicted too few certificates: docs/evidence/calibration.md)."""
     features = np.column_stack(list(feature_columns(pool_scores, k).values()))
     ranks = np.argsort(np.argsort(features, axis=0, kind="stable"), axis=0) / max(len(features) - 1, 1)
-    labelled, unlabelled = ranks[: correct.size], ranks[correct.size :]
+    labelled, unlabelled = ranks[:n_labelled], ranks[n_labelled:]
     distance = (labelled**2).sum(axis=1) - 2 * unlabelled @ labelled.T  # squared distance, less ‖unlabelled‖²
-    return correct[np.argsort(distance, axis=1, kind="stable")[:, :3]].mean(axis=1)
+    return np.argsort(distance, axis=1, kind="stable")[:, :3]
+
+
+#: Pseudo-labels at the base rate in each labelled query's neighbourhood rate (its Beta prior; see plan_labels).
+PRIOR_LABELS = 0.3
 
 
 def _wilson(share: float, n: int) -> tuple[float, float]:
@@ -117,14 +120,17 @@ def plan_labels(
 ) -> LabelPlan:
     """Estimate, before labelling more, how often n labelled queries certify ``target_precision`` and at what recall.
 
-    The population is the pool, labelled and ``unlabelled`` queries: each simulation gives every unlabelled query a
-    label drawn with the share correct of its 3 nearest labelled queries in the ranks of every feature (so each
-    ranking's clean or dirty top is as the labels show it), draws queries from the pool with replacement, and
+    The population is the pool, labelled and ``unlabelled`` queries: each simulation draws, for every labelled
+    query, the correct rate of its neighbourhood from its posterior (its label plus 0.3 pseudo-labels at the base
+    rate), gives every unlabelled query a label drawn with the mean rate of its 3 nearest labelled queries in the
+    ranks of every feature (so each ranking's clean or dirty top is as the labels show it, errors the few labels
+    missed included), draws queries from the pool with replacement, and
     runs :func:`calibrate_arrays` with ``calibrate``'s defaults on the first n, for each size n (common draws: the
     sizes differ by the labels added, not by luck). A draw holding one outcome certifies nothing (``calibrate``
     refuses it). Recall is measured on the simulated pool. Where noise would make a figure fall with more labels,
-    adjacent sizes are pooled (pool-adjacent-violators), so the table is monotone. A plug-in estimate: its
-    intervals count the simulations' noise, not the few labels' (docs/evidence/calibration.md measures its error).
+    adjacent sizes are pooled (pool-adjacent-violators), so the table is monotone. The figures average over the
+    posterior, so they carry the few labels' uncertainty; the intervals count the simulations' noise
+    (docs/evidence/calibration.md measures the error).
 
     Parameters
     ----------
@@ -178,11 +184,13 @@ def plan_labels(
     if not asked or asked[0] < 2:
         raise ValueError(f"sizes must be integers >= 2, got {asked}")
     sizes = [size for size in asked if size <= pool] + ([pool] if asked[-1] > pool else [])
-    imputed = _imputed(pool_scores, correct, k) if pool > correct.size else np.zeros(0)
+    neighbours = _neighbours(pool_scores, correct.size, k) if pool > correct.size else np.zeros((0, 3), int)
+    prior = PRIOR_LABELS * correct.mean()
     rng = np.random.default_rng(seed)
     certified, recall = np.zeros((draws, len(sizes))), np.zeros((draws, len(sizes)))
     for draw in progress_bar(range(draws), desc="simulating calibrations", unit="draw", enabled=progress):
-        labels = np.concatenate([correct, rng.random(imputed.size) < imputed])
+        rates = rng.beta(correct + prior, ~correct + PRIOR_LABELS - prior)  # one posterior draw per simulation
+        labels = np.concatenate([correct, rng.random(len(neighbours)) < rates[neighbours].mean(axis=1)])
         rows = rng.choice(pool, sizes[-1], replace=True)
         for column, size in enumerate(sizes):
             pick = rows[:size]
@@ -216,8 +224,8 @@ def plan_labels(
         message = f"none of the simulated sizes (up to {sizes[-1]} labelled queries) certifies {goal} {1 - delta:.0%}"
         message += " of the simulations"
     notes = [
-        f"simulated on the pool, the unlabelled queries' labels imputed from the {correct.size} labelled ones "
-        f"({draws} simulations, the same draws at every size), calibrate run with its defaults: a plug-in estimate"
+        f"simulated on the pool, the unlabelled queries' labels drawn from a posterior on the {correct.size} labelled "
+        f"ones ({draws} simulations, the same draws at every size), calibrate run with its defaults"
     ]
     if asked[-1] > pool:
         notes.append(f"the pool holds only {pool} queries: sizes above it are not simulated")

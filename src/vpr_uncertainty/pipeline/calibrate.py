@@ -44,7 +44,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
             "--plan answers, before more labelling, how many labelled queries would certify the target: SCORES holds\n"
             "the few labelled queries so far (at least 2 correct and 2 wrong), --unlabelled the queries not yet\n"
             "labelled. The pool (labelled + unlabelled queries) is the population: each of 100 simulations labels\n"
-            "every unlabelled query like its 3 nearest labelled ones (drawn from their share correct), draws n\n"
+            "every unlabelled query like its 3 nearest labelled ones (their rates drawn from a posterior), draws n\n"
             "queries from the pool (the same draws for every n) and runs this command's defaults on them. Per n\n"
             "it prints the share of simulations that certify p* and the mean recall (accepted correct /\n"
             "answerable), each with a 95% interval; n never exceeds the pool, and the answer says so when the\n"
