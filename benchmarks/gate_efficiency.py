@@ -286,6 +286,29 @@ VARIANTS: dict[str, tuple[Any, float, float]] = {
         0.15,
         1.0,
     ),
+    "chain, SU 0.5 + CAL 0.5": ({"SU": 0.5, "CAL": 0.5}, FALLBACK, DENSE_FROM),
+    "chain without fallback, SU 0.5 + CAL 0.5": ({"SU": 0.5, "CAL": 0.5}, 0.0, DENSE_FROM),
+    "chain dense from n/2, SU 0.5 + CAL 0.5": ({"SU": 0.5, "CAL": 0.5}, FALLBACK, 0.5),
+    "chain, CAL only": ({"CAL": 1.0}, FALLBACK, DENSE_FROM),
+    "chain, SU 0.45 + CAL 0.45 + margin 0.1": ({"SU": 0.45, "CAL": 0.45, "margin": 0.1}, FALLBACK, DENSE_FROM),
+    "tolerant steps, SU 0.45 + CAL 0.45 + margin 0.1": ({"SU": 0.45, "CAL": 0.45, "margin": 0.1}, 0.0, 1.0),
+    "chain, SU 0.3 + CAL 0.6 + margin 0.1": ({"SU": 0.3, "CAL": 0.6, "margin": 0.1}, FALLBACK, DENSE_FROM),
+    "chain, SU 0.6 + CAL 0.4": ({"SU": 0.6, "CAL": 0.4}, FALLBACK, DENSE_FROM),
+    "chain, SU 0.4 + CAL 0.6": ({"SU": 0.4, "CAL": 0.6}, FALLBACK, DENSE_FROM),
+    "chain dense from the start, SU 0.5 + CAL 0.5": ({"SU": 0.5, "CAL": 0.5}, FALLBACK, 0.0),
+    "chain, CAL 0.9 + margin 0.1": ({"CAL": 0.9, "margin": 0.1}, FALLBACK, DENSE_FROM),
+    "chain, CAL 0.8 + SU 0.1 + margin 0.1": ({"CAL": 0.8, "SU": 0.1, "margin": 0.1}, FALLBACK, DENSE_FROM),
+    "chain, CAL 0.8 + SU 0.2": ({"CAL": 0.8, "SU": 0.2}, FALLBACK, DENSE_FROM),
+    "chain, CAL 0.7 + SU 0.2 + margin 0.1": ({"CAL": 0.7, "SU": 0.2, "margin": 0.1}, FALLBACK, DENSE_FROM),
+    "tolerant steps, CAL only": ({"CAL": 1.0}, 0.0, 1.0),
+    "chain without fallback, CAL only": ({"CAL": 1.0}, 0.0, DENSE_FROM),
+    "chain without fallback, CAL 0.8 + SU 0.1 + margin 0.1": (
+        {"CAL": 0.8, "SU": 0.1, "margin": 0.1},
+        0.0,
+        DENSE_FROM,
+    ),
+    "chain dense from n/2, CAL 0.8 + SU 0.1 + margin 0.1": ({"CAL": 0.8, "SU": 0.1, "margin": 0.1}, FALLBACK, 0.5),
+    "chain, fallback 0.15, CAL 0.8 + SU 0.1 + margin 0.1": ({"CAL": 0.8, "SU": 0.1, "margin": 0.1}, 0.15, DENSE_FROM),
 }
 RANKINGS["mix"] = ("mix", 1.0)  # the benchmark's own label-free mix, standardised on each draw's scores
 
@@ -695,7 +718,9 @@ def main(argv: list[str] | None = None) -> None:
         "by SU and late by the margin or the other way round (contrasting, see `contrasting`), or both",
     )
     parser.add_argument(
-        "--only", default="", help="run only the procedures whose name contains one of these comma-separated texts"
+        "--only",
+        default="",
+        help="run only the procedures whose name contains one of these ;-separated texts (names hold commas)",
     )
     parser.add_argument(
         "--sfs-betas",
@@ -723,7 +748,7 @@ def main(argv: list[str] | None = None) -> None:
 
     version = None if args.no_mapie else mapie_version()
     with_unlabelled = supports_unlabelled()
-    wanted = [text for text in args.only.split(",") if text]
+    wanted = [text for text in args.only.split(";") if text]
     names = [
         name
         for name in procedures(version is not None, with_unlabelled)

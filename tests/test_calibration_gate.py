@@ -50,11 +50,11 @@ def test_gate_file_records_what_made_it(corridor_dir, corridor_matches_dir, tmp_
     gate = calibrate(retrieval, target_precision=0.9, delta=0.1, seed=0)
     data = json.loads(gate.save(tmp_path / "gate.json").read_text())
     assert data["format"] == "vpr-uncertainty gate" and data["k"] == 10
-    # the margin, SU and the cross-fitted model at δ/3 each, each one's outcome and δ recorded; P is the selection's
-    assert data["rankings"] == pytest.approx({"margin": 0.1 / 3, "SU": 0.1 / 3, "CAL": 0.1 / 3})
+    # the cross-fitted model at 0.9 δ and the margin at 0.1 δ, each one's outcome and δ recorded; P is the selection's
+    assert data["rankings"] == pytest.approx({"CAL": 0.09, "margin": 0.01})
     winner = data["certificate"]["ranking"]
     assert data["certificate"]["rankings"][winner]["certified"] and data["rule"]["ranking"] == winner
-    assert [o["delta"] for o in data["certificate"]["rankings"].values()] == pytest.approx([0.1 / 3] * 3)
+    assert [o["delta"] for o in data["certificate"]["rankings"].values()] == pytest.approx([0.09, 0.01])
     assert data["calibrator"]["ranking"] == data["selection"]["chosen"]
     assert data["calibration"]["n_queries"] == 111 and len(data["calibration"]["fingerprint"]) == 16
     assert data["toolkit_version"] and data["target_precision"] == 0.9 and data["delta"] == 0.1

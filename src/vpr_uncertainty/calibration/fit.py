@@ -127,7 +127,6 @@ def calibrate_arrays(
         return calibrator
 
     info["selection"] = None
-
     calibrator = fallback()  # P: the selection's calibrator, certified or not
     if target_precision is None:
         info.update(precision_lower_bound=None, expected_recall=None, expected_coverage=None, certificate=None)

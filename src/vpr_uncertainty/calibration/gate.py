@@ -221,6 +221,7 @@ class Gate:
 
     def probability_correct(self, scores: object) -> np.ndarray:
         """P(correct top-1) of shape (Q,), in [0, 1], from top-K similarities of shape (Q, K) sorted descending."""
+        self.confidence(scores, of="rule")  # the rows the rule refuses (it may read other features) have no P
         return self.calibrator.probability_from_confidence(self.confidence(scores))
 
     def accept(self, scores: object) -> np.ndarray:

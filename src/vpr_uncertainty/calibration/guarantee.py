@@ -34,7 +34,7 @@ from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import RANKINGS, Calibrator, columns, cross_fitted, fit_model, ranking_rule
 
 #: The candidate rankings of the default gate and the share of δ each is given (docs/evidence/calibration.md).
-DEFAULT_SHARES: dict[str, float] = {"margin": 1 / 3, "SU": 1 / 3, "CAL": 1 / 3}
+DEFAULT_SHARES: dict[str, float] = {"CAL": 0.9, "margin": 0.1}
 #: The share of a ranking's level its chain holds for the fallback count (:func:`cut_chain`).
 FALLBACK = 0.3
 #: From this share of the labelled queries on, a chain tests every count (:func:`cut_chain`).

@@ -37,10 +37,10 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
             "least 1 - delta over the draw of the calibration queries, the precision of accepted answers on new\n"
             "queries from the same distribution is at least p*. The gate is written as JSON (no pickle); use it\n"
             "with Gate.load in Python, or as the uncertainty method CAL:gate=GATE.json in evaluate.\n\n"
-            "Every label is used: each candidate ranking (--rankings; default the margin and SU at delta/2) is\n"
-            "tested on all labelled queries, at cuts fixed from the scores alone (quantiles over the labelled and\n"
-            "--unlabelled queries), by a chain that one early wrong answer cannot end. Without --target-precision the\n"
-            "gate accepts P >= 0.5 and certifies nothing.\n\n"
+            "Every label is used: each candidate ranking (--rankings; default the cross-fitted model CAL at 0.9\n"
+            "delta, the margin at 0.1 delta) is tested on all labelled queries, at cuts fixed from the scores alone\n"
+            "(quantiles over the labelled and --unlabelled queries), by a chain that one early wrong answer cannot\n"
+            "end. Without --target-precision the gate accepts P >= 0.5 and certifies nothing.\n\n"
             "--plan answers, before more labelling, how many labelled queries would certify the target: SCORES holds\n"
             "the few labelled queries so far (at least 2 correct and 2 wrong), --unlabelled the queries not yet\n"
             "labelled. The pool (labelled + unlabelled queries) is the population: each of 100 simulations labels\n"
@@ -81,7 +81,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         type=_names,
         metavar="NAMES",
         help="candidate rankings of the certified threshold, comma-separated, from SU, RS, SD, BM, margin, PA, CAL "
-        "(delta shared evenly; default margin and SU at delta/2 each)",
+        "(delta shared evenly; default CAL at 0.9 delta, margin at 0.1 delta; --sequential: SU, margin at delta/2)",
     )
     parser.add_argument(
         "--plan",
