@@ -57,11 +57,6 @@ class PendingFeatures:
 _store: dict[Path, PendingFeatures] | None = None
 
 
-def active_store() -> dict[Path, PendingFeatures] | None:
-    """The in-memory store of the enclosing :func:`deferred_writes` (cache file -> features), or None outside one."""
-    return _store
-
-
 @contextmanager
 def deferred_writes() -> Iterator[list[PendingFeatures]]:
     """Within the context, :func:`extract_features` reads the caches and never writes them: what it extracts is
@@ -375,11 +370,10 @@ def extract_features(
         if cache_dir is not None:
             file_path = cache_path(cache_dir, extractor)
             config = json.dumps(extractor_config(extractor), sort_keys=True, default=str)
-            store = active_store()
-            if store is None:
+            if _store is None:
                 handle = _open_cache(file_path, config)
             else:  # a task: read the shared file, keep what is extracted for the driver
-                deferred = store.setdefault(file_path, PendingFeatures(file_path, config))
+                deferred = _store.setdefault(file_path, PendingFeatures(file_path, config))
                 features.update(_deferred_features(deferred, unique))
                 handle = _open_cache(file_path, config, write=False)
             if handle is not None:
