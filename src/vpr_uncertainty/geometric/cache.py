@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -129,10 +130,7 @@ def image_names(paths: Sequence[str | Path], root: str | Path | None = None) -> 
     if not resolved:
         return []
     if root is None:
-        parents = [path.parent for path in resolved]
-        root = parents[0]
-        while not all(parent == root or root in parent.parents for parent in parents):
-            root = root.parent
+        root = os.path.commonpath([path.parent for path in resolved])
     root = Path(root).absolute()
     return [path.relative_to(root).as_posix() for path in resolved]
 
