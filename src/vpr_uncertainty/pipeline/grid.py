@@ -143,11 +143,8 @@ def main(config: GridConfig | str | Path, out: str | Path | None = None, *, repo
 
 def _handle(args: argparse.Namespace) -> int:
     executor_options(args)  # bad executor options fail before any work
-    config = load_config(args.config, out=args.out, bootstrap=args.bootstrap, seed=args.seed, reference=args.reference)
-    if args.verify_fraction is not None:
-        if not any("+" in name.split(":")[0] for name in config.methods):
-            raise ValueError(f"--verify-fraction: {args.config} selects no cascade SCORE+GV (e.g. SU+GV-SIFT)")
-        config.verify_fraction = args.verify_fraction
+    overrides = {key: getattr(args, key) for key in ("bootstrap", "seed", "reference", "verify_fraction")}
+    config = load_config(args.config, out=args.out, **overrides)
     cells = {(e.vpr_method, e.dataset) for e in config.inputs}
     print(f"{args.config}: {len(cells)} cells x {len(config.methods)} uncertainty methods -> {config.out}")
     if args.check:
@@ -231,11 +228,6 @@ def _load_cell_input(
     if seconds is not None:
         seconds.update({f"pipeline_{stage}": value for stage, value in result.stage_seconds.items()})
     return result.retrieval, result.evaluation
-
-
-def positive_hits(retrieval: Any, n: int) -> np.ndarray:
-    """(Q, n) bool: whether each of the first ``n`` candidates of each query is a positive."""
-    return candidate_hits(retrieval.indices[:, :n], retrieval.positives)
 
 
 def _image_dataset(entry: InputEntry) -> Any:
@@ -429,7 +421,7 @@ def run_cell(
         indices=retrieval.indices,
         ablation_alpha=alpha_curve,
         ablation_k=k_curve,
-        hits=positive_hits(retrieval, HIT_COLUMNS),
+        hits=candidate_hits(retrieval.indices[:, :HIT_COLUMNS], retrieval.positives),
         query_paths=options.get("query_paths"),
         database_paths=options.get("database_paths"),
         held_out=None

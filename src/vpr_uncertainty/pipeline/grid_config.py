@@ -317,7 +317,7 @@ def report_figures(
 DEFAULT_ALPHAS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
 DEFAULT_KS: tuple[int, ...] = (2, 3, 5, 10, 15, 20, 30, 50)
 VPRBENCH_FILE = "precomputed_data_corrected.npy"
-_BOOTSTRAP_KEYS = ("bootstrap", "seed", "reference")
+_OVERRIDES = ("bootstrap", "seed", "reference", "verify_fraction")
 _RUN_OPTIONS = ("root", "device", "batch_size", "index", "split")
 _INPUT_KEYS = {
     "precomputed_matches",
@@ -502,8 +502,8 @@ def _inputs(raw_inputs: Any, problems: list[str]) -> list:
 def load_config(path: str | Path, *, out: str | Path | None = None, **overrides: Any) -> GridConfig:
     """Read and validate a grid configuration; every problem is reported at once, before any work.
 
-    ``overrides`` (``bootstrap``, ``seed``, ``reference``; None = keep the config's) replace the config's values
-    before the checks.
+    ``overrides`` (``bootstrap``, ``seed``, ``reference``, ``verify_fraction``; None = keep the config's) replace the
+    config's values before the checks.
 
     Raises
     ------
@@ -517,9 +517,9 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
     if not is_regular_file(path, "a configuration file"):
         raise FileNotFoundError(f"configuration file not found: {path}")
     data = read_mapping(path)
-    unknown = sorted(set(overrides) - set(_BOOTSTRAP_KEYS))
+    unknown = sorted(set(overrides) - set(_OVERRIDES))
     if unknown:
-        raise TypeError(f"load_config got unexpected overrides {unknown} (valid: {', '.join(_BOOTSTRAP_KEYS)})")
+        raise TypeError(f"load_config got unexpected overrides {unknown} (valid: {', '.join(_OVERRIDES)})")
     data.update({key: value for key, value in overrides.items() if value is not None})
     base = path.resolve().parent
     problems: list[str] = []
