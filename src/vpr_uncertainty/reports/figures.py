@@ -35,7 +35,7 @@ from typing import Any
 
 from vpr_uncertainty.cache import slug, write_text
 from vpr_uncertainty.calibration.quality import Reliability
-from vpr_uncertainty.methods import typed_option
+from vpr_uncertainty.methods import spec_options
 from vpr_uncertainty.plugins import Registry, load_target, merge_options
 from vpr_uncertainty.reports.display import plot_reliability, rejection_curves_spec, write_rejection_curves
 from vpr_uncertainty.reports.html import averaged_over, cell_stem, figure_caption, html_table
@@ -209,22 +209,9 @@ def parse_figure_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """
     if not isinstance(spec, str):
         raise TypeError(f"a report figure must be named by a string, got {spec!r}")
-    name, colon, rest = (part.strip() for part in spec.partition(":"))
+    name, colon, _ = (part.strip() for part in spec.partition(":"))
     entry = REPORT_FIGURES.get(name)
-    options: dict[str, Any] = {}
-    if not colon:
-        return entry.name, options
-    for item in rest.split(","):
-        key, equals, value = (part.strip() for part in item.partition("="))
-        if not key or not equals or not value:
-            raise ValueError(f"report figure {spec!r}: expected option=value after {name}:, got {item.strip()!r}")
-        if key not in entry.options:
-            valid = ", ".join(sorted(entry.options)) or "none"
-            raise ValueError(f"report figure {spec!r}: {name} has no option {key!r} (its options: {valid})")
-        if key in options:
-            raise ValueError(f"report figure {spec!r}: option {key!r} is given twice")
-        options[key] = typed_option(value, entry.options[key], f"report figure {spec!r}: option {key!r}")
-    return entry.name, options
+    return entry.name, spec_options(spec, entry.options, "report figure") if colon else {}
 
 
 def unmet_figure_needs(entry: ReportFigure, available: Collection[str]) -> str | None:
