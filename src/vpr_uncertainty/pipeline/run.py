@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import time
 import warnings
 from collections.abc import Sequence
@@ -77,20 +78,12 @@ class RunConf:
     figure_width: str = option("page", FIGURE_WIDTH_HELP, choices=FIGURE_WIDTHS)
 
     def to_dict(self) -> dict[str, Any]:
-        return json_ready(dataclasses.asdict(self))
+        """The configuration as JSON types (paths as strings, tuples as lists), for results.json."""
+        return json.loads(json.dumps(dataclasses.asdict(self), default=str))
 
 
 #: The configuration of a run when none is given (hloc's ``default_conf``): every stage's default.
 default_conf = RunConf()
-
-
-def json_ready(value: Any) -> Any:
-    """``value`` with paths as strings and tuples as lists (for results.json)."""
-    if isinstance(value, dict):
-        return {key: json_ready(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_ready(item) for item in value]
-    return str(value) if isinstance(value, Path) else value
 
 
 @dataclass
