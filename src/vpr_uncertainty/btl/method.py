@@ -51,9 +51,7 @@ def read_btl_head(value: object, *, device: str = "cpu") -> BTLHead:
     if not isinstance(value, (str, Path)):
         raise TypeError(f"btl_head must be the path of a head file or a BTLHead, got {type(value).__name__}")
     path = Path(value)
-    if not path.is_file():
-        raise FileNotFoundError(f"BTL head file not found: {path} (train one with `vpr-uncertainty train-btl`)")
-    head = load_btl_head(path, device=resolve_device(device))
+    head = load_btl_head(path, device=resolve_device(device))  # a missing file: FileNotFoundError, naming it
     head.source_path = str(path)  # recorded in the config of BTL's own retrieval
     return head
 

@@ -1,16 +1,7 @@
-"""The figures of a grid: ablations (the paper's Figures 5 and 6), ΔAUC-PR heatmaps (Figure 3), the cascade, and
-qualitative examples (Figures 2 and 4). Each reads the cells' stored results and recomputes no uncertainty.
-
-- Ablations: ΔAUC-PR of SU against SU at α = 0.5 versus α (1: RS, 0: SD), one panel, one line per VPR method with
-  its best α starred; RS and SD versus k, at most :data:`MAX_SERIES` VPR methods per panel, one shared y range.
-- Heatmaps: Δ = AUC-PR(RS, SD or SU) − AUC-PR(baseline), > 0 (blue) when the proposed method is better; one panel
-  per baseline (baselines with the same Δ everywhere, such as BM and L2, share one), rows = VPR methods, columns =
-  datasets.
-- Cascade: AUC-PR of ``SCORE+GV`` against the fraction verified (0: SCORE alone, 1: GV on every query), computed from
-  the stored uncertainties of SCORE and GV (verifying a pair gives the same inliers whichever other queries are
-  verified), with the cascade's measured point marked.
-- Qualitative: the most confident and most uncertain correct and wrong queries (by SU), each with its top-4 answers
-  (✓ and a green frame: positive; ✗ and a dashed red frame: not) and RS, SD, SU.
+"""The figures of a grid, drawn from the cells' stored results (no uncertainty is recomputed): the α and k ablations
+(the paper's Figures 5 and 6, :func:`plot_alpha_ablation`, :func:`plot_k_ablation`), the ΔAUC-PR heatmaps (Figure
+3, :func:`plot_delta_heatmaps`), the cascade (:func:`plot_cascade`) and the qualitative examples (Figures 2 and 4,
+:func:`plot_qualitative`).
 
 Every figure takes ``width="page"`` (7.16 in) or ``"column"`` (3.5 in); its height follows from its panels, its
 fonts are 8 pt (:func:`~vpr_uncertainty.reports.style.figure_rc`). Each has a ``*_spec`` function returning the
@@ -533,7 +524,8 @@ def cascades(cells: Sequence[Any]) -> list[tuple[str, str, str]]:
 
 
 def cascade_curve(correct: np.ndarray, score: np.ndarray, gv: np.ndarray, fractions: Sequence[float]) -> np.ndarray:
-    """AUC-PR of the cascade at each fraction verified (NaN when undefined: one class only)."""
+    """AUC-PR of the cascade at each fraction verified (NaN when undefined: one class only), from the stored
+    uncertainties of SCORE and GV: verifying a pair gives the same inliers whichever other queries are verified."""
     correct = np.asarray(correct, dtype=bool)
     if correct.all() or not correct.any():
         return np.full(len(fractions), np.nan)
