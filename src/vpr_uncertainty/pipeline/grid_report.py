@@ -5,7 +5,6 @@ and report.html.
 from __future__ import annotations
 
 import csv
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.cache import atomic_write, write_text
+from vpr_uncertainty.cache import atomic_write, write_json
 from vpr_uncertainty.evaluation import Evaluation
 from vpr_uncertainty.pipeline.grid_config import GridConfig
 from vpr_uncertainty.reports.tables import csv_cell
@@ -206,8 +205,7 @@ def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
     if config.calibration is not None:  # the held-out option: each cell then holds "held_out"
         document["calibration"] = dict(config.calibration)
     document["cells"] = [cell.to_dict() for cell in cells]
-    json_path = out / "results.json"
-    write_text(json_path, json.dumps(document, indent=2) + "\n")
+    json_path = write_json(out / "results.json", document)
     rows = [row for cell in cells for row in cell.rows()]
     recall_fields = sorted({key for row in rows for key in row if key.startswith("recall@")}, key=lambda s: int(s[7:]))
     csv_path = out / "results.csv"
