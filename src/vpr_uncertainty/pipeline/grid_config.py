@@ -532,12 +532,10 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
         f"unknown top-level key {key!r} (expected {sorted(_TOP_KEYS)})" for key in data if key not in _TOP_KEYS
     ]
     methods = _methods(data, problems, base)
-    k = data.get("k", 10)
+    k = _integer(data.get("k", 10), "k", 2, problems)
     alpha = data.get("alpha", 0.5)
     alphas = _numbers(data, "alphas", DEFAULT_ALPHAS, float, problems)
     ks = _numbers(data, "ks", DEFAULT_KS, int, problems)
-    if isinstance(k, bool) or not isinstance(k, int) or k < 2:
-        problems.append(f"k must be an integer >= 2, got {k!r}")
     for name, value in [("alpha", alpha), *((f"alphas[{i}]", a) for i, a in enumerate(alphas))]:
         try:
             check_alpha(value, name=name)  # the one check of the range
