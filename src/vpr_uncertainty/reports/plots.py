@@ -86,7 +86,7 @@ def _layout(n_panels: int, columns: int | None = None, width: str = "page") -> t
     return math.ceil(max(n_panels, 1) / columns), columns
 
 
-def _legend_columns(n_entries: int, columns: int, width: str = "page", labels: Sequence[str] = ()) -> int:
+def _legend_columns(n_entries: int, width: str = "page", labels: Sequence[str] = ()) -> int:
     """Legend entries per row: two (column width) or four (page width), fewer when there are fewer or when the
     longest label would not fit that many side by side (a handle and 8-pt text, :data:`_CHARACTER_INCHES` each)."""
     entry = 0.55 + _CHARACTER_INCHES * max((len(label) for label in labels), default=0)
@@ -110,7 +110,7 @@ def ablation_figsize(
     """
     inches = figure_width(width)
     rows, columns = _layout(n_panels, columns, width)
-    legend_rows = math.ceil(max(legend_entries, 1) / _legend_columns(legend_entries, columns, width))
+    legend_rows = math.ceil(max(legend_entries, 1) / _legend_columns(legend_entries, width))
     panel_height = max(1.3, aspect * inches / columns) + 0.45  # + a two-line title and the tick labels
     return inches, capped_height(panel_height * rows + _TITLE_HEIGHT + _LEGEND_ROW * legend_rows + 0.25, width)
 
@@ -139,7 +139,7 @@ def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None =
             list(handles.values()),
             list(handles),
             loc="outside lower center",
-            ncol=_legend_columns(len(handles), axes.shape[1], width, labels=list(handles)),
+            ncol=_legend_columns(len(handles), width, labels=list(handles)),
             frameon=False,
             title=legend or None,
         )
@@ -263,7 +263,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -
     legends = [[m for _, group in groups for m in group] for _, groups in rows]
     columns = 2 * max(len(groups) for _, groups in rows)
     height = len(rows) * (max(1.3, _PANEL_ASPECT * figure_width(width) / columns) + 0.6) + _TITLE_HEIGHT
-    height += _LEGEND_ROW * sum(math.ceil(len(e) / _legend_columns(len(e), 0, width, e)) for e in legends)
+    height += _LEGEND_ROW * sum(math.ceil(len(e) / _legend_columns(len(e), width, e)) for e in legends)
     with figure_rc(width):
         figure = plt.figure(figsize=(figure_width(width), capped_height(height, width)), dpi=DPI, layout="constrained")
         try:
@@ -289,7 +289,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -
                     axis.set_visible(False)
                 axes[0].set_ylabel(spec.y)
                 handles = [plt.Line2D([], [], **styles[m]) for m in entries]
-                ncol = _legend_columns(len(entries), 0, width, entries)
+                ncol = _legend_columns(len(entries), width, entries)
                 row.legend(handles, entries, loc="outside lower center", frameon=False, ncol=ncol)
             figure.suptitle(_fitted(spec.what, figure))
             return _save(figure, Path(path))
