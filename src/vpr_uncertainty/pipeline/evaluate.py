@@ -19,9 +19,9 @@ import numpy as np
 
 from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
-from vpr_uncertainty.data import DEFAULT_TOP_K
+from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
 from vpr_uncertainty.evaluation.metrics import RECALL_NS, check_recall_ns
-from vpr_uncertainty.methods import available_methods, default_method_names, get_method
+from vpr_uncertainty.methods import available_methods, default_method_names, get_method, split_method_list
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
@@ -64,8 +64,6 @@ def recall_list(text: str) -> tuple[int, ...]:
 
 def method_list(text: str) -> list[str]:
     """Comma-separated method specs (``SU,SUE:clip=one-sided,slope=300``) checked against the registry."""
-    from vpr_uncertainty.methods import split_method_list
-
     try:
         specs = split_method_list(text)
         names = [get_method(spec).name for spec in specs]
@@ -214,8 +212,6 @@ def compute(
 
 def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_truth: str | Path | None = None) -> Path:
     """Evaluate the uncertainties of ``results`` (any file :func:`vpr_uncertainty.read_results` reads) into ``out``."""
-    from vpr_uncertainty.data import read_results
-
     retrieval = read_results(results, ground_truth=ground_truth, top_k=conf.candidates)
     return compute(conf, retrieval, out).path  # type: ignore[return-value]
 
@@ -231,7 +227,6 @@ def _verifies(name: str) -> bool:
 
 def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list[str], dict[str, Any], list[str]]:
     """SCORES and the image folders of the command's arguments: (retrieval, methods, image options, notes)."""
-    from vpr_uncertainty.data import read_results
     from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
 
     top_k = conf.candidates  # a full matrix gives as many candidates as k and the largest recall@N ask
@@ -289,8 +284,6 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """The ``evaluate`` command."""
-    from vpr_uncertainty.data import input_formats
-
     parser = subparsers.add_parser(
         "evaluate",
         help="evaluate uncertainty methods on precomputed VPR results",

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty._files import is_regular_file
-from vpr_uncertainty.cache import slug
+from vpr_uncertainty.cache import content_key, slug
 from vpr_uncertainty.methods import (
     PATH_OPTIONS,
     STAGE_INPUTS,
@@ -358,8 +358,6 @@ class InputEntry:
         edited results file or ground truth recomputes the cell. Image inputs (``model``) are covered by the
         stages' own caches, whose fingerprints the cell's result carries through the run.
         """
-        from vpr_uncertainty.cache import content_key
-
         files = {}
         for name in ("scores", "ground_truth"):
             path = getattr(self, name)

@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.executors import CONNECT_TIMEOUT
+from vpr_uncertainty.executors import CONNECT_TIMEOUT, executor_names
 
 __all__ = [
     "FIGURE_WIDTHS",
@@ -327,8 +327,6 @@ def add_executor_options(
     ``--workers`` is the one name for "how many parallel workers": with Ray, the tasks or actors in flight
     (``ray_workers`` says which); locally, ``local_workers`` (e.g. :data:`DECODING_THREADS`), or refused when None.
     """
-    from vpr_uncertainty.executors import executor_names
-
     group = parser.add_argument_group("executor (where the work runs, and how many workers run it)")
     group.add_argument(
         "--executor",
@@ -429,7 +427,7 @@ def local_workers(args: argparse.Namespace) -> int | None:
 
 def executor_from_args(args: argparse.Namespace) -> Any:
     """The executor the options ask for (a context manager), after :func:`executor_options`' checks."""
-    from vpr_uncertainty.executors import get_executor
+    from vpr_uncertainty.executors import get_executor  # looked up at the call (tests stand in for it)
 
     options = executor_options(args)
     return get_executor(options.pop("name"), **options)
