@@ -20,7 +20,10 @@ import numpy as np
 from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
+from vpr_uncertainty.data.images import retrieval_image_paths
+from vpr_uncertainty.evaluation import evaluate as evaluate_methods
 from vpr_uncertainty.evaluation.metrics import RECALL_NS, check_recall_ns
+from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
 from vpr_uncertainty.methods import available_methods, default_method_names, get_method, split_method_list
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
@@ -184,8 +187,6 @@ def compute(
     latency : bool
         Also measure each score-based method's latency at batch size 1.
     """
-    from vpr_uncertainty.evaluation import evaluate as evaluate_methods
-
     methods = conf.method_names(retrieval)
     evaluation = evaluate_methods(
         retrieval,
@@ -227,8 +228,6 @@ def _verifies(name: str) -> bool:
 
 def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list[str], dict[str, Any], list[str]]:
     """SCORES and the image folders of the command's arguments: (retrieval, methods, image options, notes)."""
-    from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
-
     top_k = conf.candidates  # a full matrix gives as many candidates as k and the largest recall@N ask
     notes: list[str] = []
     log_paths: tuple[Any, Any] = (None, None)
@@ -263,8 +262,6 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
     options: dict[str, Any] = {}
     if verifying:
         if given:
-            from vpr_uncertainty.data.images import retrieval_image_paths
-
             query_paths, database_paths = retrieval_image_paths(retrieval, **folders)
         elif log_paths[0] is not None:
             query_paths, database_paths = log_paths

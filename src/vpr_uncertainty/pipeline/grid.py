@@ -26,8 +26,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty.data import DEFAULT_TOP_K, load_dataset, load_vprbench_dataset, read_results
 from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, auc_pr, correct_at_n
 from vpr_uncertainty.evaluation.metrics import candidate_hits
+from vpr_uncertainty.identity import code_identity
 from vpr_uncertainty.methods import get_method
 from vpr_uncertainty.pipeline import evaluate
 from vpr_uncertainty.pipeline.evaluate import BOOTSTRAP_HELP, EvaluateConf, add_bootstrap_conf_options
@@ -42,6 +44,7 @@ from vpr_uncertainty.pipeline.options import (
     fraction,
     output_directory,
 )
+from vpr_uncertainty.plugins import registered_code
 
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
@@ -213,8 +216,6 @@ def _load_cell_input(
     """The cell's Retrieval and the pipeline's Evaluation when it ran one; the pipeline's stage times are added to
     ``seconds`` (as ``pipeline_<stage>``)."""
     if entry.model is None:
-        from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
-
         retrieval = read_results(
             entry.scores,
             ground_truth=entry.ground_truth,
@@ -232,8 +233,6 @@ def _load_cell_input(
 
 def _image_dataset(entry: InputEntry) -> Any:
     """The image dataset of a cell: its ``images`` folder, or the dataset a model runs on (None: no images)."""
-    from vpr_uncertainty.data import load_dataset, load_vprbench_dataset
-
     if entry.model is None:
         return None if entry.images is None else load_vprbench_dataset(entry.images)
     options = entry.run_options
@@ -257,9 +256,6 @@ def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None
     """The one key of a cell: the grid's settings, the content of its inputs (files, images by name and content),
     its model's identity, and the code of every method and of the toolkit and plugins that compute it; None when
     the model can be identified only by loading it (the cell is recomputed, its run's stage caches still apply)."""
-    from vpr_uncertainty.identity import code_identity
-    from vpr_uncertainty.plugins import registered_code
-
     model = None
     if entry.model is not None:
         from vpr_uncertainty.pipeline.extract import fingerprint_of
