@@ -1,19 +1,12 @@
 """Report figures: what ``reproduce`` writes after the grid (Table 1, heatmaps, ablations, PR curves, ...).
 
-Each :class:`ReportFigure` in :data:`REPORT_FIGURES` (a :class:`~vpr_uncertainty.plugins.Registry`) declares its
-name, a description, what it needs from the grid (:data:`FIGURE_NEEDS`), its default options and the function
-that writes it::
-
-    write(cells, config, out_dir, **options) -> list[Path]
-
-``cells`` are the grid's typed results (``Cell``, with their stored uncertainties), ``config`` its ``GridConfig``,
-``out_dir`` the output folder (figures go to ``out_dir / "figures"``). A figure that declares the option ``width``
-(every built-in figure: ``"page"``, 7.16 in, or ``"column"``, 3.5 in) is drawn at the width ``reproduce
---figure-width`` gives, unless its spec sets one (``"ablations:width=column"``). A ``caption(cells, config, path,
-**options) -> str`` hook writes the caption of each file in ``report.html``; the built-in ones are the
-``caption()`` of the :class:`~vpr_uncertainty.reports.style.FigureSpec` the figure is drawn from. ``reproduce``
-calls every selected figure in registration order and gives each a section of ``report.html``. A figure is selected
-by name, optionally with options as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
+Each :class:`ReportFigure` of :data:`REPORT_FIGURES` (a :class:`~vpr_uncertainty.plugins.Registry`) is added by
+:func:`register_report_figure`, whose parameters say what a figure declares: the function that writes it, what it
+needs from the grid (:data:`FIGURE_NEEDS`), its options, its section and caption hooks (docs/how-to/extend.md writes
+one from scratch). A figure with a ``width`` option draws at ``reproduce --figure-width`` unless its spec sets one
+(``"ablations:width=column"``); the built-in ones write under ``out_dir / "figures"``. ``reproduce`` calls every
+selected figure in registration order and gives each a section of ``report.html``; a figure is selected by name,
+optionally with options as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
 
 Examples
 --------
