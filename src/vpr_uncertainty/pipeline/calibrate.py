@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import csv
 from pathlib import Path
 
 import numpy as np
@@ -216,8 +217,6 @@ def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.nda
 
 def _read_labels(path: Path, n_queries: int) -> list[tuple[int, bool]]:
     """The ``query,correct`` rows of a labels file (query: a pool index; correct: 1/0, true/false, yes/no)."""
-    import csv
-
     if not path.exists():
         return []
     truth = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}

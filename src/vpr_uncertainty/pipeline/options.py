@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
 import re
@@ -199,8 +200,6 @@ def command_wording(**flags: str) -> Iterator[None]:
 
 def write_json(path: Path, document: Any) -> None:
     """``--json FILE``: the document as indented JSON in ``FILE``, or on standard output for ``-``."""
-    import json
-
     text = json.dumps(document, indent=2) + "\n"
     if str(path) == "-":
         print(text, end="")
