@@ -84,6 +84,7 @@ import torch
 from torch import nn
 from torch.nn import functional
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.cache import atomic_path
 
 #: Weight λ of the KL term (the reference implementation's default ``kl_scale_factor``).
@@ -303,8 +304,7 @@ class BTLHead(nn.Module):
         if embedding_dim is None and isinstance(input_dim, (int, np.integer)):
             embedding_dim = min(int(input_dim), DEFAULT_MAX_EMBEDDING_DIM)
         for name, value in (("input_dim", input_dim), ("embedding_dim", embedding_dim), ("hidden_dim", hidden_dim)):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+            check_count(value, name, 1)
         if not min_variance > 0:
             raise ValueError(f"min_variance must be positive, got {min_variance}")
         initial_variance = 0.1 / embedding_dim if initial_variance is None else float(initial_variance)
