@@ -21,37 +21,6 @@ from typing import Any
 
 from vpr_uncertainty.executors import CONNECT_TIMEOUT, executor_names
 
-__all__ = [
-    "FIGURE_WIDTHS",
-    "FIGURE_WIDTH_HELP",
-    "VERIFY_FRACTION_HELP",
-    "add_executor_options",
-    "add_figure_width_option",
-    "add_options",
-    "add_progress_options",
-    "add_score_kind_option",
-    "apply_threads",
-    "candidate_count",
-    "checked_number",
-    "command_wording",
-    "conf_from_args",
-    "device_name",
-    "executor_from_args",
-    "executor_options",
-    "fraction",
-    "integer_at_least",
-    "local_workers",
-    "non_negative_float",
-    "open_fraction",
-    "option",
-    "output_directory",
-    "output_file",
-    "positive_int",
-    "write_json",
-    "write_output",
-]
-
-
 # --- argument types ------------------------------------------------------------------------------------------
 
 
