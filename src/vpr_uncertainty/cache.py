@@ -56,36 +56,6 @@ import numpy as np
 
 from vpr_uncertainty._files import open_regular
 
-__all__ = [
-    "EDGE_BYTES",
-    "FULL_HASH_BYTES",
-    "PROTOCOL",
-    "CacheWarning",
-    "ChecksumError",
-    "array_digest",
-    "atomic_path",
-    "atomic_write",
-    "check_dataset",
-    "content_key",
-    "figure_is_current",
-    "file_digest",
-    "fingerprint",
-    "hard_links",
-    "is_partly_hashed",
-    "named_files_key",
-    "open_dataset",
-    "open_present",
-    "payload_checksum",
-    "read_if_fresh",
-    "slug",
-    "stale_notice",
-    "user_cache_dir",
-    "verify_checksum",
-    "write_figure",
-    "write_json",
-    "write_text",
-]
-
 #: Version of this protocol; part of every fingerprint, so a change of the protocol rebuilds every cache.
 PROTOCOL = 1
 #: Files up to this size are hashed whole by :func:`content_key`.
@@ -93,7 +63,7 @@ FULL_HASH_BYTES = 64 * 2**20
 #: Bytes hashed at each end of a larger file.
 EDGE_BYTES = 2**20
 
-T = TypeVar("T")
+_T = TypeVar("_T")
 
 
 class CacheWarning(UserWarning):
@@ -313,11 +283,11 @@ def stale_notice(path: str | Path, reason: str, action: str = "rebuilding it", *
 def read_if_fresh(
     path: str | Path,
     expected: str,
-    read: Callable[[Path], T],
-    stored: Callable[[T], str | None],
+    read: Callable[[Path], _T],
+    stored: Callable[[_T], str | None],
     *,
     errors: tuple[type[BaseException], ...] = (OSError, ValueError, KeyError, EOFError),
-) -> T | None:
+) -> _T | None:
     """Read a cached artefact when it exists, is readable and holds the ``expected`` fingerprint; else None.
 
     Parameters

@@ -42,21 +42,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
-__all__ = [
-    "ENTRY_POINT_GROUP",
-    "Registry",
-    "Travelling",
-    "import_or_explain",
-    "load_plugins",
-    "load_target",
-    "loaded_plugins",
-    "merge_options",
-    "missing_extra_message",
-    "registered_code",
-    "replay_plugins",
-]
-
-T = TypeVar("T")
+_T = TypeVar("_T")
 
 #: The entry-point group whose modules :func:`load_plugins` imports (``module`` or ``module:function``).
 ENTRY_POINT_GROUP = "vpr_uncertainty.plugins"
@@ -201,7 +187,7 @@ class Travelling:
         return _arrived, (Travelling(None, loaded_plugins()), self.payload)
 
 
-def _arrived(replayed: None, payload: T) -> T:
+def _arrived(replayed: None, payload: _T) -> _T:
     return payload
 
 
@@ -267,7 +253,7 @@ def registered_code() -> dict[str, str]:
     return {target: code for target, _, code in loaded_plugins() if code}
 
 
-class Registry(Generic[T]):
+class Registry(Generic[_T]):
     """Named entries of one kind (``"uncertainty method"``, ``"dataset format"``, ...).
 
     Parameters
@@ -285,10 +271,10 @@ class Registry(Generic[T]):
         self.kind = kind
         self.label = label
         self._normalise = normalise or (lambda name: name)
-        self._entries: dict[str, T] = {}
+        self._entries: dict[str, _T] = {}
         self._aliases: dict[str, str] = {}
 
-    def register(self, entry: T, *, aliases: tuple[str, ...] = (), overwrite: bool = False) -> T:
+    def register(self, entry: _T, *, aliases: tuple[str, ...] = (), overwrite: bool = False) -> _T:
         """Add ``entry`` under ``entry.name`` (and ``aliases``) and return it."""
         name = getattr(entry, "name", None)
         if not isinstance(name, str) or not name:
@@ -301,7 +287,7 @@ class Registry(Generic[T]):
             self._aliases[self._normalise(alias)] = key
         return entry
 
-    def unregister(self, name: str) -> T:
+    def unregister(self, name: str) -> _T:
         """Remove the entry called ``name`` (and its aliases) and return it."""
         key = self._key(name)
         self._aliases = {alias: target for alias, target in self._aliases.items() if target != key}
@@ -327,7 +313,7 @@ class Registry(Generic[T]):
             hint = f"did you mean {getattr(self._entries[target], 'name', target)!r}? "
         raise KeyError(f"unknown {self.kind} {name!r}; {hint}{self.label}: {', '.join(self.names())}")
 
-    def get(self, name: str) -> T:
+    def get(self, name: str) -> _T:
         """The entry called ``name``; a ``KeyError`` suggests the closest name and lists the valid ones."""
         return self._entries[self._key(name)]
 
@@ -337,13 +323,13 @@ class Registry(Generic[T]):
         key = self._normalise(name)
         return key in self._entries or key in self._aliases
 
-    def __iter__(self) -> Iterator[T]:
+    def __iter__(self) -> Iterator[_T]:
         return iter(list(self._entries.values()))
 
     def __len__(self) -> int:
         return len(self._entries)
 
-    def entries(self, **attributes: Any) -> list[T]:
+    def entries(self, **attributes: Any) -> list[_T]:
         """Entries in registration order whose attributes equal ``attributes`` (all entries without any)."""
         return [
             entry

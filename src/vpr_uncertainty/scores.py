@@ -60,23 +60,6 @@ from vpr_uncertainty._validation import (
     scan,
 )
 
-__all__ = [
-    "COSINE_TOLERANCE",
-    "StatisticalUncertainty",
-    "adaptive_alpha",
-    "adaptive_statistical_uncertainty",
-    "best_match",
-    "check_alpha",
-    "l2_distance",
-    "margin",
-    "perceptual_aliasing",
-    "ratio_spread",
-    "row_statistics",
-    "similarity_distribution",
-    "squared_distances_from_similarities",
-    "statistical_uncertainty",
-]
-
 _NONPOSITIVE_POLICIES = ("most_uncertain", "raise")
 
 

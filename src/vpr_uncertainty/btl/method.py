@@ -38,7 +38,7 @@ from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.btl.model import SKETCH_TOLERANCE, BTLHead, embed, load_btl_head, row_digests, row_sketches
 from vpr_uncertainty.btl.training import resolve_device, train_btl_head
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
-from vpr_uncertainty.retrieval import Retrieval, search_descriptors
+from vpr_uncertainty.retrieval import Retrieval, load_retrieval, search_descriptors
 
 #: The option that gives the descriptors of each split.
 _OPTIONS = {"queries": "query_descriptors", "database": "database_descriptors"}
@@ -51,9 +51,7 @@ def read_btl_head(value: object, *, device: str = "cpu") -> BTLHead:
     if not isinstance(value, (str, Path)):
         raise TypeError(f"btl_head must be the path of a head file or a BTLHead, got {type(value).__name__}")
     path = Path(value)
-    if not path.is_file():
-        raise FileNotFoundError(f"BTL head file not found: {path} (train one with `vpr-uncertainty train-btl`)")
-    head = load_btl_head(path, device=resolve_device(device))
+    head = load_btl_head(path, device=resolve_device(device))  # a missing file: FileNotFoundError, naming it
     head.source_path = str(path)  # recorded in the config of BTL's own retrieval
     return head
 
@@ -138,7 +136,6 @@ def read_training_inputs(
     retrieval_path = None
     from vpr_uncertainty.data import load_descriptors, load_ground_truth, positives_within_radius
     from vpr_uncertainty.descriptors.cache import cache_info
-    from vpr_uncertainty.retrieval import load_retrieval
 
     if run is not None:
         exclusive = dict(descriptors=descriptors, query_descriptors=query_descriptors, positions=positions)

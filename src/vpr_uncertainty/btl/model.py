@@ -24,50 +24,8 @@ Head file (``torch.save`` of a dict of tensors and plain values, read back with 
     state_dict      the module's parameters
     metadata        JSON-compatible: training settings, history summary, descriptor source (optional)
 
-**The loss.** Every image is an isotropic Gaussian in R^E: a mean μ (E,) and one scalar variance σ² (per
-dimension). For an anchor a ~ N(μa, σa² I), a positive p ~ N(μp, σp² I) and a negative n ~ N(μn, σn² I),
-independent, let
-
-    τ = ‖a − p‖² − ‖a − n‖² = Σ_d τ_d,     τ_d = p_d² − n_d² − 2 a_d (p_d − n_d).
-
-The loss is the negative log-probability that the triplet is ordered, up to a margin m:
-
-    −log P(‖a − p‖² < ‖a − n‖² + m) = −log P(τ < m).
-
-**Moments of τ (exact).** The dimensions are independent, so the means and the variances of the τ_d add up.
-With E[x²] = μ² + σ², Var[x²] = 4μ²σ² + 2σ⁴, Cov(x², a x) = 2 μa μx σx² and
-Var[a(p − n)] = μa²(σp² + σn²) + σa²(μp − μn)² + σa²(σp² + σn²), collecting the terms per dimension gives
-
-    E[τ]   = ‖μa − μp‖² − ‖μa − μn‖² + E (σp² − σn²)
-
-    Var[τ] = 2E (σp⁴ + σn⁴)
-             + 4 σp² ‖μp − μa‖² + 4 σn² ‖μn − μa‖² + 4 σa² ‖μp − μn‖²
-             + 4E σa² (σp² + σn²)
-
-(expanding the squares gives exactly the sums ``2·T1 + 2·T2 − 2·T3`` of the authors' reference implementation).
-
-**Normal approximation (the paper's).** τ is a sum of E independent non-Gaussian terms; the paper approximates
-it by N(E[τ], Var[τ]), so that
-
-    P(τ < m) ≈ Φ((m − E[τ]) / √Var[τ]).
-
-The approximation is good when E is large (central limit over the dimensions) and poorest in low dimension
-with variances comparable to the distances between the means; the tests measure it against Monte Carlo.
-−log Φ is computed with ``torch.special.log_ndtr``, which stays finite and keeps its gradient where Φ underflows
-(the reference code computes log(Φ + 1e-8) instead, whose gradient vanishes there).
-
-**Margin.** The threshold m enters as P(τ < m): m = 0 (the reference implementation's default) asks that the
-positive is nearer than the negative; a negative m asks for a classic margin, ‖a − p‖² + |m| < ‖a − n‖².
-
-**KL regulariser.** Each embedding is pulled towards the prior N(0, s² I) (unit Gaussian: s² = 1) by
-
-    KL(N(μ, σ² I) ‖ N(0, s² I)) = ½ [E σ²/s² + ‖μ‖²/s² − E + E log(s²/σ²)],
-
-summed over the anchor, the positive and the negative and weighted by λ = 1e-6 (``kl_weight``; the default
-``kl_scale_factor`` of the reference implementation). With L2-normalised means ‖μ‖² = 1 and the KL acts on the
-variances only, keeping them from collapsing to zero.
-
-Loss of a batch of B triplets: mean over the batch of −log Φ(...) + λ (KL_a + KL_p + KL_n).
+The loss (exact moments of τ, the paper's normal approximation, the margin, the KL regulariser) is derived in
+the explanation page "The Bayesian triplet loss" (``docs/explanation/btl.md``).
 
 Shapes: means (B, E), variances (B,) or (B, 1) (one scalar per image), float32 or float64.
 """
@@ -84,6 +42,7 @@ import torch
 from torch import nn
 from torch.nn import functional
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.cache import atomic_path
 
 #: Weight λ of the KL term (the reference implementation's default ``kl_scale_factor``).
@@ -303,8 +262,7 @@ class BTLHead(nn.Module):
         if embedding_dim is None and isinstance(input_dim, (int, np.integer)):
             embedding_dim = min(int(input_dim), DEFAULT_MAX_EMBEDDING_DIM)
         for name, value in (("input_dim", input_dim), ("embedding_dim", embedding_dim), ("hidden_dim", hidden_dim)):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+            check_count(value, name, 1)
         if not min_variance > 0:
             raise ValueError(f"min_variance must be positive, got {min_variance}")
         initial_variance = 0.1 / embedding_dim if initial_variance is None else float(initial_variance)

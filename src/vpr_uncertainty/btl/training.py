@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from scipy import sparse
 
+from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.btl.model import (
     DEFAULT_KL_WEIGHT,
     DEFAULT_MARGIN,
@@ -138,8 +139,7 @@ def mine_triplets(
     if same_set and len(queries) != len(database):
         raise ValueError("same_set=True needs the anchors to be the database images (as many rows)")
     for name, value in (("n_negatives", n_negatives), ("max_positives", max_positives), ("block_size", block_size)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        check_count(value, name, 1)
     rows = np.arange(len(queries)) if anchors is None else np.asarray(anchors, dtype=np.int64).ravel()
     if rows.size and (rows.min() < 0 or rows.max() >= len(queries)):
         raise ValueError(f"anchors must index the {len(queries)} anchor descriptors")
@@ -199,16 +199,9 @@ class BTLTrainingConfig:
     device: str = "cpu"
 
     def __post_init__(self) -> None:
-        if self.embedding_dim is not None and (
-            isinstance(self.embedding_dim, bool)
-            or not isinstance(self.embedding_dim, (int, np.integer))
-            or self.embedding_dim < 1
-        ):
-            raise ValueError(f"embedding_dim must be a positive integer or None, got {self.embedding_dim!r}")
-        for name in ("hidden_dim", "n_negatives", "max_positives", "epochs", "batch_size", "patience"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        for name in ("embedding_dim", "hidden_dim", "n_negatives", "max_positives", "epochs", "batch_size", "patience"):
+            if name != "embedding_dim" or self.embedding_dim is not None:  # None: min(dimension, 2048)
+                check_count(getattr(self, name), name, 1)
         if not 0.0 < self.val_fraction < 1.0:
             raise ValueError(
                 f"val_fraction must lie in (0, 1): early stopping needs a validation split, got {self.val_fraction}"
@@ -256,7 +249,7 @@ class TrainingHistory:
         return self.val_loss[self.epoch.index(self.best_epoch)]
 
     def to_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return asdict(self)
 
     def summary(self) -> dict[str, Any]:
         """The numbers worth keeping in the head file."""

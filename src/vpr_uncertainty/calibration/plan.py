@@ -227,7 +227,7 @@ def plan_labels(
         f"simulated on the pool, the unlabelled queries' labels drawn from a posterior on the {correct.size} labelled "
         f"ones ({draws} simulations, the same draws at every size), calibrate run with its defaults"
     ]
-    if asked[-1] > pool:
+    if asked[-1] > pool and not message.startswith("the pool holds only"):
         notes.append(f"the pool holds only {pool} queries: sizes above it are not simulated")
     return LabelPlan(
         sizes=sizes,

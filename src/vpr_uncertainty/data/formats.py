@@ -13,7 +13,7 @@ import numpy as np
 
 from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.data.dataset import Dataset, latlon_to_utm
-from vpr_uncertainty.data.images import find_split_folder, has_split, list_images, load_folder_dataset, numbered_order
+from vpr_uncertainty.data.images import has_split, list_images, load_folder_dataset, numbered_order
 from vpr_uncertainty.formats.ground_truth import load_vprbench_ground_truth
 from vpr_uncertainty.plugins import Registry
 from vpr_uncertainty.retrieval.ground_truth import (
@@ -118,11 +118,8 @@ def read_vprbench(path: Path, *, radius: float | None, name: str | None, **_: An
 
 
 def read_folder(path: Path, *, split: str | None, radius: float | None, name: str | None, position_kind: Any, **_: Any):
-    split = split or "test"
     radius = DEFAULT_RADIUS if radius is None else radius
-    return load_folder_dataset(
-        find_split_folder(path, split), split=split, radius=radius, name=name, position_kind=position_kind
-    )
+    return load_folder_dataset(path, split=split or "test", radius=radius, name=name, position_kind=position_kind)
 
 
 for _entry in (

@@ -41,12 +41,10 @@ def corridor_archive_url() -> str:
 
 
 def default_data_root() -> Path:
-    """``VPR_UNCERTAINTY_DATA`` if set, else a per-user cache directory (``$XDG_CACHE_HOME/vpr-uncertainty``)."""
-    if os.environ.get("VPR_UNCERTAINTY_DATA"):
-        return Path(os.environ["VPR_UNCERTAINTY_DATA"])
+    """``$VPR_UNCERTAINTY_DATA`` (:func:`data_root`) if set, else :func:`~vpr_uncertainty.cache.user_cache_dir`."""
     from vpr_uncertainty.cache import user_cache_dir
 
-    return user_cache_dir()
+    return data_root() or user_cache_dir()
 
 
 def corridor_files() -> dict[str, str]:

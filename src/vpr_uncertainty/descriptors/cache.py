@@ -509,10 +509,6 @@ class DescriptorCache:
         except (OSError, RuntimeError) as error:
             raise write_error(self.path, error) from error
 
-    def names(self, split: str) -> list[str]:
-        """Names already stored for ``split`` (a name recomputed after its image changed appears twice)."""
-        return list(self.keys(split))
-
     def keys(self, split: str) -> dict[str, str]:
         """The content key of each name stored for ``split`` (the newest row of a name wins)."""
         _check_split(split)

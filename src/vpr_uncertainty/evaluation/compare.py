@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from vpr_uncertainty._validation import check_count
-from vpr_uncertainty.evaluation.bootstrap import bootstrap_metrics, holm, paired_p_value, percentile_interval
+from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, holm, paired_p_value, percentile_interval
 
 if TYPE_CHECKING:  # pragma: no cover
     from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
@@ -203,19 +203,6 @@ def _number(value: float | None, spec: str = ".4f") -> str:
     return "n/a" if value is None else f"{value:{spec}}"
 
 
-def _distributions(
-    evaluation: Evaluation, names: Sequence[str], n_resamples: int, seed: int
-) -> dict[str, dict[str, np.ndarray]]:
-    """The paired bootstrap of the methods ``names``, each judged by its own labels where it has them."""
-    methods = {name: evaluation.methods[name] for name in names}
-    return bootstrap_metrics(
-        {name: evaluation.correct if m.correct is None else m.correct for name, m in methods.items()},
-        {name: m.uncertainty for name, m in methods.items()},
-        n_resamples=n_resamples,
-        seed=seed,
-    )
-
-
 def _check_evaluation(value: object, name: str) -> None:
     if not (hasattr(value, "methods") and hasattr(value, "correct") and hasattr(value, "n_queries")):
         raise TypeError(f"{name} must be an Evaluation (from vpr_uncertainty.evaluate), got {type(value).__name__}")
@@ -365,7 +352,7 @@ def compare(
             raise ValueError(f"method_a and method_b are both {method_a!r}; name two different methods")
         labels, test = (method_a, method_b), None  # the sides are named by the methods
         pairs = [(evaluation_a.methods[method_a], evaluation_a.methods[method_b])]
-        distributions_a = distributions_b = _distributions(evaluation_a, (method_a, method_b), n_resamples, seed)
+        distributions_a = distributions_b = evaluation_distributions(evaluation_a, n_resamples, seed, labels)
     else:
         if method_a is not None or method_b is not None:
             raise ValueError("method_a and method_b compare two methods of one evaluation; leave out evaluation_b")
@@ -392,7 +379,8 @@ def compare(
                         raise ValueError(f"{name!r} is not evaluated in {label} (methods: {known})")
         pairs = [(evaluation_a.methods[name], evaluation_b.methods[name]) for name in names]
         distributions_a, distributions_b = (
-            _distributions(evaluation, names, n_resamples, seed) for evaluation in (evaluation_a, evaluation_b)
+            evaluation_distributions(evaluation, n_resamples, seed, names)
+            for evaluation in (evaluation_a, evaluation_b)
         )
         test = mcnemar(evaluation_a.correct, evaluation_b.correct)
     return Comparison(

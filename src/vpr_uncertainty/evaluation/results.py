@@ -33,12 +33,8 @@ class MethodEvaluation:
     ``correct`` is set only for a method that retrieves with its own embeddings: its own top-1 correctness, the
     labels its metrics were measured against (otherwise those of :attr:`Evaluation.correct`). ``details`` holds
     what the method reported about its run (a cascade's ``verified_fraction`` and ``verified_queries``). Its
-    ``repr`` shows the numbers, not the arrays.
-
-    ``n_distinct`` (number of distinct uncertainty values; 1: every query tied) and ``tied_share`` (share of the
-    queries whose uncertainty equals that of at least one other query; 0: no ties) are counted once, when it is
-    built: given by the caller that has them (:func:`~vpr_uncertainty.evaluate` reads them off its one sort of the
-    uncertainties), otherwise from ``uncertainty``.
+    ``repr`` shows the numbers, not the arrays. ``n_distinct`` and ``tied_share`` are counted once, when it is built
+    (:func:`~vpr_uncertainty.evaluate` gives them from its one sort of the uncertainties).
     """
 
     name: str

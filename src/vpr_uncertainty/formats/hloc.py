@@ -37,11 +37,6 @@ def _descriptor_datasets(handle, path: str | Path):
             yield name, item
 
 
-def _names(handle, path: str | Path) -> list[str]:
-    """The images of an open file: the parents of its ``global_descriptor`` datasets, sorted."""
-    return sorted(name.rpartition("/")[0] for name, _ in _descriptor_datasets(handle, path))
-
-
 def is_hloc_file(path: str | Path) -> bool:
     """Whether ``path`` is an HDF5 file holding at least one hloc ``global_descriptor``.
 
@@ -107,7 +102,7 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
     if not is_regular_file(path, "a descriptor file"):
         raise FileNotFoundError(f"descriptor file not found: {path}")
     with h5py.File(path, "r") as handle:
-        names = _names(handle, path)
+        names = sorted(name.rpartition("/")[0] for name, _ in _descriptor_datasets(handle, path))  # their images
         if not names:
             raise ValueError(f"{path} holds no hloc global descriptors (groups with a '{HLOC_DATASET}' dataset)")
         splits = {name: _split_of(name) for name in names}

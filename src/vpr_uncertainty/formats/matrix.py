@@ -257,21 +257,13 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
         For another suffix, a ``.h5`` without a valid ``split``, an unreadable file or an array that is not 2-D.
     """
     path, hdf5 = _descriptor_file(path, split)
-    if not hdf5:
-        array, names = _read_npy_descriptors(path, mmap=False), None
-    else:
-        from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
-        from vpr_uncertainty.formats.hloc import is_hloc_file, read_hloc_descriptors
+    if not hdf5:  # the readers check the shape: (N, dim), one name per row
+        return None, np.ascontiguousarray(_read_npy_descriptors(path, mmap=False), dtype=np.float32)
+    from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
+    from vpr_uncertainty.formats.hloc import is_hloc_file, read_hloc_descriptors
 
-        read = read_hloc_descriptors if is_hloc_file(path) else read_descriptors
-        names, array = read(path, split)
-        names = None if names is None else np.asarray(names, dtype=str)
-    array = np.asarray(array)
-    if array.ndim != 2:
-        raise ValueError(f"{path}: descriptors must be 2-D (n_images, dimension), got shape {array.shape}")
-    if names is not None and len(names) != len(array):
-        raise ValueError(f"{path}: {len(names)} names but {len(array)} descriptors")
-    return names, np.ascontiguousarray(array, dtype=np.float32)
+    names, array = (read_hloc_descriptors if is_hloc_file(path) else read_descriptors)(path, split)
+    return np.asarray(names, dtype=str), np.ascontiguousarray(array, dtype=np.float32)
 
 
 def open_descriptors(path: str | Path, split: str | None = None) -> tuple[np.ndarray | None, DescriptorRows]:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -55,11 +56,6 @@ class PendingFeatures:
 
 #: Set inside :func:`deferred_writes`: cache file -> what was extracted for it and is not written yet.
 _store: dict[Path, PendingFeatures] | None = None
-
-
-def active_store() -> dict[Path, PendingFeatures] | None:
-    """The in-memory store of the enclosing :func:`deferred_writes` (cache file -> features), or None outside one."""
-    return _store
 
 
 @contextmanager
@@ -134,10 +130,7 @@ def image_names(paths: Sequence[str | Path], root: str | Path | None = None) -> 
     if not resolved:
         return []
     if root is None:
-        parents = [path.parent for path in resolved]
-        root = parents[0]
-        while not all(parent == root or root in parent.parents for parent in parents):
-            root = root.parent
+        root = os.path.commonpath([path.parent for path in resolved])
     root = Path(root).absolute()
     return [path.relative_to(root).as_posix() for path in resolved]
 
@@ -375,11 +368,10 @@ def extract_features(
         if cache_dir is not None:
             file_path = cache_path(cache_dir, extractor)
             config = json.dumps(extractor_config(extractor), sort_keys=True, default=str)
-            store = active_store()
-            if store is None:
+            if _store is None:
                 handle = _open_cache(file_path, config)
             else:  # a task: read the shared file, keep what is extracted for the driver
-                deferred = store.setdefault(file_path, PendingFeatures(file_path, config))
+                deferred = _store.setdefault(file_path, PendingFeatures(file_path, config))
                 features.update(_deferred_features(deferred, unique))
                 handle = _open_cache(file_path, config, write=False)
             if handle is not None:

@@ -44,6 +44,7 @@ __all__ = [
     "parse_method_spec",
     "register_composer",
     "register_method",
+    "spec_options",
     "split_method_list",
     "typed_option",
 ]
@@ -70,6 +71,24 @@ def typed_option(text: str, default: Any, where: str) -> Any:
         kind = {bool: "true or false", int: "an integer", float: "a finite number"}[type(default)]
         raise ValueError(f"{where} must be {kind}, got {text!r}") from None
     return text
+
+
+def spec_options(spec: str, defaults: Mapping[str, Any], what: str) -> dict[str, Any]:
+    """The ``option=value`` items after the colon of ``spec`` (a ``what``: ``"method spec"``, ``"report figure"``),
+    each typed like its default in ``defaults``; a malformed, unknown or repeated option is a ValueError naming it."""
+    name, _, rest = (part.strip() for part in spec.partition(":"))
+    options: dict[str, Any] = {}
+    for item in rest.split(","):
+        key, equals, value = (part.strip() for part in item.partition("="))
+        if not key or not equals or not value:
+            raise ValueError(f"{what} {spec!r}: expected option=value after {name}:, got {item.strip()!r}")
+        if key not in defaults:
+            valid = ", ".join(sorted(defaults)) or "none"
+            raise ValueError(f"{what} {spec!r}: {name} has no option {key!r} (its options: {valid})")
+        if key in options:
+            raise ValueError(f"{what} {spec!r}: option {key!r} is given twice")
+        options[key] = typed_option(value, defaults[key], f"{what} {spec!r}: option {key!r}")
+    return options
 
 
 def split_method_list(text: str) -> list[str]:
@@ -527,22 +546,11 @@ def parse_method_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """
     if not isinstance(spec, str):
         raise TypeError(f"a method spec must be a string, got {spec!r}")
-    name, colon, rest = (part.strip() for part in spec.partition(":"))
+    name, colon, _ = (part.strip() for part in spec.partition(":"))
     entry = _lookup(name)
     if not colon:
         return name, {}
-    defaults = entry.option_defaults()
-    options: dict[str, Any] = {}
-    for item in rest.split(","):
-        key, equals, value = (part.strip() for part in item.partition("="))
-        if not key or not equals or not value:
-            raise ValueError(f"method spec {spec!r}: expected option=value after {name}:, got {item.strip()!r}")
-        if key not in defaults:
-            valid = ", ".join(sorted(defaults)) or "none"
-            raise ValueError(f"method spec {spec!r}: {name} has no option {key!r} (its options: {valid})")
-        if key in options:
-            raise ValueError(f"method spec {spec!r}: option {key!r} is given twice")
-        options[key] = typed_option(value, defaults[key], f"method spec {spec!r}: option {key!r}")
+    options = spec_options(spec, entry.option_defaults(), "method spec")
     if entry.validate is not None:
         try:
             load_target(entry.validate, what=f"uncertainty method {name!r}", extra=entry.extra)(**options)

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import csv
 from pathlib import Path
 
 import numpy as np
 
 from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
+from vpr_uncertainty.formats.matrix import read_similarity_top_k
 from vpr_uncertainty.pipeline.options import (
     add_figure_width_option,
     candidate_count,
@@ -179,8 +181,6 @@ def _read_unlabelled(path: Path, file_format: str, top_k: int) -> np.ndarray:
     is_retrieval = file_format == "retrieval" or (file_format == "auto" and path.suffix.lower() == ".npz")
     if is_retrieval or file_format not in ("auto", "matrix", "vprbench"):
         return read_results(path, file_format=file_format, top_k=top_k).scores
-    from vpr_uncertainty.formats.matrix import read_similarity_top_k
-
     scores, _, _ = read_similarity_top_k(path, top_k, file_format=file_format)
     return scores
 
@@ -217,8 +217,6 @@ def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.nda
 
 def _read_labels(path: Path, n_queries: int) -> list[tuple[int, bool]]:
     """The ``query,correct`` rows of a labels file (query: a pool index; correct: 1/0, true/false, yes/no)."""
-    import csv
-
     if not path.exists():
         return []
     truth = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}

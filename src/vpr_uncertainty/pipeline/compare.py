@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
+from vpr_uncertainty.evaluation import compare
 from vpr_uncertainty.pipeline.evaluate import EvaluateConf, read_inputs
 from vpr_uncertainty.pipeline.evaluate import compute as evaluate_compute
 from vpr_uncertainty.pipeline.options import (
@@ -28,6 +31,7 @@ from vpr_uncertainty.pipeline.options import (
     option,
     output_file,
     write_json,
+    write_output,
 )
 
 
@@ -74,8 +78,6 @@ def compute(
 ) -> Any:
     """The :class:`~vpr_uncertainty.evaluation.Comparison` of two retrievals of the same queries (each evaluated with
     ``conf.evaluate``), or, with ``conf.uncertainty`` and no ``retrieval_b``, of two uncertainty methods of one."""
-    from vpr_uncertainty.evaluation import compare
-
     settings = {"n_resamples": conf.resamples, "seed": conf.seed}
     _check_sides(conf, retrieval_b is not None)
     if conf.uncertainty is not None:
@@ -132,16 +134,11 @@ def main(
 ) -> Path:
     """Compare the results files ``inputs`` (A and B, or A alone with ``conf.uncertainty``) and write the JSON
     document of the comparison to ``out``."""
-    from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
-    from vpr_uncertainty.pipeline.options import write_output
-
     if not 1 <= len(inputs) <= 2:
         raise ValueError(f"expected one or two results files, got {len(inputs)}")
     top_k = max(DEFAULT_TOP_K, conf.evaluate.k)
     retrievals = [read_results(path, ground_truth=ground_truth, top_k=top_k) for path in inputs]
     comparison = compute(conf, *retrievals, labels=side_labels(inputs) if len(inputs) == 2 else ("A", "B"))
-    import json
-
     out = Path(out)
     write_output(out, json.dumps(comparison.to_dict(), indent=2) + "\n")
     return out
@@ -152,8 +149,6 @@ def main(
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """The ``compare`` command."""
-    from vpr_uncertainty.data import input_formats
-
     parser = subparsers.add_parser(
         "compare",
         help="paired tests: two VPR methods on the same queries, or two uncertainty methods",

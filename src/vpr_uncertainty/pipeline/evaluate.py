@@ -19,9 +19,12 @@ import numpy as np
 
 from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
-from vpr_uncertainty.data import DEFAULT_TOP_K
+from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
+from vpr_uncertainty.data.images import retrieval_image_paths
+from vpr_uncertainty.evaluation import evaluate as evaluate_methods
 from vpr_uncertainty.evaluation.metrics import RECALL_NS, check_recall_ns
-from vpr_uncertainty.methods import available_methods, default_method_names, get_method
+from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
+from vpr_uncertainty.methods import available_methods, default_method_names, get_method, split_method_list
 from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
@@ -64,8 +67,6 @@ def recall_list(text: str) -> tuple[int, ...]:
 
 def method_list(text: str) -> list[str]:
     """Comma-separated method specs (``SU,SUE:clip=one-sided,slope=300``) checked against the registry."""
-    from vpr_uncertainty.methods import split_method_list
-
     try:
         specs = split_method_list(text)
         names = [get_method(spec).name for spec in specs]
@@ -186,8 +187,6 @@ def compute(
     latency : bool
         Also measure each score-based method's latency at batch size 1.
     """
-    from vpr_uncertainty.evaluation import evaluate as evaluate_methods
-
     methods = conf.method_names(retrieval)
     evaluation = evaluate_methods(
         retrieval,
@@ -214,8 +213,6 @@ def compute(
 
 def main(conf: EvaluateConf, results: str | Path, out: str | Path, *, ground_truth: str | Path | None = None) -> Path:
     """Evaluate the uncertainties of ``results`` (any file :func:`vpr_uncertainty.read_results` reads) into ``out``."""
-    from vpr_uncertainty.data import read_results
-
     retrieval = read_results(results, ground_truth=ground_truth, top_k=conf.candidates)
     return compute(conf, retrieval, out).path  # type: ignore[return-value]
 
@@ -231,9 +228,6 @@ def _verifies(name: str) -> bool:
 
 def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list[str], dict[str, Any], list[str]]:
     """SCORES and the image folders of the command's arguments: (retrieval, methods, image options, notes)."""
-    from vpr_uncertainty.data import read_results
-    from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
-
     top_k = conf.candidates  # a full matrix gives as many candidates as k and the largest recall@N ask
     notes: list[str] = []
     log_paths: tuple[Any, Any] = (None, None)
@@ -268,8 +262,6 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
     options: dict[str, Any] = {}
     if verifying:
         if given:
-            from vpr_uncertainty.data.images import retrieval_image_paths
-
             query_paths, database_paths = retrieval_image_paths(retrieval, **folders)
         elif log_paths[0] is not None:
             query_paths, database_paths = log_paths
@@ -289,8 +281,6 @@ def read_inputs(args: argparse.Namespace, conf: EvaluateConf) -> tuple[Any, list
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
     """The ``evaluate`` command."""
-    from vpr_uncertainty.data import input_formats
-
     parser = subparsers.add_parser(
         "evaluate",
         help="evaluate uncertainty methods on precomputed VPR results",

@@ -26,8 +26,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty.data import DEFAULT_TOP_K, load_dataset, load_vprbench_dataset, read_results
 from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, auc_pr, correct_at_n
 from vpr_uncertainty.evaluation.metrics import candidate_hits
+from vpr_uncertainty.identity import code_identity
 from vpr_uncertainty.methods import get_method
 from vpr_uncertainty.pipeline import evaluate
 from vpr_uncertainty.pipeline.evaluate import BOOTSTRAP_HELP, EvaluateConf, add_bootstrap_conf_options
@@ -42,6 +44,7 @@ from vpr_uncertainty.pipeline.options import (
     fraction,
     output_directory,
 )
+from vpr_uncertainty.plugins import registered_code
 
 if TYPE_CHECKING:
     from vpr_uncertainty.retrieval import Retrieval
@@ -143,11 +146,8 @@ def main(config: GridConfig | str | Path, out: str | Path | None = None, *, repo
 
 def _handle(args: argparse.Namespace) -> int:
     executor_options(args)  # bad executor options fail before any work
-    config = load_config(args.config, out=args.out, bootstrap=args.bootstrap, seed=args.seed, reference=args.reference)
-    if args.verify_fraction is not None:
-        if not any("+" in name.split(":")[0] for name in config.methods):
-            raise ValueError(f"--verify-fraction: {args.config} selects no cascade SCORE+GV (e.g. SU+GV-SIFT)")
-        config.verify_fraction = args.verify_fraction
+    overrides = {key: getattr(args, key) for key in ("bootstrap", "seed", "reference", "verify_fraction")}
+    config = load_config(args.config, out=args.out, **overrides)
     cells = {(e.vpr_method, e.dataset) for e in config.inputs}
     print(f"{args.config}: {len(cells)} cells x {len(config.methods)} uncertainty methods -> {config.out}")
     if args.check:
@@ -216,8 +216,6 @@ def _load_cell_input(
     """The cell's Retrieval and the pipeline's Evaluation when it ran one; the pipeline's stage times are added to
     ``seconds`` (as ``pipeline_<stage>``)."""
     if entry.model is None:
-        from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
-
         retrieval = read_results(
             entry.scores,
             ground_truth=entry.ground_truth,
@@ -233,15 +231,8 @@ def _load_cell_input(
     return result.retrieval, result.evaluation
 
 
-def positive_hits(retrieval: Any, n: int) -> np.ndarray:
-    """(Q, n) bool: whether each of the first ``n`` candidates of each query is a positive."""
-    return candidate_hits(retrieval.indices[:, :n], retrieval.positives)
-
-
 def _image_dataset(entry: InputEntry) -> Any:
     """The image dataset of a cell: its ``images`` folder, or the dataset a model runs on (None: no images)."""
-    from vpr_uncertainty.data import load_dataset, load_vprbench_dataset
-
     if entry.model is None:
         return None if entry.images is None else load_vprbench_dataset(entry.images)
     options = entry.run_options
@@ -265,9 +256,6 @@ def _cell_fingerprint(entry: InputEntry, config: GridConfig, dataset: Any = None
     """The one key of a cell: the grid's settings, the content of its inputs (files, images by name and content),
     its model's identity, and the code of every method and of the toolkit and plugins that compute it; None when
     the model can be identified only by loading it (the cell is recomputed, its run's stage caches still apply)."""
-    from vpr_uncertainty.identity import code_identity
-    from vpr_uncertainty.plugins import registered_code
-
     model = None
     if entry.model is not None:
         from vpr_uncertainty.pipeline.extract import fingerprint_of
@@ -429,7 +417,7 @@ def run_cell(
         indices=retrieval.indices,
         ablation_alpha=alpha_curve,
         ablation_k=k_curve,
-        hits=positive_hits(retrieval, HIT_COLUMNS),
+        hits=candidate_hits(retrieval.indices[:, :HIT_COLUMNS], retrieval.positives),
         query_paths=options.get("query_paths"),
         database_paths=options.get("database_paths"),
         held_out=None

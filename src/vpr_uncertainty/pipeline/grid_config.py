@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty._files import is_regular_file
-from vpr_uncertainty.cache import slug
+from vpr_uncertainty.cache import content_key, slug
 from vpr_uncertainty.methods import (
     PATH_OPTIONS,
     STAGE_INPUTS,
@@ -317,7 +317,7 @@ def report_figures(
 DEFAULT_ALPHAS: tuple[float, ...] = tuple(round(0.1 * i, 1) for i in range(11))
 DEFAULT_KS: tuple[int, ...] = (2, 3, 5, 10, 15, 20, 30, 50)
 VPRBENCH_FILE = "precomputed_data_corrected.npy"
-_BOOTSTRAP_KEYS = ("bootstrap", "seed", "reference")
+_OVERRIDES = ("bootstrap", "seed", "reference", "verify_fraction")
 _RUN_OPTIONS = ("root", "device", "batch_size", "index", "split")
 _INPUT_KEYS = {
     "precomputed_matches",
@@ -358,8 +358,6 @@ class InputEntry:
         edited results file or ground truth recomputes the cell. Image inputs (``model``) are covered by the
         stages' own caches, whose fingerprints the cell's result carries through the run.
         """
-        from vpr_uncertainty.cache import content_key
-
         files = {}
         for name in ("scores", "ground_truth"):
             path = getattr(self, name)
@@ -502,8 +500,8 @@ def _inputs(raw_inputs: Any, problems: list[str]) -> list:
 def load_config(path: str | Path, *, out: str | Path | None = None, **overrides: Any) -> GridConfig:
     """Read and validate a grid configuration; every problem is reported at once, before any work.
 
-    ``overrides`` (``bootstrap``, ``seed``, ``reference``; None = keep the config's) replace the config's values
-    before the checks.
+    ``overrides`` (``bootstrap``, ``seed``, ``reference``, ``verify_fraction``; None = keep the config's) replace the
+    config's values before the checks.
 
     Raises
     ------
@@ -517,9 +515,9 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
     if not is_regular_file(path, "a configuration file"):
         raise FileNotFoundError(f"configuration file not found: {path}")
     data = read_mapping(path)
-    unknown = sorted(set(overrides) - set(_BOOTSTRAP_KEYS))
+    unknown = sorted(set(overrides) - set(_OVERRIDES))
     if unknown:
-        raise TypeError(f"load_config got unexpected overrides {unknown} (valid: {', '.join(_BOOTSTRAP_KEYS)})")
+        raise TypeError(f"load_config got unexpected overrides {unknown} (valid: {', '.join(_OVERRIDES)})")
     data.update({key: value for key, value in overrides.items() if value is not None})
     base = path.resolve().parent
     problems: list[str] = []
@@ -532,12 +530,10 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
         f"unknown top-level key {key!r} (expected {sorted(_TOP_KEYS)})" for key in data if key not in _TOP_KEYS
     ]
     methods = _methods(data, problems, base)
-    k = data.get("k", 10)
+    k = _integer(data.get("k", 10), "k", 2, problems)
     alpha = data.get("alpha", 0.5)
     alphas = _numbers(data, "alphas", DEFAULT_ALPHAS, float, problems)
     ks = _numbers(data, "ks", DEFAULT_KS, int, problems)
-    if isinstance(k, bool) or not isinstance(k, int) or k < 2:
-        problems.append(f"k must be an integer >= 2, got {k!r}")
     for name, value in [("alpha", alpha), *((f"alphas[{i}]", a) for i, a in enumerate(alphas))]:
         try:
             check_alpha(value, name=name)  # the one check of the range

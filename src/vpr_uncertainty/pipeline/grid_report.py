@@ -5,17 +5,21 @@ and report.html.
 from __future__ import annotations
 
 import csv
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from html import escape
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.cache import atomic_write, write_text
+from vpr_uncertainty.cache import atomic_write, write_json
 from vpr_uncertainty.evaluation import Evaluation
 from vpr_uncertainty.pipeline.grid_config import GridConfig
+from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
+from vpr_uncertainty.reports.html import Section, averaged_over, settings_table, write_report
+from vpr_uncertainty.reports.plots import cascades
+from vpr_uncertainty.reports.style import figure_width
 from vpr_uncertainty.reports.tables import csv_cell
 
 CSV_FIELDS = (
@@ -206,8 +210,7 @@ def write_results(cells: Sequence[Cell], config: GridConfig) -> dict[str, Path]:
     if config.calibration is not None:  # the held-out option: each cell then holds "held_out"
         document["calibration"] = dict(config.calibration)
     document["cells"] = [cell.to_dict() for cell in cells]
-    json_path = out / "results.json"
-    write_text(json_path, json.dumps(document, indent=2) + "\n")
+    json_path = write_json(out / "results.json", document)
     rows = [row for cell in cells for row in cell.rows()]
     recall_fields = sorted({key for row in rows for key in row if key.startswith("recall@")}, key=lambda s: int(s[7:]))
     csv_path = out / "results.csv"
@@ -262,12 +265,6 @@ def write_reports(
     ValueError
         For an unknown option of a figure, or a bad value.
     """
-    from html import escape
-
-    from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
-    from vpr_uncertainty.reports.html import Section, averaged_over, settings_table, write_report
-    from vpr_uncertainty.reports.style import figure_width
-
     if width is not None:
         figure_width(width)  # a bad width fails before any figure is drawn
 
@@ -317,8 +314,6 @@ def _available_needs(cells: Sequence[Cell]) -> set[str]:
         available.add("ablations")
     if any("CAL" in (cell.held_out or {}).get("calibration_quality", {}) for cell in cells):
         available.add("calibration")
-    from vpr_uncertainty.reports.plots import cascades
-
     if cascades(cells):
         available.add("cascade")
     return available

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
 import re
@@ -18,38 +19,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.executors import CONNECT_TIMEOUT
-
-__all__ = [
-    "FIGURE_WIDTHS",
-    "FIGURE_WIDTH_HELP",
-    "VERIFY_FRACTION_HELP",
-    "add_executor_options",
-    "add_figure_width_option",
-    "add_options",
-    "add_progress_options",
-    "add_score_kind_option",
-    "apply_threads",
-    "candidate_count",
-    "checked_number",
-    "command_wording",
-    "conf_from_args",
-    "device_name",
-    "executor_from_args",
-    "executor_options",
-    "fraction",
-    "integer_at_least",
-    "local_workers",
-    "non_negative_float",
-    "open_fraction",
-    "option",
-    "output_directory",
-    "output_file",
-    "positive_int",
-    "write_json",
-    "write_output",
-]
-
+from vpr_uncertainty.executors import CONNECT_TIMEOUT, executor_names
 
 # --- argument types ------------------------------------------------------------------------------------------
 
@@ -199,8 +169,6 @@ def command_wording(**flags: str) -> Iterator[None]:
 
 def write_json(path: Path, document: Any) -> None:
     """``--json FILE``: the document as indented JSON in ``FILE``, or on standard output for ``-``."""
-    import json
-
     text = json.dumps(document, indent=2) + "\n"
     if str(path) == "-":
         print(text, end="")
@@ -327,8 +295,6 @@ def add_executor_options(
     ``--workers`` is the one name for "how many parallel workers": with Ray, the tasks or actors in flight
     (``ray_workers`` says which); locally, ``local_workers`` (e.g. :data:`DECODING_THREADS`), or refused when None.
     """
-    from vpr_uncertainty.executors import executor_names
-
     group = parser.add_argument_group("executor (where the work runs, and how many workers run it)")
     group.add_argument(
         "--executor",
@@ -429,7 +395,7 @@ def local_workers(args: argparse.Namespace) -> int | None:
 
 def executor_from_args(args: argparse.Namespace) -> Any:
     """The executor the options ask for (a context manager), after :func:`executor_options`' checks."""
-    from vpr_uncertainty.executors import get_executor
+    from vpr_uncertainty.executors import get_executor  # looked up at the call (tests stand in for it)
 
     options = executor_options(args)
     return get_executor(options.pop("name"), **options)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import time
 import warnings
 from collections.abc import Sequence
@@ -33,6 +34,11 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty._repr import compact_repr
+from vpr_uncertainty.data import load_dataset
+from vpr_uncertainty.data.dataset import ground_truth_fields
+from vpr_uncertainty.data.images import ImageListingError, describe_unlisted
+from vpr_uncertainty.data.named_datasets import ensure_corridor
+from vpr_uncertainty.methods import STAGE_INPUTS, available_methods, describe_needs, get_method
 from vpr_uncertainty.pipeline import evaluate, extract, report, retrieve, verify
 from vpr_uncertainty.pipeline.evaluate import METHOD_SPEC_HELP, EvaluateConf, add_bootstrap_conf_options, method_options
 from vpr_uncertainty.pipeline.extract import ExtractConf, add_threads_option
@@ -77,20 +83,12 @@ class RunConf:
     figure_width: str = option("page", FIGURE_WIDTH_HELP, choices=FIGURE_WIDTHS)
 
     def to_dict(self) -> dict[str, Any]:
-        return json_ready(dataclasses.asdict(self))
+        """The configuration as JSON types (paths as strings, tuples as lists), for results.json."""
+        return json.loads(json.dumps(dataclasses.asdict(self), default=str))
 
 
 #: The configuration of a run when none is given (hloc's ``default_conf``): every stage's default.
 default_conf = RunConf()
-
-
-def json_ready(value: Any) -> Any:
-    """``value`` with paths as strings and tuples as lists (for results.json)."""
-    if isinstance(value, dict):
-        return {key: json_ready(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_ready(item) for item in value]
-    return str(value) if isinstance(value, Path) else value
 
 
 @dataclass
@@ -131,9 +129,6 @@ def _positions_of(names: Sequence[str], kept: np.ndarray) -> np.ndarray:
 def load_and_check(conf: RunConf, dataset: Any) -> Any:
     """The dataset (a folder, a registered name or a loaded Dataset), after every check that can fail before
     extraction (the slow part)."""
-    from vpr_uncertainty.data import load_dataset
-    from vpr_uncertainty.methods import STAGE_INPUTS, available_methods, describe_needs, get_method
-
     if conf.retrieve.top_k < conf.evaluate.k:
         raise ValueError(f"top_k ({conf.retrieve.top_k}) must be >= k ({conf.evaluate.k})")
     methods = list(conf.evaluate.methods or [])
@@ -159,8 +154,6 @@ def load_and_check(conf: RunConf, dataset: Any) -> Any:
     if unmet:
         raise ValueError("; ".join(unmet))
     if dataset.unlisted:
-        from vpr_uncertainty.data.images import ImageListingError, describe_unlisted
-
         if conf.extract.on_error == "fail":
             raise ImageListingError(dataset.root or dataset.name, dataset.unlisted)
         warnings.warn(
@@ -173,8 +166,6 @@ def load_and_check(conf: RunConf, dataset: Any) -> Any:
 
 def _ground_truth(dataset: Any, descriptors: Any) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
     """The ground-truth fields of the images that have descriptors, and their indices in the dataset."""
-    from vpr_uncertainty.data.dataset import ground_truth_fields
-
     fields = dataset.retrieval_fields()
     kept_database = _positions_of(dataset.database_names, descriptors.names["database"])
     kept_queries = _positions_of(dataset.query_names, descriptors.names["queries"])
@@ -426,8 +417,6 @@ def _handle_run(args: argparse.Namespace) -> int:
 
 
 def _handle_demo(args: argparse.Namespace) -> int:
-    from vpr_uncertainty.data.named_datasets import ensure_corridor
-
     conf = conf_of(args)
     corridor = ensure_corridor(args.root, download=not args.no_download)
     print(f"corridor dataset: {corridor}")

@@ -41,19 +41,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from vpr_uncertainty.calibration.gate import Gate
     from vpr_uncertainty.evaluation.results import Evaluation
 
-__all__ = [
-    "AREA_NOTE",
-    "RecallAtNDisplay",
-    "RejectionCurveDisplay",
-    "ReliabilityDisplay",
-    "curve_area",
-    "draw_rejection_curves",
-    "plot_rejection_curves",
-    "plot_reliability",
-    "rejection_curves_inputs",
-    "rejection_curves_spec",
-    "write_rejection_curves",
-]
 
 #: Why the area under an end-to-end curve is not the uncertainty's AUC-PR (said in the caption; drawn under the
 #: axes only with ``note=True``).

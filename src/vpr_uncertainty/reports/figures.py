@@ -1,19 +1,12 @@
 """Report figures: what ``reproduce`` writes after the grid (Table 1, heatmaps, ablations, PR curves, ...).
 
-Each :class:`ReportFigure` in :data:`REPORT_FIGURES` (a :class:`~vpr_uncertainty.plugins.Registry`) declares its
-name, a description, what it needs from the grid (:data:`FIGURE_NEEDS`), its default options and the function
-that writes it::
-
-    write(cells, config, out_dir, **options) -> list[Path]
-
-``cells`` are the grid's typed results (``Cell``, with their stored uncertainties), ``config`` its ``GridConfig``,
-``out_dir`` the output folder (figures go to ``out_dir / "figures"``). A figure that declares the option ``width``
-(every built-in figure: ``"page"``, 7.16 in, or ``"column"``, 3.5 in) is drawn at the width ``reproduce
---figure-width`` gives, unless its spec sets one (``"ablations:width=column"``). A ``caption(cells, config, path,
-**options) -> str`` hook writes the caption of each file in ``report.html``; the built-in ones are the
-``caption()`` of the :class:`~vpr_uncertainty.reports.style.FigureSpec` the figure is drawn from. ``reproduce``
-calls every selected figure in registration order and gives each a section of ``report.html``. A figure is selected
-by name, optionally with options as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
+Each :class:`ReportFigure` of :data:`REPORT_FIGURES` (a :class:`~vpr_uncertainty.plugins.Registry`) is added by
+:func:`register_report_figure`, whose parameters say what a figure declares: the function that writes it, what it
+needs from the grid (:data:`FIGURE_NEEDS`), its options, its section and caption hooks (docs/how-to/extend.md writes
+one from scratch). A figure with a ``width`` option draws at ``reproduce --figure-width`` unless its spec sets one
+(``"ablations:width=column"``); the built-in ones write under ``out_dir / "figures"``. ``reproduce`` calls every
+selected figure in registration order and gives each a section of ``report.html``; a figure is selected by name,
+optionally with options as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
 
 Examples
 --------
@@ -35,7 +28,7 @@ from typing import Any
 
 from vpr_uncertainty.cache import slug, write_text
 from vpr_uncertainty.calibration.quality import Reliability
-from vpr_uncertainty.methods import typed_option
+from vpr_uncertainty.methods import spec_options
 from vpr_uncertainty.plugins import Registry, load_target, merge_options
 from vpr_uncertainty.reports.display import plot_reliability, rejection_curves_spec, write_rejection_curves
 from vpr_uncertainty.reports.html import averaged_over, cell_stem, figure_caption, html_table
@@ -209,22 +202,9 @@ def parse_figure_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """
     if not isinstance(spec, str):
         raise TypeError(f"a report figure must be named by a string, got {spec!r}")
-    name, colon, rest = (part.strip() for part in spec.partition(":"))
+    name, colon, _ = (part.strip() for part in spec.partition(":"))
     entry = REPORT_FIGURES.get(name)
-    options: dict[str, Any] = {}
-    if not colon:
-        return entry.name, options
-    for item in rest.split(","):
-        key, equals, value = (part.strip() for part in item.partition("="))
-        if not key or not equals or not value:
-            raise ValueError(f"report figure {spec!r}: expected option=value after {name}:, got {item.strip()!r}")
-        if key not in entry.options:
-            valid = ", ".join(sorted(entry.options)) or "none"
-            raise ValueError(f"report figure {spec!r}: {name} has no option {key!r} (its options: {valid})")
-        if key in options:
-            raise ValueError(f"report figure {spec!r}: option {key!r} is given twice")
-        options[key] = typed_option(value, entry.options[key], f"report figure {spec!r}: option {key!r}")
-    return entry.name, options
+    return entry.name, spec_options(spec, entry.options, "report figure") if colon else {}
 
 
 def unmet_figure_needs(entry: ReportFigure, available: Collection[str]) -> str | None:

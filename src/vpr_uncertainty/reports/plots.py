@@ -1,16 +1,7 @@
-"""The figures of a grid: ablations (the paper's Figures 5 and 6), ΔAUC-PR heatmaps (Figure 3), the cascade, and
-qualitative examples (Figures 2 and 4). Each reads the cells' stored results and recomputes no uncertainty.
-
-- Ablations: ΔAUC-PR of SU against SU at α = 0.5 versus α (1: RS, 0: SD), one panel, one line per VPR method with
-  its best α starred; RS and SD versus k, at most :data:`MAX_SERIES` VPR methods per panel, one shared y range.
-- Heatmaps: Δ = AUC-PR(RS, SD or SU) − AUC-PR(baseline), > 0 (blue) when the proposed method is better; one panel
-  per baseline (baselines with the same Δ everywhere, such as BM and L2, share one), rows = VPR methods, columns =
-  datasets.
-- Cascade: AUC-PR of ``SCORE+GV`` against the fraction verified (0: SCORE alone, 1: GV on every query), computed from
-  the stored uncertainties of SCORE and GV (verifying a pair gives the same inliers whichever other queries are
-  verified), with the cascade's measured point marked.
-- Qualitative: the most confident and most uncertain correct and wrong queries (by SU), each with its top-4 answers
-  (✓ and a green frame: positive; ✗ and a dashed red frame: not) and RS, SD, SU.
+"""The figures of a grid, drawn from the cells' stored results (no uncertainty is recomputed): the α and k ablations
+(the paper's Figures 5 and 6, :func:`plot_alpha_ablation`, :func:`plot_k_ablation`), the ΔAUC-PR heatmaps (Figure
+3, :func:`plot_delta_heatmaps`), the cascade (:func:`plot_cascade`) and the qualitative examples (Figures 2 and 4,
+:func:`plot_qualitative`).
 
 Every figure takes ``width="page"`` (7.16 in) or ``"column"`` (3.5 in); its height follows from its panels, its
 fonts are 8 pt (:func:`~vpr_uncertainty.reports.style.figure_rc`). Each has a ``*_spec`` function returning the
@@ -95,7 +86,7 @@ def _layout(n_panels: int, columns: int | None = None, width: str = "page") -> t
     return math.ceil(max(n_panels, 1) / columns), columns
 
 
-def _legend_columns(n_entries: int, columns: int, width: str = "page", labels: Sequence[str] = ()) -> int:
+def _legend_columns(n_entries: int, width: str = "page", labels: Sequence[str] = ()) -> int:
     """Legend entries per row: two (column width) or four (page width), fewer when there are fewer or when the
     longest label would not fit that many side by side (a handle and 8-pt text, :data:`_CHARACTER_INCHES` each)."""
     entry = 0.55 + _CHARACTER_INCHES * max((len(label) for label in labels), default=0)
@@ -119,7 +110,7 @@ def ablation_figsize(
     """
     inches = figure_width(width)
     rows, columns = _layout(n_panels, columns, width)
-    legend_rows = math.ceil(max(legend_entries, 1) / _legend_columns(legend_entries, columns, width))
+    legend_rows = math.ceil(max(legend_entries, 1) / _legend_columns(legend_entries, width))
     panel_height = max(1.3, aspect * inches / columns) + 0.45  # + a two-line title and the tick labels
     return inches, capped_height(panel_height * rows + _TITLE_HEIGHT + _LEGEND_ROW * legend_rows + 0.25, width)
 
@@ -148,7 +139,7 @@ def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None =
             list(handles.values()),
             list(handles),
             loc="outside lower center",
-            ncol=_legend_columns(len(handles), axes.shape[1], width, labels=list(handles)),
+            ncol=_legend_columns(len(handles), width, labels=list(handles)),
             frameon=False,
             title=legend or None,
         )
@@ -272,7 +263,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -
     legends = [[m for _, group in groups for m in group] for _, groups in rows]
     columns = 2 * max(len(groups) for _, groups in rows)
     height = len(rows) * (max(1.3, _PANEL_ASPECT * figure_width(width) / columns) + 0.6) + _TITLE_HEIGHT
-    height += _LEGEND_ROW * sum(math.ceil(len(e) / _legend_columns(len(e), 0, width, e)) for e in legends)
+    height += _LEGEND_ROW * sum(math.ceil(len(e) / _legend_columns(len(e), width, e)) for e in legends)
     with figure_rc(width):
         figure = plt.figure(figsize=(figure_width(width), capped_height(height, width)), dpi=DPI, layout="constrained")
         try:
@@ -298,7 +289,7 @@ def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -
                     axis.set_visible(False)
                 axes[0].set_ylabel(spec.y)
                 handles = [plt.Line2D([], [], **styles[m]) for m in entries]
-                ncol = _legend_columns(len(entries), 0, width, entries)
+                ncol = _legend_columns(len(entries), width, entries)
                 row.legend(handles, entries, loc="outside lower center", frameon=False, ncol=ncol)
             figure.suptitle(_fitted(spec.what, figure))
             return _save(figure, Path(path))
@@ -533,7 +524,8 @@ def cascades(cells: Sequence[Any]) -> list[tuple[str, str, str]]:
 
 
 def cascade_curve(correct: np.ndarray, score: np.ndarray, gv: np.ndarray, fractions: Sequence[float]) -> np.ndarray:
-    """AUC-PR of the cascade at each fraction verified (NaN when undefined: one class only)."""
+    """AUC-PR of the cascade at each fraction verified (NaN when undefined: one class only), from the stored
+    uncertainties of SCORE and GV: verifying a pair gives the same inliers whichever other queries are verified."""
     correct = np.asarray(correct, dtype=bool)
     if correct.all() or not correct.any():
         return np.full(len(fractions), np.nan)

@@ -26,27 +26,6 @@ import numpy as np
 
 from vpr_uncertainty.cache import write_figure
 
-__all__ = [
-    "DPI",
-    "FIGURE_WIDTHS",
-    "FONT_SIZE",
-    "MAX_HEIGHTS",
-    "OKABE_ITO",
-    "STYLED_NAMES",
-    "VECTOR_SUFFIX",
-    "FigureSpec",
-    "SeriesSpec",
-    "capped_height",
-    "coinciding",
-    "describe_style",
-    "figure_rc",
-    "figure_width",
-    "legend_outside",
-    "method_styles",
-    "pyplot",
-    "save_figure",
-]
-
 #: Resolution of every PNG a report writes.
 DPI = 300
 #: The vector format written beside each PNG.

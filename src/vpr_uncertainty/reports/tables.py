@@ -20,35 +20,7 @@ import numpy as np
 from vpr_uncertainty.evaluation import Evaluation
 from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders, percentile_interval
 from vpr_uncertainty.methods import METHODS
-from vpr_uncertainty.reports.latex import LATEX_PACKAGES, latex_escape, latex_float
-
-__all__ = [
-    "LATEX_PACKAGES",
-    "METRIC_NAMES",
-    "HeldOutCell",
-    "Table1",
-    "TiesTable",
-    "best_auc_pr",
-    "build_table1",
-    "build_ties_table",
-    "column_distributions",
-    "csv_cell",
-    "evaluation_csv",
-    "evaluation_latex",
-    "format_table",
-    "markdown_cell",
-    "marks_note",
-    "per_query_csv",
-    "table1_cells",
-    "table1_csv",
-    "table1_html",
-    "table1_latex",
-    "table1_markdown",
-    "table1_note",
-    "table_significance",
-    "ties_csv",
-    "ties_markdown",
-]
+from vpr_uncertainty.reports.latex import latex_escape, latex_float
 
 #: The columns of :func:`format_table` after ``method``: header, ``MethodEvaluation`` attribute, format.
 _COLUMNS = (

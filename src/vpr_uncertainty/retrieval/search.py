@@ -292,15 +292,10 @@ def retrieve(
         Options of :func:`search_descriptors`.
     config : dict, optional
         Extra JSON-serialisable entries for ``Retrieval.config``; they take precedence over the search settings.
-    database_positions, query_positions : array-like of shape (D, 2) and (Q, 2), optional
-        Positions of the images, e.g. UTM metres; with both (and no ``positives``) the positives of each query are
-        the database images within ``radius`` (inclusive), and the positions are kept (SUE reads them).
-    radius : float, default=25.0
-        Positive radius, in the unit of the positions.
-    positives : sparse or dense bool matrix of shape (Q, D), optional
-        Explicit ground truth instead of the radius.
-    position_kind : {"metres", "frames", "placeholder"}, optional
-        What the positions are; detected when not given.
+    database_positions, query_positions, radius, positives, position_kind
+        The ground truth, as :func:`~vpr_uncertainty.retrieval.ground_truth.ground_truth_fields` takes it: positions
+        (D, 2) and (Q, 2), kept (SUE reads them), whose positives lie within ``radius`` (default 25.0, inclusive),
+        or explicit ``positives`` (Q, D).
 
     Returns
     -------
