@@ -418,11 +418,16 @@ def aliasing_ratio(best: float, second: float) -> float:
     A ValueError names the range when a similarity lies outside [−1, 1] (beyond rounding): the scores are then not
     cosine similarities and the distances would be meaningless.
     """
-    tolerance = _scores.COSINE_TOLERANCE
-    if not (-1.0 - tolerance <= second and best <= 1.0 + tolerance):
+    if not (_COSINE_LOW <= second and best <= _COSINE_HIGH):
         raise ValueError(f"feature PA needs cosine similarities in [-1, 1], got s_1 = {best:g}, s_2 = {second:g}")
-    first_squared, second_squared = max(2.0 - 2.0 * best, 0.0), max(2.0 - 2.0 * second, 0.0)
-    return math.sqrt(first_squared / second_squared) if second_squared > 0 else 1.0
+    second_squared = 2.0 - 2.0 * second  # inline arithmetic: this runs in every gate(row) of a PA-reading rule
+    if second_squared <= 0.0:
+        return 1.0
+    first_squared = 2.0 - 2.0 * best
+    return math.sqrt(first_squared / second_squared) if first_squared > 0.0 else 0.0
+
+
+_COSINE_LOW, _COSINE_HIGH = -1.0 - _scores.COSINE_TOLERANCE, 1.0 + _scores.COSINE_TOLERANCE
 
 
 #: The training-free rankings: name → (feature, sign); confidence = sign × feature (higher = more likely correct).
