@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import sys
 import time
@@ -221,7 +222,26 @@ def fits(graph: Any, values: Any, closures: np.ndarray, is_true: np.ndarray) -> 
     return int((fit & ~is_true).sum()), int((fit & is_true).sum())
 
 
-def run_one(problem: Problem, rate: float, pop: Population, seed: int, out: Any, only: set[str] | None) -> None:
+def in_child(function: Any, timeout: float) -> Any:
+    """``function()`` in a forked process, given ``timeout`` seconds (a TimeoutError after them)."""
+    context = multiprocessing.get_context("fork")
+    receive, send = context.Pipe(duplex=False)
+    process = context.Process(target=lambda: send.send(function()))
+    process.start()
+    try:
+        if not receive.poll(timeout):
+            raise TimeoutError(f"did not finish within {timeout:g} s")
+        return receive.recv()
+    except EOFError:
+        raise RuntimeError(f"the optimiser's process died (exit code {process.exitcode})") from None
+    finally:
+        process.kill()
+        process.join()
+
+
+def run_one(
+    problem: Problem, rate: float, pop: Population, seed: int, out: Any, only: set[str] | None, timeout: float
+) -> None:
     rng = np.random.default_rng(seed)
     graph, closures, is_true = with_wrong_closures(problem, rate, rng)
     rows = score_rows(pop, is_true, rng)
@@ -253,28 +273,26 @@ def run_one(problem: Problem, rate: float, pop: Population, seed: int, out: Any,
         for i in np.flatnonzero(keep):
             kept.add(graph.at(int(i)))
         passed = closure_mask(closures, closures, rows, filters[filter_name])
-        start = time.perf_counter()
-        try:
+
+        def measure(kept: Any = kept, robust: str = robust) -> tuple:
+            start = time.perf_counter()
             values = optimize(kept, problem.initial, robust=robust)
             seconds = time.perf_counter() - start
-            rmse, worst = ate(values, problem.truth)
-            wrong_fit, true_fit = fits(graph, values, closures, is_true)
+            return (seconds, *ate(values, problem.truth), *fits(graph, values, closures, is_true))
+
+        start = time.perf_counter()
+        try:
+            seconds, rmse, worst, wrong_fit, true_fit = in_child(measure, timeout)
             error = None
         except Exception as failure:  # report it, do not hide it
-            seconds, rmse, worst, wrong_fit, true_fit, error = (
-                time.perf_counter() - start,
-                None,
-                None,
-                None,
-                None,
-                repr(failure),
-            )
+            seconds, error = time.perf_counter() - start, f"{type(failure).__name__}: {failure}"
+            rmse = worst = wrong_fit = true_fit = None
         record = {
             "graph": problem.name, "rate": rate, "method": pop.name, "seed": seed, "config": name,
             "closures_true": int(is_true.sum()), "closures_wrong": int((~is_true).sum()),
             "wrong_passed": int((passed & ~is_true).sum()), "true_passed": int((passed & is_true).sum()),
             "wrong_fit": wrong_fit, "true_fit": true_fit, "ate_rmse": rmse, "ate_max": worst,
-            "seconds": round(seconds, 3), "gate_lower_bound": certificate, "error": error,
+            "seconds": round(seconds, 3), "gate_lower_bound": certificate, "error": error, "timeout": timeout,
         }  # fmt: skip
         print(json.dumps(record), flush=True)
         if out is not None:
@@ -314,6 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--only", default=None, help="comma-separated configuration names")
     parser.add_argument("--json", type=Path, default=None, help="append one JSON line per configuration")
+    parser.add_argument("--timeout", type=float, default=180, help="seconds each optimisation may take (default 180)")
     parser.add_argument("--report", type=Path, default=None, help="print the tables of a --json file and stop")
     args = parser.parse_args(argv)
     if args.report:
@@ -330,7 +349,7 @@ def main(argv: list[str] | None = None) -> int:
             [float(r) for r in args.sphere_rates.split(",")] if name == "sphere2500" and args.sphere_rates else rates
         )
         for rate in graph_rates:
-            run_one(problem, rate, pop, args.seed, out, only)
+            run_one(problem, rate, pop, args.seed, out, only, args.timeout)
     return 0
 
 

@@ -122,6 +122,15 @@ def test_command_filters_a_g2o_graph_and_round_trips(gtsam, gate_file, tmp_path,
     assert "calibrated at k=10" in capsys.readouterr().err
 
 
+def test_an_edge_to_an_undefined_vertex_is_an_error(gtsam, tmp_path):
+    from vpr_uncertainty.pipeline.loop_closures import read_graph
+
+    _, text = _square(gtsam)
+    (tmp_path / "graph.g2o").write_text(text + "EDGE_SE2 2 9 0 0 0 100 0 0 100 0 400\n")
+    with pytest.raises(ValueError, match=r"edges name vertices the file does not define: \[9\]"):
+        read_graph(tmp_path / "graph.g2o")
+
+
 def test_optimisation_reaches_the_ground_truth_and_gnc_rejects_an_outlier(gtsam, tmp_path):
     from vpr_uncertainty.pipeline.loop_closures import optimize, read_graph
 

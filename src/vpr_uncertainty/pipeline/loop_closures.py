@@ -126,8 +126,8 @@ def read_graph(path: str | Path) -> tuple[Any, Any]:
         except (RuntimeError, IndexError) as error:
             raise ValueError(f"{path}: not a pose graph GTSAM reads ({error})") from None
     keys = sorted({key for factor in map(graph.at, range(graph.size())) for key in factor.keys()})
-    if initial.size():
-        if missing := [key for key in keys if not initial.exists(key)]:
+    if defined := {int(words[1]) for words in map(str.split, lines) if words and words[0].startswith("VERTEX")}:
+        if missing := sorted(set(keys) - defined):
             raise ValueError(f"{path}: edges name vertices the file does not define: {missing[:5]}")
         return graph, initial
     odometry = {edge[1]: graph.at(i).measured() for i, edge in enumerate(_edges(graph)) if edge[1] == edge[0] + 1}
@@ -215,5 +215,4 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _handle(args: argparse.Namespace) -> int:
-    main(conf_from_args(LoopClosureConf, args), args.graph, args.scores, args.gate, args.out)
-    return 0
+    return main(conf_from_args(LoopClosureConf, args), args.graph, args.scores, args.gate, args.out) and 0
