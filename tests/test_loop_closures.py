@@ -171,3 +171,11 @@ def test_reads_the_city10000_layout_and_3d_g2o(gtsam, tmp_path):
 
 def test_conf_defaults():
     assert LoopClosureConf() == LoopClosureConf(optimize=False, robust="none", inlier_probability=0.99)
+
+
+def test_without_gtsam_the_error_names_the_extra(monkeypatch):
+    from vpr_uncertainty.pipeline.loop_closures import gtsam_module
+
+    monkeypatch.setitem(__import__("sys").modules, "gtsam", None)
+    with pytest.raises(ImportError, match=r"pip install 'vpr-uncertainty\[slam\]'"):
+        gtsam_module()
