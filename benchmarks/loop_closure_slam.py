@@ -312,8 +312,12 @@ def report(path: Path) -> str:
         ]
         for r in (r for r in records if r["graph"] == graph):
             rate = f"{r['rate']:.0%} ({r['closures_wrong']} of {r['closures_wrong'] + r['closures_true']})"
+            passed = f"{r['wrong_passed']} / {r['true_passed']}"
+            if r["error"] and r["error"].startswith("TimeoutError"):
+                text.append(f"| {rate} | {r['config']} | not finished | | {passed} | | > {r['timeout']:g} |")
+                continue
             if r["error"]:
-                text.append(f"| {rate} | {r['config']} | failed: {r['error']} | | | | {r['seconds']:.2f} |")
+                text.append(f"| {rate} | {r['config']} | failed: {r['error']} | | {passed} | | {r['seconds']:.2f} |")
                 continue
             text.append(
                 f"| {rate} | {r['config']} | {r['ate_rmse']:.3f} | {r['ate_max']:.2f} | {r['wrong_passed']} / "
