@@ -310,7 +310,7 @@ def report(path: Path) -> str:
             "| wrong | configuration | ATE RMSE (m) | max (m) | wrong / true passed | wrong / true fit | time (s) |",
             "|---|---|---|---|---|---|---|",
         ]
-        for r in (r for r in records if r["graph"] == graph):
+        for r in sorted((r for r in records if r["graph"] == graph), key=lambda r: r["rate"]):
             rate = f"{r['rate']:.0%} ({r['closures_wrong']} of {r['closures_wrong'] + r['closures_true']})"
             passed = f"{r['wrong_passed']} / {r['true_passed']}"
             if r["error"] and r["error"].startswith("TimeoutError"):
@@ -359,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sphere-rates", default=None, help="rates for sphere2500 (default: --rates)")
     parser.add_argument("--method", default="AMOSNet")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--only", default=None, help="comma-separated configuration names")
+    parser.add_argument("--only", default=None, help="configuration names separated by semicolons")
     parser.add_argument("--json", type=Path, default=None, help="append one JSON line per configuration")
     parser.add_argument("--timeout", type=float, default=180, help="seconds each optimisation may take (default 180)")
     parser.add_argument("--label-plan", action="store_true", help="print the label plans of the ten methods and stop")
@@ -374,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
     graphs = ["fourlap"] if args.quick else args.graphs.split(",")
     rates = [0.3, 0.5, 0.7, 0.85] if args.quick else [float(r) for r in args.rates.split(",")]
     pop = population(args.method)
-    only = set(args.only.split(",")) if args.only else None
+    only = set(args.only.split(";")) if args.only else None
     out = args.json.open("a") if args.json else None
     for name in graphs:
         problem = PROBLEMS[name]()
