@@ -34,6 +34,7 @@ COMMANDS: dict[str, str] = {
     "retrieve": "retrieve",
     "verify": "verify",
     "train-btl": "train_btl",
+    "loop-closures": "loop_closures",
 }
 
 #: The modules whose ``add_cli`` the command line collects, in the order ``--help`` lists their commands.

@@ -1,0 +1,390 @@
+"""Loop closures a pose graph can trust: the gate inside GTSAM, measured as trajectory error (issue 31).
+
+What is real and what is simulated
+    The graphs and their ground truth are real standard pose graphs shipped with GTSAM 4.3 (``gtsam/Data``):
+    City10000 (2-D, 10,000 poses, ``T1_city10000_04.txt``, first measurement of each edge, ground truth
+    ``ISAM2_GT_city10000.txt``) and Sphere2500 (3-D, ``sphere2500.txt``, ground truth: the odometry of
+    ``sphere2500_groundtruth.txt`` composed), plus a synthetic 240-pose four-lap 2-D graph built here (60 poses a
+    lap on a 10 m circle, odometry σ = 5 cm / 0.01 rad, 60 true closures to the previous lap). The VPR score rows are
+    real top-10 rows of one corridor VPR-Bench method (default AMOSNet), but their **pairing with closures is
+    simulated**: a true closure gets a row drawn from the rows whose top-1 answer is correct, a wrong closure one from
+    the rows whose top-1 is wrong (with replacement).
+
+Wrong closures
+    ``rate`` = wrong / (true + wrong) closures; wrong closures join random vertex pairs (|i - j| > 1, not already an
+    edge; Sünderhauf and Protzel's protocol) with the measurement and noise model of a random true closure.
+
+Configurations (same graph, same seed, LM = GTSAM's Levenberg–Marquardt with default parameters from the odometry
+guess, the first pose held by a prior)
+    all closures + LM; true closures only + LM (the floor); fixed SU threshold (accept SU <= the median SU of the
+    method's rows, no labels) + LM; the certified gate (p* = 0.9, δ = 0.1, ``calibrate_arrays`` on 200 rows drawn
+    with replacement from the method's rows, as ``benchmarks/gate_efficiency.py`` resamples) + LM; all closures with
+    a Huber / Cauchy / DCS kernel; all closures with GNC (TLS, odometry as known inliers, thresholds at the 0.99 χ²
+    quantile); the gate followed by GNC. All through ``vpr_uncertainty.pipeline.loop_closures``.
+
+Metrics
+    ATE RMSE and max translation error after SE(3) Umeyama alignment without scale (``evo``); closures passed to the
+    optimiser (wrong / true); closures the solution fits (whitened error within the 0.99 χ² quantile), wrong / true;
+    optimiser seconds (wall clock, one thread of a shared machine: compare within a run only).
+
+Usage
+    nice python benchmarks/loop_closure_slam.py [--quick] [--graphs fourlap,sphere2500,city10000]
+        [--rates 0.3,0.5,0.7] [--method AMOSNet] [--seed 0] [--json out.jsonl]
+    ``--quick``: the four-lap graph at 0.3, 0.5, 0.7 and 0.85 only (about a minute). Results are appended one JSON line
+    per configuration as they finish, so a cut run keeps what it measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2
+
+from vpr_uncertainty.calibration import calibrate_arrays
+from vpr_uncertainty.data import read_results
+from vpr_uncertainty.evaluation.metrics import correct_at_n
+from vpr_uncertainty.pipeline.loop_closures import closure_mask, gtsam_module, optimize, read_graph
+from vpr_uncertainty.scores import statistical_uncertainty
+
+gtsam = gtsam_module()
+GTSAM_DATA = Path(gtsam.__file__).parent / "Data"
+
+
+@dataclass
+class Problem:
+    name: str
+    graph: Any  # odometry + true closures
+    initial: Any  # the odometry guess
+    truth: np.ndarray  # (N, 8) id x y z qx qy qz qw
+
+
+def _rows(values: Any) -> np.ndarray:
+    from vpr_uncertainty.pipeline.loop_closures import _poses
+
+    return _poses(values)
+
+
+def four_lap(seed: int = 0) -> Problem:
+    rng = np.random.default_rng(seed)
+    n_lap, laps, radius = 60, 4, 10.0
+    step = 2 * np.pi / n_lap
+    truth = [
+        gtsam.Pose2(radius * np.cos(i * step), radius * np.sin(i * step), i * step + np.pi / 2)
+        for i in range(n_lap * laps)
+    ]
+    odo_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.05, 0.05, 0.01]))
+    graph, initial = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    initial.insert(0, truth[0])
+    for i in range(1, len(truth)):
+        delta = truth[i - 1].between(truth[i])
+        noisy = delta.compose(gtsam.Pose2(*(rng.normal(0, [0.05, 0.05, 0.01]))))
+        graph.add(gtsam.BetweenFactorPose2(i - 1, i, noisy, odo_noise))
+        initial.insert(i, initial.atPose2(i - 1).compose(noisy))
+    candidates = [(i - n_lap, i) for i in range(n_lap, len(truth))]
+    for a, b in (candidates[i] for i in rng.choice(len(candidates), 60, replace=False)):
+        delta = truth[a].between(truth[b]).compose(gtsam.Pose2(*(rng.normal(0, [0.05, 0.05, 0.01]))))
+        graph.add(gtsam.BetweenFactorPose2(a, b, delta, odo_noise))
+    values = gtsam.Values()
+    for i, pose in enumerate(truth):
+        values.insert(i, pose)
+    return Problem("four-lap (240 poses)", graph, initial, _rows(values))
+
+
+def city10000() -> Problem:
+    graph, initial = read_graph(GTSAM_DATA / "T1_city10000_04.txt")
+    values = gtsam.Values()
+    for i, (x, y, theta) in enumerate(np.loadtxt(GTSAM_DATA / "ISAM2_GT_city10000.txt")):
+        values.insert(i, gtsam.Pose2(x, y, theta))
+    return Problem("city10000", graph, initial, _rows(values))
+
+
+def sphere2500() -> Problem:
+    graph, initial = read_graph(GTSAM_DATA / "sphere2500.txt")
+    _, truth = read_graph(GTSAM_DATA / "sphere2500_groundtruth.txt")
+    return Problem("sphere2500", graph, initial, _rows(truth))
+
+
+PROBLEMS = {"fourlap": four_lap, "city10000": city10000, "sphere2500": sphere2500}
+
+
+def _edges(graph: Any) -> np.ndarray:
+    return np.array([graph.at(i).keys() for i in range(graph.size())])
+
+
+def with_wrong_closures(problem: Problem, rate: float, rng: np.random.Generator) -> tuple[Any, np.ndarray, np.ndarray]:
+    """The graph with wrong closures added; its closure edges (E, 2) and whether each is true (E,)."""
+    edges = _edges(problem.graph)
+    closure = np.abs(edges[:, 1] - edges[:, 0]) != 1
+    true_index = np.flatnonzero(closure)
+    n_wrong = round(len(true_index) * rate / (1 - rate))
+    n_poses = problem.truth.shape[0]
+    existing = {tuple(sorted(e)) for e in edges.tolist()}
+    graph = problem.graph.clone()
+    wrong = []
+    while len(wrong) < n_wrong:
+        a, b = sorted(rng.integers(0, n_poses, 2).tolist())
+        if b - a <= 1 or (a, b) in existing:
+            continue
+        existing.add((a, b))
+        model = graph.at(int(rng.choice(true_index)))
+        graph.add(type(model)(a, b, model.measured(), model.noiseModel()))
+        wrong.append((a, b))
+    closures = np.concatenate([edges[true_index], np.array(wrong, dtype=np.int64).reshape(-1, 2)])
+    return graph, closures, np.r_[np.ones(len(true_index), bool), np.zeros(len(wrong), bool)]
+
+
+@dataclass
+class Population:
+    name: str
+    scores: np.ndarray
+    correct: np.ndarray
+
+
+def population(method: str) -> Population:
+    data = Path(os.environ.get("VPR_UNCERTAINTY_DATA", "../shared/data"))
+    root = data / "vprbench" if (data / "vprbench").is_dir() else data
+    retrieval = read_results(
+        root / f"precomputed_matches/corridor/{method}/precomputed_data_corrected.npy",
+        ground_truth=root / "corridor/ground_truth_new.npy",
+    )
+    correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
+    return Population(method, np.asarray(retrieval.scores[:, :10], dtype=np.float64), np.asarray(correct, bool))
+
+
+def score_rows(pop: Population, is_true: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    good, bad = np.flatnonzero(pop.correct), np.flatnonzero(~pop.correct)
+    rows = np.where(is_true, rng.choice(good, is_true.size), rng.choice(bad, is_true.size))
+    return pop.scores[rows]
+
+
+def calibrated_gate(pop: Population, seed: int, n: int = 200, target: float = 0.9) -> Any:
+    rng = np.random.default_rng(10_000 + seed)
+    while True:
+        rows = rng.integers(0, len(pop.scores), n)
+        if 0 < pop.correct[rows].sum() < n:
+            break
+    return calibrate_arrays(pop.scores[rows], pop.correct[rows], target_precision=target, delta=0.1, seed=seed)
+
+
+class SUThreshold:
+    """Accept rows whose SU is at most the median SU of the method's rows (fixed, no labels)."""
+
+    def __init__(self, pop: Population) -> None:
+        self.cut = float(np.median(statistical_uncertainty(pop.scores, k=10)))
+
+    def accept(self, scores: np.ndarray) -> np.ndarray:
+        return statistical_uncertainty(scores, k=10) <= self.cut
+
+
+class Everything:
+    def accept(self, scores: np.ndarray) -> np.ndarray:
+        return np.ones(len(scores), bool)
+
+
+class TruthOracle:
+    def __init__(self, rows: np.ndarray, is_true: np.ndarray) -> None:
+        self.is_true = is_true
+
+    def accept(self, scores: np.ndarray) -> np.ndarray:
+        return self.is_true
+
+
+def ate(values: Any, truth: np.ndarray) -> tuple[float, float]:
+    from evo.core import metrics
+    from evo.core.trajectory import PoseTrajectory3D
+
+    def trajectory(rows: np.ndarray) -> PoseTrajectory3D:
+        return PoseTrajectory3D(rows[:, 1:4], rows[:, [7, 4, 5, 6]], rows[:, 0].astype(float))
+
+    estimate, reference = trajectory(_rows(values)), trajectory(truth)
+    estimate.align(reference, correct_scale=False)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((reference, estimate))
+    return ape.get_statistic(metrics.StatisticsType.rmse), ape.get_statistic(metrics.StatisticsType.max)
+
+
+def fits(graph: Any, values: Any, closures: np.ndarray, is_true: np.ndarray) -> tuple[int, int]:
+    """Wrong and true closures whose whitened error at the solution is within the 0.99 χ² quantile."""
+    where = {tuple(sorted(graph.at(i).keys())): i for i in range(graph.size())}
+    fit = np.zeros(len(closures), bool)
+    for e, (a, b) in enumerate(closures.tolist()):
+        factor = graph.at(where[(min(a, b), max(a, b))])
+        fit[e] = factor.error(values) <= chi2.ppf(0.99, factor.dim()) / 2
+    return int((fit & ~is_true).sum()), int((fit & is_true).sum())
+
+
+def in_child(function: Any, timeout: float) -> Any:
+    """``function()`` in a forked process, given ``timeout`` seconds (a TimeoutError after them)."""
+    context = multiprocessing.get_context("fork")
+    receive, send = context.Pipe(duplex=False)
+    process = context.Process(target=lambda: send.send(function()))
+    process.start()
+    try:
+        if not receive.poll(timeout):
+            raise TimeoutError(f"did not finish within {timeout:g} s")
+        return receive.recv()
+    except EOFError:
+        raise RuntimeError(f"the optimiser's process died (exit code {process.exitcode})") from None
+    finally:
+        process.kill()
+        process.join()
+
+
+def run_one(
+    problem: Problem, rate: float, pop: Population, seed: int, out: Any, only: set[str] | None, timeout: float
+) -> None:
+    rng = np.random.default_rng(seed)
+    graph, closures, is_true = with_wrong_closures(problem, rate, rng)
+    rows = score_rows(pop, is_true, rng)
+    edges = _edges(graph)
+    gate = calibrated_gate(pop, seed)
+    filters = {
+        "all": Everything(),
+        "true only (floor)": TruthOracle(rows, is_true),
+        "fixed SU (median)": SUThreshold(pop),
+        "gate p*=0.9": gate,
+    }
+    configs = [
+        ("all closures, LM", "all", "none"),
+        ("true only, LM (floor)", "true only (floor)", "none"),
+        ("fixed SU, LM", "fixed SU (median)", "none"),
+        ("gate p*=0.9, LM", "gate p*=0.9", "none"),
+        ("all, Huber", "all", "huber"),
+        ("all, Cauchy", "all", "cauchy"),
+        ("all, DCS", "all", "dcs"),
+        ("gate p*=0.9 + GNC", "gate p*=0.9", "gnc"),
+        ("all, GNC (TLS)", "all", "gnc"),
+    ]
+    certificate = gate.precision_lower_bound
+    for name, filter_name, robust in configs:
+        if only and name not in only:
+            continue
+        keep = closure_mask(edges, closures, rows, filters[filter_name])
+        kept = gtsam.NonlinearFactorGraph()
+        for i in np.flatnonzero(keep):
+            kept.add(graph.at(int(i)))
+        passed = closure_mask(closures, closures, rows, filters[filter_name])
+
+        def measure(kept: Any = kept, robust: str = robust) -> tuple:
+            start = time.perf_counter()
+            values = optimize(kept, problem.initial, robust=robust)
+            seconds = time.perf_counter() - start
+            return (seconds, *ate(values, problem.truth), *fits(graph, values, closures, is_true))
+
+        start = time.perf_counter()
+        try:
+            seconds, rmse, worst, wrong_fit, true_fit = in_child(measure, timeout)
+            error = None
+        except Exception as failure:  # report it, do not hide it
+            seconds, error = time.perf_counter() - start, f"{type(failure).__name__}: {failure}"
+            rmse = worst = wrong_fit = true_fit = None
+        record = {
+            "graph": problem.name, "rate": rate, "method": pop.name, "seed": seed, "config": name,
+            "closures_true": int(is_true.sum()), "closures_wrong": int((~is_true).sum()),
+            "wrong_passed": int((passed & ~is_true).sum()), "true_passed": int((passed & is_true).sum()),
+            "wrong_fit": wrong_fit, "true_fit": true_fit, "ate_rmse": rmse, "ate_max": worst,
+            "seconds": round(seconds, 3), "gate_lower_bound": certificate, "error": error, "timeout": timeout,
+        }  # fmt: skip
+        print(json.dumps(record), flush=True)
+        if out is not None:
+            out.write(json.dumps(record) + "\n")
+            out.flush()
+
+
+def report(path: Path) -> str:
+    """Markdown tables of a results file: one per graph, one row per (rate, configuration)."""
+    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    text = []
+    for graph in dict.fromkeys(r["graph"] for r in records):
+        text += [
+            f"\n**{graph}**\n",
+            "| wrong | configuration | ATE RMSE (m) | max (m) | wrong / true passed | wrong / true fit | time (s) |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for r in sorted((r for r in records if r["graph"] == graph), key=lambda r: r["rate"]):
+            rate = f"{r['rate']:.0%} ({r['closures_wrong']} of {r['closures_wrong'] + r['closures_true']})"
+            passed = f"{r['wrong_passed']} / {r['true_passed']}"
+            if r["error"] and r["error"].startswith("TimeoutError"):
+                text.append(f"| {rate} | {r['config']} | not finished | | {passed} | | > {r['timeout']:g} |")
+                continue
+            if r["error"]:
+                text.append(f"| {rate} | {r['config']} | failed: {r['error']} | | {passed} | | {r['seconds']:.2f} |")
+                continue
+            text.append(
+                f"| {rate} | {r['config']} | {r['ate_rmse']:.3f} | {r['ate_max']:.2f} | {r['wrong_passed']} / "
+                f"{r['true_passed']} | {r['wrong_fit']} / {r['true_fit']} | {r['seconds']:.2f} |"
+            )
+    return "\n".join(text)
+
+
+METHODS = "AMOSNet,AlexNet_VPR,CALC,CoHOG,HOG,HybridNet,NetVLAD,RegionVLAD,ap-gem-r101,denseVLAD"
+
+
+def label_plans(methods: list[str], sizes: tuple[int, ...] = (100, 200, 400, 800)) -> str:
+    """The label plan (``plan_labels``, 50 simulations, seed 0) of each method at p* = 0.9 and 0.99, δ = 0.1: the
+    method's 111 rows labelled, a pool of the rows repeated 8 times (the resampled population)."""
+    from vpr_uncertainty.calibration.plan import plan_labels
+
+    lines = [
+        "| method | p* | P(certified) at " + " / ".join(map(str, sizes)) + " labels | mean recall |",
+        "|---|---|---|---|",
+    ]
+    for method in methods:
+        pop = population(method)
+        for target in (0.9, 0.99):
+            plan = plan_labels(
+                pop.scores, pop.correct, target_precision=target, unlabelled=np.tile(pop.scores, (8, 1)),
+                sizes=sizes, draws=50, seed=0, progress=False,
+            )  # fmt: skip
+            certified = " / ".join(f"{c:.2f}" for c in plan.certified)
+            recall = " / ".join(f"{r:.3f}" for r in plan.mean_recall)
+            lines.append(f"| {method} | {target} | {certified} | {recall} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="the four-lap graph only")
+    parser.add_argument("--graphs", default="fourlap,sphere2500,city10000")
+    parser.add_argument("--rates", default="0.3,0.5,0.7")
+    parser.add_argument("--sphere-rates", default=None, help="rates for sphere2500 (default: --rates)")
+    parser.add_argument("--method", default="AMOSNet")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--only", default=None, help="configuration names separated by semicolons")
+    parser.add_argument("--json", type=Path, default=None, help="append one JSON line per configuration")
+    parser.add_argument("--timeout", type=float, default=180, help="seconds each optimisation may take (default 180)")
+    parser.add_argument("--label-plan", action="store_true", help="print the label plans of the ten methods and stop")
+    parser.add_argument("--report", type=Path, default=None, help="print the tables of a --json file and stop")
+    args = parser.parse_args(argv)
+    if args.label_plan:
+        print(label_plans(METHODS.split(",")))
+        return 0
+    if args.report:
+        print(report(args.report))
+        return 0
+    graphs = ["fourlap"] if args.quick else args.graphs.split(",")
+    rates = [0.3, 0.5, 0.7, 0.85] if args.quick else [float(r) for r in args.rates.split(",")]
+    pop = population(args.method)
+    only = set(args.only.split(";")) if args.only else None
+    out = args.json.open("a") if args.json else None
+    for name in graphs:
+        problem = PROBLEMS[name]()
+        graph_rates = (
+            [float(r) for r in args.sphere_rates.split(",")] if name == "sphere2500" and args.sphere_rates else rates
+        )
+        for rate in graph_rates:
+            run_one(problem, rate, pop, args.seed, out, only, args.timeout)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,181 @@
+"""``loop-closures``: the gate's decisions applied to a pose graph, and GTSAM on the result (hand-made small graphs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vpr_uncertainty.pipeline.loop_closures import LoopClosureConf, closure_mask
+
+
+class FirstScoreGate:
+    """Accepts a row when its top score is above 0.5 (a stand-in for a calibrated gate)."""
+
+    k = 3
+
+    def accept(self, scores):
+        scores = np.asarray(scores)
+        if scores.shape[1] != self.k:
+            raise ValueError(f"the gate was calibrated at k={self.k}, got scores of shape {scores.shape}")
+        return scores[:, 0] > 0.5
+
+
+GOOD, BAD = [0.9, 0.2, 0.1], [0.3, 0.29, 0.28]
+
+# a square of 4 poses a side walked twice: 8 poses, odometry (i, i+1), closures (4, 0) and (7, 3)
+EDGES = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 6), (6, 7), (4, 0), (7, 3)]
+
+
+def test_keeps_odometry_and_the_accepted_closures():
+    keep = closure_mask(EDGES, [(0, 4), (7, 3)], [GOOD, BAD], FirstScoreGate())  # either direction matches
+    assert keep.tolist() == [True] * 7 + [True, False]
+    keep = closure_mask([*EDGES, (-1, -1)], [(4, 0), (3, 7)], [BAD, GOOD], FirstScoreGate())  # (-1, -1): a prior
+    assert keep.tolist() == [True] * 7 + [False, True, True]
+
+
+def test_scored_odometry_is_gated_too():
+    assert closure_mask(EDGES, [(4, 0), (7, 3), (1, 2)], [GOOD, GOOD, BAD], FirstScoreGate())[1] == np.False_
+
+
+@pytest.mark.parametrize(
+    ("closures", "rows", "message"),
+    [
+        ([(4, 0), (7, 3), (2, 6)], [GOOD, GOOD, GOOD], r"1 edges of the score file are not in the graph: \(2, 6\)"),
+        ([(4, 0)], [GOOD], r"1 loop closures of the graph have no score row: \(3, 7\)"),
+        ([(4, 0), (7, 3), (0, 4)], [GOOD, GOOD, GOOD], r"edges listed twice in the score file: \(0, 4\)"),
+        ([(4, 0), (7, 3)], [GOOD], r"scores must have shape \(E, K\) with E = 2"),
+        ([(4, 0), (7, 3)], [[0.9, 0.1], [0.8, 0.1]], "calibrated at k=3"),
+    ],
+)
+def test_errors_name_the_edges(closures, rows, message):
+    with pytest.raises(ValueError, match=message):
+        closure_mask(EDGES, closures, rows, FirstScoreGate())
+
+
+# --- with GTSAM --------------------------------------------------------------------------------------------------
+
+
+def _square(gtsam, *, drift=0.0):
+    """Ground truth of the 8 poses, and a g2o text of the graph: exact measurements, drifting vertices."""
+    truth = [gtsam.Pose2(*xy, np.pi / 2 * (i % 4)) for i, xy in enumerate([(0, 0), (2, 0), (2, 2), (0, 2)] * 2)]
+    lines = [f"VERTEX_SE2 {i} {p.x() + drift * i} {p.y()} {p.theta()}" for i, p in enumerate(truth)]
+    for a, b in EDGES:
+        d = truth[a].between(truth[b])
+        lines.append(f"EDGE_SE2 {a} {b} {d.x()} {d.y()} {d.theta()} 100 0 0 100 0 400")
+    return truth, "\n".join(lines) + "\n"
+
+
+@pytest.fixture
+def gtsam():
+    return pytest.importorskip("gtsam")
+
+
+@pytest.fixture
+def gate_file(tmp_path):
+    """A gate calibrated on synthetic rows: correct answers stand out of their runners-up, wrong ones do not."""
+    from vpr_uncertainty.calibration import calibrate_arrays
+
+    rng = np.random.default_rng(0)
+    correct = rng.random(300) < 0.7
+    top = np.where(correct, rng.uniform(0.7, 0.9, 300), rng.uniform(0.3, 0.5, 300))
+    scores = np.sort(np.c_[top, rng.uniform(0.2, 0.3, (300, 9))], axis=1)[:, ::-1]
+    gate = calibrate_arrays(scores, correct, target_precision=0.9, delta=0.1)
+    assert gate.accept(np.array([[0.8, *[0.25] * 9]]))[0] and not gate.accept(np.array([[0.4, *[0.3] * 9]]))[0]
+    return gate.save(tmp_path / "gate.json")
+
+
+GOOD10, BAD10 = [0.8, *[0.25] * 9], [0.4, *[0.3] * 9]
+
+
+def test_command_filters_a_g2o_graph_and_round_trips(gtsam, gate_file, tmp_path, capsys):
+    from vpr_uncertainty.cli import main
+    from vpr_uncertainty.pipeline.loop_closures import read_graph
+
+    _, text = _square(gtsam)
+    (tmp_path / "graph.g2o").write_text(text)
+    np.savez(tmp_path / "closures.npz", edges=[(0, 4), (3, 7)], scores=[GOOD10, BAD10])
+    argv = ["loop-closures", str(tmp_path / "graph.g2o"), "--scores", str(tmp_path / "closures.npz")]
+    assert main([*argv, "--gate", str(gate_file), "--out", str(tmp_path / "filtered.g2o")]) == 0
+    assert "kept 1 of 2 scored loop closures and 7 other edges" in capsys.readouterr().out
+    assert (tmp_path / "graph.g2o").read_text() == text  # the input is never modified
+    graph, initial = read_graph(tmp_path / "filtered.g2o")
+    assert sorted(tuple(graph.at(i).keys()) for i in range(graph.size())) == sorted(EDGES[:8])
+    assert initial.size() == 8 and graph.at(7).measured().equals(
+        read_graph(tmp_path / "graph.g2o")[0].at(7).measured(), 1e-9
+    )
+
+    np.savez(tmp_path / "short.npz", edges=[(0, 4), (3, 7)], scores=[GOOD10[:5], BAD10[:5]])
+    assert (
+        main(
+            [
+                *argv[:2],
+                "--scores",
+                str(tmp_path / "short.npz"),
+                "--gate",
+                str(gate_file),
+                "--out",
+                str(tmp_path / "x.g2o"),
+            ]
+        )
+        == 2
+    )
+    assert "calibrated at k=10" in capsys.readouterr().err
+
+
+def test_an_edge_to_an_undefined_vertex_is_an_error(gtsam, tmp_path):
+    from vpr_uncertainty.pipeline.loop_closures import read_graph
+
+    _, text = _square(gtsam)
+    (tmp_path / "graph.g2o").write_text(text + "EDGE_SE2 2 9 0 0 0 100 0 0 100 0 400\n")
+    with pytest.raises(ValueError, match=r"edges name vertices the file does not define: \[9\]"):
+        read_graph(tmp_path / "graph.g2o")
+
+
+def test_optimisation_reaches_the_ground_truth_and_gnc_rejects_an_outlier(gtsam, tmp_path):
+    from vpr_uncertainty.pipeline.loop_closures import optimize, read_graph
+
+    truth, text = _square(gtsam, drift=0.3)  # the vertices drift 0.3 m a pose; the measurements are exact
+    (tmp_path / "graph.g2o").write_text(text)
+    graph, initial = read_graph(tmp_path / "graph.g2o")
+
+    def error(values):
+        return max(np.linalg.norm(values.atPose2(i).translation() - truth[i].translation()) for i in range(8))
+
+    assert error(initial) > 1 and error(optimize(graph, initial)) < 1e-6
+    graph.add(gtsam.BetweenFactorPose2(1, 6, gtsam.Pose2(5, -3, 1), graph.at(0).noiseModel()))  # a wrong closure
+    assert error(optimize(graph, initial)) > 0.1
+    assert error(optimize(graph, initial, robust="gnc")) < 1e-6
+    assert error(optimize(graph, initial, robust="cauchy")) < error(optimize(graph, initial))
+
+
+def test_reads_the_city10000_layout_and_3d_g2o(gtsam, tmp_path):
+    from vpr_uncertainty.pipeline.loop_closures import optimize, read_graph
+
+    city = "EDGE2 0 1 1 0 1 1.0 0.0 0.0\nEDGE2 1 1 2 0 2 1.0 0.0 1.5707963 7 7 7\nEDGE2 2 1 0 0 1 -1 1 -1.5707963\n"
+    (tmp_path / "city.txt").write_text(city)
+    graph, initial = read_graph(tmp_path / "city.txt")
+    assert graph.size() == 3 and initial.atPose2(2).equals(gtsam.Pose2(2, 0, np.pi / 2), 1e-6)  # the first candidate
+    (tmp_path / "bad.txt").write_text(city + "EDGE2 2 1 3 0 2 1.0 0.0\n")
+    with pytest.raises(ValueError, match=r"bad.txt, line 4: expected 'EDGE2 i 1 j 0 N x y θ"):
+        read_graph(tmp_path / "bad.txt")
+
+    info = " ".join(["100 0 0 0 0 0", "100 0 0 0 0", "100 0 0 0", "400 0 0", "400 0", "400"])
+    se3 = "".join(f"EDGE_SE3:QUAT {i} {i + 1} 1 0 0 0 0 0 1 {info}\n" for i in range(3))
+    (tmp_path / "line.g2o").write_text(se3 + f"EDGE_SE3:QUAT 0 3 3 0 0 0 0 0 1 {info}\n")
+    graph, initial = read_graph(tmp_path / "line.g2o")
+    assert graph.size() == 4 and np.allclose(optimize(graph, initial).atPose3(3).translation(), [3, 0, 0])
+    (tmp_path / "cut.g2o").write_text(se3 + "EDGE_SE3:QUAT 0 3 3 0 0\n")
+    with pytest.raises(ValueError, match=r"cut\.g2o, line 4: EDGE_SE3:QUAT needs 31 fields, got 6"):
+        read_graph(tmp_path / "cut.g2o")
+
+
+def test_conf_defaults():
+    assert LoopClosureConf() == LoopClosureConf(optimize=False, robust="none", inlier_probability=0.99)
+
+
+def test_without_gtsam_the_error_names_the_extra(monkeypatch):
+    from vpr_uncertainty.pipeline.loop_closures import gtsam_module
+
+    monkeypatch.setitem(__import__("sys").modules, "gtsam", None)
+    with pytest.raises(ImportError, match=r"pip install 'vpr-uncertainty\[slam\]'"):
+        gtsam_module()
