@@ -29,7 +29,7 @@ Metrics
 
 Usage
     nice python benchmarks/loop_closure_slam.py [--quick] [--graphs fourlap,sphere2500,city10000]
-        [--rates 0.3,0.5,0.7] [--method AMOSNet] [--seed 0] [--json out.jsonl]
+        [--rates 0.3,0.5,0.7] [--method AMOSNet] [--seed 0] [--rankings margin,SU,CAL] [--json out.jsonl]
     ``--quick``: the four-lap graph at 0.3, 0.5, 0.7 and 0.85 only (about a minute). Results are appended one JSON line
     per configuration as they finish, so a cut run keeps what it measured.
 """
@@ -166,13 +166,15 @@ def score_rows(pop: Population, is_true: np.ndarray, rng: np.random.Generator) -
     return pop.scores[rows]
 
 
-def calibrated_gate(pop: Population, seed: int, n: int = 200, target: float = 0.9) -> Any:
+def calibrated_gate(pop: Population, seed: int, n: int = 200, target: float = 0.9, rankings: Any = None) -> Any:
     rng = np.random.default_rng(10_000 + seed)
     while True:
         rows = rng.integers(0, len(pop.scores), n)
         if 0 < pop.correct[rows].sum() < n:
             break
-    return calibrate_arrays(pop.scores[rows], pop.correct[rows], target_precision=target, delta=0.1, seed=seed)
+    return calibrate_arrays(
+        pop.scores[rows], pop.correct[rows], target_precision=target, delta=0.1, seed=seed, rankings=rankings
+    )
 
 
 class SUThreshold:
@@ -240,13 +242,20 @@ def in_child(function: Any, timeout: float) -> Any:
 
 
 def run_one(
-    problem: Problem, rate: float, pop: Population, seed: int, out: Any, only: set[str] | None, timeout: float
+    problem: Problem,
+    rate: float,
+    pop: Population,
+    seed: int,
+    out: Any,
+    only: set[str] | None,
+    timeout: float,
+    rankings: Any = None,
 ) -> None:
     rng = np.random.default_rng(seed)
     graph, closures, is_true = with_wrong_closures(problem, rate, rng)
     rows = score_rows(pop, is_true, rng)
     edges = _edges(graph)
-    gate = calibrated_gate(pop, seed)
+    gate = calibrated_gate(pop, seed, rankings=rankings)
     filters = {
         "all": Everything(),
         "true only (floor)": TruthOracle(rows, is_true),
@@ -363,6 +372,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="append one JSON line per configuration")
     parser.add_argument("--timeout", type=float, default=180, help="seconds each optimisation may take (default 180)")
     parser.add_argument("--label-plan", action="store_true", help="print the label plans of the ten methods and stop")
+    parser.add_argument(
+        "--rankings",
+        default=None,
+        help="the gate's rankings, δ shared evenly (default: calibrate's default); margin,SU,CAL is the default of "
+        "the first evidence tables",
+    )
     parser.add_argument("--report", type=Path, default=None, help="print the tables of a --json file and stop")
     args = parser.parse_args(argv)
     if args.label_plan:
@@ -375,6 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     rates = [0.3, 0.5, 0.7, 0.85] if args.quick else [float(r) for r in args.rates.split(",")]
     pop = population(args.method)
     only = set(args.only.split(";")) if args.only else None
+    rankings = args.rankings.split(",") if args.rankings else None
     out = args.json.open("a") if args.json else None
     for name in graphs:
         problem = PROBLEMS[name]()
@@ -382,7 +398,7 @@ def main(argv: list[str] | None = None) -> int:
             [float(r) for r in args.sphere_rates.split(",")] if name == "sphere2500" and args.sphere_rates else rates
         )
         for rate in graph_rates:
-            run_one(problem, rate, pop, args.seed, out, only, args.timeout)
+            run_one(problem, rate, pop, args.seed, out, only, args.timeout, rankings)
     return 0
 
 
