@@ -120,6 +120,10 @@ def test_command_filters_a_g2o_graph_and_round_trips(gtsam, gate_file, tmp_path,
         == 2
     )
     assert "calibrated at k=10" in capsys.readouterr().err
+    for extra in (["--robust", "gnc"], ["--optimize", "--inlier-probability", "1.5"]):  # ignored or NaN before
+        assert main([*argv, "--gate", str(gate_file), "--out", str(tmp_path / "y.g2o"), *extra]) == 2
+        assert "needs --optimize; --inlier-probability must lie in (0, 1)" in capsys.readouterr().err
+        assert not (tmp_path / "y.g2o").exists()
 
 
 def test_an_edge_to_an_undefined_vertex_is_an_error(gtsam, tmp_path):

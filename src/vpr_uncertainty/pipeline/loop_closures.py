@@ -178,6 +178,8 @@ def main(conf: LoopClosureConf, graph: Path, scores: Path, gate: Path, out: Path
     """Filter ``graph`` by the ``gate``'s decisions on the ``scores`` file, write it to ``out`` (g2o) and, with
     ``conf.optimize``, the optimised poses to ``out`` with the suffix ``.tum``; returns ``out``."""
     gtsam, out, partial = gtsam_module(), Path(out), Path(f"{out}.partial")
+    if (conf.robust != "none" and not conf.optimize) or not 0 < conf.inlier_probability < 1:
+        raise ValueError(f"--robust {conf.robust} needs --optimize; --inlier-probability must lie in (0, 1)")
     if out.exists() and out.resolve() == Path(graph).resolve():
         raise ValueError(f"--out {out} is the input graph, which is never modified: name another file")
     with np.load(scores, allow_pickle=False) as file:
