@@ -221,7 +221,8 @@ class Gate:
 
     def probability_correct(self, scores: object) -> np.ndarray:
         """P(correct top-1) of shape (Q,), in [0, 1], from top-K similarities of shape (Q, K) sorted descending."""
-        self.confidence(scores, of="rule")  # the rows the rule refuses (it may read other features) have no P
+        if self.rule is not self.calibrator:  # the rows the rule refuses (it may read other features) have no P
+            self.confidence(scores, of="rule")
         return self.calibrator.probability_from_confidence(self.confidence(scores))
 
     def accept(self, scores: object) -> np.ndarray:
