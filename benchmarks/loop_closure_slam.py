@@ -52,7 +52,7 @@ from scipy.stats import chi2
 from vpr_uncertainty.calibration import calibrate_arrays
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.evaluation.metrics import correct_at_n
-from vpr_uncertainty.pipeline.loop_closures import closure_mask, gtsam_module, optimize, read_graph
+from vpr_uncertainty.pipeline.loop_closures import closure_mask, graph_edges, gtsam_module, optimize, read_graph
 from vpr_uncertainty.scores import statistical_uncertainty
 
 gtsam = gtsam_module()
@@ -116,13 +116,9 @@ def sphere2500() -> Problem:
 PROBLEMS = {"fourlap": four_lap, "city10000": city10000, "sphere2500": sphere2500}
 
 
-def _edges(graph: Any) -> np.ndarray:
-    return np.array([graph.at(i).keys() for i in range(graph.size())])
-
-
 def with_wrong_closures(problem: Problem, rate: float, rng: np.random.Generator) -> tuple[Any, np.ndarray, np.ndarray]:
     """The graph with wrong closures added; its closure edges (E, 2) and whether each is true (E,)."""
-    edges = _edges(problem.graph)
+    edges = graph_edges(problem.graph)
     closure = np.abs(edges[:, 1] - edges[:, 0]) != 1
     true_index = np.flatnonzero(closure)
     n_wrong = round(len(true_index) * rate / (1 - rate))
@@ -254,7 +250,7 @@ def run_one(
     rng = np.random.default_rng(seed)
     graph, closures, is_true = with_wrong_closures(problem, rate, rng)
     rows = score_rows(pop, is_true, rng)
-    edges = _edges(graph)
+    edges = graph_edges(graph)
     gate = calibrated_gate(pop, seed, rankings=rankings)
     filters = {
         "all": Everything(),

@@ -28,7 +28,7 @@ from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.pipeline.options import add_options, conf_from_args, option, output_file
 from vpr_uncertainty.plugins import import_or_explain
 
-__all__ = ["LoopClosureConf", "closure_mask", "filter_loop_closures", "main", "optimize", "read_graph"]
+__all__ = ["LoopClosureConf", "closure_mask", "filter_loop_closures", "graph_edges", "main", "optimize", "read_graph"]
 
 #: Fields of a line of each g2o / TORO tag (with the full information matrix).
 WIDTHS = {"EDGE_SE2": 12, "EDGE2": 12, "EDGE_SE3:QUAT": 31, "EDGE3": 30, "VERTEX_SE2": 5, "VERTEX_SE3:QUAT": 9}
@@ -81,7 +81,8 @@ def closure_mask(edges: Any, closures: Any, scores: Any, gate: Any) -> np.ndarra
     return np.array([decision.get(pair, True) for pair in pairs], dtype=bool)
 
 
-def _edges(graph: Any) -> np.ndarray:
+def graph_edges(graph: Any) -> np.ndarray:
+    """The (M, 2) vertex ids of each factor of a GTSAM graph; (-1, -1) for a factor that is no edge (a prior)."""
     keys = [graph.at(i).keys() for i in range(graph.size())]
     return np.array([k if len(k) == 2 else (-1, -1) for k in keys], dtype=np.int64).reshape(-1, 2)
 
@@ -92,7 +93,7 @@ def filter_loop_closures(graph: Any, scores: Any, gate: Any) -> Any:
     ``scores`` is a mapping with ``edges`` (E, 2) and ``scores`` (E, K) (the score file's arrays); ``gate`` a
     :class:`~vpr_uncertainty.Gate`. ``graph`` is not modified.
     """
-    keep = closure_mask(_edges(graph), scores["edges"], scores["scores"], gate)
+    keep = closure_mask(graph_edges(graph), scores["edges"], scores["scores"], gate)
     filtered = gtsam_module().NonlinearFactorGraph()
     for index in np.flatnonzero(keep):
         filtered.add(graph.at(int(index)))
@@ -130,7 +131,7 @@ def read_graph(path: str | Path) -> tuple[Any, Any]:
         if missing := sorted(set(keys) - defined):
             raise ValueError(f"{path}: edges name vertices the file does not define: {missing[:5]}")
         return graph, initial
-    odometry = {edge[1]: graph.at(i).measured() for i, edge in enumerate(_edges(graph)) if edge[1] == edge[0] + 1}
+    odometry = {edge[1]: graph.at(i).measured() for i, edge in enumerate(graph_edges(graph)) if edge[1] == edge[0] + 1}
     pose = gtsam.Pose3() if is_3d else gtsam.Pose2()
     for key in keys:  # compose the odometry from the first vertex at the origin
         if key != keys[0] and not (key in odometry and initial.exists(key - 1)):
@@ -159,7 +160,7 @@ def optimize(graph: Any, initial: Any, *, robust: str = "none", inlier_probabili
     pose = initial.atPose3(first) if is_3d else initial.atPose2(first)
     prior = gtsam.PriorFactorPose3 if is_3d else gtsam.PriorFactorPose2
     graph.add(prior(first, pose, gtsam.noiseModel.Isotropic.Sigma(pose.dim(), 1e-6)))
-    closures = [i for i, edge in enumerate(_edges(graph)) if edge[0] >= 0 and abs(edge[1] - edge[0]) != 1]
+    closures = [i for i, edge in enumerate(graph_edges(graph)) if edge[0] >= 0 and abs(edge[1] - edge[0]) != 1]
     params = gtsam.LevenbergMarquardtParams()
     if robust == "gnc":
         gnc = gtsam.GncLMParams(params)
