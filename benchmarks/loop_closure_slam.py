@@ -8,11 +8,16 @@ What is real and what is simulated
     lap on a 10 m circle, odometry σ = 5 cm / 0.01 rad, 60 true closures to the previous lap). The VPR score rows are
     real top-10 rows of one corridor VPR-Bench method (default AMOSNet), but their **pairing with closures is
     simulated**: a true closure gets a row drawn from the rows whose top-1 answer is correct, a wrong closure one from
-    the rows whose top-1 is wrong (with replacement).
+    the rows whose top-1 is wrong (with replacement). ``--rows absent`` adds, for each corridor query, the row it
+    gets when its place (its positives ± 10 frames) is not in the map: 111 distinct wrong rows (a front end's wrong
+    closures mostly come from places it has not seen), and calibrates the gate on that population (answerable and
+    absent-place rows, the absent ones wrong and not answerable).
 
 Wrong closures
     ``rate`` = wrong / (true + wrong) closures; wrong closures join random vertex pairs (|i - j| > 1, not already an
     edge; Sünderhauf and Protzel's protocol) with the measurement and noise model of a random true closure.
+    ``--wrong-closures aliasing``: each moves the earlier end of a random true closure by 5-20 poses (perceptual
+    aliasing near an earlier revisit), keeping its measurement.
 
 Configurations (same graph, same seed, LM = GTSAM's Levenberg–Marquardt with default parameters from the odometry
 guess, the first pose held by a prior)
@@ -20,7 +25,9 @@ guess, the first pose held by a prior)
     method's rows, no labels) + LM; the certified gate (p* = 0.9, δ = 0.1, ``calibrate_arrays`` on 200 rows drawn
     with replacement from the method's rows, as ``benchmarks/gate_efficiency.py`` resamples) + LM; all closures with
     a Huber / Cauchy / DCS kernel; all closures with GNC (TLS, odometry as known inliers, thresholds at the 0.99 χ²
-    quantile); the gate followed by GNC. All through ``vpr_uncertainty.pipeline.loop_closures``.
+    quantile); the gate followed by GNC; the true closures among the gate's + LM (the best the gate's output allows:
+    what separates gate + GNC from the floor is the true closures the gate dropped, or wrong ones GNC kept). All
+    through ``vpr_uncertainty.pipeline.loop_closures``.
 
 Metrics
     ATE RMSE and max translation error after SE(3) Umeyama alignment without scale (``evo``); closures passed to the
@@ -30,6 +37,8 @@ Metrics
 Usage
     nice python benchmarks/loop_closure_slam.py [--quick] [--graphs fourlap,sphere2500,city10000]
         [--rates 0.3,0.5,0.7] [--method AMOSNet] [--seed 0] [--rankings margin,SU,CAL] [--json out.jsonl]
+        [--rows native|absent] [--labels 200] [--wrong-closures random|aliasing]
+    nice python benchmarks/loop_closure_slam.py --gates 10: what the gates of seeds 0-9 accept of the method's rows.
     ``--quick``: the four-lap graph at 0.3, 0.5, 0.7 and 0.85 only (about a minute). Results are appended one JSON line
     per configuration as they finish, so a cut run keeps what it measured.
 """
@@ -116,8 +125,18 @@ def sphere2500() -> Problem:
 PROBLEMS = {"fourlap": four_lap, "city10000": city10000, "sphere2500": sphere2500}
 
 
-def with_wrong_closures(problem: Problem, rate: float, rng: np.random.Generator) -> tuple[Any, np.ndarray, np.ndarray]:
-    """The graph with wrong closures added; its closure edges (E, 2) and whether each is true (E,)."""
+#: Poses an "aliasing" wrong closure is shifted from a true closure's earlier end (either way, uniformly).
+ALIASING_SHIFT = (5, 20)
+
+
+def with_wrong_closures(
+    problem: Problem, rate: float, rng: np.random.Generator, kind: str = "random"
+) -> tuple[Any, np.ndarray, np.ndarray]:
+    """The graph with wrong closures added; its closure edges (E, 2) and whether each is true (E,).
+
+    ``kind="random"``: between random vertex pairs, with the measurement of a random true closure (Sünderhauf and
+    Protzel). ``"aliasing"``: a random true closure (a, b) moved to (a ± 5…20 poses, b) with its own measurement: the
+    front end matched b to a place near an earlier revisit."""
     edges = graph_edges(problem.graph)
     closure = np.abs(edges[:, 1] - edges[:, 0]) != 1
     true_index = np.flatnonzero(closure)
@@ -127,11 +146,17 @@ def with_wrong_closures(problem: Problem, rate: float, rng: np.random.Generator)
     graph = problem.graph.clone()
     wrong = []
     while len(wrong) < n_wrong:
-        a, b = sorted(rng.integers(0, n_poses, 2).tolist())
-        if b - a <= 1 or (a, b) in existing:
+        if kind == "aliasing":
+            model = graph.at(int(rng.choice(true_index)))
+            a, b = (int(key) for key in model.keys())
+            a += int(rng.choice([-1, 1]) * rng.integers(ALIASING_SHIFT[0], ALIASING_SHIFT[1] + 1))
+        else:  # the draws in this order keep the seeds of the first evidence tables
+            a, b = sorted(rng.integers(0, n_poses, 2).tolist())
+        if not 0 <= a < n_poses or abs(b - a) <= 1 or tuple(sorted((a, b))) in existing:
             continue
-        existing.add((a, b))
-        model = graph.at(int(rng.choice(true_index)))
+        existing.add(tuple(sorted((a, b))))
+        if kind != "aliasing":
+            model = graph.at(int(rng.choice(true_index)))
         graph.add(type(model)(a, b, model.measured(), model.noiseModel()))
         wrong.append((a, b))
     closures = np.concatenate([edges[true_index], np.array(wrong, dtype=np.int64).reshape(-1, 2)])
@@ -140,20 +165,40 @@ def with_wrong_closures(problem: Problem, rate: float, rng: np.random.Generator)
 
 @dataclass
 class Population:
+    """A method's score rows (R, 10), whether each row's top-1 is correct, and whether its place is in the map."""
+
     name: str
     scores: np.ndarray
     correct: np.ndarray
+    answerable: np.ndarray
 
 
-def population(method: str) -> Population:
+#: Frames either side of a query's true place removed from the map to make an "absent place" row (the corridor's
+#: ground truth tolerance is about ±2 frames; within ±10 frames the corridor still looks like the same place).
+ABSENT_WINDOW = 10
+
+
+def population(method: str, absent: bool = False) -> Population:
+    """The method's 111 corridor rows; with ``absent``, also each query's row when its place (its positives ± 10
+    frames) is not in the map: 111 more rows, all wrong, distinct (a query of a place never visited)."""
     data = Path(os.environ.get("VPR_UNCERTAINTY_DATA", "../shared/data"))
     root = data / "vprbench" if (data / "vprbench").is_dir() else data
     retrieval = read_results(
         root / f"precomputed_matches/corridor/{method}/precomputed_data_corrected.npy",
         ground_truth=root / "corridor/ground_truth_new.npy",
+        top_k=111,
     )
+    scores, indices = np.asarray(retrieval.scores, dtype=np.float64), np.asarray(retrieval.indices)
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
-    return Population(method, np.asarray(retrieval.scores[:, :10], dtype=np.float64), np.asarray(correct, bool))
+    rows, is_correct = [scores[:, :10]], [np.asarray(correct, bool)]
+    if absent:
+        window = np.ones(2 * ABSENT_WINDOW + 1)
+        near = np.array([np.convolve(row, window, "same") > 0 for row in retrieval.positives.toarray()])
+        kept = ~np.take_along_axis(near, indices, axis=1)
+        rows.append(np.stack([row[keep][:10] for row, keep in zip(scores, kept, strict=True)]))
+        is_correct.append(np.zeros(len(scores), bool))
+    answerable = np.r_[np.ones(len(scores), bool), np.zeros(len(rows) * len(scores) - len(scores), bool)]
+    return Population(method, np.concatenate(rows), np.concatenate(is_correct), answerable)
 
 
 def score_rows(pop: Population, is_true: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -169,7 +214,13 @@ def calibrated_gate(pop: Population, seed: int, n: int = 200, target: float = 0.
         if 0 < pop.correct[rows].sum() < n:
             break
     return calibrate_arrays(
-        pop.scores[rows], pop.correct[rows], target_precision=target, delta=0.1, seed=seed, rankings=rankings
+        pop.scores[rows],
+        pop.correct[rows],
+        answerable=pop.answerable[rows],
+        target_precision=target,
+        delta=0.1,
+        seed=seed,
+        rankings=rankings,
     )
 
 
@@ -194,6 +245,16 @@ class TruthOracle:
 
     def accept(self, scores: np.ndarray) -> np.ndarray:
         return self.is_true
+
+
+class TrueAccepted:
+    """The true closures among those ``gate`` accepts: the best trajectory the gate's output allows."""
+
+    def __init__(self, gate: Any, is_true: np.ndarray) -> None:
+        self.gate, self.is_true = gate, is_true
+
+    def accept(self, scores: np.ndarray) -> np.ndarray:
+        return self.gate.accept(scores) & self.is_true
 
 
 def ate(values: Any, truth: np.ndarray) -> tuple[float, float]:
@@ -246,23 +307,27 @@ def run_one(
     only: set[str] | None,
     timeout: float,
     rankings: Any = None,
+    kind: str = "random",
+    labels: int = 200,
 ) -> None:
     rng = np.random.default_rng(seed)
-    graph, closures, is_true = with_wrong_closures(problem, rate, rng)
+    graph, closures, is_true = with_wrong_closures(problem, rate, rng, kind)
     rows = score_rows(pop, is_true, rng)
     edges = graph_edges(graph)
-    gate = calibrated_gate(pop, seed, rankings=rankings)
+    gate = calibrated_gate(pop, seed, n=labels, rankings=rankings)
     filters = {
         "all": Everything(),
         "true only (floor)": TruthOracle(rows, is_true),
         "fixed SU (median)": SUThreshold(pop),
         "gate p*=0.9": gate,
+        "gate's true": TrueAccepted(gate, is_true),
     }
     configs = [
         ("all closures, LM", "all", "none"),
         ("true only, LM (floor)", "true only (floor)", "none"),
         ("fixed SU, LM", "fixed SU (median)", "none"),
         ("gate p*=0.9, LM", "gate p*=0.9", "none"),
+        ("gate's true closures, LM", "gate's true", "none"),
         ("all, Huber", "all", "huber"),
         ("all, Cauchy", "all", "cauchy"),
         ("all, DCS", "all", "dcs"),
@@ -298,6 +363,7 @@ def run_one(
             "wrong_passed": int((passed & ~is_true).sum()), "true_passed": int((passed & is_true).sum()),
             "wrong_fit": wrong_fit, "true_fit": true_fit, "ate_rmse": rmse, "ate_max": worst,
             "seconds": round(seconds, 3), "gate_lower_bound": certificate, "error": error, "timeout": timeout,
+            "wrong_closures": kind, "rows": "absent" if (~pop.answerable).any() else "native", "labels": labels,
         }  # fmt: skip
         print(json.dumps(record), flush=True)
         if out is not None:
@@ -309,13 +375,17 @@ def report(path: Path) -> str:
     """Markdown tables of a results file: one per graph, one row per (rate, configuration)."""
     records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     text = []
-    for graph in dict.fromkeys(r["graph"] for r in records):
+    for r in records:  # one table per graph and variant (records before the variants existed are the defaults)
+        variant = (r.get("wrong_closures", "random"), r.get("rows", "native"), r.get("labels", 200))
+        named = ", {} wrong closures, {} rows, {} labels".format(*variant)
+        r["table"] = r["graph"] + ("" if variant == ("random", "native", 200) else named)
+    for graph in dict.fromkeys(r["table"] for r in records):
         text += [
             f"\n**{graph}**\n",
             "| wrong | configuration | ATE RMSE (m) | max (m) | wrong / true passed | wrong / true fit | time (s) |",
             "|---|---|---|---|---|---|---|",
         ]
-        for r in sorted((r for r in records if r["graph"] == graph), key=lambda r: r["rate"]):
+        for r in sorted((r for r in records if r["table"] == graph), key=lambda r: r["rate"]):
             rate = f"{r['rate']:.0%} ({r['closures_wrong']} of {r['closures_wrong'] + r['closures_true']})"
             passed = f"{r['wrong_passed']} / {r['true_passed']}"
             if r["error"] and r["error"].startswith("TimeoutError"):
@@ -329,6 +399,40 @@ def report(path: Path) -> str:
                 f"{r['true_passed']} | {r['wrong_fit']} / {r['true_fit']} | {r['seconds']:.2f} |"
             )
     return "\n".join(text)
+
+
+def summary(path: Path) -> str:
+    """Per variant and rate, over the seeds of a results file: gate + GNC against the floor, the gate's true closures
+    and GNC alone (medians, ranges, how many seeds meet issue 31's ratios), and what the gate passed."""
+    runs: dict[tuple, dict[str, dict]] = {}
+    for line in path.read_text().splitlines():
+        if line.strip():
+            r = json.loads(line)
+            variant = (r["graph"], r.get("wrong_closures", "random"), r.get("rows", "native"), r.get("labels", 200))
+            runs.setdefault((*variant, r["rate"], r["seed"]), {})[r["config"]] = r
+    lines = [
+        "| graph | wrong closures, rows, labels | wrong | seeds | gate + GNC ÷ floor: median [range] | ≤ 1.5× floor | "
+        "gate's true closures ÷ floor | gate + GNC ÷ GNC alone: median [range] | ≤ 1.2× GNC alone | gate + GNC time "
+        "÷ GNC time | passed wrong / true (median) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    needed = ("true only, LM (floor)", "gate's true closures, LM", "gate p*=0.9 + GNC", "all, GNC (TLS)")
+    for variant in dict.fromkeys(key[:5] for key in sorted(runs)):
+        done = [c for k, c in runs.items() if k[:5] == variant and all(c.get(n, {}).get("ate_rmse") for n in needed)]
+        if not done:
+            continue
+        floor, true_kept, gated, alone = (np.array([c[n]["ate_rmse"] for c in done]) for n in needed)
+        seconds = np.array([c[needed[2]]["seconds"] / c[needed[3]]["seconds"] for c in done])
+        passed = np.median([[c[needed[2]]["wrong_passed"], c[needed[2]]["true_passed"]] for c in done], axis=0)
+        to_floor, to_alone = gated / floor, gated / alone
+        lines.append(
+            f"| {variant[0]} | {', '.join(map(str, variant[1:4]))} | {variant[4]:.0%} | {len(done)} | "
+            f"{np.median(to_floor):.2f} [{to_floor.min():.2f}, {to_floor.max():.2f}] | {(to_floor <= 1.5).sum()} | "
+            f"{np.median(true_kept / floor):.2f} | {np.median(to_alone):.2f} [{to_alone.min():.2f}, "
+            f"{to_alone.max():.2f}] | {(to_alone <= 1.2).sum()} | {np.median(seconds):.2f} | "
+            f"{passed[0]:.0f} / {passed[1]:.0f} |"
+        )
+    return "\n".join(lines)
 
 
 METHODS = "AMOSNet,AlexNet_VPR,CALC,CoHOG,HOG,HybridNet,NetVLAD,RegionVLAD,ap-gem-r101,denseVLAD"
@@ -356,6 +460,30 @@ def label_plans(methods: list[str], sizes: tuple[int, ...] = (100, 200, 400, 800
     return "\n".join(lines)
 
 
+def gate_table(method: str, seeds: range, labels: tuple[int, ...] = (200, 400), rankings: Any = None) -> str:
+    """What the benchmark's gates accept of the method's rows: calibrated on the answerable rows alone (native) or
+    on the proposals' population (native + absent-place rows), per seed and number of labels."""
+    lines = [
+        "| calibrated on | labels | seed | certified bound | accepted: correct / wrong answers / absent-place rows |",
+        "|---|---|---|---|---|",
+    ]
+    absent_rows = population(method, absent=True)
+    for absent in (False, True):
+        pop = population(method, absent=absent)
+        for n in labels:
+            for seed in seeds:
+                gate = calibrated_gate(pop, seed, n=n, rankings=rankings)
+                accepted = gate.accept(absent_rows.scores)
+                counts = [
+                    int((accepted & where).sum()) for where in (absent_rows.correct,
+                    absent_rows.answerable & ~absent_rows.correct, ~absent_rows.answerable)
+                ]  # fmt: skip
+                bound = "none" if gate.precision_lower_bound is None else f"{gate.precision_lower_bound:.3f}"
+                name = "answerable + absent (222 rows)" if absent else "answerable (111 rows)"
+                lines.append(f"| {name} | {n} | {seed} | {bound} | " + " / ".join(map(str, counts)) + " |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="the four-lap graph only")
@@ -374,6 +502,23 @@ def main(argv: list[str] | None = None) -> int:
         help="the gate's rankings, δ shared evenly (default: calibrate's default); margin,SU,CAL is the default of "
         "the first evidence tables",
     )
+    parser.add_argument(
+        "--wrong-closures", choices=("random", "aliasing"), default="random",
+        help="random vertex pairs (default), or a true closure's earlier end moved by 5-20 poses",
+    )  # fmt: skip
+    parser.add_argument(
+        "--rows", choices=("native", "absent"), default="native",
+        help="wrong closures' score rows: the method's wrong answers (default; few, so repeated), or also each query's "
+        "row when its place is not in the map (111 more, distinct); the gate is calibrated on the same rows",
+    )  # fmt: skip
+    parser.add_argument("--labels", type=int, default=200, help="labelled rows the gate is calibrated on (default 200)")
+    parser.add_argument(
+        "--gates", type=int, default=None, metavar="SEEDS",
+        help="print what the gates of seeds 0..SEEDS-1 accept of the method's rows (both populations) and stop",
+    )  # fmt: skip
+    parser.add_argument(
+        "--summary", type=Path, default=None, help="print the per-variant summary over seeds of a --json file and stop"
+    )
     parser.add_argument("--report", type=Path, default=None, help="print the tables of a --json file and stop")
     args = parser.parse_args(argv)
     if args.label_plan:
@@ -382,11 +527,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.report:
         print(report(args.report))
         return 0
+    if args.summary:
+        print(summary(args.summary))
+        return 0
     graphs = ["fourlap"] if args.quick else args.graphs.split(",")
     rates = [0.3, 0.5, 0.7, 0.85] if args.quick else [float(r) for r in args.rates.split(",")]
-    pop = population(args.method)
+    pop = population(args.method, absent=args.rows == "absent")
     only = set(args.only.split(";")) if args.only else None
     rankings = args.rankings.split(",") if args.rankings else None
+    if args.gates:
+        print(gate_table(args.method, range(args.gates), rankings=rankings))
+        return 0
     out = args.json.open("a") if args.json else None
     for name in graphs:
         problem = PROBLEMS[name]()
@@ -394,7 +545,7 @@ def main(argv: list[str] | None = None) -> int:
             [float(r) for r in args.sphere_rates.split(",")] if name == "sphere2500" and args.sphere_rates else rates
         )
         for rate in graph_rates:
-            run_one(problem, rate, pop, args.seed, out, only, args.timeout, rankings)
+            run_one(problem, rate, pop, args.seed, out, only, args.timeout, rankings, args.wrong_closures, args.labels)
     return 0
 
 
