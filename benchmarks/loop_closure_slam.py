@@ -178,16 +178,22 @@ class Population:
 ABSENT_WINDOW = 10
 
 
-def population(method: str, absent: bool = False) -> Population:
-    """The method's 111 corridor rows; with ``absent``, also each query's row when its place (its positives ± 10
-    frames) is not in the map: 111 more rows, all wrong, distinct (a query of a place never visited)."""
+def population(method: str, absent: bool = False, results: Path | None = None) -> Population:
+    """The method's 111 corridor rows (or those of a retrieval file with its positives, e.g. the toolkit's own
+    ``run``); with ``absent``, also each query's row when its place (its positives ± 10 frames) is not in the map:
+    as many rows again, all wrong, distinct (a query of a place never visited)."""
     data = Path(os.environ.get("VPR_UNCERTAINTY_DATA", "../shared/data"))
     root = data / "vprbench" if (data / "vprbench").is_dir() else data
-    retrieval = read_results(
-        root / f"precomputed_matches/corridor/{method}/precomputed_data_corrected.npy",
-        ground_truth=root / "corridor/ground_truth_new.npy",
-        top_k=111,
-    )
+    if results is not None:
+        retrieval = read_results(results)
+    else:
+        retrieval = read_results(
+            root / f"precomputed_matches/corridor/{method}/precomputed_data_corrected.npy",
+            ground_truth=root / "corridor/ground_truth_new.npy",
+            top_k=111,
+        )
+    if retrieval.positives is None:
+        raise SystemExit(f"{results} holds no ground truth: the benchmark needs to know which rows are correct")
     scores, indices = np.asarray(retrieval.scores, dtype=np.float64), np.asarray(retrieval.indices)
     correct = correct_at_n(retrieval.indices, retrieval.positives, 1)
     rows, is_correct = [scores[:, :10]], [np.asarray(correct, bool)]
@@ -195,6 +201,11 @@ def population(method: str, absent: bool = False) -> Population:
         window = np.ones(2 * ABSENT_WINDOW + 1)
         near = np.array([np.convolve(row, window, "same") > 0 for row in retrieval.positives.toarray()])
         kept = ~np.take_along_axis(near, indices, axis=1)
+        if kept.sum(axis=1).min() < 10:
+            raise SystemExit(
+                f"--rows absent needs 10 candidates per query outside its place; {method} keeps "
+                f"{kept.sum(axis=1).min()} of {indices.shape[1]}: retrieve more candidates (run --top-k)"
+            )
         rows.append(np.stack([row[keep][:10] for row, keep in zip(scores, kept, strict=True)]))
         is_correct.append(np.zeros(len(scores), bool))
     answerable = np.r_[np.ones(len(scores), bool), np.zeros(len(rows) * len(scores) - len(scores), bool)]
@@ -490,7 +501,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--graphs", default="fourlap,sphere2500,city10000")
     parser.add_argument("--rates", default="0.3,0.5,0.7")
     parser.add_argument("--sphere-rates", default=None, help="rates for sphere2500 (default: --rates)")
-    parser.add_argument("--method", default="AMOSNet")
+    parser.add_argument("--method", default="AMOSNet", help="the corridor VPR-Bench method whose rows are used")
+    parser.add_argument(
+        "--results", type=Path, default=None,
+        help="use the rows of this retrieval file instead (with positives; e.g. runs/demo/retrieval.npz of make demo)",
+    )  # fmt: skip
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--only", default=None, help="configuration names separated by semicolons")
     parser.add_argument("--json", type=Path, default=None, help="append one JSON line per configuration")
@@ -532,7 +547,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     graphs = ["fourlap"] if args.quick else args.graphs.split(",")
     rates = [0.3, 0.5, 0.7, 0.85] if args.quick else [float(r) for r in args.rates.split(",")]
-    pop = population(args.method, absent=args.rows == "absent")
+    pop = population(args.method, absent=args.rows == "absent", results=args.results)
+    if args.results:
+        pop.name = f"own run ({args.results})"
     only = set(args.only.split(";")) if args.only else None
     rankings = args.rankings.split(",") if args.rankings else None
     if args.gates:
