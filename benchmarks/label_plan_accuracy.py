@@ -19,7 +19,11 @@ Achieved
 
 Printed: per population, L and n the predicted P(certified) and mean recall (mean over the reps) beside the
 achieved ones; then, per L and n, their means over the populations, the mean and largest |predicted - achieved|
-over the populations and reps, and the share of plans within the target of +-0.15.
+over the populations and reps, and the share of plans within the target of +-0.15. Then a proper score: per L and n
+the Brier score of the plans, mean (predicted - achieved)^2 over the populations and reps, beside that of a
+no-information baseline predicting for every plan the mean achieved share over the ten populations at that n (an
+oracle constant: it reads the achieved shares, so a user never has it); their means over L and n; and a reliability
+summary: the plans binned by predicted P(certified) (< 1/3, 1/3 - 2/3, > 2/3), the mean predicted and achieved in each.
 
 Usage
     VPR_UNCERTAINTY_DATA=/path/to/data python benchmarks/label_plan_accuracy.py [--reps 3] [--plan-draws 100]
@@ -29,6 +33,7 @@ Usage
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import time
 from pathlib import Path
@@ -42,6 +47,7 @@ from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n
 SIZES = (50, 100, 200)
 LABELLED = (30, 50)
 TOLERANCE = 0.15
+BINS = (0.0, 1 / 3, 2 / 3, 1.0)
 
 
 def populations(data: Path) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -147,7 +153,34 @@ def main(argv: list[str] | None = None) -> None:
             f"{cert.mean():.3f} / {cert.max():.2f} | {np.mean(cert <= TOLERANCE):.2f} | "
             f"{recall.mean():.3f} / {truth_r.mean():.3f} | {rec.mean():.3f} / {rec.max():.3f} |"
         )
+    scores_table(pairs)
     print(f"\n{time.perf_counter() - started:.0f} s")
+
+
+def scores_table(pairs: dict[tuple[int, int], list[tuple[float, float, float, float]]]) -> None:
+    """Print the Brier scores (plans vs the oracle constant) per L and n and the reliability bins per L."""
+    print("\n| L | n | Brier score: plans | Brier score: oracle constant (mean achieved, unavailable to a user) |")
+    print("|---|---|---|---|")
+    plans, constant = [], []
+    for (labelled, n), rows in sorted(pairs.items()):
+        predicted, truth = np.array(rows).T[:2]
+        plans.append(np.mean((predicted - truth) ** 2))
+        constant.append(np.mean((truth.mean() - truth) ** 2))
+        print(f"| {labelled} | {n} | {plans[-1]:.4f} | {constant[-1]:.4f} |")
+    print(f"| all | all | {np.mean(plans):.4f} (mean) | {np.mean(constant):.4f} (mean) |")
+    names = [f"{low:.2f}-{high:.2f}" for low, high in itertools.pairwise(BINS)]
+    print(f"\n| L | {' | '.join(f'predicted {name}: plans, mean predicted / achieved' for name in names)} |")
+    print(f"|---|{'---|' * len(names)}")
+    for labelled in sorted({labelled for labelled, _ in pairs}):
+        predicted, truth = np.concatenate(
+            [np.array(rows).T[:2] for (ell, _), rows in pairs.items() if ell == labelled], 1
+        )
+        cells = []
+        for low, high in itertools.pairwise(BINS):
+            inside = (predicted >= low) & ((predicted < high) | (high == BINS[-1]))
+            found = f"{predicted[inside].mean():.2f} / {truth[inside].mean():.2f}" if inside.any() else "-"
+            cells.append(f"{int(inside.sum())}, {found}")
+        print(f"| {labelled} | {' | '.join(cells)} |")
 
 
 if __name__ == "__main__":
