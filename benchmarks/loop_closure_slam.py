@@ -419,17 +419,17 @@ def summary(path: Path) -> str:
     for line in path.read_text().splitlines():
         if line.strip():
             r = json.loads(line)
-            variant = (r["graph"], r.get("wrong_closures", "random"), r.get("rows", "native"), r.get("labels", 200))
-            runs.setdefault((*variant, r["rate"], r["seed"]), {})[r["config"]] = r
+            variant = (r["graph"], r["method"], r.get("wrong_closures", "random"), r.get("rows", "native"))
+            runs.setdefault((*variant, r.get("labels", 200), r["rate"], r["seed"]), {})[r["config"]] = r
     lines = [
-        "| graph | wrong closures, rows, labels | wrong | seeds | gate + GNC ÷ floor: median [range] | ≤ 1.5× floor | "
-        "gate's true closures ÷ floor | gate + GNC ÷ GNC alone: median [range] | ≤ 1.2× GNC alone | gate + GNC time "
-        "÷ GNC time | passed wrong / true (median) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| graph | method, wrong closures, rows, labels | wrong | seeds | gate + GNC ÷ floor: median [range] | "
+        "≤ 1.5× floor | gate's true closures ÷ floor | gate + GNC ÷ GNC alone: median [range] | ≤ 1.2× GNC alone | "
+        "gate + GNC time ÷ GNC time | passed wrong / true (median) | gates certified |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     needed = ("true only, LM (floor)", "gate's true closures, LM", "gate p*=0.9 + GNC", "all, GNC (TLS)")
-    for variant in dict.fromkeys(key[:5] for key in sorted(runs)):
-        done = [c for k, c in runs.items() if k[:5] == variant and all(c.get(n, {}).get("ate_rmse") for n in needed)]
+    for variant in dict.fromkeys(key[:6] for key in sorted(runs)):
+        done = [c for k, c in runs.items() if k[:6] == variant and all(c.get(n, {}).get("ate_rmse") for n in needed)]
         if not done:
             continue
         floor, true_kept, gated, alone = (np.array([c[n]["ate_rmse"] for c in done]) for n in needed)
@@ -437,11 +437,11 @@ def summary(path: Path) -> str:
         passed = np.median([[c[needed[2]]["wrong_passed"], c[needed[2]]["true_passed"]] for c in done], axis=0)
         to_floor, to_alone = gated / floor, gated / alone
         lines.append(
-            f"| {variant[0]} | {', '.join(map(str, variant[1:4]))} | {variant[4]:.0%} | {len(done)} | "
+            f"| {variant[0]} | {', '.join(map(str, variant[1:5]))} | {variant[5]:.0%} | {len(done)} | "
             f"{np.median(to_floor):.2f} [{to_floor.min():.2f}, {to_floor.max():.2f}] | {(to_floor <= 1.5).sum()} | "
             f"{np.median(true_kept / floor):.2f} | {np.median(to_alone):.2f} [{to_alone.min():.2f}, "
             f"{to_alone.max():.2f}] | {(to_alone <= 1.2).sum()} | {np.median(seconds):.2f} | "
-            f"{passed[0]:.0f} / {passed[1]:.0f} |"
+            f"{passed[0]:.0f} / {passed[1]:.0f} | {sum(c[needed[2]]['gate_lower_bound'] is not None for c in done)} |"
         )
     return "\n".join(lines)
 
