@@ -390,6 +390,7 @@ def report(path: Path) -> str:
         variant = (r.get("wrong_closures", "random"), r.get("rows", "native"), r.get("labels", 200))
         named = ", {} wrong closures, {} rows, {} labels".format(*variant)
         r["table"] = r["graph"] + ("" if variant == ("random", "native", 200) else named)
+        r["table"] += f", seed {r['seed']}" if r["seed"] else ""
     for graph in dict.fromkeys(r["table"] for r in records):
         text += [
             f"\n**{graph}**\n",
