@@ -60,8 +60,15 @@ from scipy.stats import chi2
 
 from vpr_uncertainty.calibration import calibrate_arrays
 from vpr_uncertainty.data import read_results
-from vpr_uncertainty.evaluation.metrics import correct_at_n
-from vpr_uncertainty.pipeline.loop_closures import closure_mask, graph_edges, gtsam_module, optimize, read_graph
+from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n
+from vpr_uncertainty.pipeline.loop_closures import (
+    closure_mask,
+    graph_edges,
+    gtsam_module,
+    optimize,
+    pose_rows,
+    read_graph,
+)
 from vpr_uncertainty.scores import statistical_uncertainty
 
 gtsam = gtsam_module()
@@ -74,12 +81,6 @@ class Problem:
     graph: Any  # odometry + true closures
     initial: Any  # the odometry guess
     truth: np.ndarray  # (N, 8) id x y z qx qy qz qw
-
-
-def _rows(values: Any) -> np.ndarray:
-    from vpr_uncertainty.pipeline.loop_closures import _poses
-
-    return _poses(values)
 
 
 def four_lap(seed: int = 0) -> Problem:
@@ -105,7 +106,7 @@ def four_lap(seed: int = 0) -> Problem:
     values = gtsam.Values()
     for i, pose in enumerate(truth):
         values.insert(i, pose)
-    return Problem("four-lap (240 poses)", graph, initial, _rows(values))
+    return Problem("four-lap (240 poses)", graph, initial, pose_rows(values))
 
 
 def city10000() -> Problem:
@@ -113,13 +114,13 @@ def city10000() -> Problem:
     values = gtsam.Values()
     for i, (x, y, theta) in enumerate(np.loadtxt(GTSAM_DATA / "ISAM2_GT_city10000.txt")):
         values.insert(i, gtsam.Pose2(x, y, theta))
-    return Problem("city10000", graph, initial, _rows(values))
+    return Problem("city10000", graph, initial, pose_rows(values))
 
 
 def sphere2500() -> Problem:
     graph, initial = read_graph(GTSAM_DATA / "sphere2500.txt")
     _, truth = read_graph(GTSAM_DATA / "sphere2500_groundtruth.txt")
-    return Problem("sphere2500", graph, initial, _rows(truth))
+    return Problem("sphere2500", graph, initial, pose_rows(truth))
 
 
 PROBLEMS = {"fourlap": four_lap, "city10000": city10000, "sphere2500": sphere2500}
@@ -181,7 +182,8 @@ ABSENT_WINDOW = 10
 def population(method: str, absent: bool = False, results: Path | None = None) -> Population:
     """The method's 111 corridor rows (or those of a retrieval file with its positives, e.g. the toolkit's own
     ``run``); with ``absent``, also each query's row when its place (its positives ± 10 frames) is not in the map:
-    as many rows again, all wrong, distinct (a query of a place never visited)."""
+    as many rows again, all wrong, distinct (a query of a place never visited). "± 10 frames" is by database index,
+    which is the order along the route in the corridor (and in any database recorded as one sequence)."""
     data = Path(os.environ.get("VPR_UNCERTAINTY_DATA", "../shared/data"))
     root = data / "vprbench" if (data / "vprbench").is_dir() else data
     if results is not None:
@@ -208,7 +210,7 @@ def population(method: str, absent: bool = False, results: Path | None = None) -
             )
         rows.append(np.stack([row[keep][:10] for row, keep in zip(scores, kept, strict=True)]))
         is_correct.append(np.zeros(len(scores), bool))
-    answerable = np.r_[np.ones(len(scores), bool), np.zeros(len(rows) * len(scores) - len(scores), bool)]
+    answerable = np.r_[answerable_queries(retrieval.positives), np.zeros(len(rows) * len(scores) - len(scores), bool)]
     return Population(method, np.concatenate(rows), np.concatenate(is_correct), answerable)
 
 
@@ -275,7 +277,7 @@ def ate(values: Any, truth: np.ndarray) -> tuple[float, float]:
     def trajectory(rows: np.ndarray) -> PoseTrajectory3D:
         return PoseTrajectory3D(rows[:, 1:4], rows[:, [7, 4, 5, 6]], rows[:, 0].astype(float))
 
-    estimate, reference = trajectory(_rows(values)), trajectory(truth)
+    estimate, reference = trajectory(pose_rows(values)), trajectory(truth)
     estimate.align(reference, correct_scale=False)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((reference, estimate))

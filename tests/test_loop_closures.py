@@ -183,3 +183,14 @@ def test_without_gtsam_the_error_names_the_extra(monkeypatch):
     monkeypatch.setitem(__import__("sys").modules, "gtsam", None)
     with pytest.raises(ImportError, match=r"pip install 'vpr-uncertainty\[slam\]'"):
         gtsam_module()
+
+
+def test_pose_rows_are_tum_rows(gtsam):
+    """2-D and 3-D poses as ``id x y z qx qy qz qw`` (hand-computed: a quarter turn about z is (0, 0, √½, √½))."""
+    from vpr_uncertainty.pipeline.loop_closures import pose_rows
+
+    planar, spatial, half = gtsam.Values(), gtsam.Values(), np.sqrt(0.5)
+    planar.insert(3, gtsam.Pose2(1.0, 2.0, np.pi / 2))
+    spatial.insert(5, gtsam.Pose3(gtsam.Rot3.Rz(np.pi / 2), np.array([1.0, 2.0, 3.0])))
+    np.testing.assert_allclose(pose_rows(planar), [[3, 1, 2, 0, 0, 0, half, half]], atol=1e-12)
+    np.testing.assert_allclose(pose_rows(spatial), [[5, 1, 2, 3, 0, 0, half, half]], atol=1e-12)

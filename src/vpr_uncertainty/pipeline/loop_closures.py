@@ -28,7 +28,16 @@ from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.pipeline.options import add_options, conf_from_args, option, output_file
 from vpr_uncertainty.plugins import import_or_explain
 
-__all__ = ["LoopClosureConf", "closure_mask", "filter_loop_closures", "graph_edges", "main", "optimize", "read_graph"]
+__all__ = [
+    "LoopClosureConf",
+    "closure_mask",
+    "filter_loop_closures",
+    "graph_edges",
+    "main",
+    "optimize",
+    "pose_rows",
+    "read_graph",
+]
 
 #: Fields of a line of each g2o / TORO tag (with the full information matrix).
 WIDTHS = {"EDGE_SE2": 12, "EDGE2": 12, "EDGE_SE3:QUAT": 31, "EDGE3": 30, "VERTEX_SE2": 5, "VERTEX_SE3:QUAT": 9}
@@ -141,8 +150,8 @@ def read_graph(path: str | Path) -> tuple[Any, Any]:
     return graph, initial
 
 
-def _poses(values: Any) -> np.ndarray:
-    """(N, 8): ``id x y z qx qy qz qw`` of each pose."""
+def pose_rows(values: Any) -> np.ndarray:
+    """(N, 8): ``id x y z qx qy qz qw`` of each pose of a ``gtsam.Values`` (the TUM rows ``evo`` reads)."""
     gtsam = gtsam_module()
     if (poses := gtsam.utilities.extractPose3(values)).size:
         xyz, rotation = poses[:, 9:], Rotation.from_matrix(poses[:, :9].reshape(-1, 3, 3))
@@ -199,7 +208,7 @@ def main(conf: LoopClosureConf, graph: Path, scores: Path, gate: Path, out: Path
         start, tum = time.perf_counter(), out.with_suffix(".tum")
         poses = optimize(filtered, initial, robust=conf.robust, inlier_probability=conf.inlier_probability)
         seconds = time.perf_counter() - start
-        np.savetxt(partial, _poses(poses), fmt=["%d"] + ["%.9g"] * 7)
+        np.savetxt(partial, pose_rows(poses), fmt=["%d"] + ["%.9g"] * 7)
         os.replace(partial, tum)
         log(f"optimised by GTSAM (robust: {conf.robust}) in {seconds:.2f} s; wrote {tum}")
     return out
