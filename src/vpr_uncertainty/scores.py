@@ -61,6 +61,7 @@ from vpr_uncertainty._validation import (
 )
 
 _NONPOSITIVE_POLICIES = ("most_uncertain", "raise")
+_NEG_INF, _INF = -math.inf, math.inf  # bound once: row_statistics runs in every gate(row)
 
 
 def check_alpha(alpha: object, *, name: str = "alpha") -> float:
@@ -267,8 +268,10 @@ def statistical_uncertainty(
 def one_row(scores: object, *, shapes: str = "(k,) or (1, k)", advice: str = "") -> list[float]:
     """One query's scores as a new list: from a sequence, or an ndarray or torch tensor (duck-typed) of shape (K,) or
     (1, K), of numbers; ``shapes`` and ``advice`` word the error for another shape."""
-    if type(scores) is list:  # the common case, first
+    if type(scores) is list:  # the common cases, first
         return scores[:]
+    if type(scores) is np.ndarray and scores.ndim == 1 and scores.dtype.kind in "fiu":
+        return scores.tolist()
     if not isinstance(scores, np.ndarray) and hasattr(scores, "detach") and hasattr(scores, "tolist"):
         scores = scores.detach()  # a torch tensor: .cpu().tolist() below, also for bfloat16 and CUDA tensors
         if hasattr(scores, "cpu"):
@@ -296,14 +299,14 @@ def row_statistics(values: list[float], k: int) -> tuple[float, float, float, fl
     """
     if len(values) > k:
         del values[k:]
-    while values and values[-1] == -math.inf:
+    while values and values[-1] == _NEG_INF:
         values.pop()
     n = len(values)
     if n < 2:
         raise ValueError(f"scores needs at least 2 finite candidates, got {n}")
     try:
         previous = values[0]
-        if not -math.inf < previous < math.inf:
+        if not _NEG_INF < previous < _INF:
             raise ValueError(f"scores must be finite, got {values}")
         for value in values:
             if not value <= previous:  # also catches NaN
@@ -313,7 +316,7 @@ def row_statistics(values: list[float], k: int) -> tuple[float, float, float, fl
     except TypeError:
         raise TypeError(f"scores must be numbers, got {values}") from None
     best = values[0]
-    if not -math.inf < total < math.inf:  # finite values whose sum overflows: the mean from scaled values
+    if not _NEG_INF < total < _INF:  # finite values whose sum overflows: the mean from scaled values
         scale = max(abs(best), abs(values[-1]))
         runners_up = scale * ((sum(value / scale for value in values) - best / scale) / (n - 1))
         return best, values[1], runners_up, 0.5 * values[(n - 1) // 2] + 0.5 * values[n // 2], values[-1], n
