@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vpr_uncertainty._validation import as_score_array, check_count
-from vpr_uncertainty.calibration.calibrator import DEFAULT_FEATURES, feature_columns, feature_matrix
+from vpr_uncertainty.calibration.calibrator import feature_columns, feature_matrix
 from vpr_uncertainty.calibration.fit import calibrate_arrays
 from vpr_uncertainty.calibration.guarantee import min_accepted
 from vpr_uncertainty.evaluation.metrics import rank_queries
@@ -86,10 +86,10 @@ def _monotone(values: np.ndarray) -> list[np.ndarray]:
 
 def _neighbours(pool_scores: np.ndarray, n_labelled: int, k: int) -> np.ndarray:
     """The 3 nearest labelled queries (the first ``n_labelled`` rows of ``pool_scores``) of each unlabelled one, by
-    the pool ranks of the features the default gate reads (CAL's, the margin among them); 3, so that a ranking's
+    the pool ranks of the features the candidates read (s1, margin, RS, SD, SU, PA); 3, so that a ranking's
     clean top stays clean (wider ones blurred errors into every top: docs/evidence/calibration.md)."""
     found = feature_columns(pool_scores, k)
-    features = np.column_stack([found[name] for name in DEFAULT_FEATURES if name in found])
+    features = np.column_stack(list(found.values()))
     ranks = np.argsort(np.argsort(features, axis=0, kind="stable"), axis=0) / max(len(features) - 1, 1)
     labelled, unlabelled = ranks[:n_labelled], ranks[n_labelled:]
     distance = (labelled**2).sum(axis=1) - 2 * unlabelled @ labelled.T  # squared distance, less ‖unlabelled‖²
@@ -124,7 +124,7 @@ def plan_labels(
     The population is the pool, labelled and ``unlabelled`` queries: each simulation draws, for every labelled
     query, the correct rate of its neighbourhood from its posterior (its label plus 0.15 pseudo-labels at the base
     rate), gives every unlabelled query a label drawn with the mean rate of its 3 nearest labelled queries in the
-    ranks of the default gate's features (so each ranking's clean or dirty top is as the labels show it, errors
+    ranks of the candidates' features (so each ranking's clean or dirty top is as the labels show it, errors
     the few labels missed included), draws queries from the pool with replacement, and runs
     :func:`calibrate_arrays` with ``calibrate``'s defaults on the first n, for each size n (common draws: the sizes
     differ by the labels added, not by luck). A draw holding one outcome certifies nothing (``calibrate`` refuses
