@@ -80,8 +80,10 @@ def test_a_real_torch_tensor_when_torch_is_installed():
         ("0.9 0.5", TypeError, "scores must be a sequence of similarities, got str"),
         ([0.9], ValueError, "at least 2 finite candidates, got 1"),
         ([0.5, 0.9], ValueError, "sorted in descending order"),
+        (np.array([True, False]), TypeError, "must be numbers, got an array of dtype bool"),
+        (np.array(["0.9", "0.5"]), TypeError, "must be numbers, got an array of dtype <U3"),
     ],
-    ids=["two queries", "two-query tensor", "scalar", "string", "one candidate", "unsorted"],
+    ids=["two queries", "two-query tensor", "scalar", "string", "one candidate", "unsorted", "bools", "strings"],
 )
 def test_bad_input_is_named(scores, error, message):
     with pytest.raises(error, match=message):
