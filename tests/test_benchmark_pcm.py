@@ -133,4 +133,5 @@ def test_maximum_clique_exact_and_greedy(bench):
                 adjacency[i, j] = i != j
     assert bench.maximum_clique(adjacency).tolist() == [0, 1, 2, 3]
     assert bench.greedy_clique(adjacency).tolist() == [0, 1, 2, 3]
+    assert bench.greedy_clique(adjacency, time_limit=0).tolist() == [0, 1, 2, 3]  # the first start always runs
     assert bench.maximum_clique(np.zeros((3, 3), bool)).size == 1
