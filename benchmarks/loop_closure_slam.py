@@ -653,15 +653,21 @@ def report(path: Path) -> str:
     return "\n".join(text)
 
 
-def summary(path: Path) -> str:
-    """Per variant and rate, over the seeds of a results file: gate + GNC against the floor, the gate's true closures
-    and GNC alone (medians, ranges, how many seeds meet issue 31's ratios), and what the gate passed."""
+def runs_by_case(path: Path) -> dict[tuple, dict[str, dict]]:
+    """A results file's records by (graph, method, wrong closures, rows, labels, rate, seed), then configuration."""
     runs: dict[tuple, dict[str, dict]] = {}
     for line in path.read_text().splitlines():
         if line.strip():
             r = json.loads(line)
             variant = (r["graph"], r["method"], r.get("wrong_closures", "random"), r.get("rows", "native"))
             runs.setdefault((*variant, r.get("labels", 200), r["rate"], r["seed"]), {})[r["config"]] = r
+    return runs
+
+
+def summary(path: Path) -> str:
+    """Per variant and rate, over the seeds of a results file: gate + GNC against the floor, the gate's true closures
+    and GNC alone (medians, ranges, how many seeds meet issue 31's ratios), and what the gate passed."""
+    runs = runs_by_case(path)
     lines = [
         "| graph | method, wrong closures, rows, labels | wrong | seeds | gate + GNC ÷ floor: median [range] | "
         "≤ 1.5× floor | gate's true closures ÷ floor | gate + GNC ÷ GNC alone: median [range] | ≤ 1.2× GNC alone | "
@@ -690,12 +696,7 @@ def summary(path: Path) -> str:
 def pcm_summary(path: Path) -> str:
     """Per variant and rate, over the seeds of a results file: PCM + LM and gate + PCM + LM against the floor, against
     each other and beside GNC (medians and ranges of the ATE RMSE ratios), what PCM kept and how long it took."""
-    runs: dict[tuple, dict[str, dict]] = {}
-    for line in path.read_text().splitlines():
-        if line.strip():
-            r = json.loads(line)
-            variant = (r["graph"], r["method"], r.get("wrong_closures", "random"), r.get("rows", "native"))
-            runs.setdefault((*variant, r.get("labels", 200), r["rate"], r["seed"]), {})[r["config"]] = r
+    runs = runs_by_case(path)
     lines = [
         "| graph | method, wrong closures, rows, labels | wrong | seeds | PCM + LM ÷ floor: median [range] | "
         "gate + PCM + LM ÷ floor | gate + PCM ÷ PCM alone | GNC alone ÷ floor | gate + GNC ÷ floor | "
