@@ -46,8 +46,9 @@ The gate (cross-fitted, nothing tuned)
     δ = 0.1 is fitted on the labelled rows of one half (every query of it: top-1 row, correct, answerable) and
     judges the closures of the other half, and vice versa; a half whose gate certifies nothing accepts nothing (that
     is the gate's answer with ~55 labels). The filtering goes through the toolkit's ``filter_loop_closures``;
-    ``--cli DIR`` also runs ``vpr-uncertainty loop-closures`` on a written g2o, score file and gate for one half and
-    checks it keeps the same closures.
+    ``--cli DIR`` also runs ``vpr-uncertainty loop-closures`` on a written g2o, score file and gate for one fold
+    (the first source and seed) and checks it keeps the same closures. ``--folds K`` (K > 2) gives each gate the
+    labels of K − 1 folds (about 100 with ten) while still judging no closure by a gate that saw its label.
 
 Configurations (same graph, LM = GTSAM's Levenberg–Marquardt from the odometry guess)
     odometry only; all proposals + LM; true proposals only + LM (the floor); gate + LM; the gate's true proposals +
@@ -356,35 +357,35 @@ def run_case(
     return records
 
 
-def cli_check(matches: Matches, absent: float, seed: int, folder: Path) -> str:
-    """Run ``vpr-uncertainty loop-closures`` on half 0's closures (graph: odometry, link and half 0's closures;
-    gate: the one calibrated on half 1, written even when it certifies nothing) and check it keeps the closures the
-    in-process filter keeps."""
+def cli_check(matches: Matches, absent: float, seed: int, folder: Path, folds: int = 2) -> str:
+    """Run ``vpr-uncertainty loop-closures`` on fold 0's closures (graph: odometry, link and fold 0's closures;
+    gate: the one calibrated on the other folds, written even when it certifies nothing) and check it keeps the
+    closures the in-process filter keeps."""
     removed = absent_stretch(matches.similarity.shape[1], absent)
     kept = np.setdiff1d(np.arange(matches.similarity.shape[1]), removed)
     props = proposals(matches, kept)
     corridor = corridor_graph(props, kept, len(matches.similarity), seed)
-    gates, fold, _ = cross_fitted_gates(props, seed)
+    gates, fold, _ = cross_fitted_gates(props, seed, folds)
     if gates[0] is None:
-        return "half 1's labels could not be calibrated on: no gate file to run the command with"
+        return "the other folds' labels could not be calibrated on: no gate file to run the command with"
     mine = fold[corridor.query] == 0
     graph, where = gtsam.NonlinearFactorGraph(), graph_edges(corridor.graph)
-    half_pairs = {tuple(p) for p in corridor.closures[mine].tolist()}
+    fold_pairs = {tuple(p) for p in corridor.closures[mine].tolist()}
     for i, (a, b) in enumerate(where.tolist()):
-        if b - a == 1 or (a, b) in half_pairs:
+        if b - a == 1 or (a, b) in fold_pairs:
             graph.add(corridor.graph.at(i))
     folder.mkdir(parents=True, exist_ok=True)
-    paths = {name: folder / name for name in ("half0.g2o", "half0.npz", "gate0.json", "half0_filtered.g2o")}
-    gtsam.writeG2o(graph, corridor.initial, str(paths["half0.g2o"]))
-    np.savez(paths["half0.npz"], edges=corridor.closures[mine], scores=corridor.rows[mine])
+    paths = {name: folder / name for name in ("fold0.g2o", "fold0.npz", "gate0.json", "fold0_filtered.g2o")}
+    gtsam.writeG2o(graph, corridor.initial, str(paths["fold0.g2o"]))
+    np.savez(paths["fold0.npz"], edges=corridor.closures[mine], scores=corridor.rows[mine])
     gates[0].save(paths["gate0.json"])
     command = [
-        str(Path(sys.executable).with_name("vpr-uncertainty")), "loop-closures", str(paths["half0.g2o"]), "--scores",
-        str(paths["half0.npz"]), "--gate", str(paths["gate0.json"]), "--out", str(paths["half0_filtered.g2o"]),
+        str(Path(sys.executable).with_name("vpr-uncertainty")), "loop-closures", str(paths["fold0.g2o"]), "--scores",
+        str(paths["fold0.npz"]), "--gate", str(paths["gate0.json"]), "--out", str(paths["fold0_filtered.g2o"]),
         "--optimize", "--robust", "gnc",
     ]  # fmt: skip
     output = subprocess.run(command, check=True, capture_output=True, text=True).stdout
-    filtered, _ = read_graph(paths["half0_filtered.g2o"])
+    filtered, _ = read_graph(paths["fold0_filtered.g2o"])
     by_cli = {tuple(p) for p in graph_edges(filtered).tolist() if p[1] - p[0] != 1}
     in_process = {tuple(p) for p in corridor.closures[mine][gates[0].accept(corridor.rows[mine])].tolist()}
     if by_cli != in_process:
@@ -506,7 +507,7 @@ def main(argv: list[str] | None = None) -> int:
                     out.write(json.dumps(record) + "\n")
                     out.flush()
         if args.cli:
-            print(cli_check(matches, args.absent, int(args.seeds.split(",")[0]), args.cli), flush=True)
+            print(cli_check(matches, args.absent, int(args.seeds.split(",")[0]), args.cli, args.folds), flush=True)
             args.cli = None  # once is enough to show the command path
     return 0
 
