@@ -11,7 +11,9 @@ What is real and what is simulated
     the rows whose top-1 is wrong (with replacement). ``--rows absent`` adds, for each corridor query, the row it
     gets when its place (its positives ± 10 frames) is not in the map: 111 distinct wrong rows (a front end's wrong
     closures mostly come from places it has not seen), and calibrates the gate on that population (answerable and
-    absent-place rows, the absent ones wrong and not answerable).
+    absent-place rows, the absent ones wrong and not answerable). ``benchmarks/loop_closure_corridor.py`` measures
+    the real pairing on the corridor's own images: its two traversals as a two-session graph whose closures are each
+    method's real top-1 proposals.
 
 Wrong closures
     ``rate`` = wrong / (true + wrong) closures; wrong closures join random vertex pairs (|i - j| > 1, not already an
