@@ -525,12 +525,23 @@ def in_child(function: Any, timeout: float) -> Any:
     """``function()`` in a forked process, given ``timeout`` seconds (a TimeoutError after them)."""
     context = multiprocessing.get_context("fork")
     receive, send = context.Pipe(duplex=False)
-    process = context.Process(target=lambda: send.send(function()))
+
+    def child() -> None:
+        try:
+            send.send((True, function()))
+        except Exception as error:  # handed to the parent, which raises it
+            send.send((False, f"{type(error).__name__}: {error}"))
+
+    process = context.Process(target=child)
     process.start()
+    send.close()  # the parent's copy: a child that dies closes the pipe, and poll returns at once
     try:
         if not receive.poll(timeout):
             raise TimeoutError(f"did not finish within {timeout:g} s")
-        return receive.recv()
+        finished, value = receive.recv()
+        if not finished:
+            raise RuntimeError(f"the optimiser's process raised {value}")
+        return value
     except EOFError:
         raise RuntimeError(f"the optimiser's process died (exit code {process.exitcode})") from None
     finally:

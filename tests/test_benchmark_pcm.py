@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -135,3 +136,16 @@ def test_maximum_clique_exact_and_greedy(bench):
     assert bench.greedy_clique(adjacency).tolist() == [0, 1, 2, 3]
     assert bench.greedy_clique(adjacency, time_limit=0).tolist() == [0, 1, 2, 3]  # the first start always runs
     assert bench.maximum_clique(np.zeros((3, 3), bool)).size == 1
+
+
+def _raises() -> None:
+    raise ValueError("boom")
+
+
+def test_an_optimiser_that_raises_is_reported_at_once(bench):
+    """The child's error comes back as soon as it happens (the parent used to wait out the whole time limit)."""
+    start = time.perf_counter()
+    with pytest.raises(RuntimeError, match="raised ValueError: boom"):
+        bench.in_child(_raises, timeout=60)
+    assert time.perf_counter() - start < 10
+    assert bench.in_child(lambda: 42, timeout=60) == 42
