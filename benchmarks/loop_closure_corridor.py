@@ -68,9 +68,7 @@ Usage
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import os
 import subprocess
 import sys
 import time
@@ -85,28 +83,18 @@ from vpr_uncertainty.data import read_results
 from vpr_uncertainty.descriptors.cache import read_descriptors
 from vpr_uncertainty.pipeline.loop_closures import filter_loop_closures, graph_edges, optimize, pose_rows, read_graph
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # as paper_scale_projection.py: its sibling scripts
 
-def _slam_benchmark() -> Any:
-    path = Path(__file__).with_name("loop_closure_slam.py")
-    spec = importlib.util.spec_from_file_location("loop_closure_slam", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while being defined
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules[spec.name]
-    return module
+import loop_closure_slam as slam
 
-
-SLAM = _slam_benchmark()
-gtsam = SLAM.gtsam
+gtsam = slam.gtsam
 
 SPACING = 0.5  #: Δ, metres between consecutive frames of a traversal
 LATERAL = 0.3  #: metres between the two traversals, across the corridor
 ODOMETRY_SIGMA = np.array([0.05, 0.05, 0.01])
 LINK_SIGMA = np.array([2.0, 2.0, 0.1])
 CLOSURE_SIGMA = np.array([SPACING, SPACING, 0.05])
-METHODS = SLAM.METHODS.split(",")
+METHODS = slam.METHODS.split(",")
 
 
 @dataclass
@@ -118,13 +106,8 @@ class Matches:
     positives: np.ndarray
 
 
-def data_root() -> Path:
-    data = Path(os.environ.get("VPR_UNCERTAINTY_DATA", "../shared/data"))
-    return data / "vprbench" if (data / "vprbench").is_dir() else data
-
-
 def vprbench_matches(method: str) -> Matches:
-    root = data_root()
+    root = slam.data_root()
     retrieval = read_results(
         root / f"precomputed_matches/corridor/{method}/precomputed_data_corrected.npy",
         ground_truth=root / "corridor/ground_truth_new.npy",
@@ -313,11 +296,11 @@ def run_case(
     gate = CrossFitted(gates, fold[corridor.query])
     is_true, listed = corridor.is_true, {"edges": corridor.closures, "scores": corridor.rows}
     filters = {
-        "none": SLAM.Fixed(np.zeros(len(is_true), bool)),
-        "all": SLAM.Everything(),
-        "true": SLAM.Fixed(is_true),
+        "none": slam.Fixed(np.zeros(len(is_true), bool)),
+        "all": slam.Everything(),
+        "true": slam.Fixed(is_true),
         "gate": gate,
-        "gate's true": SLAM.TrueAccepted(gate, is_true),
+        "gate's true": slam.TrueAccepted(gate, is_true),
     }
     records = []
     for name, filter_name, robust in CONFIGS:
@@ -326,9 +309,9 @@ def run_case(
         def measure(passed: np.ndarray = passed, filter_name: str = filter_name, robust: str = robust) -> tuple:
             start = time.perf_counter()
             if robust == "pcm":
-                passed = SLAM.pcm(corridor.graph, corridor.closures, passed)
+                passed = slam.pcm(corridor.graph, corridor.closures, passed)
             kept_graph = filter_loop_closures(
-                corridor.graph, listed, SLAM.Fixed(passed) if robust == "pcm" else filters[filter_name]
+                corridor.graph, listed, slam.Fixed(passed) if robust == "pcm" else filters[filter_name]
             )
             values = optimize(kept_graph, corridor.initial, robust="none" if robust == "pcm" else robust)
             seconds = time.perf_counter() - start
@@ -336,11 +319,11 @@ def run_case(
                 seconds,
                 int((passed & ~is_true).sum()),
                 int((passed & is_true).sum()),
-                *SLAM.ate(values, corridor.truth),
+                *slam.ate(values, corridor.truth),
             )
 
         try:
-            seconds, wrong_passed, true_passed, rmse, worst = SLAM.in_child(measure, timeout)
+            seconds, wrong_passed, true_passed, rmse, worst = slam.in_child(measure, timeout)
             error = None
         except Exception as failure:  # report it, do not hide it
             seconds = wrong_passed = true_passed = rmse = worst = None
@@ -492,6 +475,10 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 <= args.absent < 1 or args.proposals < 1 or args.folds < 2:
         raise SystemExit("--absent must lie in [0, 1), --proposals be at least 1 and --folds at least 2")
     names = METHODS if args.methods == "all" else [m for m in args.methods.split(",") if m]
+    if unknown := sorted(set(names) - set(METHODS)):
+        raise SystemExit(f"--methods: no corridor results for {', '.join(unknown)} (known: {', '.join(METHODS)})")
+    if args.results and not args.results.is_file():
+        raise SystemExit(f"--results {args.results}: no such file (make demo writes runs/demo/retrieval.npz)")
     sources = [lambda m=m: vprbench_matches(m) for m in names]
     if args.results:
         sources.append(lambda: own_run_matches(args.results))

@@ -190,13 +190,18 @@ class Population:
 ABSENT_WINDOW = 10
 
 
+def data_root() -> Path:
+    """The VPR-Bench folder of ``VPR_UNCERTAINTY_DATA`` (or that folder itself)."""
+    data = Path(os.environ.get("VPR_UNCERTAINTY_DATA", "../shared/data"))
+    return data / "vprbench" if (data / "vprbench").is_dir() else data
+
+
 def population(method: str, absent: bool = False, results: Path | None = None) -> Population:
     """The method's 111 corridor rows (or those of a retrieval file with its positives, e.g. the toolkit's own
     ``run``); with ``absent``, also each query's row when its place (its positives ± 10 frames) is not in the map:
     as many rows again, all wrong, distinct (a query of a place never visited). "± 10 frames" is by database index,
     which is the order along the route in the corridor (and in any database recorded as one sequence)."""
-    data = Path(os.environ.get("VPR_UNCERTAINTY_DATA", "../shared/data"))
-    root = data / "vprbench" if (data / "vprbench").is_dir() else data
+    root = data_root()
     if results is not None:
         retrieval = read_results(results)
     else:

@@ -9,7 +9,9 @@ tolerance by dtype; tests/README.md states the policy.
 
 from __future__ import annotations
 
+import importlib
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +48,14 @@ def corridor_dir(data_dir: Path) -> Path:
 def corridor_matches_dir(data_dir: Path) -> Path:
     """Precomputed similarity matrices of ten VPR methods on the corridor dataset."""
     return _require(data_dir / "vprbench" / "precomputed_matches" / "corridor", "the corridor matches")
+
+
+def load_benchmark(name: str):
+    """The script ``benchmarks/<name>.py`` as a module (benchmarks/ on sys.path, as the scripts import each other)."""
+    folder = str(Path(__file__).parents[1] / "benchmarks")
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    return importlib.import_module(name)
 
 
 # --- tolerance policy (tests/README.md) ------------------------------------------------------------------------

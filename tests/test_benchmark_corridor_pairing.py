@@ -3,14 +3,10 @@ from a hand-made similarity matrix and their correctness, the absent stretch's r
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-from conftest import assert_close
+from conftest import assert_close, load_benchmark
 
 gtsam = pytest.importorskip("gtsam")
 N = 111
@@ -18,15 +14,7 @@ N = 111
 
 @pytest.fixture(scope="module")
 def bench():
-    path = Path(__file__).parents[1] / "benchmarks" / "loop_closure_corridor.py"
-    spec = importlib.util.spec_from_file_location("loop_closure_corridor", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while being defined
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules[spec.name]
-    return module
+    return load_benchmark("loop_closure_corridor")
 
 
 @pytest.fixture(scope="module")

@@ -3,30 +3,19 @@ GTSAM, a hand-made square graph, and the maximum clique of a small consistency g
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import assert_close
+from conftest import assert_close, load_benchmark
 
 gtsam = pytest.importorskip("gtsam")
 
 
 @pytest.fixture(scope="module")
 def bench():
-    path = Path(__file__).parents[1] / "benchmarks" / "loop_closure_slam.py"
-    spec = importlib.util.spec_from_file_location("loop_closure_slam", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up while being defined
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules[spec.name]
-    return module
+    return load_benchmark("loop_closure_slam")
 
 
 def test_adjoint_and_log_are_gtsams(bench):
