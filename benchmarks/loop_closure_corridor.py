@@ -86,6 +86,7 @@ from vpr_uncertainty.pipeline.loop_closures import filter_loop_closures, graph_e
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # as paper_scale_projection.py: its sibling scripts
 
 import loop_closure_slam as slam
+from pairwise_consistency import pcm
 
 gtsam = slam.gtsam
 
@@ -309,7 +310,7 @@ def run_case(
         def measure(passed: np.ndarray = passed, filter_name: str = filter_name, robust: str = robust) -> tuple:
             start = time.perf_counter()
             if robust == "pcm":
-                passed = slam.pcm(corridor.graph, corridor.closures, passed)
+                passed = pcm(corridor.graph, corridor.closures, passed)
             kept_graph = filter_loop_closures(
                 corridor.graph, listed, slam.Fixed(passed) if robust == "pcm" else filters[filter_name]
             )

@@ -1,9 +1,7 @@
-"""PCM in ``benchmarks/loop_closure_slam.py``: the pairwise cycle test against a finite-difference reference through
+"""PCM in ``benchmarks/pairwise_consistency.py``: the pairwise cycle test against a finite-difference reference through
 GTSAM, a hand-made square graph, and the maximum clique of a small consistency graph."""
 
 from __future__ import annotations
-
-import time
 
 import numpy as np
 import pytest
@@ -15,7 +13,7 @@ gtsam = pytest.importorskip("gtsam")
 
 @pytest.fixture(scope="module")
 def bench():
-    return load_benchmark("loop_closure_slam")
+    return load_benchmark("pairwise_consistency")
 
 
 def test_adjoint_and_log_are_gtsams(bench):
@@ -125,16 +123,3 @@ def test_maximum_clique_exact_and_greedy(bench):
     assert bench.greedy_clique(adjacency).tolist() == [0, 1, 2, 3]
     assert bench.greedy_clique(adjacency, time_limit=0).tolist() == [0, 1, 2, 3]  # the first start always runs
     assert bench.maximum_clique(np.zeros((3, 3), bool)).size == 1
-
-
-def _raises() -> None:
-    raise ValueError("boom")
-
-
-def test_an_optimiser_that_raises_is_reported_at_once(bench):
-    """The child's error comes back as soon as it happens (the parent used to wait out the whole time limit)."""
-    start = time.perf_counter()
-    with pytest.raises(RuntimeError, match="raised ValueError: boom"):
-        bench.in_child(_raises, timeout=60)
-    assert time.perf_counter() - start < 10
-    assert bench.in_child(lambda: 42, timeout=60) == 42

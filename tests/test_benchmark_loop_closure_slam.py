@@ -1,7 +1,9 @@
-"""The fill-in measure of ``benchmarks/loop_closure_slam.py --fill-in`` against hand-counted graphs, and the mode on
-the four-lap graph."""
+"""``benchmarks/loop_closure_slam.py``'s own machinery: the fill-in measure of ``--fill-in`` against hand-counted
+graphs and the mode on the four-lap graph; an optimiser's child process that raises."""
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
@@ -34,3 +36,16 @@ def test_fill_in_mode_on_the_four_lap_graph(bench, capsys, corridor_dir):
     blocks = {name: int(row[4].replace(",", "")) for name, row in by_name.items()}
     # random wrong closures join far-apart poses: the factor fills in
     assert blocks["true only"] == 708 and blocks["all"] > 5 * blocks["true only"]
+
+
+def _raises() -> None:
+    raise ValueError("boom")
+
+
+def test_an_optimiser_that_raises_is_reported_at_once(bench):
+    """The child's error comes back as soon as it happens (the parent used to wait out the whole time limit)."""
+    start = time.perf_counter()
+    with pytest.raises(RuntimeError, match="raised ValueError: boom"):
+        bench.in_child(_raises, timeout=60)
+    assert time.perf_counter() - start < 10
+    assert bench.in_child(lambda: 42, timeout=60) == 42
