@@ -120,9 +120,9 @@ def test_command_filters_a_g2o_graph_and_round_trips(gtsam, gate_file, tmp_path,
         == 2
     )
     assert "calibrated at k=10" in capsys.readouterr().err
-    for extra in (["--robust", "gnc"], ["--optimize", "--inlier-probability", "1.5"]):  # ignored or NaN before
+    for extra in (["--robust", "gnc"], ["--verbose"], ["--optimize", "--inlier-probability", "1.5"]):  # ignored or NaN
         assert main([*argv, "--gate", str(gate_file), "--out", str(tmp_path / "y.g2o"), *extra]) == 2
-        assert "needs --optimize; --inlier-probability must lie in (0, 1)" in capsys.readouterr().err
+        assert "need --optimize; --inlier-probability must lie in (0, 1)" in capsys.readouterr().err
         assert not (tmp_path / "y.g2o").exists()
 
 
@@ -135,7 +135,7 @@ def test_an_edge_to_an_undefined_vertex_is_an_error(gtsam, tmp_path):
         read_graph(tmp_path / "graph.g2o")
 
 
-def test_optimisation_reaches_the_ground_truth_and_gnc_rejects_an_outlier(gtsam, tmp_path):
+def test_optimisation_reaches_the_ground_truth_and_gnc_rejects_an_outlier(gtsam, tmp_path, capfd):
     from vpr_uncertainty.pipeline.loop_closures import optimize, read_graph
 
     truth, text = _square(gtsam, drift=0.3)  # the vertices drift 0.3 m a pose; the measurements are exact
@@ -149,6 +149,11 @@ def test_optimisation_reaches_the_ground_truth_and_gnc_rejects_an_outlier(gtsam,
     graph.add(gtsam.BetweenFactorPose2(1, 6, gtsam.Pose2(5, -3, 1), graph.at(0).noiseModel()))  # a wrong closure
     assert error(optimize(graph, initial)) > 0.1
     assert error(optimize(graph, initial, robust="gnc")) < 1e-6
+    assert capfd.readouterr().out == ""
+    # verbose: GTSAM prints GNC's λ and every LM iteration (its own C++ output, hence capfd), the result unchanged
+    assert error(optimize(graph, initial, robust="gnc", verbose=True)) < 1e-6
+    printed = capfd.readouterr().out
+    assert "iter: 0" in printed and "lambda:" in printed and "cost_change" in printed and "total_time" in printed
     assert error(optimize(graph, initial, robust="cauchy")) < error(optimize(graph, initial))
 
 
@@ -174,7 +179,7 @@ def test_reads_the_city10000_layout_and_3d_g2o(gtsam, tmp_path):
 
 
 def test_conf_defaults():
-    assert LoopClosureConf() == LoopClosureConf(optimize=False, robust="none", inlier_probability=0.99)
+    assert LoopClosureConf() == LoopClosureConf(optimize=False, robust="none", inlier_probability=0.99, verbose=False)
 
 
 def test_without_gtsam_the_error_names_the_extra(monkeypatch):

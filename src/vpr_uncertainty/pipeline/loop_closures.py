@@ -58,6 +58,7 @@ class LoopClosureConf:
         choices=("none", *KERNELS, "gnc"),
     )
     inlier_probability: float = option(0.99, "gnc: inlier threshold at this χ² quantile of the noise", type=float)
+    verbose: bool = option(False, "print GTSAM's iterations as they run (LM's costs and times; GNC's λ schedule)")
 
 
 def gtsam_module() -> Any:
@@ -161,9 +162,12 @@ def pose_rows(values: Any) -> np.ndarray:
     return np.c_[values.keys(), xyz, rotation.as_quat()]
 
 
-def optimize(graph: Any, initial: Any, *, robust: str = "none", inlier_probability: float = 0.99) -> Any:
+def optimize(
+    graph: Any, initial: Any, *, robust: str = "none", inlier_probability: float = 0.99, verbose: bool = False
+) -> Any:
     """The poses (``gtsam.Values``) that Levenberg–Marquardt finds from ``initial``, the first pose held by a prior;
-    ``robust`` (:data:`KERNELS` or ``"gnc"``) changes the loss of the loop closures, never that of the odometry."""
+    ``robust`` (:data:`KERNELS` or ``"gnc"``) changes the loss of the loop closures, never that of the odometry;
+    ``verbose``: GTSAM prints each LM iteration (and GNC's λ) to stdout as it runs."""
     gtsam = gtsam_module()
     graph, first, is_3d = graph.clone(), min(initial.keys()), gtsam.utilities.extractPose3(initial).size > 0
     pose = initial.atPose3(first) if is_3d else initial.atPose2(first)
@@ -171,8 +175,10 @@ def optimize(graph: Any, initial: Any, *, robust: str = "none", inlier_probabili
     graph.add(prior(first, pose, gtsam.noiseModel.Isotropic.Sigma(pose.dim(), 1e-6)))
     closures = [i for i, edge in enumerate(graph_edges(graph)) if edge[0] >= 0 and abs(edge[1] - edge[0]) != 1]
     params = gtsam.LevenbergMarquardtParams()
+    params.setVerbosityLM("SUMMARY" if verbose else "SILENT")
     if robust == "gnc":
         gnc = gtsam.GncLMParams(params)
+        gnc.setVerbosityGNC(gnc.Verbosity.LAMBDA if verbose else gnc.Verbosity.SILENT)
         gnc.setKnownInliers(sorted(set(range(graph.size())) - set(closures)))
         optimizer = gtsam.GncLMOptimizer(graph, initial, gnc)
         optimizer.setInlierCostThresholdsAtProbability(inlier_probability)
@@ -188,8 +194,8 @@ def main(conf: LoopClosureConf, graph: Path, scores: Path, gate: Path, out: Path
     """Filter ``graph`` by the ``gate``'s decisions on the ``scores`` file, write it to ``out`` (g2o) and, with
     ``conf.optimize``, the optimised poses to ``out`` with the suffix ``.tum``; returns ``out``."""
     gtsam, out, partial = gtsam_module(), Path(out), Path(f"{out}.partial")
-    if (conf.robust != "none" and not conf.optimize) or not 0 < conf.inlier_probability < 1:
-        raise ValueError(f"--robust {conf.robust} needs --optimize; --inlier-probability must lie in (0, 1)")
+    if ((conf.robust != "none" or conf.verbose) and not conf.optimize) or not 0 < conf.inlier_probability < 1:
+        raise ValueError("--robust and --verbose need --optimize; --inlier-probability must lie in (0, 1)")
     if out.exists() and out.resolve() == Path(graph).resolve():
         raise ValueError(f"--out {out} is the input graph, which is never modified: name another file")
     with np.load(scores, allow_pickle=False) as file:
@@ -206,7 +212,9 @@ def main(conf: LoopClosureConf, graph: Path, scores: Path, gate: Path, out: Path
     log(f"{kept} ({seconds:.2f} s); wrote {out}")
     if conf.optimize:
         start, tum = time.perf_counter(), out.with_suffix(".tum")
-        poses = optimize(filtered, initial, robust=conf.robust, inlier_probability=conf.inlier_probability)
+        poses = optimize(
+            filtered, initial, robust=conf.robust, inlier_probability=conf.inlier_probability, verbose=conf.verbose
+        )
         seconds = time.perf_counter() - start
         np.savetxt(partial, pose_rows(poses), fmt=["%d"] + ["%.9g"] * 7)
         os.replace(partial, tum)
