@@ -425,6 +425,7 @@ def run_one(
     rankings: Any = None,
     kind: str = "random",
     labels: int = 200,
+    verbose: bool = False,
 ) -> None:
     graph, closures, is_true, rows, gate = drawn_case(problem, rate, pop, seed, kind, labels, rankings)
     edges = graph_edges(graph)
@@ -465,7 +466,7 @@ def run_one(
             for i in np.flatnonzero(keep):
                 kept.add(graph.at(int(i)))
             start_optimiser = time.perf_counter()  # building the graph is timed in no configuration
-            values = optimize(kept, problem.initial, robust="none" if robust == "pcm" else robust)
+            values = optimize(kept, problem.initial, robust="none" if robust == "pcm" else robust, verbose=verbose)
             seconds = time.perf_counter() - start_optimiser + (pcm_seconds or 0)
             counts = (int((passed & ~is_true).sum()), int((passed & is_true).sum()))
             return (seconds, pcm_seconds, counts, *ate(values, problem.truth), *fits(graph, values, closures, is_true))
@@ -680,6 +681,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", default=None, help="configuration names separated by semicolons")
     parser.add_argument("--json", type=Path, default=None, help="append one JSON line per configuration")
     parser.add_argument("--timeout", type=float, default=180, help="seconds each optimisation may take (default 180)")
+    parser.add_argument("--verbose", action="store_true", help="GTSAM prints each LM iteration and GNC's λ as it runs")
     parser.add_argument("--label-plan", action="store_true", help="print the label plans of the ten methods and stop")
     parser.add_argument(
         "--rankings",
@@ -742,7 +744,10 @@ def main(argv: list[str] | None = None) -> int:
             [float(r) for r in args.sphere_rates.split(",")] if name == "sphere2500" and args.sphere_rates else rates
         )
         for rate in graph_rates:
-            run_one(problem, rate, pop, args.seed, out, only, args.timeout, rankings, args.wrong_closures, args.labels)
+            run_one(
+                problem, rate, pop, args.seed, out, only, args.timeout, rankings, args.wrong_closures, args.labels,
+                args.verbose,
+            )  # fmt: skip
     return 0
 
 
