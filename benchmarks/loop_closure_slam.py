@@ -374,15 +374,12 @@ def elimination_fill(edges: np.ndarray) -> tuple[int, int]:
     return int(separators.sum()), int(((separators + 1) ** 2).sum())
 
 
-def fill_in_table(problems: list[Problem], rates: list[float], pop: Population, seed: int, kind: str) -> str:
-    """Markdown, printed as it is measured: per graph and rate, the fill-in and one numeric elimination's time (median
-    of 3) of the closures the floor, the gate and no filter pass to the optimiser (GNC keeps every closure's factor,
-    down-weighted, so its linear solves are those of "all")."""
-    lines = [
-        "| graph | wrong | closures | wrong / true | R blocks | work (blocks²) | elimination (s, median of 3) |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    print("\n".join(lines), flush=True)
+def print_fill_in(problems: list[Problem], rates: list[float], pop: Population, seed: int, kind: str) -> None:
+    """A markdown table, printed row by row as measured: per graph and rate, the fill-in and one numeric elimination's
+    time (median of 3) of the closures the floor, the gate and no filter pass to the optimiser (GNC keeps every
+    closure's factor, down-weighted, so its linear solves are those of "all")."""
+    print("| graph | wrong | closures | wrong / true | R blocks | work (blocks²) | elimination (s, median of 3) |")
+    print("|---|---|---|---|---|---|---|", flush=True)
     for problem in problems:
         first, is_3d = min(problem.initial.keys()), gtsam.utilities.extractPose3(problem.initial).size > 0
         pose = problem.initial.atPose3(first) if is_3d else problem.initial.atPose2(first)
@@ -406,12 +403,11 @@ def fill_in_table(problems: list[Problem], rates: list[float], pop: Population, 
                     linear.eliminateMultifrontal()
                     seconds.append(time.perf_counter() - start)
                 (blocks, work), wrong, true = elimination_fill(edges[keep]), passed & ~is_true, passed & is_true
-                lines.append(
+                print(
                     f"| {problem.name} | {rate:.0%} | {name} | {wrong.sum()} / {true.sum()} | {blocks:,} | {work:,} | "
-                    f"{np.median(seconds):.3f} |"
+                    f"{np.median(seconds):.3f} |",
+                    flush=True,
                 )
-                print(lines[-1], flush=True)
-    return "\n".join(lines)
 
 
 def run_one(
@@ -735,7 +731,7 @@ def main(argv: list[str] | None = None) -> int:
         print(gate_table(args.method, range(args.gates), rankings=rankings))
         return 0
     if args.fill_in:
-        fill_in_table([PROBLEMS[name]() for name in graphs], rates, pop, args.seed, args.wrong_closures)
+        print_fill_in([PROBLEMS[name]() for name in graphs], rates, pop, args.seed, args.wrong_closures)
         return 0
     out = args.json.open("a") if args.json else None
     for name in graphs:
