@@ -12,8 +12,11 @@ and each inner LM walks the whole way from the odometry again: about 19 hours pr
 
 ``gnc(..., warm=True, prune=True)`` (the defaults) changes exactly two things:
 
-* **warm**: each inner solve starts from the previous solution (the continuation the method is named after), not
-  from the initial values;
+* **warm**: each inner solve after GNC's first starts from the previous one's solution (the continuation the method
+  is named after), not from the initial values. The first starts from the initial values, as GTSAM's does: started
+  from the least-squares solution of every closure (this script at commit ecda523), GNC alone on Sphere2500 with
+  30 % random wrong closures followed that broken solution to 46.8 m (1,798 s), since at a small μ every closure
+  weighs almost nothing and the odometry guess is the good start;
 * **prune**: a closure whose weight is 0 is left out of the inner solve (it adds nothing to the cost and only fills
   the factor in).
 
@@ -100,7 +103,8 @@ def gnc(
     for iteration in range(MAX_ITERATIONS):
         weights[closures] = tls_weights(errors(result, closures), thresholds[closures], mu)
         iteration_graph = weighted(weights)
-        result = gtsam.LevenbergMarquardtOptimizer(iteration_graph, result if warm else initial, params).optimize()
+        start = result if warm and iteration > 0 else initial
+        result = gtsam.LevenbergMarquardtOptimizer(iteration_graph, start, params).optimize()
         cost = iteration_graph.error(result)
         if verbose:
             zero, one = int((weights[closures] == 0).sum()), int((weights[closures] == 1).sum())
