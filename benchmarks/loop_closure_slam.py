@@ -27,8 +27,10 @@ guess, the first pose held by a prior)
     method's rows, no labels) + LM; the certified gate (p* = 0.9, δ = 0.1, ``calibrate_arrays`` on 200 rows drawn
     with replacement from the method's rows, as ``benchmarks/gate_efficiency.py`` resamples) + LM; all closures with
     a Huber / Cauchy / DCS kernel; all closures with GNC (TLS, odometry as known inliers, thresholds at the 0.99 χ²
-    quantile); the gate followed by GNC; the true closures among the gate's + LM (the best the gate's output allows:
-    what separates gate + GNC from the floor is the true closures the gate dropped, or wrong ones GNC kept); PCM
+    quantile); the gate followed by GNC; "GNC-GN" on all closures and behind the gate: the same GTSAM GncOptimizer
+    with Gauss-Newton inner solves instead of LM (Kimera-RPGO's ``Solver::GN``); the true closures among the gate's
+    + LM (the best the gate's output allows: what separates gate + GNC from the floor is the true closures the gate
+    dropped, or wrong ones GNC kept); PCM
     (Mangelson et al., ICRA 2018: pairwise consistency maximisation, ``pairwise_consistency.py`` states the test) on
     all closures and on the gate's, each followed by LM. All optimisation through
     ``vpr_uncertainty.pipeline.loop_closures``, except "GNC warm" on all closures and behind the gate: GNC with each
@@ -446,6 +448,8 @@ def run_one(
         ("all, DCS", "all", "dcs"),
         ("gate p*=0.9 + GNC", "gate p*=0.9", "gnc"),
         ("all, GNC (TLS)", "all", "gnc"),
+        ("gate p*=0.9 + GNC-GN", "gate p*=0.9", "gnc-gn"),
+        ("all, GNC-GN (TLS)", "all", "gnc-gn"),
         ("gate p*=0.9 + GNC warm", "gate p*=0.9", "gnc-warm"),
         ("all, GNC warm (TLS)", "all", "gnc-warm"),
         ("all, PCM + LM", "all", "pcm"),

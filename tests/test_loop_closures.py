@@ -155,6 +155,11 @@ def test_optimisation_reaches_the_ground_truth_and_gnc_rejects_an_outlier(gtsam,
     printed = capfd.readouterr().out
     assert "iter: 0" in printed and "lambda:" in printed and "cost_change" in printed and "total_time" in printed
     assert error(optimize(graph, initial, robust="cauchy")) < error(optimize(graph, initial))
+    # the same GNC with Gauss-Newton inner solves; verbose shows GN's errors, not LM's lines
+    assert error(optimize(graph, initial, robust="gnc-gn")) < 1e-6 and capfd.readouterr().out == ""
+    assert error(optimize(graph, initial, robust="gnc-gn", verbose=True)) < 1e-6
+    printed = capfd.readouterr().out
+    assert "newError" in printed and "lambda:" in printed and "cost_change" not in printed
 
 
 def test_reads_the_city10000_layout_and_3d_g2o(gtsam, tmp_path):

@@ -53,9 +53,9 @@ class LoopClosureConf:
     optimize: bool = option(False, "also optimise the filtered graph with GTSAM and write its poses to OUT.tum")
     robust: str = option(
         "none",
-        "loss of the loop closures when optimising: none (least squares), huber, cauchy, dcs, or gnc (GTSAM's "
-        "GncOptimizer, truncated least squares, odometry as known inliers)",
-        choices=("none", *KERNELS, "gnc"),
+        "loss of the loop closures when optimising: none (least squares), huber, cauchy, dcs, gnc (GTSAM's "
+        "GncOptimizer, truncated least squares, odometry as known inliers) or gnc-gn (the same, Gauss-Newton inside)",
+        choices=("none", *KERNELS, "gnc", "gnc-gn"),
     )
     inlier_probability: float = option(0.99, "gnc: inlier threshold at this χ² quantile of the noise", type=float)
     verbose: bool = option(False, "print GTSAM's iterations as they run (LM's costs and times; GNC's λ schedule)")
@@ -166,8 +166,8 @@ def optimize(
     graph: Any, initial: Any, *, robust: str = "none", inlier_probability: float = 0.99, verbose: bool = False
 ) -> Any:
     """The poses (``gtsam.Values``) that Levenberg–Marquardt finds from ``initial``, the first pose held by a prior;
-    ``robust`` (:data:`KERNELS` or ``"gnc"``) changes the loss of the loop closures, never that of the odometry;
-    ``verbose``: GTSAM prints each LM iteration (and GNC's λ) to stdout as it runs."""
+    ``robust`` (:data:`KERNELS`, ``"gnc"``, ``"gnc-gn"``) changes the loss of the closures, never the odometry's;
+    ``verbose``: GTSAM prints each LM or GN iteration (and GNC's λ) to stdout as it runs."""
     gtsam = gtsam_module()
     graph, first, is_3d = graph.clone(), min(initial.keys()), gtsam.utilities.extractPose3(initial).size > 0
     pose = initial.atPose3(first) if is_3d else initial.atPose2(first)
@@ -176,11 +176,12 @@ def optimize(
     closures = [i for i, edge in enumerate(graph_edges(graph)) if edge[0] >= 0 and abs(edge[1] - edge[0]) != 1]
     params = gtsam.LevenbergMarquardtParams()
     params.setVerbosityLM("SUMMARY" if verbose else "SILENT")
-    if robust == "gnc":
-        gnc = gtsam.GncLMParams(params)
+    if robust in ("gnc", "gnc-gn"):  # gnc-gn: Gauss-Newton inner solves, Kimera-RPGO's faster option
+        gnc = gtsam.GncGaussNewtonParams(gtsam.GaussNewtonParams()) if robust == "gnc-gn" else gtsam.GncLMParams(params)
+        gnc.baseOptimizerParams.setVerbosity("ERROR" if verbose and robust == "gnc-gn" else "SILENT")
         gnc.setVerbosityGNC(gnc.Verbosity.LAMBDA if verbose else gnc.Verbosity.SILENT)
         gnc.setKnownInliers(sorted(set(range(graph.size())) - set(closures)))
-        optimizer = gtsam.GncLMOptimizer(graph, initial, gnc)
+        optimizer = (gtsam.GncGaussNewtonOptimizer if robust == "gnc-gn" else gtsam.GncLMOptimizer)(graph, initial, gnc)
         optimizer.setInlierCostThresholdsAtProbability(inlier_probability)
         return optimizer.optimize()
     if robust != "none":
