@@ -57,7 +57,7 @@ class LoopClosureConf:
         "GncOptimizer, truncated least squares, odometry as known inliers) or gnc-gn (the same, Gauss-Newton inside)",
         choices=("none", *KERNELS, "gnc", "gnc-gn"),
     )
-    inlier_probability: float = option(0.99, "gnc: inlier threshold at this χ² quantile of the noise", type=float)
+    inlier_probability: float = option(0.99, "gnc(-gn): inlier threshold at this χ² quantile of the noise", type=float)
     verbose: bool = option(False, "print GTSAM's iterations as they run (LM's costs and times; GNC's λ schedule)")
 
 
@@ -165,7 +165,7 @@ def pose_rows(values: Any) -> np.ndarray:
 def optimize(
     graph: Any, initial: Any, *, robust: str = "none", inlier_probability: float = 0.99, verbose: bool = False
 ) -> Any:
-    """The poses (``gtsam.Values``) that Levenberg–Marquardt finds from ``initial``, the first pose held by a prior;
+    """The poses (``gtsam.Values``) GTSAM finds from ``initial`` (LM; GN inside gnc-gn), the first pose held by a prior;
     ``robust`` (:data:`KERNELS`, ``"gnc"``, ``"gnc-gn"``) changes the loss of the closures, never the odometry's;
     ``verbose``: GTSAM prints each LM or GN iteration (and GNC's λ) to stdout as it runs."""
     gtsam = gtsam_module()
@@ -176,7 +176,7 @@ def optimize(
     closures = [i for i, edge in enumerate(graph_edges(graph)) if edge[0] >= 0 and abs(edge[1] - edge[0]) != 1]
     params = gtsam.LevenbergMarquardtParams()
     params.setVerbosityLM("SUMMARY" if verbose else "SILENT")
-    if robust in ("gnc", "gnc-gn"):  # gnc-gn: Gauss-Newton inner solves, Kimera-RPGO's faster option
+    if robust in ("gnc", "gnc-gn"):  # gnc-gn: Gauss-Newton inner solves (Kimera-RPGO's Solver::GN)
         gnc = gtsam.GncGaussNewtonParams(gtsam.GaussNewtonParams()) if robust == "gnc-gn" else gtsam.GncLMParams(params)
         gnc.baseOptimizerParams.setVerbosity("ERROR" if verbose and robust == "gnc-gn" else "SILENT")
         gnc.setVerbosityGNC(gnc.Verbosity.LAMBDA if verbose else gnc.Verbosity.SILENT)
