@@ -58,7 +58,7 @@ class LoopClosureConf:
         choices=("none", *KERNELS, "gnc", "gnc-gn"),
     )
     inlier_probability: float = option(0.99, "gnc(-gn): inlier threshold at this χ² quantile of the noise", type=float)
-    verbose: bool = option(False, "print GTSAM's iterations as they run (LM's costs and times; GNC's λ schedule)")
+    verbose: bool = option(False, "print GTSAM's iterations as they run (LM's or GN's costs; GNC's λ schedule)")
 
 
 def gtsam_module() -> Any:
