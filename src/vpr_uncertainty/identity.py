@@ -20,6 +20,7 @@
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import importlib.machinery
@@ -29,6 +30,7 @@ import re
 import sys
 import sysconfig
 import types
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -242,6 +244,43 @@ def _source(path: str, stamp: tuple[int, int]) -> tuple[str, tuple[tuple[str, in
     return hashlib.blake2b(data, digest_size=16).hexdigest(), tuple(imports)
 
 
+#: Calls that import a module by name: followed where the name is one absolute string literal.
+_IMPORTERS = frozenset({"import_module", "__import__"})
+#: What runs code the identity cannot follow, wherever it is named: an importer called otherwise, a file by its path.
+_UNFOLLOWED = _IMPORTERS | {"spec_from_file_location", "SourceFileLoader", "run_path", "run_module"}
+#: Part of the identity of code that runs what cannot be followed: never the same in another process (run).
+_RUN = os.urandom(8).hex()
+
+
+def _word(node: Any) -> Any:
+    """What ``node`` names: ``f``, ``m.f``, ``"f"`` (``getattr(m, "f")``), ``from m import f as g``."""
+    if isinstance(node, ast.alias):
+        return node.name if node.asname else None
+    return getattr(node, "id", None) or getattr(node, "attr", None) or getattr(node, "value", None)
+
+
+@functools.lru_cache(maxsize=1024)
+def _dynamic(path: str, stamp: tuple[int, int]) -> tuple[tuple[tuple[str, int], ...], int | None]:
+    """The modules a user's source file imports at run time by a literal name (``importlib.import_module("helper")``,
+    ``__import__("helper")``), as :func:`_source` gives them, and the line of the first code it runs that cannot be
+    followed (None when none): an importer called otherwise or under an alias, ``exec``, ``eval``, a file by path."""
+    try:
+        tree = ast.parse(Path(path).read_bytes(), path)
+    except (SyntaxError, ValueError, RecursionError):  # not importable either: its bytes are hashed
+        return (), None
+    imports: list[tuple[str, int]] = []
+    followed: set[int] = set()
+    for node in ast.walk(tree):  # breadth first: a call before its function
+        call = node if isinstance(node, ast.Call) and len(node.args) == 1 and not node.keywords else None
+        name = getattr(call.args[0], "value", None) if call else None
+        if call and _word(call.func) in _IMPORTERS and isinstance(name, str) and not name.startswith("."):
+            imports.append((name, 0))
+            followed.add(id(call.func))
+        elif id(node) not in followed and (_word(node) in _UNFOLLOWED or getattr(node, "id", None) in ("exec", "eval")):
+            return tuple(imports), getattr(node, "lineno", 1)
+    return tuple(imports), None
+
+
 def _module_spec(name: str) -> Any:
     """The spec of module ``name`` (its loaded module's), found on the path without importing it or its parents."""
     module = sys.modules.get(name)
@@ -275,7 +314,10 @@ def code_identity(module: str) -> str:
     Hashed: the bytes of the module's source file and of every module its import statements name (at any level,
     transitively) in the same tree: its own top-level package, and for a module outside the toolkit (a user's
     ``--plugin``) every module that is not installed (neither the standard library nor site-packages), i.e. the
-    user's own files; with the toolkit's version. A module without a Python source file counts by its name.
+    user's own files; with the toolkit's version. A module without a Python source file counts by its name. In the
+    user's files, ``import_module("name")`` and ``__import__("name")`` count as import statements; code that imports
+    or runs what they cannot follow (:func:`_dynamic`) gets an identity of this process only, with a one-line
+    :class:`~vpr_uncertainty.cache.CacheWarning`: what it computed in another run is not reused.
 
     Examples
     --------
@@ -292,7 +334,7 @@ def code_identity(module: str) -> str:
     top = module.split(".")[0]
     hasher = hashlib.blake2b(f"vpr-uncertainty {__version__};".encode(), digest_size=16)
     seen: set[str] = set()
-    pending, files = [module], []
+    pending, files, unfollowed = [module], [], ""
     while pending:
         name = pending.pop()
         path = _module_file(name)
@@ -302,6 +344,9 @@ def code_identity(module: str) -> str:
         files.append((path, _stamp(path)))
         digest, imports = _source(path, files[-1][1])
         hasher.update(digest.encode())
+        if top != "vpr_uncertainty" and not is_installed(name):  # a user's file: its imports at run time too
+            dynamic, line = _dynamic(path, files[-1][1])
+            imports, unfollowed = imports + dynamic, unfollowed or (f"{path}, line {line}" if line else "")
         package = (name if path.endswith("__init__.py") else name.rpartition(".")[0]).split(".")
         for target, dots in imports:
             if dots:
@@ -314,7 +359,12 @@ def code_identity(module: str) -> str:
                 continue  # the toolkit's own tree only, and a user's tree without the toolkit (its version counts)
             if own or not is_installed(target):
                 pending.append(target)
-    _CLOSURES[module] = (files, "code:" + hasher.hexdigest())
+    if unfollowed:
+        from vpr_uncertainty.cache import CacheWarning
+
+        message = f"{unfollowed}: imports or runs code by a name the cache cannot follow, so what {module} computes is "
+        warnings.warn(message + "recomputed on every run (import it by a literal name to cache it)", CacheWarning, 2)
+    _CLOSURES[module] = (files, "code:" + hasher.hexdigest() + (f"#run-{_RUN}" if unfollowed else ""))
     return _CLOSURES[module][1]
 
 

@@ -123,9 +123,13 @@ def _import_plugin(target: str) -> None:
     path = Path(name) if name.endswith(".py") else None
     name = path.stem if path else name
     before = sys.modules.get(name)
-    module = _import_file(path) if path else importlib.import_module(name)
-    if function:
-        getattr(module, function)()
+    try:
+        module = _import_file(path) if path else importlib.import_module(name)
+        if function:
+            getattr(module, function)()
+    except SyntaxError as error:  # in the user's code: their file and line (an IndentationError too)
+        line = f", line {error.lineno}" if error.lineno else ""
+        raise ImportError(f"plugin {error.filename or target}{line}: {error.msg}; correct it there") from error
     if target not in _loaded or module is not before:  # the code of the module as it was executed
         from vpr_uncertainty.identity import code_identity
 
@@ -165,7 +169,7 @@ def replay_plugins(loaded: Iterable[tuple[str, str | None, str | None]]) -> None
                     f"{' '.join(str(error).split())}); it must be importable at the same path on every node"
                     f"{f' ({folder})' if folder else ''}"
                 ) from None
-        if _loaded[target][1] != code:
+        if str(_loaded[target][1]).partition("#run-")[0] != str(code).partition("#run-")[0]:  # code of one run
             raise ImportError(
                 f"plugin {target!r} on a Ray worker is not the code this run loaded (its source in {folder} changed "
                 "since, or differs on that node); run again, with the same file on every node"
