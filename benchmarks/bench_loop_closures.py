@@ -6,7 +6,7 @@ closure carrying a real AMOSNet corridor score row, the gate calibrated on 200 o
 ``loop_closure_slam.py`` builds its cases; all three are written to a temporary folder as the files a user passes
 (g2o graph, score file, gate file). The command's own report gives the filtering time (the gate on every row, the
 matching of closures to edges, the filtered graph built); beside it, the time to read the graph file
-(``read_graph``, what any run of the command pays first) and the whole command. Medians of ``--repeats`` runs.
+(``read_graph_file``, what any run of the command pays first) and the whole command. Medians of ``--repeats`` runs.
 
     VPR_UNCERTAINTY_DATA=... python benchmarks/bench_loop_closures.py [--rates 0.3,0.85] [--repeats 5]
 """
@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.pipeline.loop_closures import LoopClosureConf, main, read_graph
+from vpr_uncertainty.pipeline.loop_closures import LoopClosureConf, main
+from vpr_uncertainty.slam.graph_file import read_graph_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling script builds the cases
 
@@ -40,7 +41,7 @@ def measure(rate: float, repeats: int, folder: Path) -> str:
     reading, filtering, whole, said = [], [], [], []
     for _ in range(repeats):
         start = time.perf_counter()
-        read_graph(paths["graph.g2o"])
+        read_graph_file(paths["graph.g2o"])
         reading.append(time.perf_counter() - start)
         start = time.perf_counter()
         main(LoopClosureConf(), *(paths[n] for n in ("graph.g2o", "closures.npz", "gate.json", "filtered.g2o")),

@@ -81,7 +81,7 @@ import numpy as np
 from vpr_uncertainty.calibration import calibrate_arrays
 from vpr_uncertainty.data import read_results
 from vpr_uncertainty.descriptors.cache import read_descriptors
-from vpr_uncertainty.pipeline.loop_closures import filter_loop_closures, graph_edges, optimize, pose_rows, read_graph
+from vpr_uncertainty.slam.pose_graph import filter_loop_closures, graph_edges, optimize, pose_rows, read_graph
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # as paper_scale_projection.py: its sibling scripts
 

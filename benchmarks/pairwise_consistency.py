@@ -21,7 +21,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from vpr_uncertainty.pipeline.loop_closures import graph_edges
+from vpr_uncertainty.slam.pose_graph import graph_edges
 
 #: χ² quantile of the squared Mahalanobis distance of a pair's cycle error below which the pair is consistent.
 PCM_QUANTILE = 0.99

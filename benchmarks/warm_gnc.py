@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from vpr_uncertainty.pipeline.loop_closures import graph_edges, gtsam_module
+from vpr_uncertainty.slam.pose_graph import graph_edges, gtsam_module
 
 #: GTSAM's ``GncParams`` defaults: μ's factor per iteration, the relative cost change and weight tolerance that stop.
 MU_STEP, RELATIVE_COST_TOL, WEIGHTS_TOL, MAX_ITERATIONS = 1.4, 1e-5, 1e-4, 100
@@ -67,7 +67,7 @@ def gnc(
     verbose: bool = False,
 ) -> tuple[Any, np.ndarray]:
     """GNC (TLS) on ``graph`` from ``initial``, the first pose held by a prior and the odometry known inliers, as
-    ``vpr_uncertainty.pipeline.loop_closures.optimize(robust="gnc")`` sets it up. Returns the poses and the final
+    ``vpr_uncertainty.slam.pose_graph.optimize(robust="gnc")`` sets it up. Returns the poses and the final
     weights (F,) of the graph's F factors followed by the prior. ``warm`` and ``prune``: the module docstring."""
     gtsam = gtsam_module()
     graph, first = graph.clone(), min(initial.keys())

@@ -159,7 +159,7 @@ def test_disk_full_names_the_file_being_written(tmp_path, monkeypatch, where):
     monkeypatch.undo()
     error = raised.value
     assert error.errno == errno.ENOSPC and error.filename == str(target)
-    assert _message(error) == f"{os.strerror(errno.ENOSPC)}: {target}"
+    assert _message(error) == f"{os.strerror(errno.ENOSPC)} (the file as it was is kept): {target}"
     assert exit_status(error) == EXIT_RUNTIME
     assert target.read_text() == '{"old": true}\n'  # nothing replaced
     assert sorted(path.name for path in tmp_path.iterdir()) == ["gate.json"]  # no temporary file left

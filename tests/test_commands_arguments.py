@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -27,3 +29,31 @@ def test_missing_ground_truth_library_vs_command(tmp_path, capsys):
     assert "--" not in str(error.value)  # before: the library said "(--gt)"
     assert main(["evaluate", str(matrix)]) == 2
     assert "give the ground truth (--gt GT)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("command", "refused"),
+    [  # issue 42, row 3, and outputs that collide: every command, through the one check in the CLI
+        (
+            "calibrate sim.npy --gt gt.npy --target-precision 0.9 --sequential l.csv --out l.csv",
+            "--out l.csv is --sequential l.csv, which this command never overwrites",
+        ),
+        (
+            "evaluate sim.npy --gt gt.npy --json r.json --plot r.json",
+            "--plot r.json is --json r.json, which this command also writes",
+        ),
+        ("subset sim.npy --gt gt.npy --queries 0:5 --out gt.npy", "--out gt.npy is --gt gt.npy"),
+        ("evaluate sim.npy --gt gt.npy --per-query link.npy", "--per-query link.npy is SCORES sim.npy"),  # a link
+    ],
+)
+def test_an_output_that_is_an_input_or_another_output_is_refused(tmp_path, monkeypatch, capsys, command, refused):
+    monkeypatch.chdir(tmp_path)
+    np.save("sim.npy", np.random.default_rng(0).random((6, 6)).astype(np.float32))
+    np.save("gt.npy", np.array([[q, [q]] for q in range(6)], dtype=object), allow_pickle=True)
+    Path("l.csv").write_text("query,correct\n0,1\n")
+    Path("link.npy").symlink_to("sim.npy")
+    before = {path: path.read_bytes() for path in tmp_path.iterdir()}
+    assert main(command.split()) == 2
+    error = capsys.readouterr().err
+    assert refused in error and error.count("\n") == 1, error
+    assert {path: path.read_bytes() for path in tmp_path.iterdir()} == before

@@ -49,3 +49,35 @@ def open_regular(path: str | Path) -> IO[bytes]:
         handle.close()
         raise error
     return handle
+
+
+def _identity(path: str | Path) -> tuple:
+    """A file's identity: its device and inode when it exists (symbolic and hard links lead to one), else the path
+    with every link resolved."""
+    try:
+        status = os.stat(path)
+    except OSError:
+        return ("path", os.path.realpath(path))
+    return ("inode", status.st_dev, status.st_ino)
+
+
+def refuse_shared_files(inputs: dict[str, str | Path | None], outputs: dict[str, str | Path | None]) -> None:
+    """Raise a ValueError when an output is one of the inputs or another output (``-``, standard output, and None
+    are skipped); the keys name each file's role in the message, e.g. ``{"--out": path}``.
+
+    Examples
+    --------
+    >>> refuse_shared_files({"GRAPH": "/tmp/g.g2o"}, {"--out": "/tmp/../tmp/g.g2o"})
+    Traceback (most recent call last):
+    ...
+    ValueError: --out /tmp/../tmp/g.g2o is GRAPH /tmp/g.g2o, which this command never overwrites: name another file
+    """
+    seen = {_identity(path): (role, path) for role, path in inputs.items() if path is not None and str(path) != "-"}
+    for role, path in outputs.items():
+        if path is None or str(path) == "-":
+            continue
+        if (identity := _identity(path)) in seen:
+            other, other_path = seen[identity]
+            never = "this command never overwrites" if other in inputs else "this command also writes"
+            raise ValueError(f"{role} {path} is {other} {other_path}, which {never}: name another file")
+        seen[identity] = (role, path)

@@ -19,6 +19,7 @@ import traceback
 import warnings
 import zipfile
 from collections.abc import Sequence
+from pathlib import Path
 from typing import NoReturn
 
 from vpr_uncertainty.pipeline import COMMAND_MODULES, COMMANDS
@@ -187,6 +188,27 @@ def _message(error: BaseException) -> str:
     return text
 
 
+def _refuse_outputs_that_are_inputs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse a file the command writes (an option of type :func:`output_file`) that is a file it reads (any other
+    path option, and the ``--plugin`` files) or another file it writes."""
+    from vpr_uncertainty._files import refuse_shared_files
+    from vpr_uncertainty.pipeline.options import output_file
+
+    inputs: dict[str, Path] = {
+        f"--plugin {i + 1}": Path(p) for i, p in enumerate(getattr(args, "plugin", [])) if p.endswith(".py")
+    }
+    outputs: dict[str, Path] = {}
+    command = parser._subparsers._group_actions[0].choices[args.command]  # type: ignore[union-attr]
+    for action in command._actions:
+        value = getattr(args, action.dest, None)
+        paths = [v for v in (value if isinstance(value, list | tuple) else [value]) if isinstance(v, Path)]
+        role = action.option_strings[0] if action.option_strings else (action.metavar or action.dest.upper())
+        for index, path in enumerate(paths):
+            name = f"{role} {index + 1}" if len(paths) > 1 else role
+            (outputs if action.type is output_file else inputs)[name] = path
+    refuse_shared_files(inputs, outputs)
+
+
 def _debug_requested(args: argparse.Namespace | None) -> bool:
     return bool(getattr(args, "debug", False)) or os.environ.get(DEBUG_VARIABLE, "") not in {"", "0"}
 
@@ -207,8 +229,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         # one line per warning, from the first: a plugin that fails to load is one line too
         warnings.formatwarning = lambda message, *_: f"warning: {message}\n"
         args = _early_arguments(argv)  # until parsed: a plugin that fails to load shows its traceback with --debug
-        args = build_parser(args.plugin, command=args.command).parse_args(argv)
+        parser = build_parser(args.plugin, command=args.command)
+        args = parser.parse_args(argv)
         prefix = f"vpr-uncertainty {args.command}"
+        _refuse_outputs_that_are_inputs(parser, args)
         from vpr_uncertainty.progress import progress_default
 
         with progress_default(getattr(args, "progress", None)):
