@@ -62,7 +62,7 @@ def test_without_pandas_the_error_names_the_extra(retrieval, monkeypatch):
 
 def test_repr_is_a_compact_summary_not_the_arrays(retrieval):
     """Regression: repr(evaluation) printed every array (correctness, uncertainties, curves) of every method."""
-    evaluation = evaluate(retrieval, ["SU", "BM"], k=10, bootstrap=20)
+    evaluation = evaluate(retrieval, ["SU", "BM"], k=10, bootstrap=40)
     text = repr(evaluation)
     assert len(text.splitlines()) == 4 and len(text) < 600, text
     assert text.startswith("Evaluation(n_queries=300, n_answerable=")

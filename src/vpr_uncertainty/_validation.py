@@ -24,6 +24,20 @@ def check_count(value: object, name: str, minimum: int) -> int:
     return int(value)
 
 
+def check_resamples(n_resamples: object, name: str = "n_resamples", confidence: float = 0.95) -> int:
+    """``n_resamples`` as an int, refused (naming ``name``) below 2 / (1 - confidence) resamples, 40 at 95 %: fewer
+    leave a tail of the percentile interval without a resample, and the paired p-value (>= 2 / (B + 1)) could
+    never fall below 1 - confidence."""
+    n_resamples = check_count(n_resamples, name, 1)
+    if n_resamples < (smallest := math.ceil(round(2 / (1 - confidence), 9))):
+        raise ValueError(
+            f"{n_resamples} bootstrap resamples (argument {name}) are too few: the {confidence:.0%} interval needs a "
+            f"resample in each tail, and the p-value, at least 2/(resamples + 1), must be able to fall below "
+            f"{1 - confidence:.2g}; use at least {smallest} (1000 is usual)"
+        )
+    return n_resamples
+
+
 def check_fraction(value: object, name: str) -> float:
     """Return ``value`` as a float after checking that it is a real number (not a bool) in [0, 1]."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
@@ -95,8 +109,9 @@ def check_block(
             bad = ~(block[:, 1:] <= block[:, :-1])
             row, col = np.argwhere(bad)[0]
             raise ValueError(
-                f"{name} must be sorted in descending order along axis 1, but row {offset + row} has "
-                f"{float(block[row, col]):g} before {float(block[row, col + 1]):g}; pass sort=True to sort it for you"
+                f"{name} must be sorted in descending order in each row, but row {offset + row} has "
+                f"{float(block[row, col]):g} before {float(block[row, col + 1]):g}; sort each row best first (in "
+                "Python, the score functions' sort=True does it)"
             )
     else:
         _raise_for_nan(block, name, offset)

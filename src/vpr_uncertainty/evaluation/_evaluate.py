@@ -109,9 +109,9 @@ def evaluate(
         ``time_per_query_ms_cold`` and ``time_per_query_ms_warm`` (features read from the cache in
         ``cache_dir``; absent without one), see :func:`time_geometric`.
     bootstrap : int, default=0
-        Paired bootstrap resamples over queries (0: none): 95 % intervals of AUC-PR, AP and AURC, a paired test of
-        each method's AUC-PR against ``reference`` (Holm-corrected), and the leaders of each metric; see
-        :func:`vpr_uncertainty.evaluation.bootstrap.add_bootstrap`.
+        Paired bootstrap resamples over queries (0: none, else >= 40): 95 % intervals of AUC-PR, AP and AURC, a
+        paired test of each method's AUC-PR against ``reference`` (Holm-corrected), and the leaders of each metric;
+        see :func:`vpr_uncertainty.evaluation.bootstrap.add_bootstrap`.
     seed : int, default=0
         Seed of the bootstrap resamples.
     reference : str, optional
@@ -213,6 +213,7 @@ def evaluate(
                     f"{entry.name} was trained on {details['trained_on_queries']} of these {retrieval.n_queries} "
                     "queries (allow_train_queries): its figures are optimistic, and it is marked ‡ and never best"
                 )
+            note(f"{entry.name}: {details.pop('note')}" if "note" in details else None)  # e.g. BTL's unverified leakage
             method_correct = correct_at_n(own.indices, own.positives if own.positives is not None else positives, 1)
             own_recall = float(method_correct[answerable].mean())
             evaluation.notes.append(

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty._validation import check_count
+from vpr_uncertainty._validation import check_count, check_resamples
 from vpr_uncertainty.evaluation.metrics import check_labels
 
 if TYPE_CHECKING:
@@ -304,6 +304,8 @@ def check_bootstrap(n_resamples: object, seed: object, confidence: float = 0.95,
     check_count(seed, "seed", 0)
     if not 0.0 < confidence < 1.0 or not 0.0 < level < 1.0:
         raise ValueError(f"confidence and level must lie in (0, 1), got {confidence} and {level}")
+    if n_resamples:
+        check_resamples(n_resamples, "bootstrap", confidence)
 
 
 def resolve_reference(reference: str | None, methods: list[str]) -> str:
@@ -403,7 +405,7 @@ def add_bootstrap(
     evaluation : Evaluation
         With its methods' uncertainties and correctness labels.
     n_resamples : int
-        Bootstrap resamples (>= 1).
+        Bootstrap resamples (>= 40 at 95 %, :func:`~vpr_uncertainty._validation.check_resamples`).
     seed : int, default=0
         Seed of the resamples.
     reference : str, optional

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vpr_uncertainty._validation import check_count
+from vpr_uncertainty._validation import check_count, check_resamples
 from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, holm, paired_p_value, percentile_interval
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -147,6 +147,8 @@ class Comparison:
     seed: int
     confidence: float
     notes: list[str] = field(default_factory=list)
+    #: Candidates per query the uncertainties of both sides were computed from (``Evaluation.k``).
+    k: int | None = None
 
     def difference(self, metric: str, method: str) -> Difference:
         """The row of ``metric`` (``auc_pr`` or ``average_precision``) for ``method`` (A's method name)."""
@@ -160,6 +162,7 @@ class Comparison:
             "a": self.label_a,
             "b": self.label_b,
             "n_queries": self.n_queries,
+            "k": self.k,
             "bootstrap": {
                 "resamples": self.n_resamples,
                 "seed": self.seed,
@@ -175,7 +178,7 @@ class Comparison:
     def __str__(self) -> str:
         percent = f"{self.confidence * 100:g}% CI"
         lines = [
-            f"A = {self.label_a}, B = {self.label_b}: {self.n_queries} queries, paired bootstrap "
+            f"A = {self.label_a}, B = {self.label_b}: {self.n_queries} queries, k = {self.k}, paired bootstrap "
             f"({self.n_resamples} resamples, seed {self.seed})",
             f"{'metric':<7} {'method':<14} {'A':>7} {'B':>7} {'A - B':>8} {percent:>19} {'p':>7} {'Holm p':>7}",
         ]
@@ -299,7 +302,7 @@ def compare(
     query_names_a, query_names_b : array-like of shape (Q,), optional
         The queries' names (``Retrieval.query_names``); when both are given they must be equal.
     n_resamples : int, default=1000
-        Bootstrap resamples, >= 1.
+        Bootstrap resamples, >= 40 at 95 % (:func:`~vpr_uncertainty._validation.check_resamples`).
     seed : int, default=0
         Seed of the resamples (:func:`~vpr_uncertainty.evaluation.bootstrap.resample_indices`).
     confidence : float, default=0.95
@@ -314,7 +317,8 @@ def compare(
     Raises
     ------
     ValueError
-        When the two evaluations do not hold the same queries, a method is missing, or no method is in both.
+        When the two evaluations do not hold the same queries or were evaluated at different k (``Evaluation.k``), a
+        method is missing, no method is in both, or ``n_resamples`` is too few for an interval and a p-value.
 
     Examples
     --------
@@ -328,10 +332,10 @@ def compare(
     >>> row.method_b, round(row.difference, 4)  # SU ranks both correct answers first, BM does not
     ('BM', 0.5833)
     """
-    n_resamples = check_count(n_resamples, "n_resamples", 1)
     seed = check_count(seed, "seed", 0)
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
+    n_resamples = check_resamples(n_resamples, confidence=confidence)
     labels = tuple(str(label) for label in labels)
     if len(labels) != 2:
         raise ValueError(f"labels must name the two sides, got {labels}")
@@ -358,6 +362,12 @@ def compare(
             raise ValueError("method_a and method_b compare two methods of one evaluation; leave out evaluation_b")
         _check_evaluation(evaluation_b, "evaluation_b")
         _check_same_queries(evaluation_a, evaluation_b, query_names_a, query_names_b, labels)
+        if None not in (evaluation_a.k, evaluation_b.k) and evaluation_a.k != evaluation_b.k:
+            raise ValueError(
+                f"{labels[0]} was evaluated at k = {evaluation_a.k} and {labels[1]} at k = {evaluation_b.k} (k is "
+                "capped by the candidates a retrieval holds): their uncertainties would differ by k alone; evaluate "
+                f"both at k = {min(evaluation_a.k, evaluation_b.k)}"
+            )
         if methods is None:
             names = [name for name in evaluation_a.methods if name in evaluation_b.methods]
             only = sorted(set(evaluation_a.methods).symmetric_difference(evaluation_b.methods))
@@ -393,4 +403,5 @@ def compare(
         seed=seed,
         confidence=confidence,
         notes=notes,
+        k=evaluation_a.k,
     )

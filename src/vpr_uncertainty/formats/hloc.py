@@ -81,7 +81,7 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
     split : {"database", "queries"}, optional
         When the names carry split prefixes (``query/``, ``queries/`` or ``q/``; ``db/``, ``database/``,
         ``ref/``, ``reference/`` or ``mapping/``), only that split's images; otherwise the file is taken to hold
-        one split and every image is read.
+        one split and every image is read; a file mixing prefixed and unprefixed names is refused.
 
     Returns
     -------
@@ -93,8 +93,10 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
     ------
     ValueError
         When the file holds no global descriptors, a descriptor that is not 1-D real numbers, descriptors of different
-        sizes, no image of ``split`` although its names carry split prefixes, or a soft or external link, external
-        storage or a virtual dataset (:mod:`vpr_uncertainty.cache`: bytes from outside the file are refused).
+        sizes, no image of ``split`` although its names carry split prefixes, a name without a split prefix beside
+        names with one (it belongs to neither split: hloc's ``pairs_from_retrieval`` would skip it), or a soft or
+        external link, external storage or a virtual dataset (:mod:`vpr_uncertainty.cache`: bytes from outside the
+        file are refused).
     """
     import h5py
 
@@ -107,6 +109,11 @@ def read_hloc_descriptors(path: str | Path, split: str | None = None) -> tuple[n
             raise ValueError(f"{path} holds no hloc global descriptors (groups with a '{HLOC_DATASET}' dataset)")
         splits = {name: _split_of(name) for name in names}
         if split is not None and any(splits.values()):
+            if loose := [name for name in names if splits[name] is None]:
+                raise ValueError(
+                    f"{path}: image {loose[0]!r} ({len(loose)} such) has no split prefix while others have one; "
+                    f"expected every name under {'/, '.join(QUERY_PREFIXES)}/ or {'/, '.join(DATABASE_PREFIXES)}/"
+                )
             chosen = [name for name in names if splits[name] == split]
             if not chosen:
                 present = sorted(set(splits.values()) - {None})

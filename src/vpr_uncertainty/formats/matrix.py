@@ -85,13 +85,16 @@ def _check_similarity_values(
     if np.isnan(extreme) or extreme == wrong_infinity:
         bad = np.isnan(block) | (block == wrong_infinity)
         row, column = (int(i) for i in np.argwhere(bad)[0])
-        last = first_row + len(block) - 1
+        rows, count = first_row + np.unique(bad.nonzero()[0]), int(bad.sum())  # name the queries, not the block
+        listed = ", ".join(map(str, rows[:5])) + (", ..." if rows.size > 5 else "")
+        where = f"all in query {rows[0]}" if rows.size == 1 else f"in {rows.size} queries: {listed}"
+        where = f"{count} such value{'s' * (count > 1)} among queries {first_row}–{first_row + len(block) - 1}, {where}"
         matrix, what, missing = (
             ("similarity", "similarities", "-inf") if higher_is_better else ("distance", "distances", "+inf")
         )
         raise ValueError(
             f"{path}: the {matrix} matrix holds {block[row, column]} at query {first_row + row}, database image "
-            f"{column} ({int(bad.sum())} such values in queries {first_row}–{last}); expected finite "
+            f"{column} ({where}); expected finite "
             f"{what} ({missing} marks a database image that is no candidate)"
         )
 

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty._validation import check_resamples
 from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
 from vpr_uncertainty.evaluation import compare
 from vpr_uncertainty.pipeline.evaluate import EvaluateConf, read_inputs
@@ -48,7 +49,7 @@ class CompareConf:
     """How the two sides are compared; each option field is also a command-line option. ``evaluate`` says which
     uncertainty methods are computed on each results file (its ``methods``, ``k`` and ``alpha`` are flags too)."""
 
-    resamples: int = option(1000, "bootstrap resamples over queries", type=integer_at_least(1), metavar="N")
+    resamples: int = option(1000, "bootstrap resamples over queries (>= 40)", type=integer_at_least(1), metavar="N")
     seed: int = option(0, "seed of the bootstrap resamples", type=integer_at_least(0), metavar="S")
     uncertainty: tuple[str, str] | None = option(
         None,
@@ -57,6 +58,9 @@ class CompareConf:
         metavar="U1,U2",
     )
     evaluate: EvaluateConf = field(default_factory=EvaluateConf)
+
+    def __post_init__(self) -> None:
+        check_resamples(self.resamples, "resamples")  # before any file is read
 
 
 #: The configuration of the stage when none is given (hloc's ``default_conf``).
@@ -90,7 +94,9 @@ def compute(
         evaluation = evaluate_compute(evaluate_conf, retrieval_a).evaluation
         return compare(evaluation, method_a=conf.uncertainty[0], method_b=conf.uncertainty[1], **settings)
     _check_same_ground_truth(retrieval_a, retrieval_b, labels)
-    evaluation_a, evaluation_b = (evaluate_compute(conf.evaluate, r).evaluation for r in (retrieval_a, retrieval_b))
+    k = max(2, min(conf.evaluate.k, retrieval_a.k, retrieval_b.k))  # the uncertainties of both from as many candidates
+    evaluate_conf = dataclasses.replace(conf.evaluate, k=k)
+    evaluation_a, evaluation_b = (evaluate_compute(evaluate_conf, r).evaluation for r in (retrieval_a, retrieval_b))
     comparison = compare(
         evaluation_a,
         evaluation_b,
@@ -99,6 +105,11 @@ def compute(
         query_names_b=retrieval_b.query_names,
         **settings,
     )
+    if k < conf.evaluate.k:
+        comparison.notes.append(
+            f"{labels[0]} holds {retrieval_a.k} candidates per query and {labels[1]} {retrieval_b.k}: both compared at "
+            f"k = {k} (k = {conf.evaluate.k} asked)"
+        )
     if all(np.array_equal(getattr(retrieval_a, name), getattr(retrieval_b, name)) for name in ("scores", "indices")):
         comparison.notes.append(f"{labels[0]} and {labels[1]} hold the same retrieval: every difference is 0")
     return comparison
@@ -205,7 +216,8 @@ def _read(path: Path, args: argparse.Namespace, conf: EvaluateConf) -> Any:
 
 def _handle(args: argparse.Namespace) -> int:
     evaluate_conf = conf_from_args(EvaluateConf, args, bootstrap=0, seed=0, reference=None)
-    conf = conf_from_args(CompareConf, args, evaluate=evaluate_conf)
+    with command_wording(resamples="--resamples"):
+        conf = conf_from_args(CompareConf, args, evaluate=evaluate_conf)
     _check_sides(conf, args.b is not None)  # before reading the files
     paths = [args.a] if args.b is None else [args.a, args.b]
     with command_wording(ground_truth="--gt GT"):

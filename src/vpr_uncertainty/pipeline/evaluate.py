@@ -22,6 +22,7 @@ from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
 from vpr_uncertainty.data.images import retrieval_image_paths
 from vpr_uncertainty.evaluation import evaluate as evaluate_methods
+from vpr_uncertainty.evaluation.bootstrap import check_bootstrap
 from vpr_uncertainty.evaluation.metrics import RECALL_NS, check_recall_ns
 from vpr_uncertainty.formats.vpr_methods_evaluation import read_vpr_methods_evaluation
 from vpr_uncertainty.methods import available_methods, default_method_names, get_method, split_method_list
@@ -90,7 +91,7 @@ METHOD_SPEC_HELP = (
 #: Help of ``--bootstrap`` (evaluate, run, reproduce).
 BOOTSTRAP_HELP = (
     "bootstrap resamples for 95 %% intervals of AUC-PR, AP and AURC, a paired test of each method's AUC-PR against "
-    "the reference (Holm-corrected) and a best marked only where significant; 0 = none, 1000 is usual"
+    "the reference (Holm-corrected) and a best marked only where significant; 0 = none, else >= 40; 1000 is usual"
 )
 
 
@@ -127,6 +128,7 @@ class EvaluateConf:
 
     def __post_init__(self) -> None:
         check_alpha(self.alpha)  # before any work (run extracts descriptors first)
+        check_bootstrap(self.bootstrap, self.seed)
         if self.recall_at is not None:
             object.__setattr__(self, "recall_at", check_recall_ns(self.recall_at))
 
@@ -434,10 +436,12 @@ def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.reports import format_table, plot_rejection_curves
     from vpr_uncertainty.reports.tables import evaluation_csv, evaluation_latex, per_query_csv
 
-    conf = conf_from_args(EvaluateConf, args, options=method_options(args))
-    executor_options(args)  # bad executor options fail before any work
     wording = {"images": "--images", "query_images": "--query-images", "database_images": "--database-images"}
-    with command_wording(ground_truth="--gt GT", database_positions="--database-positions", **wording):
+    with command_wording(
+        ground_truth="--gt GT", database_positions="--database-positions", bootstrap="--bootstrap", **wording
+    ):
+        conf = conf_from_args(EvaluateConf, args, options=method_options(args))
+        executor_options(args)  # bad executor options fail before any work
         retrieval, methods, image_options, notes = read_inputs(args, conf)
         conf = dataclasses.replace(conf, methods=methods, options={**conf.options, **image_options})
         for note in notes:
