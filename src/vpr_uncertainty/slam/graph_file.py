@@ -115,9 +115,10 @@ def read_graph_file(path: str | Path) -> GraphFile:
         raise ValueError(f"{path}: not a text pose graph (byte {error.start} is not UTF-8)") from None
     groups: dict[str, list[tuple[int, list[str]]]] = {}
     other: Counter[str] = Counter()
-    for index, line in enumerate(lines):
-        words = (line.removeprefix("\ufeff") if index == 0 else line).split()  # a byte-order mark is no tag
-        if not words or words[0].startswith("#"):
+    for index, words in enumerate(line.split() for line in lines):
+        if index == 0 and words:
+            words[0] = words[0].removeprefix("\ufeff")  # a byte-order mark is no part of a tag
+        if not words or words[0][0] == "#":
             other["#"] += bool(words)
         elif words[0] in TAGS:
             groups.setdefault(words[0], []).append((index, words))
@@ -131,7 +132,7 @@ def read_graph_file(path: str | Path) -> GraphFile:
         city = tag == "EDGE2" and _is_city10000(rows[0][1])
         n_ids, n_values = (1, n_pose) if n_information is None else (2, n_pose + (0 if city else n_information))
         lines_of = np.array([number for number, _ in rows], dtype=np.int64)
-        for number, words in rows:
+        for number, words in rows if city or {len(words) for _, words in rows} != {1 + n_ids + n_values} else ():
             width = 1 + n_ids + n_values
             if city:
                 width = 6 + 3 * int(words[5]) if len(words) > 5 and _is_int(words[5]) and int(words[5]) else None
@@ -212,12 +213,18 @@ def _is_city10000(words: list[str]) -> bool:
 
 def _ids(path: Path, tag: str, rows: list, columns: list[int], lines: np.ndarray) -> np.ndarray:
     """(N, len(columns)) int64 ids; a negative, fractional or huge one is refused with its line."""
-    words = [[row[1][column] for column in columns] for row in rows]
-    for (number, _), found in zip(rows, words, strict=True):
-        for word in found:
-            if not _is_int(word) or int(word) >= 2**63:
-                raise ValueError(f"{path}, line {number + 1}: {tag} ids must be integers in [0, 2^63), got {word!r}")
-    ids = np.array(words, dtype=np.int64).reshape(len(rows), len(columns))
+    flat = [words[column] for _, words in rows for column in columns]
+    joined = "".join(flat)
+    if joined.isascii() and joined.isdigit() and max(map(len, flat), default=0) < 19:  # below 2^63: one check
+        ids = np.fromiter(map(int, flat), np.int64, len(flat)).reshape(len(rows), len(columns))
+    else:
+        for number, words in rows:
+            for word in (words[column] for column in columns):
+                if not _is_int(word) or int(word) >= 2**63:
+                    where = f"{path}, line {number + 1}: {tag} ids"
+                    raise ValueError(f"{where} must be integers in [0, 2^63), got {word!r}")
+        ids = np.array([[int(words[column]) for column in columns] for _, words in rows], dtype=np.uint64)
+        ids = ids.astype(np.int64).reshape(len(rows), len(columns))
     if len(columns) == 2 and (same := np.flatnonzero(ids[:, 0] == ids[:, 1])).size:
         raise ValueError(f"{path}, line {lines[same[0]] + 1}: an edge from vertex {ids[same[0], 0]} to itself")
     return ids
