@@ -186,7 +186,7 @@ def test_cli_labels_from_the_ground_truth_then_resumes_from_the_labels_file(
     simulated = capsys.readouterr().out
     assert "certified" in simulated and "done" in simulated and Gate.load(gate).precision_lower_bound > 0.9
     rows = labels.read_text().splitlines()
-    assert rows[0] == "query,correct" and len(rows) > 23
+    assert rows[0].startswith("# vpr-uncertainty labels of pool ") and rows[1] == "query,correct" and len(rows) > 24
     assert main(["calibrate", matrix, *common]) == 0  # the labels file alone gives the same status
     assert capsys.readouterr().out.splitlines()[-1] == simulated.splitlines()[-2]
 

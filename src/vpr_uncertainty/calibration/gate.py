@@ -8,10 +8,10 @@ precomputed numbers: a couple of microseconds, like :class:`~vpr_uncertainty.Sta
 
 The JSON file holds numbers only (no pickle): the calibrator and the rule (features, scaling, coefficients), k,
 the cut and the threshold, the certificate, the toolkit version, the calibration set's size and a fingerprint of
-its scores and labels; and a ``digest``, SHA-256 of each field (``cut``, ``calibrator.coef``, ``rule.coef``, …), by
-which :meth:`Gate.load` refuses and names a field edited or written twice (against edits, not forgery). The gate
-refuses a row unlike its calibration rows: other than k scores, or fewer of them finite (not ``-inf``) than any
-calibration row held.
+its scores and labels; and a ``digest``, SHA-256 of each field (``cut``, ``calibrator.coef``, ``rule.coef``, …, each
+named by its path, one name per field), by which :meth:`Gate.load` refuses and names a field edited, added or written
+twice (against edits, not forgery). The gate refuses a row unlike its calibration rows: other than k scores, or fewer
+of them finite (not ``-inf``) than any calibration row held.
 """
 
 from __future__ import annotations
@@ -290,7 +290,9 @@ class Gate:
                 f"{_FIX}"
             )
         found = _digest(data)
-        edited = ", ".join(sorted(name for name in found.keys() | digest if found.get(name) != digest.get(name)))
+        edited = ", ".join(
+            sorted(_shown(name) for name in found.keys() | digest if found.get(name) != digest.get(name))
+        )
         edited = f"{edited} changed since calibrate (the digest differs)" if edited else ""
         try:
             k, cut = check_k(data.get("k")), data.get("cut")
@@ -329,16 +331,28 @@ class Gate:
 
 
 def _digest(data: dict[str, Any]) -> dict[str, str]:
-    """SHA-256 (16 hex digits) of the canonical JSON of each field but ``digest``, an object's fields one by one."""
+    """SHA-256 (16 hex digits) of the canonical JSON of each field but ``digest``, an object's fields one by one,
+    each named by its path (``cut``, ``rule.coef``): a ``~`` or ``.`` within a key is written ``~0`` or ``~1`` (as
+    in a JSON pointer), so that no two fields share a name (a top-level ``"rule.coef"`` is ``rule~1coef``)."""
     fields: dict[str, Any] = {}
     for key, value in data.items():
         if key != "digest":
             nested = isinstance(value, dict) and value
-            fields.update({f"{key}.{name}": item for name, item in value.items()} if nested else {key: value})
+            fields.update({_name(key, name): item for name, item in value.items()} if nested else {_name(key): value})
     return {
         name: hashlib.sha256(json.dumps(value, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:16]
         for name, value in sorted(fields.items())
     }
+
+
+def _name(*keys: object) -> str:
+    return ".".join(str(key).replace("~", "~0").replace(".", "~1") for key in keys)
+
+
+def _shown(name: str) -> str:
+    """A digest name as the user reads it: a key holding ``.`` or ``~`` in quotes (``"rule.coef"``, top level)."""
+    parts = (part.replace("~1", ".").replace("~0", "~") for part in str(name).split("."))
+    return ".".join(json.dumps(part) if "." in part or "~" in part else part for part in parts)
 
 
 def _unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:

@@ -40,6 +40,7 @@ from vpr_uncertainty.calibration.guarantee import (
     fixed_sequence,
     min_accepted,
 )
+from vpr_uncertainty.calibration.labels_file import pool_fingerprint
 
 __all__ = ["SequentialCalibration", "SequentialStatus"]
 
@@ -167,6 +168,12 @@ class SequentialCalibration:
         is the stronger on the corridor; on other data SU's most confident answers can hold early wrong ones, and
         the margin's rarely do.
 
+    Attributes
+    ----------
+    fingerprint : str
+        :func:`~vpr_uncertainty.calibration.labels_file.pool_fingerprint` of the pool (its top-k scores and k): the
+        labels file carries it, and so does the gate (``calibration.pool``).
+
     Examples
     --------
     >>> rng = np.random.default_rng(0)
@@ -201,6 +208,7 @@ class SequentialCalibration:
             for name, share in shares.items()
         ]
         self._features = features
+        self.fingerprint = pool_fingerprint(scores, self.k)
         self._least = int(min(np.isfinite(scores[:, :k]).sum(axis=1).min(), k))
         self._labels = np.full(len(scores), -1, dtype=np.int8)  # -1: not labelled; 0/1: wrong/correct
 
@@ -292,6 +300,6 @@ class SequentialCalibration:
             "precision_lower_bound": status.precision_lower_bound,
             "expected_coverage": status.coverage,
             "sequential": status.to_dict(),
-            "calibration": {"size": status.labelled, "min_candidates": self._least},
+            "calibration": {"size": status.labelled, "min_candidates": self._least, "pool": self.fingerprint},
         }
         return Gate(calibrator, self.k, status.cut, info=info, rule=ranking_rule(status.ranking))

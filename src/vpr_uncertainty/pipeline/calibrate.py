@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -96,7 +95,8 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         metavar="LABELS.csv",
         help="label one query at a time: SCORES is the unlabelled pool, LABELS.csv (query,correct rows; created "
-        "when missing) the labels so far; prints whether --target-precision is certified and the query to label "
+        "when missing; its first line names the pool's fingerprint, and labels of another pool are refused) the "
+        "labels so far; prints whether --target-precision is certified and the query to label "
         "next (append its row and rerun), and writes --out once certified. With --gt the queries asked for are "
         "labelled from the ground truth (a simulation of how many labels it takes)",
     )
@@ -215,27 +215,9 @@ def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.nda
     return 0
 
 
-def _read_labels(path: Path, n_queries: int) -> list[tuple[int, bool]]:
-    """The ``query,correct`` rows of a labels file (query: a pool index; correct: 1/0, true/false, yes/no)."""
-    if not path.exists():
-        return []
-    truth = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}
-    labels = []
-    with path.open(newline="", encoding="utf-8") as handle:
-        for line, row in enumerate(csv.reader(handle), start=1):
-            if not row or (line == 1 and row[0].strip().lower() == "query"):
-                continue
-            query, correct = [*row, ""][:2]
-            if not query.strip().isascii() or not query.strip().isdigit() or int(query) >= n_queries:
-                raise ValueError(f"{path}, line {line}: query must be a pool index in [0, {n_queries}), got {query!r}")
-            if correct.strip().lower() not in truth:
-                raise ValueError(f"{path}, line {line}: correct must be 1/0, true/false or yes/no, got {correct!r}")
-            labels.append((int(query), truth[correct.strip().lower()]))
-    return labels
-
-
 def _run_sequential(args: argparse.Namespace) -> int:
     from vpr_uncertainty.calibration import SequentialCalibration
+    from vpr_uncertainty.calibration.labels_file import read_labels, write_labels
     from vpr_uncertainty.evaluation import correct_at_n
 
     if args.target_precision is None:
@@ -250,16 +232,23 @@ def _run_sequential(args: argparse.Namespace) -> int:
     session = SequentialCalibration(
         scores, target_precision=args.target_precision, delta=args.delta, k=args.k, rankings=rankings
     )
-    labels = _read_labels(args.sequential, len(scores))
-    for query, correct in labels:
+    pool, about = session.fingerprint, f"{' '.join(str(args.scores).split())}: {len(scores)} queries, k={args.k}"
+    read = read_labels(args.sequential, n_queries=len(scores), pool=pool, about=about)
+    for query, correct in read.labels:
         session.add_label(query, correct)
-    if truth is not None:
-        while (query := session.next_query()) is not None:
-            session.add_label(query, bool(truth[query]))
-            labels.append((query, bool(truth[query])))
-        args.sequential.write_text("query,correct\n" + "".join(f"{q},{int(c)}\n" for q, c in labels), "utf-8")
+    new: list[tuple[int, bool]] = []
+    while truth is not None and (query := session.next_query()) is not None:
+        session.add_label(query, bool(truth[query]))
+        new.append((query, bool(truth[query])))
+    if truth is not None or read.pool is None:  # a new or adopted file gets its pool line; --gt appends the labels
+        write_labels(args.sequential, read, new, pool=pool, about=about)
+    if read.text and read.pool is None:
         print(
-            f"labelled {len(labels)} of {len(scores)} queries from {args.gt} in the order asked; "
+            f"note: {args.sequential} carried no pool fingerprint: adopted for pool {pool} ({about}), on its first line"
+        )
+    if truth is not None:
+        print(
+            f"labelled {len(read.labels) + len(new)} of {len(scores)} queries from {args.gt} in the order asked; "
             f"wrote {args.sequential}"
         )
     status = session.status()
