@@ -112,6 +112,7 @@ def test_btl_evaluated_end_to_end_with_its_own_retrieval(corridor, corridor_head
     assert "BTL‡" in table and "BTL*" not in table and "BTL‡*" not in table
     resolved = resolve_btl_inputs(retrieval, options)  # files read by the hook
     resolved.pop("allow_train_queries")
+    assert len(resolved.pop("query_keys")) == 111  # the cache's content keys: the leakage check's, not the retrieval's
     own, variance = btl_retrieval(retrieval, **resolved)
     own_correct = corridor["positives"].toarray()[np.arange(111), own.indices[:, 0]]
     assert_close(btl["own_recall@1"], own_correct.mean())

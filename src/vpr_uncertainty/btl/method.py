@@ -7,10 +7,13 @@ BTL answers with its own retrieval (cosine search of the head's means), returned
 Options: ``btl_head`` (a loaded :class:`~vpr_uncertainty.btl.model.BTLHead`), ``query_descriptors`` and
 ``database_descriptors`` ((Q, dim) and (D, dim), in the retrieval's order), ``device``, and
 ``allow_train_queries`` (evaluating a head on queries it was trained on is an error unless true; then
-``details["trained_on_queries"]`` says how many and every table marks the method).
+``details["trained_on_queries"]`` says how many and every table marks the method), and ``query_keys`` (the
+queries' :func:`~vpr_uncertainty.cache.content_key`: matched against the image contents a head trained from a
+descriptor cache records, which no re-extraction changes; where that check cannot be made, ``details["note"]``).
 
 :func:`btl_uncertainty` reads no file: the method's ``resolve`` hook, :func:`resolve_btl_inputs`, first reads a
-head file path and ``.npy`` / descriptor-cache ``.h5`` paths (checking the cache's image names).
+head file path and ``.npy`` / descriptor-cache ``.h5`` paths (checking the cache's image names, taking its
+content keys, else those of the ``query_paths``).
 
 Protocols, for a sequence dataset whose query and database traverses are aligned frame by frame (query i shows
 the place of database image i, as in VPR-Bench's corridor):
@@ -37,6 +40,7 @@ from scipy import sparse
 from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.btl.model import SKETCH_TOLERANCE, BTLHead, embed, load_btl_head, row_digests, row_sketches
 from vpr_uncertainty.btl.training import resolve_device, train_btl_head
+from vpr_uncertainty.cache import content_key, open_present
 from vpr_uncertainty.methods import OwnRetrievalUncertainty
 from vpr_uncertainty.retrieval import Retrieval, load_retrieval, search_descriptors
 
@@ -74,13 +78,37 @@ def read_btl_descriptors(value: object, split: str, names: object = None) -> obj
     return array
 
 
+def _descriptor_keys(path: Any, split: str, count: int) -> list[str] | None:
+    """The content keys of the first ``count`` images of ``split`` in a descriptor cache (None for another file)."""
+    import h5py
+
+    from vpr_uncertainty.descriptors.cache import FORMAT
+
+    if not isinstance(path, (str, Path)) or Path(path).suffix.lower() not in (".h5", ".hdf5"):
+        return None
+    with h5py.File(path, "r") as handle:
+        keys = open_present(handle, (f"{split}/keys",), path) if handle.attrs.get("format") == FORMAT else {}
+        return list(keys[f"{split}/keys"].asstr()[:count]) if keys else None
+
+
+def _contents(keys: list[str]) -> list[str]:
+    """The content digest that ends each content key, what any copy of the file shares ("" where unknown)."""
+    return [key.rpartition(":")[2] for key in keys]
+
+
 def resolve_btl_inputs(retrieval: Retrieval, options: Mapping[str, Any]) -> dict[str, Any]:
-    """``options`` with ``btl_head`` loaded and ``query_descriptors`` / ``database_descriptors`` read from files."""
+    """``options`` with ``btl_head`` loaded, ``query_descriptors`` / ``database_descriptors`` read from files, and
+    ``query_keys`` taken from the query descriptor cache or the query image files (``query_paths``)."""
     resolved = dict(options)
     device = str(resolved.get("device") or "cpu")
     resolved["btl_head"] = read_btl_head(resolved.get("btl_head"), device=device)
+    given = resolved.get("query_descriptors")
     for split, names in (("queries", retrieval.query_names), ("database", retrieval.database_names)):
         resolved[_OPTIONS[split]] = read_btl_descriptors(resolved.get(_OPTIONS[split]), split, names)
+    keys = _descriptor_keys(given, "queries", retrieval.n_queries)
+    if keys is None and resolved.get("query_paths") is not None:
+        keys = [content_key(path) for path in resolved["query_paths"]]
+    resolved["query_keys"] = resolved.get("query_keys", keys)
     return resolved
 
 
@@ -128,8 +156,9 @@ def read_training_inputs(
     Returns
     -------
     dict
-        ``database``, ``queries`` (or None: the database trains on itself), ``positives`` and ``source``
-        (JSON-compatible description for the head file).
+        ``database``, ``queries`` (or None: the database trains on itself), ``positives``, ``source``
+        (JSON-compatible description for the head file) and ``images``: the anchors' ``names`` and image
+        ``contents`` (content digests) where the descriptor files give them, for ``head.metadata["anchors"]``.
     """
     run = None if run is None else Path(run)
     descriptors = None if descriptors is None else Path(descriptors)
@@ -208,7 +237,11 @@ def read_training_inputs(
     if queries is None:
         source["query_descriptors"] = ""
     source["anchors"] = "queries" if queries is not None else "database"
-    return {"database": database, "queries": queries, "positives": ground_truth, "source": source}
+    path, names = (query_path, query_names) if queries is not None else (descriptors, database_names)
+    keys = _descriptor_keys(path, source["anchors"], len(names)) if names is not None else None
+    images = {"names": [str(name) for name in names]} if names is not None else {}
+    images.update({"contents": _contents(keys)} if keys is not None else {})
+    return {"database": database, "queries": queries, "positives": ground_truth, "source": source, "images": images}
 
 
 def _head(value: object, device: str) -> BTLHead:
@@ -287,20 +320,40 @@ def btl_retrieval(
     return own, query_variances
 
 
-def trained_on(head: BTLHead, query_descriptors: np.ndarray) -> int | None:
-    """How many of ``query_descriptors`` (Q, dim) were the head's training anchors (None: the file does not say):
+def trained_on(head: BTLHead, query_descriptors: np.ndarray, *, keys: list[str] | None = None) -> int | None:
+    """How many of ``query_descriptors`` (Q, dim) were the head's training anchors (None: none found and the file
+    does not say what they were): the same image files (the content digests of ``keys``, the Q content keys),
     identical rows (their digests), or the same images described again in another precision (their sketches)."""
     anchors = (head.metadata or {}).get("anchors") or {}
-    digests, sketches = anchors.get("digests"), anchors.get("sketches")
-    if not isinstance(digests, list):
-        return None
+    digests, sketches = anchors.get("digests") or [], anchors.get("sketches")
     seen = np.isin(row_digests(query_descriptors), digests)
     if isinstance(sketches, list) and sketches and len(query_descriptors):
         from scipy.spatial import cKDTree
 
         distances, _ = cKDTree(np.asarray(sketches, dtype=np.float64)).query(row_sketches(query_descriptors), k=1)
         seen |= distances <= SKETCH_TOLERANCE
-    return int(seen.sum())
+    if keys is not None:
+        seen |= np.isin(_contents(keys), [content for content in anchors.get("contents") or () if content])
+    complete = isinstance(digests, list) and len(digests) == anchors.get("count") != 0
+    return int(seen.sum()) if seen.any() or complete else None
+
+
+def _unverified(head: BTLHead, seen: int | None, names: object, keys: list[str] | None) -> str | None:
+    """Why the ``seen`` of :func:`trained_on` may miss training images among these queries (their ``names`` and
+    content ``keys``): what survives re-extraction could not be compared (None: it was, or ``seen`` > 0)."""
+    if seen:
+        return None
+    anchors = (head.metadata or {}).get("anchors") or {}
+    names = names if anchors.get("source") == "queries" and names is not None else []
+    same = int(np.isin(np.asarray(names, dtype=str), anchors.get("names") or []).sum())
+    only = ": checked by descriptors only, its training images extracted again would pass unseen"
+    reasons = (
+        (seen is None, "does not record its training images (metadata 'anchors'), so these queries may be among them"),
+        (not any(anchors.get("contents") or ()), f"records no image contents (train it from a .h5){only}"),
+        (not any(keys or ()), f"cannot be matched to these queries' image files (give the descriptor cache){only}"),
+        (same, f"was trained on other files of the names of {same} of these queries: the same images re-encoded?"),
+    )
+    return next((why for failed, why in reasons if failed), None)
 
 
 def btl_uncertainty(
@@ -311,6 +364,7 @@ def btl_uncertainty(
     database_descriptors: object = None,
     device: str = "cpu",
     allow_train_queries: bool = False,
+    query_keys: object = None,
 ) -> OwnRetrievalUncertainty:
     """BTL uncertainty: the variance σ² of each query's embedding (higher = less trustworthy), with BTL's own
     retrieval. Registered as ``"BTL"``; see the module docstring for the options.
@@ -329,15 +383,20 @@ def btl_uncertainty(
         database_descriptors=database_descriptors,
         device=device,
     )
-    seen = trained_on(btl_head, np.asarray(query_descriptors, dtype=np.float32))  # both checked by btl_retrieval
+    keys = None if query_keys is None else [str(key) for key in query_keys]  # type: ignore[attr-defined]
+    if keys is not None and (isinstance(query_keys, str) or len(keys) != retrieval.n_queries):
+        raise ValueError(f"query_keys must hold one content key per query ({retrieval.n_queries}): a list")
+    seen = trained_on(btl_head, np.asarray(query_descriptors, dtype=np.float32), keys=keys)  # checked by btl_retrieval
+    source = getattr(btl_head, "source_path", None) or "the BTL head"
     if seen and not allow_train_queries:
-        source = getattr(btl_head, "source_path", None) or "the BTL head"
         raise ValueError(
             f"{source} was trained on {seen} of these {retrieval.n_queries} queries: its AUC-PR on them says "
             "nothing about new queries. Evaluate it on other queries, or pass allow_train_queries=True "
             "(evaluate --allow-train-queries) to report it, marked"
         )
-    details = {"trained_on_queries": seen} if seen else {}
+    details: dict[str, Any] = {"trained_on_queries": seen} if seen else {}
+    notice = _unverified(btl_head, seen, retrieval.query_names, keys)
+    details.update({"note": f"{source} {notice}"} if notice else {})
     return OwnRetrievalUncertainty(uncertainty=variance.astype(np.float64), retrieval=own, details=details)
 
 

@@ -22,7 +22,8 @@ Head file (``torch.save`` of a dict of tensors and plain values, read back with 
     format_version  1
     config          {"input_dim", "embedding_dim", "hidden_dim", "min_variance", "initial_variance"}
     state_dict      the module's parameters
-    metadata        JSON-compatible: training settings, history summary, descriptor source (optional)
+    metadata        JSON-compatible: training settings, history summary, descriptor source (optional), anchors
+                    (row digests and sketches; the images' names and content digests when trained from a cache)
 
 The loss (exact moments of τ, the paper's normal approximation, the margin, the KL regulariser) is derived in
 the explanation page "The Bayesian triplet loss" (``docs/explanation/btl.md``).

@@ -131,6 +131,7 @@ def _handle(args: argparse.Namespace) -> int:
             progress=getattr(args, "progress", None),
         )
     head.metadata["source"] = inputs["source"]
+    head.metadata["anchors"].update(inputs["images"])  # names and content digests: what survives re-extraction
     out = save_btl_head(head, args.out, metadata=head.metadata)
     stem = out.with_suffix("")
     curve_json, curve_png = Path(f"{stem}.curve.json"), Path(f"{stem}.curve.png")
