@@ -24,6 +24,7 @@ import inspect
 import logging
 import math
 import os
+import re
 import signal
 import socket
 import threading
@@ -41,6 +42,10 @@ MAX_RETRIES = 3
 CONNECT_TIMEOUT = 30.0
 #: Seconds a Ray start-up (``ray.init``) may take before it is abandoned and what it started is shut down.
 START_TIMEOUT = 180.0
+#: ``host:port`` as Ray's core reads it: a host name, an IPv4 address or an IPv6 one in brackets, and a port number
+_HOST_PORT = re.compile(r"(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):([1-9][0-9]{0,4})")
+#: A GCS's reply to ``GetClusterId`` (one uncompressed gRPC message: an empty status, a 28-byte cluster id)
+_CLUSTER_ID_REPLY = re.compile(rb"\0\0\0\0(\x1e|\x20\n\0)\x12\x1c.{28}", re.S)
 
 
 def import_ray() -> Any:
@@ -311,8 +316,9 @@ def _frame(kind: int, flags: int, stream: int, payload: bytes = b"") -> bytes:
 
 
 def _ray_answer(connection: socket.socket, authority: bytes, deadline: float, client: bool) -> str | None:
-    """None when the peer speaks Ray's protocol (gRPC: HTTP/2; a GCS also answers ``GetClusterId``, or refuses it
-    for authentication), else what answered, in words; TimeoutError when nothing came by ``deadline``."""
+    """None when the peer speaks Ray's protocol (gRPC: HTTP/2; a GCS also answers ``GetClusterId`` with a cluster
+    id, or refuses it as UNAUTHENTICATED), else what answered, in words; TimeoutError when nothing came by
+    ``deadline``."""
     headers = [(b":path", b"/ray.rpc.NodeInfoGcsService/GetClusterId"), (b":authority", authority)]
     headers += [(b"content-type", b"application/grpc"), (b"te", b"trailers")]
     # HPACK: :method POST and :scheme http from the static table, the rest as literals (names and values < 127 B)
@@ -335,17 +341,18 @@ def _ray_answer(connection: socket.socket, authority: bytes, deadline: float, cl
         while len(received) >= at + 9 + (length := int.from_bytes(received[at : at + 3], "big")):
             kind, flags, stream = received[at + 3], received[at + 4], int.from_bytes(received[at + 5 : at + 9], "big")
             payload, at = received[at + 9 : at + 9 + length], at + 9 + length
-            ended = stream == 1 and kind == 1 and flags & 1  # the call ended without a reply: its status says why
-            # 16, UNAUTHENTICATED: a GCS that wants the token ray.init sends (a status in another encoding: Ray judges)
-            token = ended and (b"grpc-status\x0216" in payload or b"grpc-status" not in payload)
+            ended = stream == 1 and kind in (0, 1) and flags & 1  # the call ended: its status says why
+            # 16, UNAUTHENTICATED, as a GCS that wants the token ray.init sends writes it (none, or another: not Ray)
+            token = ended and kind == 1 and b"\x0bgrpc-status\x0216" in payload
             if kind == 4 and not flags & 1:  # the server's SETTINGS: acknowledged (a client server is done)
                 if client:
                     return None
                 connection.sendall(_frame(4, 1, 0))
-            elif (stream == 1 and kind == 0) or token:  # the reply to GetClusterId, or a GCS that wants a token
+            elif (stream == 1 and kind == 0 and _CLUSTER_ID_REPLY.fullmatch(payload)) or token:
                 return None
-            elif ended or kind == 7 or (stream == 1 and kind == 3):  # an error status, GOAWAY, RST_STREAM
-                return "a gRPC server there refuses Ray's calls"
+            elif ended or kind == 7 or (stream == 1 and kind == 3):  # another answer, GOAWAY, RST_STREAM
+                grpc = b"grpc-status" in received
+                return "a gRPC server there refuses Ray's calls" if grpc else "an HTTP/2 server answers there"
 
 
 def wait_for_address(address: str, timeout: float) -> None:
@@ -353,21 +360,31 @@ def wait_for_address(address: str, timeout: float) -> None:
     server), at most ``timeout`` seconds.
 
     ``ray.init`` waits for minutes (on a port where nothing listens) or for ever (on one where something else
-    does: Ray's dashboard, any HTTP server, a silent listener), in C++ that no signal interrupts. So the port is
-    asked first, in Ray's protocol: it must speak HTTP/2, and a GCS must answer (or refuse for authentication) a
-    ``GetClusterId`` call. ``"auto"`` and ``"local"`` name no port and pass unchecked; a connection refused is
-    tried again until ``timeout``. Raises ConnectionError naming the address, what answers there and the fix.
+    does: Ray's dashboard, any HTTP server, a silent listener, or a port Ray cannot read), in C++ that no signal
+    interrupts. So the port is asked first, in Ray's protocol: it must speak HTTP/2, and a GCS must answer a
+    ``GetClusterId`` call with a cluster id (or refuse it as UNAUTHENTICATED: the probe has no token). ``"auto"``
+    is the address in ``RAY_ADDRESS`` where that is set (as ``ray.init`` reads it); ``"auto"`` otherwise and
+    ``"local"`` name no port and pass unchecked; a connection refused is tried again until ``timeout``. Raises
+    ValueError for an address that is not ``host:port`` (a port of digits, 1-65535, no spaces) or
+    ``scheme://host:port``, ConnectionError naming the address, what answers there and the fix.
     """
-    client = address.startswith("ray://")
-    target = address.split("://", 1)[1] if "://" in address else address
-    host, _, port = target.rpartition(":")
-    if not host or not port.isdigit():
+    named = "Ray address"
+    if address == "auto" and os.environ.get("RAY_ADDRESS"):
+        named, address = "RAY_ADDRESS (what 'auto' reads)", os.environ["RAY_ADDRESS"]
+    if address in ("auto", "local"):
         return
-    deadline = time.monotonic() + timeout
+    client = address.startswith("ray://")
+    form = _HOST_PORT.fullmatch(target := address.split("://", 1)[-1])
     fix = "give the address `ray start --head` prints (GCS port 6379 by default; 8265 is the dashboard)"
+    if form is None or int(form[2]) > 65535:
+        raise ValueError(
+            f"{named} {address!r} is not host:port (a port of digits, 1-65535, no spaces), ray://host:port, "
+            f"'auto' or 'local'; {fix}"
+        )
+    deadline = time.monotonic() + timeout
     while True:
         try:
-            connection = socket.create_connection((host.strip("[]"), int(port)), timeout=min(2.0, timeout))
+            connection = socket.create_connection((form[1].strip("[]"), int(form[2])), timeout=min(2.0, timeout))
         except OSError as error:
             if time.monotonic() >= deadline:
                 raise ConnectionError(
