@@ -134,7 +134,10 @@ def test_row_15_a_head_that_does_not_say_what_it_was_trained_on_gets_a_notice(co
     ]
     argv = ["evaluate", str(corridor["a"]["npz"]), "--methods", "BTL,SU", "--btl-head", str(stripped)]
     assert main([*argv, "--descriptors", str(corridor["a"]["h5"])]) == 0
-    assert f"note: BTL: {stripped} does not record its training images" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert f"note: BTL: {stripped} does not record its training images" in out
+    assert "BTL‡?" in out and "BTL*" not in out  # unverifiable: marked, and never best
+    assert evaluation.methods["BTL"].never_best and not evaluation.methods["SU"].never_best
 
 
 @pytest.mark.parametrize("field", ["digests", "sketches", "count"])

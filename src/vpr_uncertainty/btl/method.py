@@ -397,6 +397,7 @@ def btl_uncertainty(
     details: dict[str, Any] = {"trained_on_queries": seen} if seen else {}
     notice = _unverified(btl_head, seen, retrieval.query_names, keys)
     details.update({"note": f"{source} {notice}"} if notice else {})
+    details.update({"training_unverified": True} if seen is None else {})  # never best: see MethodResult.never_best
     return OwnRetrievalUncertainty(uncertainty=variance.astype(np.float64), retrieval=own, details=details)
 
 

@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover
 TIMING_KEYS = ("latency_ms_batch1", "time_per_query_ms_cold", "time_per_query_ms_warm")
 #: Numbers a method reports about its own run (:class:`~vpr_uncertainty.methods.DetailedUncertainty`), written
 #: beside its metrics and read back by :meth:`MethodEvaluation.from_dict`.
-DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries", "trained_on_queries")
+DETAIL_KEYS: tuple[str, ...] = ("verified_fraction", "verified_queries", "trained_on_queries", "training_unverified")
 _NEEDS_PANDAS = "{} needs pandas, which the core install leaves out: pip install 'vpr-uncertainty[pandas]'"
 #: The metrics with a bootstrap interval (``<metric>_ci``).
 _INTERVALS = ("auc_pr", "average_precision", "aurc")
@@ -84,6 +84,11 @@ class MethodEvaluation:
     def trained_on_queries(self) -> int:
         """How many of the evaluated queries the method was trained on (0: none, or a training-free method)."""
         return int(self.details.get("trained_on_queries") or 0)
+
+    @property
+    def never_best(self) -> bool:
+        """Trained on these queries, or unable to say it was not (a BTL head that records no anchors): never starred."""
+        return bool(self.trained_on_queries or self.details.get("training_unverified"))
 
     def to_dict(self) -> dict[str, Any]:
         """The numbers of this method as JSON types (the uncertainties and the curve are left out)."""

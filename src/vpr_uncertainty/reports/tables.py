@@ -56,7 +56,7 @@ def _vs_reference(method, reference: str) -> str:
 
 def _marked(evaluation: Evaluation) -> set[str]:
     """The methods starred: the bootstrap's AUC-PR leaders, or (no bootstrap) those with the best AUC-PR."""
-    trained = {m.name for m in evaluation.methods.values() if m.trained_on_queries}
+    trained = {m.name for m in evaluation.methods.values() if m.never_best}
     if evaluation.bootstrap is not None:
         return set(evaluation.bootstrap["best"]["auc_pr"]["methods"]) - trained
     best = best_auc_pr(evaluation)
@@ -87,7 +87,7 @@ def best_auc_pr(evaluation: Evaluation) -> float | None:
     scored = [
         m.auc_pr
         for m in evaluation.methods.values()
-        if m.informative and m.auc_pr is not None and not m.trained_on_queries
+        if m.informative and m.auc_pr is not None and not m.never_best
     ]
     return max(scored) if len(scored) >= 2 else None
 
@@ -134,7 +134,8 @@ def markdown_cell(text: str) -> str:
 def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str | None = None) -> str:
     """One row per uncertainty method, the best AUC-PR marked with ``*``; a header line with recall@N.
 
-    ``†``: uninformative (constant uncertainty), ``‡``: evaluated on queries it was trained on; neither is starred.
+    ``†``: uninformative (constant uncertainty), ``‡``: evaluated on queries it was trained on (``‡?``: it cannot say it
+    was not); none is starred.
     With a bootstrap, each metric shows its 95 % interval, the star marks the AUC-PR leaders and a column gives the
     difference in AUC-PR to the reference method with its Holm-adjusted p-value. The evaluation's notes follow.
 
@@ -154,7 +155,7 @@ def format_table(evaluation: Evaluation, *, markdown: bool = False, title: str |
     for method in evaluation.methods.values():
         marker = "*" if method.name in marked and method.informative else ""
         marker += "" if method.informative else "†"
-        marker += "‡" if method.trained_on_queries else ""  # trained on these queries (see the notes)
+        marker += "‡" if method.trained_on_queries else "‡?" if method.never_best else ""  # see the notes
         row = [method.name + marker, *(_fmt(template, getattr(method, key)) for _, key, template in _COLUMNS)]
         if reference is not None:
             row[1:4] = [_with_interval(getattr(method, key), getattr(method, f"{key}_ci")) for key in _WITH_CI]
