@@ -305,7 +305,8 @@ def add_executor_options(
     group.add_argument(
         "--address",
         metavar="ADDRESS",
-        help="Ray cluster to connect to (host:port or 'auto'); default: start a local one (--executor ray only)",
+        help="Ray cluster to connect to (host:port, ray://host:port, 'auto' or 'local'); default: start a local one "
+        "(--executor ray only)",
     )
     local = local_workers or "no meaning, so it is refused (the work runs one item after another)"
     group.add_argument(
