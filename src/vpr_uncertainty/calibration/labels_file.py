@@ -11,6 +11,7 @@ every line the file held and appends, atomically (:func:`~vpr_uncertainty.cache.
 
 from __future__ import annotations
 
+import csv
 import os
 import re
 from collections.abc import Sequence
@@ -22,9 +23,18 @@ import numpy as np
 from vpr_uncertainty._files import is_regular_file, open_regular
 from vpr_uncertainty.cache import array_digest, write_text
 
-__all__ = ["LabelsFile", "pool_fingerprint", "read_labels", "write_labels"]
+__all__ = [
+    "LabelsFile",
+    "MachineLabels",
+    "pool_fingerprint",
+    "read_labels",
+    "read_machine_labels",
+    "write_labels",
+    "write_machine_labels",
+]
 
 _POOL = re.compile(r'^"?#\s*vpr-uncertainty labels of pool ([0-9a-f]{16})\b(.*)$')
+_MACHINE = re.compile(r'^"?#\s*vpr-uncertainty machine labels of pool ([0-9a-f]{16})\b(.*)$')
 _TRUTH = {"1": True, "true": True, "yes": True, "0": False, "false": False, "no": False}
 
 
@@ -63,6 +73,11 @@ def read_labels(path: str | os.PathLike, *, n_queries: int, pool: str, about: st
     lines: dict[int, int] = {}
     for line, content in enumerate(text.splitlines(), start=1):
         if content.strip().strip('"').startswith("#"):
+            if _MACHINE.match(content.strip()):
+                raise ValueError(
+                    f"{path} holds machine labels (written by `label`): they may choose the cut, but only labels a "
+                    "person gave certify it; pass it as --machine-labels, and label the queries asked for elsewhere"
+                )
             if (match := _POOL.match(content.strip())) and match[1] != pool:
                 described = match[2].strip().rstrip(',"').strip()
                 raise ValueError(
@@ -97,3 +112,60 @@ def write_labels(
         text += "query,correct\n"
     text += "\n" if not text.endswith("\n") else ""
     return write_text(path, text + "".join(f"{query},{int(correct)}\n" for query, correct in new), keep_unchanged=True)
+
+
+class MachineLabels(NamedTuple):
+    """The labels a machine gave every query of a pool: ``correct`` (N,) bool, ``confidence`` (N,) float64 (NaN
+    where the labeler gives none) and ``sources`` (N,), the labeler and its options for each row."""
+
+    correct: np.ndarray
+    confidence: np.ndarray
+    sources: list[str]
+
+
+def write_machine_labels(path: str | os.PathLike, labels: MachineLabels, *, pool: str, about: str = "") -> Path:
+    """Write ``labels`` as ``query,correct,confidence,source`` rows under the line ``# vpr-uncertainty machine labels
+    of pool …``, atomically; :func:`read_labels` refuses such a file (machine labels never certify)."""
+    rows = [
+        f"{query},{int(correct)},{'' if np.isnan(confidence) else repr(float(confidence))},{_csv_cell(source)}\n"
+        for query, (correct, confidence, source) in enumerate(zip(*labels, strict=True))
+    ]
+    header = f"# vpr-uncertainty machine labels of pool {pool} ({' '.join(about.split())})\n"
+    header += "query,correct,confidence,source\n"
+    return write_text(path, header + "".join(rows))
+
+
+def read_machine_labels(path: str | os.PathLike, *, n_queries: int, pool: str, about: str = "") -> MachineLabels:
+    """The machine labels of ``path``, one row per query of the pool ``pool`` (``about``: what it is); refused,
+    naming the file and line, when it is of another pool, carries no pool line, or misses or repeats a query."""
+    path = Path(path)
+    with open_regular(path) as handle:
+        text = handle.read().decode("utf-8-sig", errors="replace")
+    lines = text.splitlines()
+    match = _MACHINE.match(lines[0].strip()) if lines else None
+    if match is None or match[1] != pool:
+        found = f"the machine labels of pool {match[1]} {match[2].strip()}" if match else "no machine labels line"
+        raise ValueError(f"{path} holds {found}, not the machine labels of this pool {pool} ({about}): run `label`")
+    correct, confidence, sources = np.zeros(n_queries, bool), np.full(n_queries, np.nan), [""] * n_queries
+    seen = np.zeros(n_queries, bool)
+    for line, cells in enumerate(csv.reader(lines[2:]), start=3):
+        query, flag, value, source = [*cells, "", "", "", ""][:4]
+        good = query.isascii() and query.isdigit() and len(query) < 19 and int(query) < n_queries and flag in "01"
+        try:
+            number = float(value) if value else np.nan
+        except ValueError:
+            good = False
+        if not good or not flag or seen[int(query)]:
+            got = ",".join(cells[:3])
+            raise ValueError(
+                f"{path}, line {line}: expected a new query in [0, {n_queries}), 0/1 and a number, got {got!r}"
+            )
+        q = int(query)
+        seen[q], correct[q], confidence[q], sources[q] = True, flag == "1", number, source
+    if not seen.all():
+        raise ValueError(f"{path}: no machine label for {int((~seen).sum())} queries, first {int(np.argmin(seen))}")
+    return MachineLabels(correct, confidence, sources)
+
+
+def _csv_cell(text: str) -> str:
+    return f'"{text.replace(chr(34), chr(34) * 2)}"' if any(c in text for c in ',"\n') else text
