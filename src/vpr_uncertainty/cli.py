@@ -198,8 +198,8 @@ def _refuse_outputs_that_are_inputs(parser: argparse.ArgumentParser, args: argpa
         f"--plugin {i + 1}": Path(p) for i, p in enumerate(getattr(args, "plugin", [])) if p.endswith(".py")
     }
     outputs: dict[str, Path] = {}
-    command = parser._subparsers._group_actions[0].choices[args.command]  # type: ignore[union-attr]
-    for action in command._actions:
+    command = parser._subparsers._group_actions[0].choices.get(args.command)  # type: ignore[union-attr]
+    for action in command._actions if command is not None else ():
         value = getattr(args, action.dest, None)
         paths = [v for v in (value if isinstance(value, list | tuple) else [value]) if isinstance(v, Path)]
         role = action.option_strings[0] if action.option_strings else (action.metavar or action.dest.upper())
