@@ -229,3 +229,20 @@ def test_a_long_chain_optimises_whatever_the_stack(case):
     result = subprocess.run(["bash", "-c", f"ulimit -s 1024; exec {command}"], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert len(np.loadtxt(folder / "o.tum")) == n
+
+
+@pytest.mark.parametrize(
+    ("edges", "message"),
+    [
+        ([(0, 10.7), (5, 15), (2, 18)], "edges, row 0: vertex ids must be integers >= 0, got [0.0, 10.7]"),  # truncated
+        ([(0, -10), (5, 15), (2, 18)], "edges, row 0: vertex ids must be integers >= 0, got [0, -10]"),
+        ([(0, 10, 1), (5, 15, 1), (2, 18, 1)], "expected edges (E, 2) and scores (E, K) of numbers, got (3, 3)"),
+    ],
+)
+def test_score_file_edges_that_are_not_vertex_ids_are_refused(case, capsys, edges, message):
+    folder, _ = case
+    np.savez(folder / "bad.npz", edges=edges, scores=[GOOD10, BAD10, GOOD10])
+    argv = ["loop-closures", str(folder / "g.g2o"), "--scores", str(folder / "bad.npz"), "--gate",
+            str(folder / "gate.json"), "--out", str(folder / "o.g2o")]  # fmt: skip
+    assert main(argv) == 2
+    assert f"bad.npz: {message}" in capsys.readouterr().err and not (folder / "o.g2o").exists()

@@ -63,6 +63,17 @@ def main(conf: LoopClosureConf, graph: Path, scores: Path, gate: Path, out: Path
         if missing := {"edges", "scores"} - set(file.files):
             raise ValueError(f"{scores}: no array {sorted(missing)} (expected edges (E, 2) and scores (E, K))")
         listed = {name: file[name] for name in ("edges", "scores")}
+    edges, rows = listed["edges"], listed["scores"]
+    numbers = edges.dtype.kind in "iuf" and rows.dtype.kind in "iuf" and edges.ndim == rows.ndim == 2
+    if not numbers or edges.shape[1] != 2 or len(edges) != len(rows):
+        raise ValueError(
+            f"{scores}: expected edges (E, 2) and scores (E, K) of numbers, got {edges.shape} {rows.shape}"
+        )
+    if (bad := np.flatnonzero(~(np.isfinite(edges) & (edges >= 0) & (edges == np.round(edges))).all(axis=1))).size:
+        raise ValueError(
+            f"{scores}: edges, row {bad[0]}: vertex ids must be integers >= 0, got {edges[bad[0]].tolist()}"
+        )
+    listed["edges"] = edges.astype(np.int64)
     graph_file, gate_ = read_graph_file(graph), Gate.load(gate)
     start = time.perf_counter()
     try:
@@ -70,7 +81,9 @@ def main(conf: LoopClosureConf, graph: Path, scores: Path, gate: Path, out: Path
     except ValueError as error:
         tags = ", ".join(f"{tag} ({n})" for tag, n in graph_file.other_tags.items() if tag != "#")
         read_as = f"read as a {graph_file.dimension}-D graph of {len(graph_file.edges)} edges"
-        raise ValueError(f"{graph}: {error} ({read_as}{'; lines not read: ' + tags if tags else ''})") from None
+        raise ValueError(
+            f"{scores} on {graph}: {error} ({read_as}{'; lines not read: ' + tags if tags else ''})"
+        ) from None
     seconds = time.perf_counter() - start
     write_graph_file(graph_file, out, keep=keep)
     closures = set(map(tuple, np.sort(np.asarray(listed["edges"]).reshape(-1, 2), axis=1).tolist()))
