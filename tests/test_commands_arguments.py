@@ -57,3 +57,16 @@ def test_an_output_that_is_an_input_or_another_output_is_refused(tmp_path, monke
     error = capsys.readouterr().err
     assert refused in error and error.count("\n") == 1, error
     assert {path: path.read_bytes() for path in tmp_path.iterdir()} == before
+
+
+def test_standard_output_only_where_a_command_writes_it(tmp_path, monkeypatch, capsys):
+    """``--out -`` wrote a file named "-" (and ``-.tum`` beside it); only the JSON options print to stdout."""
+    monkeypatch.chdir(tmp_path)
+    np.save("sim.npy", np.random.default_rng(0).random((6, 6)).astype(np.float32))
+    np.save("gt.npy", np.array([[q, [q]] for q in range(6)], dtype=object), allow_pickle=True)
+    with pytest.raises(SystemExit) as refused:  # an argparse error: exit 2, one line
+        main(["subset", "sim.npy", "--gt", "gt.npy", "--out", "-"])
+    assert refused.value.code == 2
+    assert "'-' (standard output) is not supported here: name a file" in capsys.readouterr().err
+    assert main(["evaluate", "sim.npy", "--gt", "gt.npy", "--json", "-", "--methods", "SU"]) == 0
+    assert '"SU"' in capsys.readouterr().out and sorted(p.name for p in tmp_path.iterdir()) == ["gt.npy", "sim.npy"]

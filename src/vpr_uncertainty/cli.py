@@ -192,7 +192,7 @@ def _refuse_outputs_that_are_inputs(parser: argparse.ArgumentParser, args: argpa
     """Refuse a file the command writes (an option of type :func:`output_file`) that is a file it reads (any other
     path option, and the ``--plugin`` files) or another file it writes."""
     from vpr_uncertainty._files import refuse_shared_files
-    from vpr_uncertainty.pipeline.options import output_file
+    from vpr_uncertainty.pipeline.options import output_file, output_file_or_stdout
 
     inputs: dict[str, Path] = {
         f"--plugin {i + 1}": Path(p) for i, p in enumerate(getattr(args, "plugin", [])) if p.endswith(".py")
@@ -205,7 +205,7 @@ def _refuse_outputs_that_are_inputs(parser: argparse.ArgumentParser, args: argpa
         role = action.option_strings[0] if action.option_strings else (action.metavar or action.dest.upper())
         for index, path in enumerate(paths):
             name = f"{role} {index + 1}" if len(paths) > 1 else role
-            (outputs if action.type is output_file else inputs)[name] = path
+            (outputs if action.type in (output_file, output_file_or_stdout) else inputs)[name] = path
     refuse_shared_files(inputs, outputs)
 
 

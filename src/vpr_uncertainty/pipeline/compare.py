@@ -30,7 +30,7 @@ from vpr_uncertainty.pipeline.options import (
     conf_from_args,
     integer_at_least,
     option,
-    output_file,
+    output_file_or_stdout,
     write_json,
     write_output,
 )
@@ -199,7 +199,10 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     add_options(parser, EvaluateConf, only=("methods", "k", "alpha"))
     add_options(parser, CompareConf, only=("resamples", "seed", "uncertainty"))
     parser.add_argument(
-        "--json", type=output_file, metavar="FILE", help="write the comparison as JSON to FILE ('-': standard output)"
+        "--json",
+        type=output_file_or_stdout,
+        metavar="FILE",
+        help="write the comparison as JSON to FILE ('-': standard output)",
     )
     parser.set_defaults(handler=_handle)
 

@@ -44,6 +44,7 @@ from vpr_uncertainty.pipeline.options import (
     open_fraction,
     option,
     output_file,
+    output_file_or_stdout,
     positive_int,
     write_json,
     write_output,
@@ -342,7 +343,10 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "positive_dist_threshold, else 25)",
     )
     parser.add_argument(
-        "--json", type=output_file, metavar="FILE", help="write the results as JSON to FILE ('-': standard output)"
+        "--json",
+        type=output_file_or_stdout,
+        metavar="FILE",
+        help="write the results as JSON to FILE ('-': standard output)",
     )
     parser.add_argument(
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"

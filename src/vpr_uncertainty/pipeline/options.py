@@ -108,10 +108,11 @@ def _check_writable(path: Path) -> None:
 
 
 def output_file(text: str) -> Path:
-    """An argparse type for a file the command writes: not a folder, and creatable or writable (``-``: stdout)."""
+    """An argparse type for a file the command writes: not a folder, and creatable or writable (not ``-``: a file
+    named so would be written, where the user meant standard output)."""
     path = Path(text)
     if text == "-":
-        return path
+        raise argparse.ArgumentTypeError("'-' (standard output) is not supported here: name a file")
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{path} is a folder; expected a file name")
     if path.exists():
@@ -120,6 +121,11 @@ def output_file(text: str) -> Path:
     else:
         _check_writable(path)
     return path
+
+
+def output_file_or_stdout(text: str) -> Path:
+    """:func:`output_file`, or ``-``: standard output."""
+    return Path(text) if text == "-" else output_file(text)
 
 
 def output_directory(text: str) -> Path:
