@@ -26,6 +26,7 @@ from vpr_uncertainty.formats import (
     RESULTS_FORMAT_REGISTRY,
     ResultsFormat,
     input_formats,
+    read_pool,
     read_results,
     register_results_format,
 )
@@ -89,6 +90,7 @@ __all__ = [
     "positives_to_lists",
     "positives_within_frames",
     "positives_within_radius",
+    "read_pool",
     "read_results",
     "read_similarity_top_k",
     "register_format",

@@ -15,7 +15,8 @@ module                 artefact                    reused when
 :mod:`.grid`           ``out/cells``, report.html  per cell: same inputs (by content) and settings (``reproduce``)
 =====================  ==========================  ===================================================================
 
-:mod:`.compare`, :mod:`.calibrate`, :mod:`.subset`, :mod:`.datasets`, :mod:`.train_btl`: commands beside the data flow.
+:mod:`.compare`, :mod:`.calibrate`, :mod:`.label`, :mod:`.subset`, :mod:`.datasets`, :mod:`.train_btl`: commands beside
+the data flow.
 """
 
 #: Each command and the stage module whose ``add_cli`` defines it, in the order ``--help`` lists them. The command
@@ -27,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "evaluate": "evaluate",
     "compare": "compare",
     "calibrate": "calibrate",
+    "label": "label",
     "subset": "subset",
     "reproduce": "grid",
     "datasets": "datasets",
