@@ -403,8 +403,8 @@ def _raise_naming_target(error: OSError, temporary: Path, path: Path) -> None:
             return
     elif str(error.filename) != str(temporary):
         return
-    kept = "the file as it was is kept" if path.exists() else "nothing written"
-    raise OSError(error.errno, f"{error.strerror or os.strerror(error.errno)} ({kept})", str(path)) from error
+    kept = "" if temporary == path else " (the file as it was is kept)" if path.exists() else " (nothing written)"
+    raise OSError(error.errno, f"{error.strerror or os.strerror(error.errno)}{kept}", str(path)) from error
 
 
 def _file_mode(path: Path) -> int:
