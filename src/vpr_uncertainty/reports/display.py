@@ -79,9 +79,7 @@ def curve_area(curve: RejectionCurve) -> float:
     >>> curve_area(rejection_curve([True, False, True, True], [0.1, 0.9, 0.2, 0.5]))
     0.5
     """
-    if len(curve.recall) < 2:
-        return 0.0
-    return float(np.trapezoid(curve.precision, curve.recall))
+    return float(np.trapezoid(curve.precision, curve.recall)) if len(curve.recall) > 1 else 0.0
 
 
 def _curve_entries(

@@ -348,10 +348,8 @@ def delta_matrix(
     missing; significant: the 95 % percentile interval of the paired bootstrap Δ excludes 0 (``distributions``:
     (VPR method, dataset) -> method -> resampled AUC-PR, :func:`heatmap_distributions`; without them, all False)."""
     vpr_methods, datasets = (list(dict.fromkeys(getattr(c, key) for c in cells)) for key in ("vpr_method", "dataset"))
-    delta, significant = (
-        np.full((len(vpr_methods), len(datasets)), np.nan),
-        np.zeros((len(vpr_methods), len(datasets)), bool),
-    )
+    shape = (len(vpr_methods), len(datasets))
+    delta, significant = np.full(shape, np.nan), np.zeros(shape, bool)
     for cell in cells:
         methods, at = cell.evaluation.methods, (vpr_methods.index(cell.vpr_method), datasets.index(cell.dataset))
         if proposed in methods and baseline in methods:
@@ -529,11 +527,8 @@ def cascade_curve(correct: np.ndarray, score: np.ndarray, gv: np.ndarray, fracti
     correct = np.asarray(correct, dtype=bool)
     if correct.all() or not correct.any():
         return np.full(len(fractions), np.nan)
-    values = []
-    for fraction in fractions:
-        verified = most_uncertain(score, fraction)
-        values.append(auc_pr(correct, combine_cascade(score, verified, np.asarray(gv)[verified])))
-    return np.array(values)
+    verified = [most_uncertain(score, fraction) for fraction in fractions]
+    return np.array([auc_pr(correct, combine_cascade(score, rows, np.asarray(gv)[rows])) for rows in verified])
 
 
 _ONE_VPR = {"color": "0.7", "linestyle": "-", "marker": "None", "linewidth": 0.8}
