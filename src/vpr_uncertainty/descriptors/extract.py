@@ -336,8 +336,7 @@ def extract_descriptors(
                     if cache is not None:
                         cache.append(split, good_names, descriptors, [keys[name] for name in good_names])
                     else:
-                        for name, row in zip(good_names, descriptors.astype(dtype), strict=True):
-                            memory[name] = row
+                        memory.update(zip(good_names, descriptors.astype(dtype), strict=True))
                 bar.update(len(decoded))
                 if on_batch is not None:
                     on_batch(good_names)
@@ -352,7 +351,7 @@ def extract_descriptors(
             # verified when the cache was opened, or sealed by finalize: not hashed a second time
             return read_descriptors(cache_path, split, verify=False)  # type: ignore[arg-type]
         dim = next(iter(memory.values())).shape[0] if memory else 0
-        stacked = np.stack([memory[name] for name in kept]).astype(np.float32) if kept else np.empty((0, dim))
+        stacked = np.stack([memory[name] for name in kept]) if kept else np.empty((0, dim))
         return np.array(kept, dtype=str), stacked.astype(np.float32)
     finally:
         if cache is not None:

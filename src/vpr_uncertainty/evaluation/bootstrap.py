@@ -166,15 +166,13 @@ def bootstrap_metrics(
     """
     if not uncertainties:
         raise ValueError("no uncertainties given to bootstrap")
-    labels: dict[str, object] = {}
+    arrays = {}
     for name in uncertainties:
         if isinstance(correct, Mapping) and name not in correct and None not in correct:
             raise ValueError(f"no correctness labels for method {name!r}")
-        labels[name] = correct.get(name, correct.get(None)) if isinstance(correct, Mapping) else correct
-    arrays = {}
-    for name in uncertainties:
+        labels = correct.get(name, correct.get(None)) if isinstance(correct, Mapping) else correct
         try:
-            arrays[name] = check_labels(labels[name], uncertainties[name])
+            arrays[name] = check_labels(labels, uncertainties[name])
         except ValueError as error:
             raise ValueError(f"method {name!r}: {error}") from None
     sizes = {name: pair[0].size for name, pair in arrays.items()}

@@ -219,10 +219,9 @@ def verify_on_executor(
     """``(matches, inliers, seconds, 0.0)`` of every pair (in order), computed in chunks on ``verifier.executor``
     from ``features`` (by image name); matching and RANSAC run together in each task, so all time is matching."""
     executor = verifier.executor
-    chunks = []
-    for chunk in split_chunks(pairs, executor):
-        names = dict.fromkeys(name for pair in chunk for name in pair)
-        chunks.append((chunk, {name: features[name] for name in names}))
+    chunks = [
+        (chunk, {name: features[name] for pair in chunk for name in pair}) for chunk in split_chunks(pairs, executor)
+    ]
     light = copy.copy(verifier)  # what a task needs: matcher and RANSAC settings; no extractor, no executor
     light.extractor, light.executor, light.workers = None, None, 1
     start = time.perf_counter()

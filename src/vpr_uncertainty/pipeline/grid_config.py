@@ -109,9 +109,7 @@ def runs_cal(methods: list[str]) -> bool:
 
 def full_query_methods(methods: list[str], calibration: dict[str, Any] | None) -> list[str]:
     """The methods evaluated on all queries: ``methods`` less CAL without a gate file when the option is set."""
-    if calibration is None:
-        return list(methods)
-    return [spec for spec in methods if not fitted_per_split(spec)]
+    return list(methods) if calibration is None else [spec for spec in methods if not fitted_per_split(spec)]
 
 
 def _number(table: dict, key: str, problems: list[str]) -> Any:

@@ -103,12 +103,11 @@ def compute(
 
     described = {"method": get_method(conf.method).identity(), "top_k": conf.top_k}
     fingerprint = cache.fingerprint("verify", described, {"retrieval": retrieval.config.get("fingerprint")})
-    verification = reranking.verification
     with cache.atomic_write(path, "wb") as handle:
         np.savez_compressed(
             handle,
             inliers=reranking.inliers,
-            matches=verification.matches,
+            matches=reranking.verification.matches,
             indices=reranking.indices,
             uncertainty=reranking.uncertainty,
             fingerprint=np.array(fingerprint),
