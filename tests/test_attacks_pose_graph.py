@@ -132,7 +132,7 @@ def test_lines_the_reader_does_not_know_are_passed_through(case, capsys):  # row
     (folder / "u.g2o").write_text("".join(_graph() + extra))
     assert main(_lc(folder, "u.g2o", "--out", str(folder / "o.g2o"), "--optimize")) == 0
     out = capsys.readouterr().out
-    assert "kept 2 of 3 scored loop closures and 19 other edges" in out
+    assert "kept 2 of 3 scored loop closures and 19 odometry edges" in out
     assert "3 lines of tags not read (VERTEX_XY ×1, EDGE_SE2_XY ×1, FIX ×1) are copied to" in out
     rejected = "EDGE_SE2 5 15 10 0 0 100 0 0 100 0 400\n"
     assert (folder / "o.g2o").read_text() == (folder / "u.g2o").read_text().replace(rejected, "")
@@ -209,7 +209,7 @@ def test_counts_when_a_closure_is_in_the_graph_twice(case, capsys):
     folder, _ = case
     (folder / "d.g2o").write_text("".join(_graph()) + "EDGE_SE2 15 5 -10 0 0 100 0 0 100 0 400\n")
     assert main(_lc(folder, "d.g2o", "--out", str(folder / "o.g2o"))) == 0
-    assert "kept 2 of 3 scored loop closures and 19 other edges" in capsys.readouterr().out
+    assert "kept 2 of 3 scored loop closures and 19 odometry edges" in capsys.readouterr().out
     assert "EDGE_SE2 15 5" not in (folder / "o.g2o").read_text()  # both lines of the rejected closure dropped
 
 

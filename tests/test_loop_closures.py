@@ -97,7 +97,7 @@ def test_command_filters_a_g2o_graph_and_round_trips(gtsam, gate_file, tmp_path,
     np.savez(tmp_path / "closures.npz", edges=[(0, 4), (3, 7)], scores=[GOOD10, BAD10])
     argv = ["loop-closures", str(tmp_path / "graph.g2o"), "--scores", str(tmp_path / "closures.npz")]
     assert main([*argv, "--gate", str(gate_file), "--out", str(tmp_path / "filtered.g2o")]) == 0
-    assert "kept 1 of 2 scored loop closures and 7 other edges" in capsys.readouterr().out
+    assert "kept 1 of 2 scored loop closures and 7 odometry edges" in capsys.readouterr().out
     assert (tmp_path / "graph.g2o").read_text() == text  # the input is never modified
     graph, initial = read_graph(tmp_path / "filtered.g2o")
     assert sorted(tuple(graph.at(i).keys()) for i in range(graph.size())) == sorted(EDGES[:8])
@@ -205,3 +205,101 @@ def test_pose_rows_are_tum_rows(gtsam):
     spatial.insert(5, gtsam.Pose3(gtsam.Rot3.Rz(np.pi / 2), np.array([1.0, 2.0, 3.0])))
     np.testing.assert_allclose(pose_rows(planar), [[3, 1, 2, 0, 0, 0, half, half]], atol=1e-12)
     np.testing.assert_allclose(pose_rows(spatial), [[5, 1, 2, 3, 0, 0, half, half]], atol=1e-12)
+
+
+# --- what the command shows, and graphs as real systems write them (issue 44, items 3 and 4) -----------------
+
+
+def _square_files(gtsam, folder, *, ids=range(8), wrong=False):
+    """The square walked twice with vertex ids ``ids``, a ground truth of them, and a score file of its closures
+    (the first closure's row accepted, the second's rejected); ``wrong`` adds a wrong closure (1, 6) with a row the
+    gate accepts."""
+    truth, text = _square(gtsam, drift=0.3)
+    rename = dict(enumerate(ids))
+    lines = [" ".join([w[0], *(str(rename[int(x)]) for x in w[1:3 if w[0] == "EDGE_SE2" else 2]),
+                       *w[3 if w[0] == "EDGE_SE2" else 2:]]) for w in map(str.split, text.splitlines())]  # fmt: skip
+    if wrong:
+        lines.append(f"EDGE_SE2 {rename[1]} {rename[6]} 5 -3 1 100 0 0 100 0 400")
+    (folder / "g.g2o").write_text("\n".join(lines) + "\n")
+    half = np.sqrt(0.5)
+    rows = [
+        [rename[i], p.x(), p.y(), 0, 0, 0, np.sin(p.theta() / 2), np.cos(p.theta() / 2)] for i, p in enumerate(truth)
+    ]
+    np.savetxt(folder / "truth.tum", rows)
+    closures = [(rename[4], rename[0]), (rename[7], rename[3])] + ([(rename[1], rename[6])] if wrong else [])
+    np.savez(folder / "c.npz", edges=closures, scores=[GOOD10, BAD10] + ([GOOD10] if wrong else []))
+    return half
+
+
+def test_decisions_ground_truth_and_plot(gtsam, gate_file, tmp_path, capsys):
+    from vpr_uncertainty.cli import main
+
+    _square_files(gtsam, tmp_path, wrong=True)
+    argv = ["loop-closures", str(tmp_path / "g.g2o"), "--scores", str(tmp_path / "c.npz"), "--out",
+            str(tmp_path / "o.g2o"), "--optimize", "--ground-truth", str(tmp_path / "truth.tum")]  # fmt: skip
+    assert main([*argv, "--gate", str(gate_file), "--robust", "gnc", "--decisions", str(tmp_path / "d.csv"),
+                 "--plot", str(tmp_path / "p.png")]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert "kept 2 of 3 scored loop closures and 7 odometry edges" in out and "wrote" in out
+    rmse = float(out.split("APE of the result ")[1].split(" m")[0])
+    assert rmse < 1e-6  # GNC rejects the wrong closure the gate let through: the exact measurements are met
+    rows = [line.split(",") for line in (tmp_path / "d.csv").read_text().splitlines()]
+    assert rows[0] == ["row", "i", "j", "p_correct", "accepted", "weight"]
+    assert [[*r[:3], r[4]] for r in rows[1:]] == [["0", "4", "0", "1"], ["1", "7", "3", "0"], ["2", "1", "6", "1"]]
+    assert float(rows[1][5]) == pytest.approx(1.0) and rows[2][5] == "" and float(rows[3][5]) < 0.5  # GNC's weights
+    assert 0 < float(rows[1][3]) <= 1 and (tmp_path / "p.png").stat().st_size > 10_000
+    assert main([*argv, "--gate", "none"]) == 0  # the baseline: every closure kept, least squares pulled away
+    out = capsys.readouterr().out
+    assert "kept 3 of 3 scored loop closures" in out and float(out.split("APE of the result ")[1].split(" m")[0]) > 0.1
+
+
+def test_keyframe_ids_that_skip_and_unscored_closures(gtsam, gate_file, tmp_path, capsys):
+    from vpr_uncertainty.cli import main
+
+    _square_files(gtsam, tmp_path, ids=range(0, 16, 2))  # keyframes 0, 2, 4, ...: every edge differs by 2
+    base = ["loop-closures", str(tmp_path / "g.g2o"), "--gate", str(gate_file), "--out", str(tmp_path / "o.g2o")]
+    assert main([*base, "--scores", str(tmp_path / "c.npz")]) == 2  # ids rule: the odometry looks like closures
+    error = capsys.readouterr().err
+    assert "loop closures of the graph have no score row" in error and "--unscored" in error and "--odometry" in error
+    assert main([*base, "--scores", str(tmp_path / "c.npz"), "--odometry", "consecutive"]) == 0
+    assert "kept 1 of 2 scored loop closures and 7 odometry edges" in capsys.readouterr().out
+    np.savez(tmp_path / "one.npz", edges=[(8, 0)], scores=[BAD10])  # the closure (14, 6) has no row
+    for policy, kept in (("keep", True), ("drop", False)):
+        argv = [*base, "--scores", str(tmp_path / "one.npz"), "--odometry", "consecutive", "--unscored", policy]
+        assert main(argv) == 0
+        assert f"{'kept' if kept else 'dropped'} 1 loop closures without a score row" in capsys.readouterr().out
+        assert ("EDGE_SE2 14 6" in (tmp_path / "o.g2o").read_text()) == kept
+    assert main([*base, "--scores", str(tmp_path / "one.npz"), "--odometry", "tag:EDGE_X"]) == 2
+    assert "the odometry rule (--odometry) must be ids, consecutive or tag:TAG" in capsys.readouterr().err
+
+
+def test_a_ground_truth_of_other_ids_is_refused(gtsam, gate_file, tmp_path, capsys):
+    from vpr_uncertainty.cli import main
+
+    _square_files(gtsam, tmp_path)
+    (tmp_path / "other.tum").write_text("100 0 0 0 0 0 0 1\n101 1 0 0 0 0 0 1\n")
+    argv = ["loop-closures", str(tmp_path / "g.g2o"), "--scores", str(tmp_path / "c.npz"), "--gate", str(gate_file),
+            "--out", str(tmp_path / "o.g2o"), "--optimize", "--ground-truth", str(tmp_path / "other.tum")]  # fmt: skip
+    assert main(argv) == 2
+    assert "the ground truth has no pose of 8 vertices of the graph, e.g. [0, 1, 2, 3, 4]" in capsys.readouterr().err
+    (tmp_path / "bad.tum").write_text("0 0 0 0 0 0 1\n")
+    assert main([*argv[:-1], str(tmp_path / "bad.tum")]) == 2
+    assert "bad.tum: expected finite rows of 'id x y z qx qy qz qw'" in capsys.readouterr().err
+    assert main([*argv[:-3], "--plot", str(tmp_path / "p.png")]) == 2  # a figure of a result needs --optimize
+    assert "--plot need --optimize" in capsys.readouterr().err
+
+
+def test_trajectory_error_is_the_benchmarks_ate(gtsam):
+    """APE after SE(3) alignment: a trajectory shifted and turned as a whole has none; one pose 1 m off of n gives
+    an RMSE of about √(1/n) m (the alignment spreads a little of it)."""
+    from vpr_uncertainty.slam.pose_graph import trajectory_error
+
+    rng = np.random.default_rng(0)
+    truth = np.c_[np.arange(50), rng.normal(size=(50, 3)), np.zeros((50, 3)), np.ones(50)]
+    moved = truth.copy()
+    moved[:, 1:4] = truth[:, 1:4] @ np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]]).T + [5, -2, 1]
+    moved[:, 4:] = [0, 0, np.sqrt(0.5), np.sqrt(0.5)]
+    assert trajectory_error(moved, truth)["rmse"] < 1e-9
+    off = truth.copy()
+    off[7, 1] += 1.0
+    assert trajectory_error(off, truth)["rmse"] == pytest.approx(np.sqrt(1 / 50), rel=0.05)
