@@ -303,3 +303,32 @@ def test_trajectory_error_is_the_benchmarks_ate(gtsam):
     off = truth.copy()
     off[7, 1] += 1.0
     assert trajectory_error(off, truth)["rmse"] == pytest.approx(np.sqrt(1 / 50), rel=0.05)
+
+
+def test_the_online_graph_gates_each_closure_and_matches_the_batch(gtsam, gate_file):
+    """The square walked twice, keyframe by keyframe: the gate keeps the closure with a good row and rejects the
+    wrong one with a bad row; iSAM2's estimate equals LM's on the same factors (exact measurements: the truth)."""
+    from vpr_uncertainty import Gate
+    from vpr_uncertainty.slam.online import OnlineGraph
+    from vpr_uncertainty.slam.pose_graph import optimize
+
+    truth, _ = _square(gtsam)
+    information = np.diag([100.0, 100.0, 400.0])
+    online = OnlineGraph(Gate.load(gate_file))
+    for j in range(1, 8):
+        d = truth[j - 1].between(truth[j])
+        online.add_odometry(j - 1, j, [d.x(), d.y(), d.theta()], information)
+        if j == 4:
+            assert online.add_closure(4, 0, [0.0, 0.0, 0.0], information, scores=GOOD10)
+        if j == 6:
+            assert not online.add_closure(1, 6, [5.0, -3.0, 1.0], information, scores=BAD10)
+        estimate = online.update()
+    assert [(i, j, accepted) for i, j, accepted, _ in online.decisions] == [(4, 0, True), (1, 6, False)]
+    assert 0 < online.decisions[0][3] <= 1 and max(
+        np.linalg.norm(estimate.atPose2(i).translation() - truth[i].translation()) for i in range(8)
+    ) < 1e-6
+    graph, _ = online.batch()
+    batch = optimize(graph, estimate)
+    assert all(batch.atPose2(i).equals(estimate.atPose2(i), 1e-6) for i in range(8))
+    with pytest.raises(ValueError, match="a 2-D pose is x y θ"):
+        online.add_odometry(7, 8, [1.0, np.nan, 0.0], information)
