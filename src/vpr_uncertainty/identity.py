@@ -34,6 +34,8 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from vpr_uncertainty import __version__
+
 _PLAIN = (bool, int, float, complex, str, bytes, type(None))
 #: Attributes of a torch Module that are torch's own bookkeeping, not the model's state.
 _MODULE_INTERNALS = frozenset(
@@ -326,8 +328,6 @@ def code_identity(module: str) -> str:
     >>> code_identity("vpr_uncertainty.scores") == code_identity("vpr_uncertainty.spatial")
     False
     """
-    from vpr_uncertainty import __version__
-
     known = _CLOSURES.get(module)  # the files read last time, unchanged: the same identity, without the walk
     if known is not None and all(_stamp(path) == stamp for path, stamp in known[0]):
         return known[1]

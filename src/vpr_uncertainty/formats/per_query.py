@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty._files import is_regular_file
+from vpr_uncertainty.plugins import load_target
 from vpr_uncertainty.retrieval.result import Retrieval, positives_from_lists
 
 #: The first columns of a per-query table, before ``s_1``.
@@ -56,8 +57,6 @@ def _unquoted(cell: Any) -> str:
 
 def _table(path: Path) -> tuple[list[str], list[list[str]]]:
     if path.suffix.lower() == ".parquet":
-        from vpr_uncertainty.plugins import load_target
-
         frame = load_target("pandas:read_parquet", what="a per-query .parquet table", extra="pandas")(path)
         return [str(name) for name in frame.columns], frame.astype(str).values.tolist()
     with path.open(encoding="utf-8-sig", newline="") as handle:

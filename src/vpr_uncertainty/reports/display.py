@@ -22,6 +22,7 @@ import numpy as np
 from vpr_uncertainty.cache import array_digest, figure_is_current, fingerprint, write_figure
 from vpr_uncertainty.calibration.quality import Reliability, reliability_diagram
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
+from vpr_uncertainty.reports import style
 from vpr_uncertainty.reports.style import (
     DPI,
     FONT_SIZE,
@@ -562,8 +563,6 @@ def draw_rejection_curves(
 def _drawing_code() -> str:
     """A hash of the code that draws the figures, this module and :mod:`~vpr_uncertainty.reports.style` (its sizes,
     fonts and palette): a change of either draws them again."""
-    from vpr_uncertainty.reports import style
-
     digest = hashlib.blake2b(digest_size=16)
     for source in (Path(__file__), Path(style.__file__)):
         digest.update(source.read_bytes())
