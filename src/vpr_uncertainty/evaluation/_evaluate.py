@@ -10,7 +10,7 @@ import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -39,10 +39,7 @@ from vpr_uncertainty.methods import (
     default_method_names,
     get_method,
 )
-
-if TYPE_CHECKING:
-    from vpr_uncertainty.retrieval import Retrieval
-
+from vpr_uncertainty.retrieval import Retrieval
 
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
 #: Seconds of calls after which the timings stop repeating a call.

@@ -28,16 +28,13 @@ of each metric (:func:`leaders`).
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from vpr_uncertainty._validation import check_count, check_resamples
 from vpr_uncertainty.evaluation.metrics import check_labels
-
-if TYPE_CHECKING:
-    from vpr_uncertainty.evaluation.results import Evaluation
-
+from vpr_uncertainty.evaluation.results import Evaluation
 
 #: The metrics resampled, and whether higher is better.
 BOOTSTRAP_METRICS: dict[str, bool] = {"auc_pr": True, "average_precision": True, "aurc": False}

@@ -27,15 +27,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from vpr_uncertainty._validation import check_count, check_resamples
 from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, holm, paired_p_value, percentile_interval
-
-if TYPE_CHECKING:  # pragma: no cover
-    from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
+from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 
 #: The metrics compared, and how they are named in tables.
 COMPARED_METRICS: dict[str, str] = {"auc_pr": "AUC-PR", "average_precision": "AP"}

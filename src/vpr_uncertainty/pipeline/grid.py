@@ -21,7 +21,7 @@ import zipfile
 from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -45,9 +45,7 @@ from vpr_uncertainty.pipeline.options import (
     output_directory,
 )
 from vpr_uncertainty.plugins import registered_code
-
-if TYPE_CHECKING:
-    from vpr_uncertainty.retrieval import Retrieval
+from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
     "Cell",

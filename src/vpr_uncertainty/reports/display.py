@@ -15,13 +15,15 @@ import functools
 import hashlib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from vpr_uncertainty.cache import array_digest, figure_is_current, fingerprint, write_figure
+from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.calibration.quality import Reliability, reliability_diagram
 from vpr_uncertainty.evaluation.metrics import RejectionCurve, rejection_curve
+from vpr_uncertainty.evaluation.results import Evaluation
 from vpr_uncertainty.reports import style
 from vpr_uncertainty.reports.style import (
     DPI,
@@ -37,11 +39,6 @@ from vpr_uncertainty.reports.style import (
     pyplot,
     save_figure,
 )
-
-if TYPE_CHECKING:  # pragma: no cover
-    from vpr_uncertainty.calibration.gate import Gate
-    from vpr_uncertainty.evaluation.results import Evaluation
-
 
 #: Why the area under an end-to-end curve is not the uncertainty's AUC-PR (said in the caption; drawn under the
 #: axes only with ``note=True``).
