@@ -25,6 +25,7 @@ from vpr_uncertainty.data.formats import (
 )
 from vpr_uncertainty.data.images import has_split, load_folder_dataset
 from vpr_uncertainty.plugins import Registry, load_target
+from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval.ground_truth import PositionKind, line_coordinate, positives_within_frames
 
 # --- the corridor download ---
@@ -84,8 +85,6 @@ def ensure_corridor(root: str | Path | None = None, *, download: bool = True, ti
         raise FileNotFoundError(f"{len(missing)} corridor files are missing or corrupt (first: {missing[0]}). {where}")
     digests = corridor_files()
     try:
-        from vpr_uncertainty.progress import progress_bar
-
         for name in progress_bar(missing, desc="downloading corridor", unit="file"):
             target = folder / name
             target.parent.mkdir(parents=True, exist_ok=True)

@@ -12,6 +12,7 @@ import numpy as np
 
 from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty.formats.ground_truth import load_ground_truth, read_npy
+from vpr_uncertainty.formats.hloc import is_hloc_file, read_hloc_descriptors
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, MappedRows, top_k_blocks
 from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
 
@@ -263,7 +264,6 @@ def load_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     if not hdf5:  # the readers check the shape: (N, dim), one name per row
         return None, np.ascontiguousarray(_read_npy_descriptors(path, mmap=False), dtype=np.float32)
     from vpr_uncertainty.descriptors.cache import read_descriptors  # imported here: h5py only when needed
-    from vpr_uncertainty.formats.hloc import is_hloc_file, read_hloc_descriptors
 
     names, array = (read_hloc_descriptors if is_hloc_file(path) else read_descriptors)(path, split)
     return np.asarray(names, dtype=str), np.ascontiguousarray(array, dtype=np.float32)
@@ -288,8 +288,6 @@ def open_descriptors(path: str | Path, split: str | None = None) -> tuple[np.nda
     path, hdf5 = _descriptor_file(path, split)
     if not hdf5:
         return None, _open_npy(path)
-    from vpr_uncertainty.formats.hloc import is_hloc_file, read_hloc_descriptors
-
     if is_hloc_file(path):
         names, array = read_hloc_descriptors(path, split)
         return np.asarray(names, dtype=str), DescriptorRows.from_array(np.asarray(array), source=str(path))

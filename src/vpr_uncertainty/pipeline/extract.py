@@ -23,6 +23,7 @@ from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.data import load_dataset
 from vpr_uncertainty.data.images import IMAGE_SPLIT_FOLDERS, ImageListingError, MalformedImageNameError, list_images
 from vpr_uncertainty.descriptors import DEFAULT_MODEL, available_models, get_model_spec
+from vpr_uncertainty.formats.hloc import write_hloc_descriptors
 from vpr_uncertainty.pipeline.options import (
     DECODING_THREADS,
     add_executor_options,
@@ -406,8 +407,6 @@ def _handle(args: argparse.Namespace) -> int:
         print(f"{split}: {len(kept)} descriptors of size {descriptors.shape[1]}{note}")
     print(f"wrote {args.out}")
     if args.hloc is not None:
-        from vpr_uncertainty.formats.hloc import write_hloc_descriptors
-
         partial_file = args.hloc.with_name(args.hloc.name + ".part")  # written whole, then renamed
         partial_file.unlink(missing_ok=True)
         for split in SPLITS:

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache
+from vpr_uncertainty.calibration import evaluate_held_out
 from vpr_uncertainty.data import DEFAULT_TOP_K, load_dataset, load_vprbench_dataset, read_results
 from vpr_uncertainty.evaluation import RECALL_NS, Evaluation, FewerCandidatesWarning, auc_pr, correct_at_n
 from vpr_uncertainty.evaluation.metrics import candidate_hits
@@ -44,7 +45,9 @@ from vpr_uncertainty.pipeline.options import (
     fraction,
     output_directory,
 )
+from vpr_uncertainty.pipeline.retrieve import ground_truth_key
 from vpr_uncertainty.plugins import registered_code
+from vpr_uncertainty.progress import progress_bar
 from vpr_uncertainty.retrieval import Retrieval
 
 __all__ = [
@@ -241,8 +244,6 @@ def _images_key(dataset: Any) -> str | None:
     """The names and content of a dataset's images, in order, and its ground truth."""
     if dataset is None or not dataset.has_images:
         return None
-    from vpr_uncertainty.pipeline.retrieve import ground_truth_key
-
     keys = {
         split: [[str(path), cache.content_key(path)] for path in paths]
         for split, paths in (("queries", dataset.query_paths), ("database", dataset.database_paths))
@@ -455,8 +456,6 @@ def run_grid(
     list of Cell
         In the order of ``config.inputs``.
     """
-    from vpr_uncertainty.progress import progress_bar
-
     with progress_bar(total=len(config.inputs), desc="grid", unit="cell", enabled=progress, leave=True) as bar:
         if executor is not None and executor.name != "local":
             from vpr_uncertainty.geometric.cache import deferring_writes, store_features
@@ -513,8 +512,6 @@ def held_out_evaluation(retrieval: Retrieval, config: GridConfig, **options: Any
         :meth:`~vpr_uncertainty.calibration.HeldOutEvaluation.to_dict`. When the splits are impossible
         (fewer than 2 correct or 2 wrong answers), every method's ``auc_pr`` is None and ``notes`` says why.
     """
-    from vpr_uncertainty.calibration import evaluate_held_out
-
     option = config.calibration
     if option is None:
         raise ValueError("the grid has no calibration option (calibration = {fraction, repeats, seed})")

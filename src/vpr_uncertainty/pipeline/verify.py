@@ -30,6 +30,7 @@ from vpr_uncertainty.pipeline.options import (
     output_file,
     positive_int,
 )
+from vpr_uncertainty.pipeline.report import format_reranking
 
 
 @dataclass(frozen=True)
@@ -195,8 +196,6 @@ def _handle(args: argparse.Namespace) -> int:
         f"median {np.median(inliers):.0f} inliers with the top match"
     )
     if reranking.recall:
-        from vpr_uncertainty.pipeline.report import format_reranking
-
         print(format_reranking({"method": conf.method, "top_k": conf.top_k, **reranking.recall}))
     print(f"wrote {args.out}")
     return 0

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.plugins import import_or_explain
+from vpr_uncertainty.progress import progress_bar, progress_requested, progress_status
 from vpr_uncertainty.retrieval.blocks import DescriptorRows, default_block_rows
 from vpr_uncertainty.retrieval.ground_truth import DEFAULT_RADIUS, attach_ground_truth, ground_truth_fields
 from vpr_uncertainty.retrieval.result import Retrieval, check_positive_int
@@ -234,8 +235,6 @@ def search_descriptors(
     kept = min(k, n_database)
     scores = np.full((n_queries, k), -np.inf, dtype=np.float32)
     indices = np.full((n_queries, k), -1, dtype=np.int64)
-    from vpr_uncertainty.progress import progress_bar, progress_requested
-
     if progress is None and float(n_queries) * n_database * database.shape[1] < _PROGRESS_WORK:
         progress = bool(progress_requested())  # a short search gets no bar unless bars were asked for
     if block is not None:
@@ -424,8 +423,6 @@ def search_blocks(
     Each block's top-k is made exact under the order (score descending, index ascending) and merged into the running
     top-k: the result equals the in-memory search in indices, and in scores up to float32 rounding.
     """
-    from vpr_uncertainty.progress import progress_bar
-
     n_database = len(rows)
     squared = _database_norms(rows, block, faiss)
     normalise = bool(np.abs(squared - 1).max() > UNIT_NORM_TOLERANCE)
@@ -513,8 +510,6 @@ class _Searcher:
                 built = faiss.index_cpu_to_gpu(self._resources, 0, built)
             except RuntimeError as error:
                 raise ValueError(f"Faiss index {index!r} cannot run on the GPU: {_faiss_message(error)}") from None
-        from vpr_uncertainty.progress import progress_status
-
         try:
             if not built.is_trained:  # IVF/PQ training can take minutes: say so while it runs
                 with progress_status(f"train Faiss {index} on {len(database):,} vectors", enabled=progress):
