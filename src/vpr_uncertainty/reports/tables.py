@@ -85,9 +85,7 @@ def _legend(evaluation: Evaluation, compared: int) -> str:
 def best_auc_pr(evaluation: Evaluation) -> float | None:
     """The best AUC-PR among the informative methods not trained on the queries; None when fewer than two."""
     scored = [
-        m.auc_pr
-        for m in evaluation.methods.values()
-        if m.informative and m.auc_pr is not None and not m.never_best
+        m.auc_pr for m in evaluation.methods.values() if m.informative and m.auc_pr is not None and not m.never_best
     ]
     return max(scored) if len(scored) >= 2 else None
 
