@@ -332,3 +332,22 @@ def test_the_online_graph_gates_each_closure_and_matches_the_batch(gtsam, gate_f
     assert all(batch.atPose2(i).equals(estimate.atPose2(i), 1e-6) for i in range(8))
     with pytest.raises(ValueError, match="a 2-D pose is x y θ"):
         online.add_odometry(7, 8, [1.0, np.nan, 0.0], information)
+
+
+def test_the_back_end_labels_its_closures(gtsam, gate_file, tmp_path, capsys):
+    """label --by back-end: GNC on every scored closure keeps the two true ones (weight 1) and rejects the wrong
+    one; the machine labels are of the closures file's pool, as calibrate reads it."""
+    from vpr_uncertainty.calibration.labels_file import pool_fingerprint, read_machine_labels
+    from vpr_uncertainty.cli import main
+    from vpr_uncertainty.formats import read_pool
+
+    _square_files(gtsam, tmp_path, wrong=True)
+    argv = ["label", str(tmp_path / "c.npz"), "--by", "back-end", "--graph", str(tmp_path / "g.g2o")]
+    assert main([*argv, "--out", str(tmp_path / "m.csv")]) == 0
+    assert "2 of 3 queries labelled correct by back-end:robust=gnc" in capsys.readouterr().out
+    pool = read_pool(tmp_path / "c.npz")
+    assert pool.config["edges"] == [[4, 0], [7, 3], [1, 6]]
+    labels = read_machine_labels(tmp_path / "m.csv", n_queries=3, pool=pool_fingerprint(pool.scores, 10))
+    assert labels.correct.tolist() == [True, True, False] and labels.confidence[2] < 0.5
+    assert main(["label", str(tmp_path / "c.npz"), "--by", "back-end", "--out", str(tmp_path / "n.csv")]) == 2
+    assert "--by back-end needs --graph" in capsys.readouterr().err

@@ -1,6 +1,7 @@
 """Machine labels: labelers say, for every query of a retrieval, whether its top-1 answer is correct.
 
-A labeler (:class:`Labeler`, in :data:`LABELERS`: ``agreement``, ``gv-sift``, ``gv-disk-lg``, ``gv-xfeat``) turns a
+A labeler (:class:`Labeler`, in :data:`LABELERS`: ``agreement``, ``gv-sift``, ``gv-disk-lg``, ``gv-xfeat``,
+``back-end``) turns a
 retrieval and what it needs (:data:`NEEDS`) into :class:`~vpr_uncertainty.calibration.labels_file.MachineLabels`:
 ``correct`` (Q,) bool, ``confidence`` (Q,), higher = surer the top-1 is correct (NaN: none), and each label's source.
 Machine labels may choose a gate's cut; only a person's labels certify it.
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -120,6 +122,31 @@ def _geometric(preset: str) -> Callable[..., MachineLabels]:
     return geometric
 
 
+def back_end(retrieval: Retrieval, *, graph: Any, robust: str, odometry: str) -> MachineLabels:
+    """A SLAM back end's own decisions as labels of a loop-closure score file's rows (the pool ``retrieval`` read
+    from it, its closures in ``config["edges"]``): every scored closure enters ``graph`` (closures without a row
+    too), GNC (or the kernel ``robust``) optimises it, and a closure whose final weight is above 0.5 is labelled
+    correct; confidence = the weight."""
+    from vpr_uncertainty.slam.graph_file import read_graph_file
+    from vpr_uncertainty.slam.pose_graph import closure_mask, factor_graph, odometry_mask, optimize
+
+    if "edges" not in retrieval.config:
+        raise ValueError("the back-end labeler labels the rows of a loop-closure score file (edges, scores)")
+    graph_file, edges = read_graph_file(graph), np.asarray(retrieval.config["edges"], np.int64).reshape(-1, 2)
+    is_odometry = odometry_mask(graph_file, odometry)
+    every = SimpleNamespace(accept=lambda rows: np.ones(len(rows), bool))
+    keep = closure_mask(graph_file.edges, edges, retrieval.scores, every, odometry=is_odometry, unscored="keep")
+    factors, initial = factor_graph(graph_file, keep, odometry)
+    closures = np.flatnonzero(~is_odometry[keep])
+    weight = np.full(len(keep), np.nan)
+    weight[keep] = optimize(factors, initial, robust=robust, closures=closures, weights=True)[1]
+    first = {
+        pair: index for index, pair in reversed(list(enumerate(map(tuple, np.sort(graph_file.edges, 1).tolist()))))
+    }
+    row_weight = weight[[first[pair] for pair in map(tuple, np.sort(edges, axis=1).tolist())]]
+    return MachineLabels(row_weight > 0.5, row_weight, [f"back-end:robust={robust},odometry={odometry}"] * len(edges))
+
+
 def label_quality(correct: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Labels ``correct`` against the ground truth ``truth``, both (Q,) bool: ``precision`` of the labels "correct",
     ``recall`` of the truly correct (NaN where there is none) and ``wrong``, the share of labels that differ."""
@@ -130,6 +157,8 @@ def label_quality(correct: np.ndarray, truth: np.ndarray) -> dict[str, float]:
 
 
 _AGREEMENT = "at least min_agree others return the top-1; confidence: their share"
+_BACK_END = "a loop closure kept by the back end (GNC weight > 0.5) on the graph; confidence: the weight"
+LABELERS.register(Labeler("back-end", _BACK_END, back_end, ("graph",), "slam", {"robust": "gnc", "odometry": "ids"}))
 LABELERS.register(Labeler("agreement", _AGREEMENT, agreement, ("retrievals",), options={"min_agree": 3}))
 for _preset, (_extra, _inliers, *_aliases) in {
     "GV-SIFT": ("opencv", 4), "GV-DISK-LG": ("gv", 15, "gv-disk-lightglue"), "GV-XFEAT": ("gv", 9)

@@ -12,11 +12,14 @@ registry, :data:`vpr_uncertainty.data.formats.DATASET_FORMAT_REGISTRY`.
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from vpr_uncertainty.formats import matrix, per_query, vpr_methods_evaluation
 from vpr_uncertainty.formats.ground_truth import load_ground_truth
@@ -144,6 +147,39 @@ def read_pool(
     return read_results(path, ground_truth=ground_truth, file_format=file_format, top_k=top_k)
 
 
+def read_closures(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """``edges`` (E, 2) int64 and ``scores`` (E, K) of a loop-closure score file (``.npz``, as ``loop-closures``
+    reads it): each closure's two vertex ids (integers >= 0) and its VPR match's top-K similarities."""
+    with np.load(path, allow_pickle=False) as file:
+        if missing := {"edges", "scores"} - set(file.files):
+            raise ValueError(f"{path}: no array {sorted(missing)} (expected edges (E, 2) and scores (E, K))")
+        edges, rows = file["edges"], file["scores"]
+    numbers = edges.dtype.kind in "iuf" and rows.dtype.kind in "iuf" and edges.ndim == rows.ndim == 2
+    if not numbers or edges.shape[1] != 2 or len(edges) != len(rows):
+        raise ValueError(f"{path}: expected edges (E, 2) and scores (E, K) of numbers, got {edges.shape} {rows.shape}")
+    if (bad := np.flatnonzero(~(np.isfinite(edges) & (edges >= 0) & (edges == np.round(edges))).all(axis=1))).size:
+        raise ValueError(f"{path}: edges, row {bad[0]}: vertex ids must be integers >= 0, got {edges[bad[0]].tolist()}")
+    return edges.astype(np.int64), rows
+
+
+def _read_closures_pool(path: Path, **_: Any) -> Retrieval:
+    """A loop-closure score file as a pool: one query per closure (no database: every index 0), its edges in
+    ``config["edges"]``."""
+    edges, rows = read_closures(path)
+    indices = np.zeros(rows.shape, dtype=np.int64)
+    return Retrieval(rows, indices, config={"source": str(path), "edges": edges.tolist(), "n_database": 1})
+
+
+def _is_closures_file(path: Path) -> bool:
+    if path.suffix.lower() != ".npz" or not path.is_file():
+        return False
+    try:
+        with np.load(path, allow_pickle=False) as file:
+            return {"edges", "scores"} <= set(file.files) and "indices" not in file.files
+    except (OSError, ValueError, zipfile.BadZipFile):  # not a zip of arrays: another reader says what it is
+        return False
+
+
 def _read_retrieval_file(path: Path, *, ground_truth: str | Path | None, **_: Any) -> Retrieval:
     retrieval = load_retrieval(path)
     if ground_truth is not None:
@@ -155,6 +191,13 @@ def _read_retrieval_file(path: Path, *, ground_truth: str | Path | None, **_: An
 
 
 for _entry in (
+    ResultsFormat(
+        "closures",
+        "a loop-closure score file (.npz: edges (E, 2) and scores (E, K)): one query per closure",
+        _read_closures_pool,
+        detect=_is_closures_file,
+        provides=("scores",),
+    ),
     ResultsFormat(
         "vpr-methods-evaluation",
         "a VPR-methods-evaluation log folder saved with --save_descriptors (searched again with Faiss)",

@@ -24,7 +24,8 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "local_features/ beside OUT, as verify does. Labelers (--by NAME[:option=value,...]):\n"
         + "".join(f"  {e.name}: {e.description}; options {dict(e.options)}\n" for e in LABELERS),
         epilog="example:\n  vpr-uncertainty label AMOSNet.npy --by agreement:min_agree=3 --with CALC.npy HOG.npy "
-        "NetVLAD.npy --out machine.csv\n  vpr-uncertainty label retrieval.npz --by gv-sift --images DIR --out m.csv",
+        "NetVLAD.npy --out machine.csv\n  vpr-uncertainty label retrieval.npz --by gv-sift --images DIR --out m.csv\n"
+        "  vpr-uncertainty label closures.npz --by back-end --graph graph.g2o --out machine.csv",
     )
     parser.add_argument("retrieval", type=Path, metavar="RETRIEVAL", help="the pool's results")
     parser.add_argument("--by", required=True, metavar="LABELER", help=f"{', '.join(LABELERS.names())}[:option=v]")
@@ -32,6 +33,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--images", type=Path, metavar="DIR", help="dataset folder (query/ and ref/, as in verify)")
     parser.add_argument("--query-images", type=Path, metavar="DIR", help="folder of the query images")
     parser.add_argument("--database-images", type=Path, metavar="DIR", help="folder of the database images")
+    parser.add_argument("--graph", type=Path, metavar="GRAPH", help="back-end: the pose graph of the closures")
     parser.add_argument("--device", type=device_name, default="cpu", help="cpu, cuda, cuda:N or mps (gv-*)")
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query of the pool (default 10)")
     parser.add_argument("--format", choices=input_formats(), default="auto", help="how to read RETRIEVAL and --with")
@@ -48,13 +50,19 @@ def _handle(args: argparse.Namespace) -> int:
 
     entry, top_k = LABELERS.get(args.by.partition(":")[0].strip()), max(DEFAULT_TOP_K, args.k)
     images = {key: getattr(args, key) for key in ("images", "query_images", "database_images")}
-    for flag, given, need in (("--with", args.others, "retrievals"), ("--images", any(images.values()), "images")):
+    flags = (
+        ("--with", args.others, "retrievals"),
+        ("--images", any(images.values()), "images"),
+        ("--graph", args.graph, "graph"),
+    )
+    for flag, given, need in flags:
         if bool(given) != (need in entry.requires):
             raise ValueError(f"--by {entry.name} {'needs' if need in entry.requires else 'does not read'} {flag}")
     wording = {key: f"--{key.replace('_', '-')}" for key in images}
     with command_wording(ground_truth="--gt GT", **wording):
         retrieval = read_pool(args.retrieval, file_format=args.format, top_k=top_k, ground_truth=args.gt)
         inputs = {"others": {str(p): read_pool(p, file_format=args.format, top_k=top_k) for p in args.others or ()}}
+        inputs["graph"] = args.graph
         if any(images.values()):
             paths = retrieval_image_paths(retrieval, **images)
             inputs.update(zip(("query_paths", "database_paths"), paths, strict=True), device=args.device)

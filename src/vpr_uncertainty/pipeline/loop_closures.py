@@ -30,6 +30,7 @@ import numpy as np
 from vpr_uncertainty._files import refuse_shared_files
 from vpr_uncertainty.cache import atomic_write
 from vpr_uncertainty.calibration.gate import Gate
+from vpr_uncertainty.formats import read_closures
 from vpr_uncertainty.pipeline.options import add_options, command_wording, conf_from_args, option, output_file
 from vpr_uncertainty.slam.graph_file import read_graph_file, write_graph_file
 from vpr_uncertainty.slam.pose_graph import (
@@ -112,7 +113,7 @@ def main(
     inputs = {"GRAPH": graph, "--scores": scores, "--gate": gate, "--ground-truth": ground_truth}
     outputs = {"--out": out, "the poses file of --optimize": tum, "--decisions": decisions, "--plot": plot}
     refuse_shared_files(inputs, outputs)
-    closures, rows = _read_scores(scores)
+    closures, rows = (np.empty((0, 2), np.int64), np.empty((0, 1))) if scores is None else read_closures(scores)
     graph_file, the_gate = read_graph_file(graph), _NoGate() if gate is None else Gate.load(gate)
     truth = None if ground_truth is None else _read_truth(ground_truth)
     start = time.perf_counter()
@@ -185,22 +186,6 @@ def main(
 def _cell(value: object) -> str:
     number = float(value)  # type: ignore[arg-type]
     return "" if np.isnan(number) else str(int(number)) if number.is_integer() and abs(number) < 2**53 else repr(number)
-
-
-def _read_scores(path: Path | None) -> tuple[np.ndarray, np.ndarray]:
-    """``edges`` (E, 2) int64 and ``scores`` (E, K) of a score file, checked (none without a file)."""
-    if path is None:
-        return np.empty((0, 2), np.int64), np.empty((0, 1))
-    with np.load(path, allow_pickle=False) as file:
-        if missing := {"edges", "scores"} - set(file.files):
-            raise ValueError(f"{path}: no array {sorted(missing)} (expected edges (E, 2) and scores (E, K))")
-        edges, rows = file["edges"], file["scores"]
-    numbers = edges.dtype.kind in "iuf" and rows.dtype.kind in "iuf" and edges.ndim == rows.ndim == 2
-    if not numbers or edges.shape[1] != 2 or len(edges) != len(rows):
-        raise ValueError(f"{path}: expected edges (E, 2) and scores (E, K) of numbers, got {edges.shape} {rows.shape}")
-    if (bad := np.flatnonzero(~(np.isfinite(edges) & (edges >= 0) & (edges == np.round(edges))).all(axis=1))).size:
-        raise ValueError(f"{path}: edges, row {bad[0]}: vertex ids must be integers >= 0, got {edges[bad[0]].tolist()}")
-    return edges.astype(np.int64), rows
 
 
 def _read_truth(path: Path) -> np.ndarray:
