@@ -1,21 +1,8 @@
 """Optional numba kernels of RS, SD and SU, margin and PA: one pass over each row (order, finiteness, formula).
 
-The numpy path in :mod:`vpr_uncertainty.scores` is the reference; this kernel only speeds up large inputs and never
-decides an error. A row it cannot score the ordinary way (NaN, unsorted, +inf, fewer than 2 candidates, s_1 <= 0
-under ``on_nonpositive="raise"``, overflow) makes it give up, and the numpy path then scores the whole input or
-raises its own message. Rows with missing candidates (trailing ``-inf``) and rows with s_1 <= 0 under
-``"most_uncertain"`` are scored here as the numpy path scores them.
-
-Rows of a length in :data:`SPECIALISED` (k = 10 above all) first go through a kernel compiled for that length
-(unrolled, without branches, a count of rows needing a closer look); only when that count is not zero does the
-general kernel redo the input. The margin and PA kernels (:func:`two_column`) give up on any unusual row, and the
-one-pass numpy path of :mod:`vpr_uncertainty.scores` then answers.
-
-numba is imported on first use only (``import vpr_uncertainty`` and a gate never load it), and only for inputs
-large enough to repay its import and the load of the cached machine code (:data:`LOAD_ELEMENTS`); once loaded,
-the kernel serves every input of at least :data:`MIN_ELEMENTS` scores. Without numba, or with the environment
-variable ``VPR_UNCERTAINTY_NUMBA=0``, everything runs on numpy; ``VPR_UNCERTAINTY_NUMBA=1`` uses the kernel for
-every size (tests, debugging). Install numba with the ``fast`` extra: ``pip install vpr-uncertainty[fast]``.
+The numpy path in :mod:`vpr_uncertainty.scores` is the reference: a kernel only speeds up large inputs, never decides
+an error, and is used only when numba is installed (the ``fast`` extra) and the input repays loading it. When it
+gives up and what ``VPR_UNCERTAINTY_NUMBA`` does: see docs/explanation/uncertainty-scores.md.
 """
 
 from __future__ import annotations

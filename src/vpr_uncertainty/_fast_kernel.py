@@ -1,11 +1,6 @@
 """The numba kernels behind :mod:`vpr_uncertainty._fast`; importing this module imports numba (ImportError without).
 
-Speed comes from what LLVM sees, not from the source: ``error_model="numpy"`` (no zero-division branch in the row
-loop), loops of a trip count known at compile time (the kernels made by :func:`make_ratio` and
-:func:`make_two_column` are closures over the row length, so each length gets its own fully unrolled machine code,
-cached on disk like the others: numba keys its cache on the closure's values) and no data-dependent branch in the
-row loop: each row is computed unconditionally and counted as "bad" when it needs a closer look, which the caller
-then gives to the general kernel or to the numpy path.
+Why they are fast (unrolled loops per row length, no data-dependent branch): see docs/explanation/uncertainty-scores.md.
 """
 
 from __future__ import annotations

@@ -1,44 +1,10 @@
-"""Uncertainty from the top-k similarity scores of a VPR system.
+"""Uncertainty from the top-k similarity scores of a VPR system: arrays of shape (Q,), **higher = less trustworthy**.
 
-Direction
----------
-Every function here returns an array of shape (Q,) in which **higher means less trustworthy**: rank queries by
-it to reject the most doubtful answers first. Inputs are similarities, higher = more similar, one row per query,
-sorted in descending order (``sort=True`` sorts them for you).
+* :func:`ratio_spread` (RS), :func:`similarity_distribution` (SD), :func:`statistical_uncertainty` (SU) and
+  :func:`adaptive_statistical_uncertainty`; baselines :func:`best_match`, :func:`l2_distance`,
+  :func:`perceptual_aliasing`, :func:`margin`. Inputs: similarities sorted descending, one row per query.
 
-The paper's metrics (training-free, from the top-k scores alone)
-    * :func:`ratio_spread` RS = 1/(k−1) Σ_{i=2..k} s_i / s_1
-    * :func:`similarity_distribution` SD = median(s_1 … s_k) / s_1
-    * :func:`statistical_uncertainty` SU = α·RS + (1−α)·SD
-
-Training-free variant
-    * :func:`adaptive_statistical_uncertainty` SU-adaptive = α_q·RS + (1−α_q)·SD with α_q from the runners-up
-      (:func:`adaptive_alpha`)
-
-Score-only baselines
-    * :func:`best_match` BM = −s_1
-    * :func:`l2_distance` L2 = d_1, the top-1 descriptor distance
-    * :func:`perceptual_aliasing` PA = d_1 / d_2
-    * :func:`margin` = s_2 − s_1 (the negated margin between the two best matches)
-
-Hard input, defined once for all of them
-    * **Missing candidates.** ``-inf`` marks a missing candidate at the end of a row (a query for which fewer
-      than k database images were retrieved). Such a row, like an array with fewer than k columns, is scored on
-      the n candidates it has, with n in place of k. A row needs at least two candidates; otherwise a
-      ``ValueError`` names it.
-    * **Best similarity s_1 ≤ 0.** Cosine similarities can be negative, and the ratio s_i / s_1 then flips its
-      meaning. With ``on_nonpositive="most_uncertain"`` (the default) such a row gets the uncertainty
-      ``1 − s_1``: ≥ 1, so above every row with s_1 > 0 (whose RS, SD and SU are ≤ 1 because s_i ≤ s_1), and
-      ordered among themselves by their best similarity. ``on_nonpositive="raise"`` rejects such input.
-      :func:`vpr_uncertainty.evaluate` counts such queries in its notes.
-    * **Similarities outside [−1, 1] without distances.** L2 and PA (and SUE) convert cosine similarities to
-      distances, d² = 2 − 2s (:func:`squared_distances_from_similarities`, the one place this is done), which
-      holds only for similarities in [−1, 1] (± :data:`COSINE_TOLERANCE` for rounding). Other similarities
-      (integer scores, unnormalised inner products) raise a ``ValueError`` naming the method and the range
-      found: give the real distances instead.
-    * **NaN, +inf, unsorted rows, fewer than 2 columns, k < 2, α outside [0, 1], non-2-D input**: a
-      ``ValueError`` (or ``TypeError``) that names the argument, what was found and what was expected.
-    * **No queries** (shape (0, K)): an empty array of shape (0,).
+Formulas and hard input (missing candidates, s_1 <= 0, NaN, ...): see docs/explanation/uncertainty-scores.md.
 """
 
 from __future__ import annotations
@@ -182,7 +148,7 @@ def ratio_spread(
     sort : bool, default=False
         Sort each row for the caller instead of rejecting unsorted rows.
     on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
-        What to do with rows whose best similarity is <= 0 (see the module docstring).
+        What to do with rows whose best similarity is <= 0 (docs/explanation/uncertainty-scores.md).
 
     Returns
     -------
@@ -214,7 +180,7 @@ def similarity_distribution(
     sort : bool, default=False
         Sort each row for the caller instead of rejecting unsorted rows.
     on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
-        What to do with rows whose best similarity is <= 0 (see the module docstring).
+        What to do with rows whose best similarity is <= 0 (docs/explanation/uncertainty-scores.md).
 
     Returns
     -------
@@ -248,7 +214,7 @@ def statistical_uncertainty(
     sort : bool, default=False
         Sort each row for the caller instead of rejecting unsorted rows.
     on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
-        What to do with rows whose best similarity is <= 0 (see the module docstring).
+        What to do with rows whose best similarity is <= 0 (docs/explanation/uncertainty-scores.md).
 
     Returns
     -------
@@ -334,7 +300,7 @@ class StatisticalUncertainty:
     alpha : float in [0, 1], default=0.5
         Weight of RS against SD.
     on_nonpositive : {"most_uncertain", "raise"}, default="most_uncertain"
-        What to do when the best similarity is <= 0 (see the module docstring).
+        What to do when the best similarity is <= 0 (docs/explanation/uncertainty-scores.md).
 
     Examples
     --------

@@ -1,36 +1,8 @@
-"""SUE: spatial uncertainty from how far apart the retrieved database images were taken.
+"""SUE: spatial uncertainty from how far apart the retrieved database images were taken (Zaffar, Nan, Kooij, CVPR
+2024). Higher means less trustworthy: candidates scattered over the map are doubted, candidates at one place are not.
 
-Direction
----------
-Higher means less trustworthy, like every uncertainty of the toolkit: a query whose top-k candidates lie at
-one place is answered confidently; one whose candidates are scattered over the map is not.
-
-Method (Zaffar, Nan, Kooij, "On the estimation of image-matching uncertainty in visual place recognition",
-CVPR 2024). For each query, over its top-K candidates (K = 10) with squared L2 descriptor distances d_i and
-database positions p_i:
-
-* weights w_i = exp(−slope · d_i) / Σ_j exp(−slope · d_j) (slope = 350), computed as a stable softmax: the
-  smallest distance is subtracted first, so huge distances give weights of 0 instead of 0/0;
-* the weighted mean position μ = Σ w_i p_i;
-* per coordinate c, the weighted variance Σ w_i Δ_ic² of the deviations Δ_ic = p_ic − μ_c, each deviation
-  clipped at ``max_deviation`` = 500 m;
-* SUE = the mean of those variances over the coordinates ((var_x + var_y) / 2 for 2-D positions).
-
-Clipping: ``clip="symmetric"`` (default) or ``"one-sided"`` (the published code)
-    The published implementation clips with ``min(500, Δ)``: deviations above +500 m are clipped, deviations
-    below −500 m are not. Its comment says the intent, "everything that is more than 500 meters away
-    contributes equally", which only the symmetric clip |Δ| ≤ 500 achieves. The one-sided clip also makes SUE
-    depend on which way the axes point: mirroring the map (x → −x) changes the uncertainty of the same answer.
-    The default is therefore ``"symmetric"``; ``"one-sided"`` reproduces the published numbers, and both agree
-    whenever every candidate lies within 500 m of the weighted mean (in particular for confident answers).
-    ``"none"`` leaves deviations unclipped.
-
-Hard input
-    * Missing candidates (index ``-1``, as after a search with k larger than the database) are left out; a
-      query needs at least one candidate.
-    * Positions must be metric for the 500 m clip and the variance to mean anything. The registry wrapper
-      :func:`sue_from_retrieval` warns when ``retrieval.config["position_kind"]`` (or the dataset summary's
-      ``config["dataset"]["position_kind"]``) says they are frame indices or placeholder ids.
+The method, why the default clip is symmetric (the published code's is one-sided), and hard input: see
+docs/explanation/uncertainty-scores.md.
 """
 
 from __future__ import annotations
@@ -104,7 +76,7 @@ def spatial_uncertainty(
     slope : float, default=350
         Sharpness of the weights exp(−slope · d²); 0 weighs all candidates equally.
     clip : {"symmetric", "one-sided", "none"}, default="symmetric"
-        How deviations from the mean are clipped at ``max_deviation`` (see the module docstring):
+        How deviations from the mean are clipped at ``max_deviation`` (docs/explanation/uncertainty-scores.md):
         ``"symmetric"`` |Δ| ≤ max_deviation, ``"one-sided"`` min(max_deviation, Δ) as published, ``"none"``.
     max_deviation : float, default=500
         Clipping threshold, in the unit of the positions.

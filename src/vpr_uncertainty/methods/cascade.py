@@ -1,12 +1,6 @@
-"""Cascades ``SCORE+GV`` (e.g. ``SU+GV-SIFT``): cheap doubt first, geometric verification only where it is needed.
-
-The score method (any registered method that is not geometric verification) ranks every query; geometric
-verification (any ``GV-*`` method) then runs only on the ``verify_fraction`` of the queries it doubts most, and the
-two are combined by :func:`combine_cascade`. ``verify_fraction=0`` gives exactly the score method's uncertainties,
-``verify_fraction=1`` the ranking of geometric verification alone. On the ten VPR-Bench corridor matrices this
-combination was at least as good as the alternatives measured (docs/evidence/cascade.md), and it needs no threshold
-on inlier counts, whose scale differs between local features. A cascade's time per query counts the score method
-on every query and geometric verification on the verified ones only.
+"""Cascades ``SCORE+GV`` (e.g. ``SU+GV-SIFT``): cheap doubt first, geometric verification only on the
+``verify_fraction`` of the queries the score method doubts most. Why this combination, and what its time per query
+counts: see docs/explanation/uncertainty-scores.md.
 """
 
 from __future__ import annotations
@@ -89,7 +83,7 @@ def run_cascade(
     verify_fraction: float = DEFAULT_VERIFY_FRACTION,
     **options: Any,
 ) -> DetailedUncertainty:
-    """The cascade ``score+gv`` on ``retrieval`` (see the module docstring); ``options`` go to both methods.
+    """The cascade ``score+gv`` on ``retrieval`` (docs/explanation/uncertainty-scores.md); ``options`` go to both.
 
     Returns
     -------

@@ -1,10 +1,6 @@
 """Uncertainty-method entries: what one is (:class:`UncertaintyMethod`), where they are kept (:data:`METHODS`), and
-the functions that add, find, parse and check them.
-
-Options a method does not take are not passed to it, so one set of options serves every method; an option no
-selected method takes is an error (:func:`check_options`). A name can carry its method's options, as a method spec
-(``"SUE:clip=one-sided,slope=300"``, :func:`parse_method_spec`); a target or hook given by dotted path
-(``"package.module:function"``) is imported when first called.
+the functions that add, find, parse (method specs, ``"SUE:clip=one-sided"``) and check them. How options reach a
+method: see docs/explanation/uncertainty-scores.md.
 """
 
 from __future__ import annotations
