@@ -1,28 +1,7 @@
 """Paired bootstrap over queries: confidence intervals of AUC-PR, AP and AURC and paired tests between methods.
 
-Every method is measured on the **same** resamples of the queries (a paired bootstrap), so the difference between
-two methods is computed resample by resample. The resamples depend only on the number of queries, the number of
-resamples and the seed (:func:`resample_indices`): a cell, a table column and a slow reference loop that use the
-same three get the same resamples.
-
-Conventions
------------
-* Uncertainty: higher = less trustworthy, as everywhere in the toolkit; the metrics are those of
-  :mod:`vpr_uncertainty.evaluation.metrics` (trapezoid AUC-PR, average precision, AURC), computed on the resample
-  with a query drawn m times counted m times (the resampled copies of one query are tied).
-* A resample in which a method's correctness labels hold only one class (every answer correct, or none) has no
-  precision-recall curve: it is **skipped** for that method, for all three metrics alike (NaN in the
-  distributions), and counted.
-* Interval: the percentile interval (2.5th and 97.5th percentiles for 95 %, linear interpolation) of the
-  resampled values.
-* Paired test of a difference d = a - b: the two-sided percentile-bootstrap p-value
-  ``p = min(1, 2 (1 + min(#{d_b <= 0}, #{d_b >= 0})) / (B' + 1))`` over the B' resamples where both are defined:
-  twice the share of resamples where the difference has the other sign (or is zero), with the +1 correction that
-  keeps p > 0. A difference that is exactly zero on every resample (a method against itself) gets p = 1.
-* Multiple comparisons: Holm's step-down correction (:func:`holm`).
-
-:func:`add_bootstrap` attaches all of it to an :class:`~vpr_uncertainty.evaluation.Evaluation`, with the leaders
-of each metric (:func:`leaders`).
+Every method is measured on the same resamples (:func:`resample_indices`); :func:`add_bootstrap` attaches intervals,
+p-values (Holm-corrected, :func:`holm`) and leaders to an Evaluation. Conventions: see docs/explanation/evaluation.md.
 """
 
 from __future__ import annotations
@@ -223,7 +202,7 @@ def percentile_interval(values: object, confidence: float = 0.95) -> tuple[float
 
 
 def paired_p_value(first: object, second: object) -> float | None:
-    """Two-sided paired-bootstrap p-value of the difference ``first - second`` (see the module conventions).
+    """Two-sided paired-bootstrap p-value of the difference ``first - second`` (docs/explanation/evaluation.md).
 
     Parameters
     ----------

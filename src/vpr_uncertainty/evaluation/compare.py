@@ -1,26 +1,7 @@
 """Is one VPR method, or one uncertainty method, better than another on the same queries? Paired tests.
 
-Two questions, one function (:func:`compare`):
-
-* **Two VPR methods on the same queries** (``compare(evaluation_a, evaluation_b)``, two
-  :class:`~vpr_uncertainty.evaluation.Evaluation` of retrievals with the same queries): for every uncertainty
-  method evaluated in both, the difference A - B of AUC-PR and of average precision, each side judged by its own
-  top-1 correctness; and the exact McNemar test of recall@1 (:func:`mcnemar`).
-* **Two uncertainty methods within one evaluation** (``compare(evaluation, method_a="SU", method_b="BM")``): the
-  difference of AUC-PR and of average precision between the two methods.
-
-Conventions
------------
-* Uncertainty: higher = less trustworthy, as everywhere in the toolkit; the metrics are those of
-  :mod:`vpr_uncertainty.evaluation.metrics` (trapezoid AUC-PR and average precision).
-* Paired bootstrap over queries (:mod:`vpr_uncertainty.evaluation.bootstrap`): both sides are measured on the same
-  resamples of the query indices, which depend only on the number of queries, ``n_resamples`` and ``seed``; a
-  resample where one side's labels hold one class only is left out of that difference. Interval: the percentile
-  interval of the resampled differences; p: the two-sided paired-bootstrap p-value of
-  :func:`~vpr_uncertainty.evaluation.bootstrap.paired_p_value`; Holm's correction across the uncertainty methods
-  compared, per metric.
-* McNemar: ``b`` = queries A answers correctly at top-1 and B does not, ``c`` = the reverse; exact two-sided
-  binomial p-value of ``b`` among ``b + c`` at 1/2 (:func:`scipy.stats.binomtest`; 1 when ``b + c = 0``).
+:func:`compare` gives the paired-bootstrap differences of AUC-PR and AP (two VPR methods, or two uncertainty methods
+of one evaluation) and :func:`mcnemar` the exact test of recall@1. Conventions: see docs/explanation/evaluation.md.
 """
 
 from __future__ import annotations

@@ -1,29 +1,7 @@
 """Metrics of an uncertainty as a predictor of correct answers: AUC-PR, AP, rejection curves, AURC and recall@N.
 
-Plain functions on arrays, in the style of :mod:`sklearn.metrics`: inputs are validated at the boundary and every
-error names the argument, what was found and what was expected.
-
-Conventions
------------
-* A query's answer is **correct** when its top-1 database image is among its positives.
-* An uncertainty is higher for answers to trust less. These functions negate it exactly once, to rank queries by
-  confidence; a correct answer is the positive class.
-* **AUC-PR** is the trapezoid area ``sklearn.metrics.auc(recall, precision)`` under
-  ``precision_recall_curve(correct, -uncertainty)``, the convention of the published VPR uncertainty tables;
-  average precision (the step-wise area) is reported beside it.
-* **End-to-end precision-recall**: the VPR system accepts the queries whose uncertainty is <= a threshold.
-  Precision = correct accepted / accepted; recall = correct accepted / queries with at least one positive in
-  the database. Each distinct uncertainty value is one threshold (tied queries are accepted together).
-* **recall@N** is the share of queries with at least one positive that have one among their first N
-  candidates, for any N; with N larger than the candidates retrieved (and fewer candidates than database images)
-  it is unknown: None, with a :class:`FewerCandidatesWarning`.
-* **AURC** is the area under the risk-coverage curve: Σ over thresholds of (coverage gained) × (error rate among
-  the accepted queries), with coverage in steps of tied groups; lower is better.
-
-AUC-PR, AP, the rejection curve and AURC all read the same numbers: for each distinct uncertainty value (ascending),
-how many queries have an uncertainty <= it and how many of those are correct. :func:`rank_queries` computes them
-with one sort (an :class:`UncertaintyRanking`), and its methods give each metric; the functions of this module build
-one per call. :func:`vpr_uncertainty.evaluate` builds one per method and shares it.
+Plain functions on arrays, in the style of :mod:`sklearn.metrics`, every input validated at the boundary; the threshold
+metrics read one :class:`UncertaintyRanking` (:func:`rank_queries`). Definitions: see docs/explanation/evaluation.md.
 """
 
 from __future__ import annotations

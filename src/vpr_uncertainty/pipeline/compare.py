@@ -1,9 +1,6 @@
 """``compare``: two results files of the same queries (two VPR methods) -> paired tests of every uncertainty method's
-AUC-PR and AP, and McNemar's test of recall@1; or two uncertainty methods on one results file.
-
-Each file is read as ``evaluate`` reads it (:func:`vpr_uncertainty.pipeline.evaluate.read_inputs`) and evaluated
-by the one call of :func:`vpr_uncertainty.pipeline.evaluate.compute`; the tests are
-:func:`vpr_uncertainty.evaluation.compare`. Nothing is cached: the comparison writes only its ``--json``.
+AUC-PR and AP, and McNemar's test of recall@1; or two uncertainty methods on one results file. Each file is read and
+evaluated as ``evaluate`` does; nothing is cached (see docs/explanation/evaluation.md).
 """
 
 from __future__ import annotations

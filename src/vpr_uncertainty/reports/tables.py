@@ -1,11 +1,7 @@
 """Evaluation results as tables: one evaluation (:func:`format_table`, plain text or Markdown), Table 1 of a grid
 (:func:`build_table1`: a metric per uncertainty method and VPR method, averaged over datasets, in Markdown, CSV,
-LaTeX and HTML), and the ties table (:func:`build_ties_table`).
-
-The best value of a column is marked (starred, or bold). With a bootstrap, each value shows its 95 % interval and
-the marks follow the paired tests: the best alone where it is significantly better than every other method,
-otherwise every method not significantly worse than it (tied leaders, Holm-corrected). A method whose uncertainty is
-the same for every query ranks nothing (chance-level AUC-PR): it is marked ``†`` and never best.
+LaTeX and HTML), and the ties table (:func:`build_ties_table`). How the best value is marked (paired tests, ``†``
+for a method that ranks nothing): see docs/explanation/evaluation.md.
 """
 
 from __future__ import annotations
