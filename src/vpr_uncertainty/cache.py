@@ -1,30 +1,7 @@
 """Files the toolkit writes and trusts: content keys, fingerprints, checksums, atomic writes, checked HDF5 reads.
 
-A stage's artefact stores the :func:`fingerprint` of the stage's configuration and of the *content* of its inputs,
-and is reused only when it equals the one the current run computes; per-image stages also store each image's
-:func:`content_key`, so that a rerun recomputes exactly the images that changed. What is hashed:
-
-- :func:`content_key` of a file: size, modification time (ns) and a BLAKE2b hash of its bytes. Files up to
-  :data:`FULL_HASH_BYTES` are hashed whole; larger ones by their first and last :data:`EDGE_BYTES`, plus their
-  status change time (``st_ctime_ns``: every write updates it, :func:`os.utime` cannot set it back).
-  :func:`file_digest` hashes every byte (``reproduce --verify``).
-- :func:`array_digest` of arrays: dtype, shape and every byte.
-- :func:`fingerprint`: SHA-256 of the canonical JSON of ``{"protocol", "stage", "config", "inputs"}``.
-- :func:`payload_checksum`: ``"blake2b:"`` + :func:`array_digest` of what an artefact stores, verified on read
-  (:func:`verify_checksum`; a mismatch is a :class:`ChecksumError`).
-
-A figure is reused when what it shows is unchanged: :func:`write_figure` given ``inputs`` (a fingerprint of the
-figure's data, title and drawing code) stores them in a PNG text chunk with the BLAKE2b checksum of every byte
-before it, and :func:`figure_is_current` reads them back (checking every chunk's CRC), so a deleted, truncated,
-corrupted or foreign figure, or one of other inputs, is drawn again.
-
-Writes are atomic (:func:`atomic_path`): a temporary file beside the target, fsynced, then :func:`os.replace` d over
-it, so an interrupted write leaves the previous artefact or none; a failed write raises an :class:`OSError` naming
-the target (``No space left on device: PATH``). An unusable cache is rebuilt with a one-line :class:`CacheWarning`.
-
-HDF5 inputs are opened with :func:`open_dataset` and listed with :func:`hard_links`, which refuse external storage,
-virtual datasets, external and soft links (a crafted file could otherwise feed the toolkit the bytes of a file the
-user never named, or hide an image from a listing).
+What each of :func:`content_key`, :func:`array_digest`, :func:`fingerprint` and :func:`payload_checksum` hashes, how
+figures, atomic writes and HDF5 inputs are checked: see docs/explanation/caches.md.
 
 Examples
 --------

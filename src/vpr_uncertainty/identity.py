@@ -1,21 +1,6 @@
-"""What determines a result's code, for the fingerprints of the caches (:func:`vpr_uncertainty.cache.fingerprint`).
-
-* :func:`code_identity` of a module: its source and that of the modules it imports from its own tree (the
-  toolkit's, or a user's plugin files), with the toolkit's version; :func:`target_identity` of a callable or
-  dotted target (what a registry entry runs: a method, a model loader, a preset).
-* :func:`callable_identity` of a descriptor model given as Python: its code, parameters, buffers and attributes.
-  It hashes (SHA-256)
-
-  * a ``torch.nn.Module``: its class (qualified name, source and every attribute set on the class, ``GeM.p = 3.0``
-    at class level included), every instance attribute and ``__slots__`` value, its forward and backward hooks,
-    every parameter and buffer (bytes, dtype, shape), and each submodule the same way;
-  * a function or lambda: its code (bytecode, constants, names, nested code), defaults, closure values, and the
-    globals it names (tensors, modules, plain values, functions of the same module);
-  * ``functools.partial``, bound methods and other callable objects: what they wrap, their class and attributes.
-
-  A value it cannot describe (an open file, a socket, an object of unknown state) raises
-  :class:`UnfingerprintableModel`: pass ``weights_id=`` (a key that names the model) instead. Python modules and
-  classes referenced by name are identified by name only.
+"""What determines a result's code, for the fingerprints of the caches (:func:`vpr_uncertainty.cache.fingerprint`):
+:func:`code_identity` of a module and its own tree, :func:`target_identity` of a registry target, and
+:func:`callable_identity` of a descriptor model given as Python (what it hashes: see docs/explanation/caches.md).
 """
 
 from __future__ import annotations
@@ -58,7 +43,7 @@ class UnfingerprintableModel(ValueError):
 
 
 def callable_identity(network: Any) -> str:
-    """A digest of everything that defines ``network``'s output (see the module docstring).
+    """A digest of everything that defines ``network``'s output (see docs/explanation/caches.md).
 
     Parameters
     ----------

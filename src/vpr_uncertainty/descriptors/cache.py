@@ -1,25 +1,7 @@
 """HDF5 descriptor cache: one row per image, resumable per image, following :mod:`vpr_uncertainty.cache`.
 
-Layout (format version 2)::
-
-    /                   attrs: format = "vpr-uncertainty descriptors", format_version = 2, config (JSON: model,
-                               weights identity, preprocessing, dtype), fingerprint, model, dtype
-    /database           attrs: complete (bool), failed (JSON list of {"name", "path", "error"}),
-                               checksum (once complete)
-        names           (N,) UTF-8 strings, unique once complete
-        descriptors     (N, D) float32 or float16, L2-normalised, row i belongs to names[i]
-        keys            (N,) content key of the image file row i was computed from
-        checksums       (N,) BLAKE2b of row i (name, key, descriptor as stored): a partial split proves its rows
-    /queries            same as /database
-
-The checksum is :func:`vpr_uncertainty.cache.payload_checksum` of names, descriptors as stored, keys and
-``failed``, hashed one block of rows at a time. Rows are appended and flushed batch by batch, each with its row
-checksum; a rerun computes only the images whose name is missing, whose content key differs or, in a split not yet
-complete, whose row no longer matches its checksum (a file written before the row checksums recomputes every row
-of an incomplete split). A file of another fingerprint, of version 1, empty,
-truncated or failing its checksum is rebuilt with a one-line :class:`~vpr_uncertainty.cache.CacheWarning`; a file
-that is not ours is never overwritten, nor one another process holds open for writing. Rows holding NaN or
-infinite values are recomputed by the next extraction and refused by the readers.
+The layout (format version 2): see docs/reference/file-formats.md; which rows a rerun computes again, and which files
+it rebuilds or refuses: see docs/explanation/caches.md.
 """
 
 from __future__ import annotations

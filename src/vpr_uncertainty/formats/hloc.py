@@ -1,13 +1,6 @@
-"""Global descriptors in hloc's HDF5 layout (``hloc.extract_features`` with a global model such as NetVLAD).
-
-hloc writes one group per image, named by the image's path relative to its image folder (``query/0001.jpg``
-makes the nested groups ``query`` and ``0001.jpg``), holding a dataset ``global_descriptor`` of shape (D,) and
-one ``image_size``; ``hloc.utils.io.list_h5_names`` lists the images as the parents of the datasets. One file may
-hold the queries and the database together (hloc's ``pairs_from_retrieval`` then tells them apart by a name
-prefix such as ``query/`` and ``db/``).
-
+"""Global descriptors in hloc's HDF5 layout (``hloc.extract_features`` with a global model such as NetVLAD):
 :func:`read_hloc_descriptors` reads such a file, one split when the names carry a split prefix;
-:func:`write_hloc_descriptors` writes one that hloc reads.
+:func:`write_hloc_descriptors` writes one that hloc reads. The layout: see docs/reference/file-formats.md.
 """
 
 from __future__ import annotations

@@ -1,13 +1,6 @@
-"""The per-query table of ``evaluate --per-query`` read back: one row per query, columns ``query_index, query,
-top1_index, top1, answerable, correct, s_1, …, s_K``, then one column per uncertainty method (``.csv``; ``.parquet``
-with the pandas extra).
-
-The table holds the scores and the top-1's correctness, not the other candidates' database images: the retrieval
-read back has the top-1 of each query and placeholders for the others (database indices past the top-1s), and its
-positives say exactly what the table does (the top-1 when correct; one image outside the candidates when answerable
-but wrong; none otherwise). So every method that reads the scores (RS, SD, SU, BM, L2, PA, ...) gives the numbers of
-the original retrieval, and recall@N is known for N = 1 only (``config["ranked_candidates"] = 1``). The methods'
-columns are not read: the evaluation computes them again.
+"""The per-query table of ``evaluate --per-query`` read back: one row per query (``.csv``; ``.parquet`` with the pandas
+extra), as a retrieval with the top-1 of each query and placeholders for the other candidates, so the score methods
+give the original numbers and recall@N is known for N = 1 only. Columns and why: see docs/reference/file-formats.md.
 """
 
 from __future__ import annotations
@@ -65,7 +58,7 @@ def _table(path: Path) -> tuple[list[str], list[list[str]]]:
 
 
 def read(path: Path, *, ground_truth: str | Path | None = None, **_: Any) -> Retrieval:
-    """The retrieval a per-query table holds (see the module docstring); its ground truth is the table's own."""
+    """The retrieval a per-query table holds (docs/reference/file-formats.md); its ground truth is the table's own."""
     path = Path(path)
     if not is_regular_file(path, "a per-query table"):
         raise FileNotFoundError(f"per-query table not found: {path}")

@@ -1,22 +1,8 @@
-"""Local-feature files in hloc's HDF5 layout, and the cache that extracts each image once.
+"""Local-feature files in hloc's HDF5 layout, and the cache that extracts each image once (one file per extractor
+configuration, following :mod:`vpr_uncertainty.cache`; inside :func:`deferred_writes` only the driver writes).
 
-Layout (the one ``hloc.extract_features`` writes, so hloc and this package read each other's files)::
-
-    <image name>/            one group per image; the name is the path relative to the image root, "/"-joined
-        keypoints            (N, 2) float32, (x, y) pixels of the original image
-        descriptors          (D, N), as hloc stores them (a file holding (N, D) is read as well)
-        scores               (N,) float32
-        image_size           (2,) (width, height) of the original image
-
-The cache follows :mod:`vpr_uncertainty.cache`: one file per extractor configuration,
-``<extractor>-<fingerprint>.h5``, created whole (atomically) and rebuilt with a one-line notice when truncated or
-foreign. Each group records the content key and a checksum of its image's features; an image that changed on disk
-is extracted again.
-
-Who writes: the process that calls :func:`extract_features`, except inside :func:`deferred_writes` (a grid cell
-running as an executor task): several tasks writing one HDF5 file fail or interleave, so there the caches are only
-read, what is extracted is kept in memory and returned, and the driver writes it with :func:`store_features` once
-no task is running.
+The layout: see docs/reference/file-formats.md; who writes and when an image is extracted again: see
+docs/explanation/caches.md.
 """
 
 from __future__ import annotations

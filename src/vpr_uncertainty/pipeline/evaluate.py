@@ -1,9 +1,6 @@
-"""Stage 3, ``evaluate``: a retrieval -> every uncertainty, evaluated, and ``uncertainties.npz``.
-
-``uncertainties.npz`` holds one (Q,) array per uncertainty method (higher = less trustworthy), ``correct`` (Q,)
-bool and the ``fingerprint`` of the methods, their options and the retrieval. The evaluation measures the time per
-query of each method, so it always runs (local features for geometric verification have their own cache).
-This module holds the one call of :func:`vpr_uncertainty.evaluation.evaluate` that every command goes through.
+"""Stage 3, ``evaluate``: a retrieval -> every uncertainty, evaluated, and ``uncertainties.npz`` (never reused: the
+evaluation measures the time per query; see docs/explanation/caches.md). This module holds the one call of
+:func:`vpr_uncertainty.evaluation.evaluate` that every command goes through.
 """
 
 from __future__ import annotations

@@ -1,13 +1,7 @@
 """``reproduce``, the grid: VPR methods x datasets x uncertainty methods, then tables, figures and report.html.
 
-One grid cell = one (VPR method, dataset). A cell's cache is two files named by the cell's key under ``out/cells``:
-``KEY.json`` (the fingerprint of the cell's inputs and the grid's settings, :meth:`Cell.to_dict`, the image paths
-and the cell's ``checksum``) and ``KEY.npz`` (:meth:`Cell.arrays` and the same fingerprint), each written
-atomically, the ``.npz`` first. Inputs are keyed by content (results and ground-truth files, every image of a cell
-computed from images, every file a method option names). A cell is read back only when both files hold the
-expected fingerprint and checksum; otherwise it is reported in one line and recomputed. Input files larger than
-:data:`~vpr_uncertainty.cache.FULL_HASH_BYTES` are keyed cheaply (size, times, first and last MiB) and hashed whole
-with ``--verify``. Image inputs run :func:`vpr_uncertainty.pipeline.run.run` on the dataset loaded once here.
+One grid cell = one (VPR method, dataset), cached under ``out/cells`` as ``KEY.json`` and ``KEY.npz`` and read back
+only when both hold the expected fingerprint and checksum (what is keyed: see docs/explanation/caches.md).
 """
 
 from __future__ import annotations

@@ -1,10 +1,5 @@
-"""Stage 4, ``report``: an evaluation -> ``results.md``, ``pr_curves.png`` and, last, ``results.json``.
-
-Every file is written atomically and at most once; ``results.json`` comes after the table and the plot, so the time
-it records for this stage includes them. A rerun redraws nothing whose inputs are unchanged: ``results.md`` is kept
-when it holds exactly the new text, ``pr_curves.png`` when the fingerprint of its inputs stored in it (with a
-checksum) is the new one (matplotlib is then not imported). ``results.json`` is always written: it records the
-time of this run's stages.
+"""Stage 4, ``report``: an evaluation -> ``results.md``, ``pr_curves.png`` and, last, ``results.json``; each written
+atomically and at most once, nothing redrawn whose inputs are unchanged (see docs/explanation/caches.md).
 """
 
 from __future__ import annotations

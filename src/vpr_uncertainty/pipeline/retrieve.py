@@ -1,9 +1,5 @@
-"""Stage 2, ``retrieve``: descriptors and ground truth -> ``retrieval.npz`` (top-k candidates with their ground truth).
-
-The file's ``config`` stores the :func:`~vpr_uncertainty.cache.fingerprint` of the search options and of the
-content of every input: both descriptor arrays with their names, and the ground truth (positives, positions,
-names, radius, position kind). A rerun reuses the file only when the fingerprint is equal; a truncated or foreign
-file is reported in one line and rebuilt.
+"""Stage 2, ``retrieve``: descriptors and ground truth -> ``retrieval.npz`` (top-k candidates with their ground truth),
+reused only when the fingerprint of the options and of every input's content is equal (see docs/explanation/caches.md).
 """
 
 from __future__ import annotations

@@ -1,30 +1,6 @@
 """The Retrieval type: the top-k database images of every query, with its ground truth, every field checked; and its
-file.
-
-The retrieval file: a :class:`~vpr_uncertainty.retrieval.Retrieval` in one ``.npz`` archive.
-
-Retrieval file (``.npz``, no pickles), format version 1
-    ``format_version``   int, 1
-    ``scores``           (Q, K) float32, similarities sorted descending; ``-inf`` where a query has fewer than
-                         K candidates
-    ``indices``          (Q, K) int64, database index of each candidate; ``-1`` where missing
-    ``distances``        (Q, K) float32, squared L2 distances of the candidates, ascending; ``+inf`` where
-                         missing (optional)
-    ``positives_indptr``, ``positives_indices``, ``n_database``
-                         ground truth as a CSR matrix (optional)
-    ``query_names``, ``database_names``          (Q,), (D,) unicode (optional)
-    ``query_positions``, ``database_positions``  (Q, m), (D, m) float64, usually m = 2 (optional)
-    ``config``           JSON text describing what produced the file (optional)
-    ``checksum``         :func:`~vpr_uncertainty.cache.payload_checksum` of every other field, by name (written
-                         by :func:`save_retrieval`; verified on read when present, so a file changed on disk
-                         after it was written is refused, naming it; files of other tools may have none)
-
-    ``config`` keys written by ``retrieve`` and ``attach_ground_truth`` (readers ignore keys they do not know):
-    ``source``, ``metric``, ``k``, ``index``, ``device``, ``search_params``, ``dimension``, ``n_database``,
-    ``n_queries``, ``radius``, ``database``, ``queries`` and ``position_kind`` (absent = metres).
-
-Writes are atomic (written whole beside the target, then renamed). Reading checks every field as a Retrieval does,
-and what only a file has (version, CSR ground truth, JSON config, distinct candidates and names).
+file, a :class:`~vpr_uncertainty.retrieval.Retrieval` in one ``.npz`` archive (format version 1, no pickles, written
+atomically, checksummed). The file's fields and ``config`` keys: see docs/reference/file-formats.md.
 """
 
 from __future__ import annotations
@@ -563,7 +539,7 @@ FORMAT_VERSION = 1
 
 
 def save_retrieval(retrieval: Retrieval, path: str | Path) -> Path:
-    """Write a retrieval file (see the module docstring for the layout) and return its path."""
+    """Write a retrieval file (layout: docs/reference/file-formats.md) and return its path."""
     if not isinstance(retrieval, Retrieval):  # numpy.save's order, (path, array), given by habit
         raise TypeError(f"save_retrieval(retrieval, path): the Retrieval comes first, got {type(retrieval).__name__}")
     path = Path(path)
