@@ -1,30 +1,8 @@
 """The ``BTL`` uncertainty method (registered by :mod:`vpr_uncertainty.btl`), the readers of what it needs, and
-evaluation protocols in which no query is both a training anchor and a test query.
+evaluation protocols in which no query is both a training anchor and a test query (:func:`btl_protocol`).
 
-BTL's uncertainty is the predicted variance of each query under a trained head. As in the published evaluation,
-BTL answers with its own retrieval (cosine search of the head's means), returned as
-:class:`~vpr_uncertainty.methods.OwnRetrievalUncertainty`, so its correctness labels come from its own top-1.
-Options: ``btl_head`` (a loaded :class:`~vpr_uncertainty.btl.model.BTLHead`), ``query_descriptors`` and
-``database_descriptors`` ((Q, dim) and (D, dim), in the retrieval's order), ``device``, and
-``allow_train_queries`` (evaluating a head on queries it was trained on is an error unless true; then
-``details["trained_on_queries"]`` says how many and every table marks the method), and ``query_keys`` (the
-queries' :func:`~vpr_uncertainty.cache.content_key`: matched against the image contents a head trained from a
-descriptor cache records, which no re-extraction changes; where that check cannot be made, ``details["note"]``).
-
-:func:`btl_uncertainty` reads no file: the method's ``resolve`` hook, :func:`resolve_btl_inputs`, first reads a
-head file path and ``.npy`` / descriptor-cache ``.h5`` paths (checking the cache's image names, taking its
-content keys, else those of the ``query_paths``).
-
-Protocols, for a sequence dataset whose query and database traverses are aligned frame by frame (query i shows
-the place of database image i, as in VPR-Bench's corridor):
-
-``database``
-    The head is trained on the database alone: every database image is an anchor, its positives are the other
-    database images at most ``frame_tolerance`` frames away, its hard negatives the most similar of the rest.
-    Every query is a test query; none is seen in training.
-``query-split``
-    The queries are cut at ``split_at`` into two contiguous parts of the traversal: the head is trained on queries
-    ``0 .. split_at - 1`` (positives from the query ground truth) and tested on queries ``split_at .. Q - 1``.
+BTL answers with its own retrieval and is judged by its own top-1; how its inputs are resolved and what the
+protocols ``database`` and ``query-split`` train and test: see docs/explanation/btl.md.
 """
 
 from __future__ import annotations
@@ -367,7 +345,12 @@ def btl_uncertainty(
     query_keys: object = None,
 ) -> OwnRetrievalUncertainty:
     """BTL uncertainty: the variance σ² of each query's embedding (higher = less trustworthy), with BTL's own
-    retrieval. Registered as ``"BTL"``; see the module docstring for the options.
+    retrieval. Registered as ``"BTL"``. Options: ``btl_head`` (a loaded :class:`~vpr_uncertainty.btl.model.BTLHead`),
+    ``query_descriptors`` and ``database_descriptors`` ((Q, dim) and (D, dim), in the retrieval's order), ``device``,
+    ``allow_train_queries`` (else evaluating a head on queries it was trained on is an error; when true,
+    ``details["trained_on_queries"]`` says how many) and ``query_keys`` (the queries'
+    :func:`~vpr_uncertainty.cache.content_key`, matched against the image contents the head records; where that
+    check cannot be made, ``details["note"]``). Files are read first by :func:`resolve_btl_inputs`.
 
     Raises
     ------

@@ -1,34 +1,8 @@
-r"""The BTL head (frozen global descriptors in, an isotropic Gaussian embedding out), its file, and the Bayesian
-triplet loss (Warburg et al., ICCV 2021).
+r"""The BTL head (frozen global descriptors in, an isotropic Gaussian embedding out: L2-normalised means, one variance
+per image), its file, and the Bayesian triplet loss (Warburg et al., ICCV 2021).
 
-Architecture (one head on top of any descriptor model; the descriptor network itself stays frozen)::
-
-    x  = descriptor / ‖descriptor‖                        (B, input_dim)   the toolkit's convention
-    μ  = normalise(W x + b)                               (B, embedding_dim), ‖μ‖ = 1
-    σ² = softplus(w₂ · relu(W₁ √input_dim x + b₁) + b₂) + min_variance   (B,)   one variance per image
-
-The means are L2-normalised, as in the paper (whose networks end in L2 normalisation, as retrieval networks
-do): the squared distance between two means is 2 − 2 cos, so retrieving with the means is the cosine search of
-the rest of the toolkit. The variance is one scalar per image (isotropic Gaussian), kept positive by a softplus
-plus ``min_variance`` (1e-6). ``W`` starts as a random orthonormal projection: a rotation when
-``embedding_dim == input_dim`` (the default up to 2048-D descriptors), so that the untrained head retrieves
-exactly like the descriptors themselves (approximately, by Johnson-Lindenstrauss, when E < input_dim); the
-variance starts at ``initial_variance`` (0.1 / embedding_dim: the variances then add 0.1 to the expected squared
-distance between two images, small next to the distances between unit vectors).
-
-Head file (``torch.save`` of a dict of tensors and plain values, read back with ``weights_only=True``)::
-
-    format          "vpr-uncertainty btl-head"
-    format_version  1
-    config          {"input_dim", "embedding_dim", "hidden_dim", "min_variance", "initial_variance"}
-    state_dict      the module's parameters
-    metadata        JSON-compatible: training settings, history summary, descriptor source (optional), anchors
-                    (row digests and sketches; the images' names and content digests when trained from a cache)
-
-The loss (exact moments of τ, the paper's normal approximation, the margin, the KL regulariser) is derived in
-the explanation page "The Bayesian triplet loss" (``docs/explanation/btl.md``).
-
-Shapes: means (B, E), variances (B,) or (B, 1) (one scalar per image), float32 or float64.
+The architecture and its initialisation, and the loss derived: see docs/explanation/btl.md; the head file: see
+docs/reference/file-formats.md. Shapes: means (B, E), variances (B,) or (B, 1), float32 or float64.
 """
 
 from __future__ import annotations
@@ -87,7 +61,7 @@ def triplet_distance_moments(
     mean_n: torch.Tensor,
     var_n: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and variance of τ = ‖a − p‖² − ‖a − n‖² for independent isotropic Gaussians (module docstring).
+    """Mean and variance of τ = ‖a − p‖² − ‖a − n‖² for independent isotropic Gaussians (docs/explanation/btl.md).
 
     Parameters
     ----------
@@ -376,7 +350,7 @@ def row_digests(descriptors: np.ndarray) -> list[str]:
 
 
 def save_btl_head(head: BTLHead, path: str | Path, *, metadata: dict[str, Any] | None = None) -> Path:
-    """Write a head file (see the module docstring) and return its path."""
+    """Write a head file (docs/reference/file-formats.md) and return its path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {

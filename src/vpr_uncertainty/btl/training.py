@@ -1,15 +1,5 @@
-"""Training the BTL head on frozen descriptors: triplet mining, early stopping, the training curve.
-
-Anchors are the training queries (or, with one set of images, every image of a training database with positions);
-their positives come from the ground truth (within 25 m, or explicit lists). Deterministic for a ``seed`` on CPU:
-
-1. Anchors with at least one positive are split at random into training and validation anchors (``val_fraction``).
-2. Triplets are mined once per split (:func:`mine_triplets`), before training: each anchor's ``max_positives``
-   most similar positives × its ``n_negatives`` hardest negatives (most similar non-positives), by the cosine of
-   the frozen descriptors; anchors without a positive or a negative give none.
-3. AdamW on the Bayesian triplet loss over shuffled mini-batches; after every epoch the validation loss (epoch 0
-   is the untrained head).
-4. Early stopping after ``patience`` epochs without improvement; the best epoch's head is returned.
+"""Training the BTL head on frozen descriptors: triplet mining, early stopping, the training curve; deterministic for a
+``seed`` on CPU. The procedure, step by step: see docs/explanation/btl.md.
 """
 
 from __future__ import annotations
