@@ -1,16 +1,6 @@
-"""Batched descriptor extraction from image files into the HDF5 cache, in this process or on Ray Data actors.
-
-Locally, worker threads decode the next batch while the model runs on the current one. With ``--executor ray``,
-the images missing from the cache go through ``map_batches(DescribeBatch, ...)`` on a fixed pool of model actors
-(one CPU and ``executor.gpus_per_worker`` GPUs each); results come back in request order (``preserve_order``), so
-``on_error`` and the cache behave as in a local run. Image paths must be readable on every node; names and paths
-travel as bytes (Arrow strings must be UTF-8, file names need not be). A batch that kills its worker more than
-:data:`TASK_RETRIES` times stops the run with :class:`WorkerDiedError`; batches already written stay cached.
-
-Either way, each batch is appended to the cache before the next starts, so an interrupted run resumes where it
-stopped. Memory is bounded by :attr:`~vpr_uncertainty.descriptors.images.Preprocessing.max_side`: at most
-``batch_size`` images of at most ``max_side`` x ``max_side`` pixels go through the model at once (about 2 GB for
-the default model at 16 x 640 x 640 on CPU).
+"""Batched descriptor extraction from image files into the HDF5 cache, in this process or on Ray Data actors; each
+batch is appended to the cache before the next starts, so an interrupted run resumes where it stopped. How each
+way runs, and how memory is bounded: see docs/explanation/descriptors.md.
 """
 
 from __future__ import annotations
@@ -264,7 +254,7 @@ def extract_descriptors(
         Receives ``{"name", "path", "error"}`` of each image left out (``on_error="skip"``).
     executor : LocalExecutor or RayExecutor, optional
         Where the model runs (:func:`vpr_uncertainty.executors.get_executor`; default this process); with Ray,
-        on a pool of model actors (see the module docstring), this process writing the same cache.
+        on a pool of model actors (docs/explanation/descriptors.md), this process writing the same cache.
     model_factory : callable, optional
         With Ray: loads the model in each actor (default: the loaded ``model`` is sent to them).
 

@@ -1,18 +1,7 @@
-"""Image decoding and preprocessing for descriptor models, with PIL and numpy only (no torchvision).
-
-:func:`load_image` decodes a file to an RGB ``uint8`` (H, W, 3) array resized as the model's :class:`Preprocessing`
-says (antialiased PIL resize, in worker threads); :func:`to_model_input` stacks such arrays into a normalised float
-tensor (B, 3, H, W) on the model's device.
-
-Memory is bounded: the model sees at most ``max_side`` pixels per side (default 640, the size of the standard VPR
-benchmarks' images), and a JPEG over twice the target size is decoded at 1/2, 1/4 or 1/8 scale (``Image.draft``);
-EfficientNet-Lite0 needs about 235 bytes per input pixel on CPU, so 16 images of 640 x 640 stay below 2 GB.
-
-:class:`ImageDecodeError` (a ValueError naming the image and the reason) marks an image that cannot be used:
-missing, unreadable, empty, truncated or unrecognised, a broken or looping link, more pixels than
-``PIL.Image.MAX_IMAGE_PIXELS`` (decompression bombs; set it to change the limit), or smaller than
-:attr:`Preprocessing.min_side` after resizing (32 for the registered models: EfficientNet-Lite0 downsamples 32
-times). A model at native resolution never upscales a tiny image into a meaningless descriptor.
+"""Image decoding and preprocessing for descriptor models, with PIL and numpy only (no torchvision): :func:`load_image`
+(a file to an RGB ``uint8`` (H, W, 3) array, resized as :class:`Preprocessing` says) and :func:`to_model_input` (a
+normalised float tensor (B, 3, H, W)). How memory is bounded and which images cannot be used
+(:class:`ImageDecodeError`): see docs/explanation/descriptors.md.
 """
 
 from __future__ import annotations
@@ -287,7 +276,7 @@ def load_image(path: str | Path, preprocessing: Preprocessing, *, name: str | No
     Raises
     ------
     ImageDecodeError
-        If the image cannot be used (see the module docstring): missing, unreadable, broken symbolic link, not
+        If the image cannot be used (docs/explanation/descriptors.md): missing, unreadable, broken symbolic link, not
         an image, truncated, over the decompression-bomb limit, or smaller than ``preprocessing.min_side``. The
         message names the image and the reason.
     """

@@ -1,40 +1,10 @@
-"""Descriptor models: the wrapper every model runs through, the registry, and the registered models.
+"""Descriptor models: the wrapper every model runs through (:class:`DescriptorModel`: images (B, 3, H, W) in,
+L2-normalised float32 descriptors (B, D) out, with a fingerprint for the cache), the registry, and the registered
+models: the offline default ``efficientnet-lite0-gem`` and the nine VPR methods of the benchmark through
+``torch.hub``. Importing this module does not import torch; loading a model does.
 
-A :class:`DescriptorModel` maps normalised images (B, 3, H, W) to L2-normalised float32 descriptors (B, D) and
-carries its :class:`~vpr_uncertainty.descriptors.images.Preprocessing` and a fingerprint (name, weights identity,
-preprocessing) that the HDF5 cache stores. Models come from the registry (:func:`available_models`: the offline
-default ``efficientnet-lite0-gem`` and the nine VPR methods of the benchmark through ``torch.hub``), a TorchScript
-file, or any callable. Importing this module does not import torch; loading a model does.
-
-``efficientnet-lite0-gem``: ImageNet EfficientNet-Lite0 from two PyPI packages (no download), GeM pooling (p = 3)
-of the last feature map, 1280-D; not trained for place recognition, a reproducible baseline. At native resolution
-by default; ``Preprocessing(image_size=224)`` gains on small images (recall@1 on the 160 x 120 corridor images 0.71
-instead of 0.60) at about four times the compute.
-
-Hub models are loaded with ``torch.hub.load(repo, entrypoint, trust_repo=True, **kwargs)``: the first load
-downloads code and weights into ``torch.hub.get_dir()``, later loads work offline; with neither cache nor network,
-one :class:`ModelUnavailableError` names the folder to fill. Their preprocessing follows gmberton's
-VPR-methods-evaluation (ImageNet normalisation):
-
-=============  =======================================  ===========================  ======  ================
-name           torch.hub repo : entry point             backbone                     D       input
-=============  =======================================  ===========================  ======  ================
-eigenplaces    gmberton/eigenplaces : get_trained_model ResNet-50                    512     native
-cosplace       gmberton/cosplace : get_trained_model    ResNet-50                    512     native
-convap         (none published: TorchScript in cache)   ResNet-50                    512     320 x 320
-mixvpr         jarvisyjw/MixVPR : get_trained_model     ResNet-50                    4096    320 x 320
-apgem          (none published: TorchScript in cache)   ResNet-101                   2048    native
-salad          serizba/salad : dinov2_salad             DINOv2 ViT-B/14              8448    multiple of 14
-anyloc         AnyLoc/DINO : get_vlad_model             DINOv2 ViT-G/14 (urban VLAD) 49152   multiple of 14
-cricavpr       Lu-Feng/CricaVPR : trained_model         DINOv2 ViT-B/14              10752   224 x 224
-netvlad        yxgeee/OpenIBL : vgg16_netvlad           VGG-16 + PCA                 4096    native
-=============  =======================================  ===========================  ======  ================
-
-* MixVPR: ``jarvisyjw/MixVPR`` is the community fork endorsed in amaralibey/MixVPR#33 (4096-D only).
-* NetVLAD: OpenIBL's SFRS-trained VGG16-NetVLAD with PCA whitening, fed 0-255 pixels minus the OpenIBL mean.
-* Conv-AP and AP-GeM have no torch.hub entry point: a TorchScript export is looked for at
-  ``<torch.hub dir>/vpr_uncertainty/<name>.pt``.
-* CricaVPR's descriptors depend on the other images of the batch (cross-image encoder).
+The registered models (repository, backbone, dimension, input size) and how hub models load: see
+docs/explanation/descriptors.md.
 """
 
 from __future__ import annotations
