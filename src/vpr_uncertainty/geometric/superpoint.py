@@ -1,10 +1,6 @@
-"""SuperPoint (DeTone et al. 2018) with SuperGlue (Sarlin et al. 2020) or LightGlue: the VPR papers' strongest
-geometric-verification baseline.
-
-The networks follow Magic Leap's reference implementation with the same parameter names, so the official
-checkpoints (``superpoint_v1.pth``, ``superglue_outdoor.pth``/``superglue_indoor.pth``) load unchanged; LightGlue
-is kornia's with ``superpoint_lightglue.pth``. The weights are found or downloaded by
-:func:`~vpr_uncertainty.geometric.lightglue.load_official_state_dict` (Magic Leap's licence is non-commercial).
+"""SuperPoint (DeTone et al. 2018) with SuperGlue (Sarlin et al. 2020) or LightGlue, with Magic Leap's parameter names
+so that the official checkpoints load unchanged (their licence is non-commercial; where the weights are found:
+see docs/explanation/geometric-verification.md).
 """
 
 from __future__ import annotations
@@ -232,7 +228,7 @@ def _load_strict(model: Any, state_dict: dict[str, Any], what: str, device: str)
 def load_superpoint(
     weights: str | Path | dict[str, Any] | None = None, *, device: str = "cpu", download: bool = True, **conf: Any
 ) -> tuple[Any, str]:
-    """SuperPoint with the official weights (path, state dict, or found/downloaded; see the module docstring).
+    """SuperPoint with the official weights (path, state dict, or found/downloaded).
 
     Returns the model (eval mode, on ``device``) and the weights' fingerprint.
     """

@@ -1,19 +1,6 @@
-"""Geometric verification: inlier counts of image pairs, presets, re-ranking, and the GV-* uncertainty methods.
-
-One call extracts each image of the pairs once (read from the cache in ``cache_dir`` when there), matches the
-pairs in ``workers`` threads (one torch thread each; on CUDA, torch matchers take the pairs one after another) and
-counts RANSAC inliers in ``workers`` threads. With an executor (``GeometricVerifier(executor=...)``, e.g. Ray),
-the missing images are extracted and the pairs verified in chunks as tasks; the driver caches the features and
-the results come back in order, equal to a local run's.
-
-A preset (:class:`GVPreset`, registered in :data:`GV_PRESETS`) names an extractor and a matcher as lazy dotted
-targets with their options, merged over :data:`DEFAULT_OPTIONS` like LightGlue's ``default_conf`` (given options
-over the preset's; unknown names are errors). :meth:`GeometricVerifier.from_preset` builds a verifier from one.
-
-The GV-* methods (registered on import) return −(RANSAC inliers between each query and its top-1), shape (Q,),
-higher = less trustworthy; a query without a top-1 candidate (index -1) gets 0 inliers. ``GV-SIFT``,
-``GV-DISK-LG``, ``GV-XFEAT``, ``GV-SP-SG`` and ``GV-SP-LG`` run the presets of the same names; ``GV-H5`` verifies
-precomputed local features (hloc HDF5).
+"""Geometric verification: inlier counts of image pairs, presets (:data:`GV_PRESETS`), re-ranking, and the GV-*
+uncertainty methods (−inliers between each query and its top-1, higher = less trustworthy). How a call extracts,
+matches and verifies, here or on an executor: see docs/explanation/geometric-verification.md.
 """
 
 from __future__ import annotations
@@ -273,7 +260,7 @@ class GeometricVerifier:
         None when the features come from a file (``features_path``).
     matcher : Matcher
     model : {"homography", "fundamental"}
-        Model fitted by RANSAC (see :mod:`vpr_uncertainty.geometric.local_features` for the defaults).
+        Model fitted by RANSAC (the defaults and why: docs/explanation/geometric-verification.md).
     ransac_threshold : float
         Pixels at the working resolution.
     max_side : int

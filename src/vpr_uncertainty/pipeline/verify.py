@@ -1,10 +1,5 @@
-"""Stage ``verify``: a retrieval and its images -> ``verification.npz`` (RANSAC inliers of the top candidates).
-
-Geometric verification matches local features between each query and its first ``top_k`` candidates and counts the
-RANSAC inliers: with ``top_k = 1`` the result is the GV uncertainty of the top match (−inliers, as the ``GV-*``
-methods give it); with more, the candidates re-ranked by inliers and the recall@N before and after. Each image's
-local features are cached in ``cache_dir`` (resumed per image), so a rerun, or ``evaluate --methods GV-...`` on the
-same images, extracts nothing again.
+"""Stage ``verify``: a retrieval and its images -> ``verification.npz`` (RANSAC inliers of the top candidates: the GV
+uncertainty of the top match, or the candidates re-ranked by inliers; see docs/explanation/geometric-verification.md).
 """
 
 from __future__ import annotations
