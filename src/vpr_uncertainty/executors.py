@@ -1,12 +1,7 @@
 """Where independent work items run: in this process (``local``), as Ray tasks (``ray``), or an executor a plugin
-registers in :data:`EXECUTORS`.
-
-An executor's :meth:`~BaseExecutor.imap` yields ``(position, result)`` pairs as items complete, and
-:meth:`~BaseExecutor.map` returns the results in the order of the items. The functions are module-level functions
-of this package (Ray pickles them by reference) that write their own cached artefacts to paths every worker sees:
-on a cluster of several machines the output folder must be on a shared filesystem. A Ray worker imports the plugins
-this process loaded before it runs a task (:class:`~vpr_uncertainty.plugins.Travelling`). A Ray task whose worker
-dies is retried (:data:`MAX_RETRIES`); a stopped run resumes from the caches.
+registers in :data:`EXECUTORS`; :meth:`~BaseExecutor.imap` yields ``(position, result)`` pairs as items complete,
+:meth:`~BaseExecutor.map` returns results in order. What runs there and where its files must live: see
+docs/explanation/architecture.md.
 
 Examples
 --------

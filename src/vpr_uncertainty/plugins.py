@@ -1,16 +1,8 @@
 """One plugin mechanism for every extension point: uncertainty methods, GV presets, descriptor models, dataset
-and results formats, executors, report figures.
-
-Plugins are modules that register entries when imported. :func:`load_plugins` imports the modules of the
-entry-point group ``vpr_uncertainty.plugins`` (the package's own higher layers register their methods this way, as a
-user's package does) and those named by ``--plugin MODULE`` (on the Python path or in the current folder) or
-``--plugin path/to/file.py`` (imported under its stem). A :class:`Registry` loads them when a name is not
-found; functions that list a registry's names call :func:`load_plugins` first. Entries are declarative (a ``name``;
-most also a ``description``, what they ``requires``, their pip ``extra`` and default ``options``); a target may be a
-dotted path imported on first use (:func:`load_target`), and a user's options are merged over the defaults
-(:func:`merge_options`, LightGlue's ``default_conf`` style; an unknown option is an error). What a process loaded
-travels to the processes that run its work (Ray workers): :class:`Travelling` wraps what is sent so that, unpickled
-there, the same plugin modules are imported first (:func:`replay_plugins`) and checked to be the same code.
+and results formats, executors, report figures: one :class:`Registry` per kind, filled by the package's own entries,
+entry points and ``--plugin`` (:func:`load_plugins`), with lazy targets (:func:`load_target`), options merged over
+defaults (:func:`merge_options`) and plugins replayed on Ray workers (:class:`Travelling`). How it works: see
+docs/explanation/architecture.md.
 
 Examples
 --------

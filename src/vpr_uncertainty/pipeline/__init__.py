@@ -1,22 +1,6 @@
-"""The stages of the data flow, one module each in hloc's shape, and the commands that run them.
-
-Each stage module holds its configuration (a frozen dataclass whose fields are also its command-line options), a
-``main(conf, inputs, out) -> Path`` and its ``add_cli(subparsers)``:
-
-=====================  ==========================  ===================================================================
-module                 artefact                    reused when
-=====================  ==========================  ===================================================================
-:mod:`.extract`        ``descriptors.h5``          per image: same model, preprocessing and image content
-:mod:`.retrieve`       ``retrieval.npz``           same options, descriptors and ground truth
-:mod:`.evaluate`       ``uncertainties.npz``       never (it measures the time per query)
-:mod:`.verify`         ``verification.npz``        never; each image's local features are cached
-:mod:`.report`         ``results.{json,md}``, plot never (cheap)
-:mod:`.run`            all of the above            the one composer (``run``, ``demo``)
-:mod:`.grid`           ``out/cells``, report.html  per cell: same inputs (by content) and settings (``reproduce``)
-=====================  ==========================  ===================================================================
-
-:mod:`.compare`, :mod:`.calibrate`, :mod:`.label`, :mod:`.subset`, :mod:`.datasets`, :mod:`.train_btl`: commands beside
-the data flow.
+"""The stages of the data flow, one module each in hloc's shape (its configuration, a ``main(conf, inputs, out) ->
+Path`` and its ``add_cli(subparsers)``), and the commands that run them. The stages, their artefacts and when each is
+reused: see docs/explanation/architecture.md.
 """
 
 #: Each command and the stage module whose ``add_cli`` defines it, in the order ``--help`` lists them. The command

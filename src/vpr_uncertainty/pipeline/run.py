@@ -12,11 +12,8 @@ Each stage writes one file into the run directory and a rerun reuses what is sti
 ``results.md``          the table; ``pr_curves.png``: end-to-end precision-recall of every method (:mod:`.report`)
 ======================  =========================================================================================
 
-A warm rerun (every descriptor cached) loads no model and imports no torch: the cache is checked against the
-model's fingerprint, known without loading it (:func:`.extract.cached`); a figure whose inputs are unchanged is not
-drawn again, nor matplotlib imported (:mod:`.report`).
-
-``demo`` is ``run`` on the VPR-Bench corridor dataset with the offline model.
+``demo`` is ``run`` on the VPR-Bench corridor dataset with the offline model. What a warm rerun skips (the model,
+torch, matplotlib): see docs/explanation/architecture.md.
 """
 
 from __future__ import annotations
