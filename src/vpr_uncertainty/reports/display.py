@@ -1,12 +1,6 @@
-"""How report figures are drawn: Display objects in scikit-learn's style.
-
-Like :class:`sklearn.metrics.PrecisionRecallDisplay`, each Display is made by a ``from_*`` class method that draws at
-once on the ``ax`` given (or a new figure) and keeps ``ax_``, ``figure_`` and its artists (``lines_`` by method
-name, or ``line_``); ``plot(ax=None)`` draws the same data again. Displays pick no backend and save nothing; the
-file writers (:func:`plot_rejection_curves`, :func:`plot_reliability`, :func:`save_figure`) draw off-screen and
-write atomically: a 300-dpi PNG for ``report.html`` and a vector PDF beside it.
-
-Sizes, fonts, palette and the figure specs that captions come from: :mod:`vpr_uncertainty.reports.style`.
+"""How report figures are drawn: Display objects in scikit-learn's style (a ``from_*`` class method draws, ``plot``
+draws again, ``ax_``, ``figure_`` and the artists are kept), and the file writers that save a PNG and a PDF
+atomically. See docs/explanation/reports.md.
 """
 
 from __future__ import annotations

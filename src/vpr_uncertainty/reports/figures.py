@@ -1,12 +1,7 @@
-"""Report figures: what ``reproduce`` writes after the grid (Table 1, heatmaps, ablations, PR curves, ...).
-
-Each :class:`ReportFigure` of :data:`REPORT_FIGURES` (a :class:`~vpr_uncertainty.plugins.Registry`) is added by
-:func:`register_report_figure`, whose parameters say what a figure declares: the function that writes it, what it
-needs from the grid (:data:`FIGURE_NEEDS`), its options, its section and caption hooks (docs/how-to/extend.md writes
-one from scratch). A figure with a ``width`` option draws at ``reproduce --figure-width`` unless its spec sets one
-(``"ablations:width=column"``); the built-in ones write under ``out_dir / "figures"``. ``reproduce`` calls every
-selected figure in registration order and gives each a section of ``report.html``; a figure is selected by name,
-optionally with options as in a method spec (``"qualitative:rank_by=RS"``, :func:`parse_figure_spec`).
+"""Report figures: what ``reproduce`` writes after the grid (Table 1, heatmaps, ablations, PR curves, ...), each a
+:class:`ReportFigure` of :data:`REPORT_FIGURES` added by :func:`register_report_figure`, selected by a spec such as
+``"qualitative:rank_by=RS"`` (:func:`parse_figure_spec`). What a figure declares and how ``reproduce`` calls it: see
+docs/explanation/reports.md (docs/how-to/extend.md writes one from scratch).
 
 Examples
 --------

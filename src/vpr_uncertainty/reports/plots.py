@@ -1,11 +1,6 @@
-"""The figures of a grid, drawn from the cells' stored results (no uncertainty is recomputed): the α and k ablations
-(the paper's Figures 5 and 6, :func:`plot_alpha_ablation`, :func:`plot_k_ablation`), the ΔAUC-PR heatmaps (Figure
-3, :func:`plot_delta_heatmaps`), the cascade (:func:`plot_cascade`) and the qualitative examples (Figures 2 and 4,
-:func:`plot_qualitative`).
-
-Every figure takes ``width="page"`` (7.16 in) or ``"column"`` (3.5 in); its height follows from its panels, its
-fonts are 8 pt (:func:`~vpr_uncertainty.reports.style.figure_rc`). Each has a ``*_spec`` function returning the
-:class:`~vpr_uncertainty.reports.style.FigureSpec` it is drawn from, whose ``caption()`` is its caption.
+"""The figures of a grid, drawn from the cells' stored results (no uncertainty is recomputed): the α and k ablations,
+the ΔAUC-PR heatmaps, the cascade and the qualitative examples, each with a ``*_spec`` function returning the
+:class:`~vpr_uncertainty.reports.style.FigureSpec` its caption comes from (see docs/explanation/reports.md).
 """
 
 from __future__ import annotations

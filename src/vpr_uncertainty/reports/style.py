@@ -1,16 +1,6 @@
 """How the report figures look: paper sizes, fonts, the colour-blind-safe palette with a marker and a dash per
-series, the figure specs that captions are written from, and atomic saving.
-
-Paper sizes: every figure function takes ``width="column"`` (3.5 in, one column of a two-column paper) or
-``"page"`` (7.16 in, the text width); its height follows from its content, and its fonts are 8 pt (9 pt titles),
-set for that figure only (:func:`figure_rc`, a ``matplotlib.rc_context``; the global rcParams are left alone).
-Colours are Okabe and Ito's colour-blind-safe palette without its yellow (faint on white), and every series also has
-its own marker and dash, so a figure printed in grey still tells them apart. A name has the same style in every
-figure of every command (:func:`method_styles`: one table, by name, not by position).
-
-Captions: a figure is described by a :class:`FigureSpec` (its panels, its series with their styles, its axes,
-its notes) from which the drawing code takes its titles, legend labels and styles and from which
-:meth:`FigureSpec.caption` writes the caption of ``report.html``.
+series (:func:`method_styles`, :func:`figure_rc`), the figure specs that captions are written from
+(:class:`FigureSpec`), and atomic saving. The choices and why: see docs/explanation/reports.md.
 """
 
 from __future__ import annotations
