@@ -1,10 +1,6 @@
-"""The configuration of a reproduction grid (``reproduce CONFIG``), read and checked in one place.
-
-:func:`load_config` reads a TOML or YAML file and reports every problem at once, before any work: syntax errors
-(one line naming the file and the line), unknown keys, values of the wrong type, missing files, unknown uncertainty
-methods or options, unknown report figures or their options, ``vpr_methods`` that do not exist, names in
-``qualitative`` that match no cell, and every need of every (cell, method) pair that the cell's inputs cannot meet
-(positions for SUE, images for GV-*, a head and descriptors for BTL). The schema is in ``reproduce --help``.
+"""The configuration of a reproduction grid (``reproduce CONFIG``), read and checked in one place: :func:`load_config`
+reads a TOML or YAML file and reports every problem at once, before any work (which problems: see
+docs/reference/reproduce-config.md). The schema is in ``reproduce --help``.
 """
 
 from __future__ import annotations
