@@ -25,6 +25,7 @@ from vpr_uncertainty.btl.model import (
     row_sketches,
 )
 from vpr_uncertainty.cache import write_figure, write_json
+from vpr_uncertainty.descriptors.images import torch_device
 from vpr_uncertainty.progress import progress_bar
 
 
@@ -255,19 +256,8 @@ class TrainingHistory:
 
 
 def resolve_device(device: str | torch.device) -> torch.device:
-    """A torch device, with a clear error when CUDA is asked for and not available."""
-    try:
-        resolved = torch.device(device)
-    except (RuntimeError, TypeError) as error:
-        raise ValueError(f"invalid device {device!r}: expected 'cpu', 'cuda' or 'cuda:N'") from error
-    if resolved.type == "cuda":
-        if not torch.cuda.is_available():
-            raise ValueError(f"device {device!r} requested but PyTorch sees no CUDA GPU; use the CPU (argument device)")
-        if resolved.index is not None and resolved.index >= torch.cuda.device_count():
-            raise ValueError(f"device {device!r} requested but only {torch.cuda.device_count()} GPU(s) are visible")
-    elif resolved.type != "cpu":
-        raise ValueError(f"unsupported device {device!r}: expected 'cpu', 'cuda' or 'cuda:N'")
-    return resolved
+    """A torch device for the head, the CPU or a CUDA GPU, with a clear error when the GPU is not there."""
+    return torch_device(device, types=("cpu", "cuda"))
 
 
 def _as_descriptors(values: object, name: str) -> np.ndarray:

@@ -42,6 +42,28 @@ def require_torch(what: str = "descriptor extraction") -> Any:
     )
 
 
+def torch_device(device: Any = None, *, types: tuple[str, ...] | None = None) -> Any:
+    """``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"mps"``, a ``torch.device``; None: the CPU) as a torch device;
+    a ValueError names a device torch does not know, one of a type not in ``types`` (any by default), and a GPU or
+    Metal backend that is not there. The one device check of the models, the BTL head and the local features."""
+    torch = require_torch("a torch device")
+    kinds = types or ("cpu", "cuda", "mps")
+    expected = "expected " + ", ".join(map(repr, kinds)) + (" or 'cuda:N'" if "cuda" in kinds else "")
+    try:
+        resolved = torch.device("cpu" if device is None else device)
+    except (RuntimeError, TypeError) as error:
+        raise ValueError(f"invalid device {device!r}: {expected}") from error
+    if types is not None and resolved.type not in types:
+        raise ValueError(f"unsupported device {device!r}: {expected}")
+    if resolved.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {str(resolved)!r} was requested but PyTorch sees no CUDA GPU; use device='cpu'")
+    if resolved.type == "cuda" and (resolved.index or 0) >= torch.cuda.device_count():
+        raise ValueError(f"device {str(resolved)!r} was requested but only {torch.cuda.device_count()} GPU(s) exist")
+    if resolved.type == "mps" and not torch.backends.mps.is_available():
+        raise ValueError("device 'mps' was requested but the Metal backend is not available; use device='cpu'")
+    return resolved
+
+
 class ImageDecodeError(ValueError):
     """An image cannot be used (unreadable, corrupt, too large, too small...); the message names the image."""
 

@@ -21,7 +21,13 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from vpr_uncertainty.descriptors.images import DEFAULT_MIN_SIDE, TORCH_EXTRA_HINT, Preprocessing, require_torch
+from vpr_uncertainty.descriptors.images import (
+    DEFAULT_MIN_SIDE,
+    TORCH_EXTRA_HINT,
+    Preprocessing,
+    require_torch,
+    torch_device,
+)
 from vpr_uncertainty.identity import callable_identity, target_identity
 from vpr_uncertainty.plugins import Registry, import_or_explain, load_target
 
@@ -95,17 +101,7 @@ class DescriptorModel:
 
     def to(self, device: Any) -> DescriptorModel:
         """Move the network to ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, a ``torch.device``); returns self."""
-        torch = require_torch()
-        try:
-            device = torch.device(device)
-        except (RuntimeError, TypeError) as error:
-            raise ValueError(f"invalid device {device!r}: expected 'cpu', 'cuda', 'cuda:N' or 'mps'") from error
-        if device.type == "cuda" and not torch.cuda.is_available():
-            raise ValueError(f"device {str(device)!r} was requested but CUDA is not available; use device='cpu'")
-        if device.type == "cuda" and device.index is not None and device.index >= torch.cuda.device_count():
-            raise ValueError(f"device {str(device)!r} was requested but only {torch.cuda.device_count()} GPU(s) exist")
-        if device.type == "mps" and not torch.backends.mps.is_available():
-            raise ValueError("device 'mps' was requested but the Metal backend is not available; use device='cpu'")
+        device = torch_device(device)
         if hasattr(self.network, "to"):
             self.network = self.network.to(device)
         if hasattr(self.network, "eval"):

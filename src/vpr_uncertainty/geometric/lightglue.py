@@ -14,13 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from vpr_uncertainty.geometric.local_features import (
-    DEFAULT_MAX_SIDE,
-    Extractor,
-    LocalFeatures,
-    images_to_tensor,
-    torch_device,
-)
+from vpr_uncertainty.descriptors.images import torch_device
+from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, Extractor, LocalFeatures, images_to_tensor
 
 WEIGHTS_ENV = "VPR_UNCERTAINTY_WEIGHTS"
 

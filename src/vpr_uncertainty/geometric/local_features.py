@@ -18,19 +18,6 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 
-def torch_device(device: str | None) -> Any:
-    """A torch device from ``"cpu"``/``"cuda"``/``"cuda:1"`` (None = cpu), with a clear error without CUDA."""
-    import torch
-
-    device = "cpu" if device is None else str(device)
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device={device!r} was requested but torch sees no CUDA device; use device='cpu'")
-    try:
-        return torch.device(device)
-    except RuntimeError as error:
-        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}") from error
-
-
 @contextlib.contextmanager
 def single_torch_thread(active: bool) -> Iterator[None]:
     """When ``active``, run torch's CPU operators on one thread inside the block, then restore the previous setting."""

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from vpr_uncertainty.descriptors.images import torch_device
 from vpr_uncertainty.geometric.lightglue import (
     LightGlueMatcher,
     TorchExtractor,
@@ -21,7 +22,7 @@ from vpr_uncertainty.geometric.lightglue import (
     state_dict_fingerprint,
     to_numpy,
 )
-from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, LocalFeatures, images_to_tensor, torch_device
+from vpr_uncertainty.geometric.local_features import DEFAULT_MAX_SIDE, LocalFeatures, images_to_tensor
 
 
 @functools.cache
