@@ -90,20 +90,6 @@ def resolve_btl_inputs(retrieval: Retrieval, options: Mapping[str, Any]) -> dict
     return resolved
 
 
-def _load_positions(path: Path, name: str, expected: int, what: str) -> np.ndarray:
-    if not path.is_file():
-        raise FileNotFoundError(f"{name} file not found: {path}")
-    try:
-        array = np.load(path, allow_pickle=False)
-    except ValueError as error:
-        raise ValueError(f"{path}: {name} must be a numeric .npy array: {error}") from None
-    if array.ndim not in (1, 2) or not np.issubdtype(array.dtype, np.number):
-        raise ValueError(f"{path}: {name} must be a numeric array of shape (n, 2) or (n,), got {array.shape}")
-    if len(array) != expected:
-        raise ValueError(f"the {name} have {len(array)} rows but there are {expected} {what}")
-    return array
-
-
 def read_training_inputs(
     *,
     descriptors: str | Path | None = None,
@@ -143,6 +129,7 @@ def read_training_inputs(
     retrieval_path = None
     from vpr_uncertainty.data import load_descriptors, load_ground_truth, positives_within_radius
     from vpr_uncertainty.descriptors.cache import cache_info
+    from vpr_uncertainty.formats.ground_truth import read_positions
 
     if run is not None:
         exclusive = dict(descriptors=descriptors, query_descriptors=query_descriptors, positions=positions)
@@ -198,12 +185,12 @@ def read_training_inputs(
             queries = None  # database × database ground truth: the database trains on itself
         source["positives"] = str(positives)
     elif positions is not None:
-        database_positions = _load_positions(
-            Path(positions), "database positions (argument positions)", len(database), "images"
+        database_positions = read_positions(
+            positions, expected=len(database), name="database positions (argument positions)"
         )
         if query_positions is not None and queries is not None:
-            query_array = _load_positions(
-                Path(query_positions), "query positions (argument query_positions)", len(queries), "queries"
+            query_array = read_positions(
+                query_positions, expected=len(queries), name="query positions (argument query_positions)"
             )
             ground_truth = positives_within_radius(query_array, database_positions, radius)
         else:

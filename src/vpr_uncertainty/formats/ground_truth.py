@@ -186,6 +186,20 @@ def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = Non
     return positives_from_vprbench_rows(rows, path, n_database=n_database)
 
 
+def read_positions(path: str | Path | None, *, expected: int, name: str) -> np.ndarray | None:
+    """Positions of shape (n, m) or (n,) from a ``.npy`` file (read by :func:`read_npy`: nothing in it runs), with
+    ``expected`` rows, one per image; otherwise a ValueError naming the file and ``name``. None: no file, None."""
+    if path is None:
+        return None
+    array = read_npy(path, what=f"{name}, a numeric array with one row per image")
+    if array.ndim not in (1, 2) or not np.issubdtype(array.dtype, np.number) or len(array) != expected:
+        raise ValueError(
+            f"{path}: {name} must have shape ({expected}, 2) or ({expected},), one row per image; "
+            f"got {array.dtype} of shape {array.shape}"
+        )
+    return array
+
+
 _MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK"
 

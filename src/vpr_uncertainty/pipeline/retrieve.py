@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty import cache
-from vpr_uncertainty._files import is_regular_file
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.pipeline.options import (
     add_options,
@@ -238,25 +237,10 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(handler=_handle)
 
 
-def _load_positions(path: Path | None, expected: int, what: str) -> np.ndarray | None:
-    if path is None:
-        return None
-    if not is_regular_file(path, "a positions file"):
-        raise FileNotFoundError(f"{what} positions file not found: {path}")
-    if path.suffix.lower() != ".npy":
-        raise ValueError(f"{path}: positions must be a .npy array of shape ({expected}, 2)")
-    positions = np.load(path, allow_pickle=False)
-    if positions.ndim != 2 or len(positions) != expected:
-        raise ValueError(
-            f"{path}: {what} positions must have shape ({expected}, 2), one row per {what} descriptor; "
-            f"got shape {positions.shape}"
-        )
-    return positions
-
-
 def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.data import load_descriptors, open_descriptors
     from vpr_uncertainty.evaluation import recall_at_n
+    from vpr_uncertainty.formats.ground_truth import load_ground_truth, read_positions
     from vpr_uncertainty.retrieval.ground_truth import ground_truth_fields
 
     if args.out.suffix.lower() != ".npz":
@@ -266,14 +250,12 @@ def _handle(args: argparse.Namespace) -> int:
     query_names, queries = load_descriptors(args.queries, "queries")
     positives = None
     if args.gt is not None:
-        from vpr_uncertainty.formats.ground_truth import load_ground_truth
-
         positives = load_ground_truth(args.gt, n_queries=len(queries), n_database=len(database))
     ground_truth = ground_truth_fields(  # checked before the search, the slow part
         len(queries),
         len(database),
-        database_positions=_load_positions(args.database_positions, len(database), "database"),
-        query_positions=_load_positions(args.query_positions, len(queries), "query"),
+        database_positions=read_positions(args.database_positions, expected=len(database), name="database positions"),
+        query_positions=read_positions(args.query_positions, expected=len(queries), name="query positions"),
         radius=args.radius,
         positives=positives,
         database_names=database_names,
