@@ -15,6 +15,7 @@ _EXPORTS: dict[str, str] = {
     ),
     **dict.fromkeys(("calibrate", "calibrate_arrays"), "vpr_uncertainty.calibration.fit"),
     **dict.fromkeys(("LabelPlan", "plan_labels"), "vpr_uncertainty.calibration.plan"),
+    "AuditCalibration": "vpr_uncertainty.calibration.audit",
     "Gate": "vpr_uncertainty.calibration.gate",
     **dict.fromkeys(("Certificate", "certify_threshold", "min_accepted"), "vpr_uncertainty.calibration.guarantee"),
     **dict.fromkeys(("HeldOutEvaluation", "evaluate_held_out"), "vpr_uncertainty.calibration.quality"),

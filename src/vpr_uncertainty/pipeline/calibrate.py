@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 import numpy as np
 
-from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
-from vpr_uncertainty.formats.matrix import read_similarity_top_k
+from vpr_uncertainty.cache import array_digest
+from vpr_uncertainty.calibration.labels_file import pool_fingerprint
+from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_pool, read_results
 from vpr_uncertainty.pipeline.options import (
     add_figure_width_option,
     candidate_count,
@@ -100,6 +102,17 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "next (append its row and rerun), and writes --out once certified. With --gt the queries asked for are "
         "labelled from the ground truth (a simulation of how many labels it takes)",
     )
+    parser.add_argument("--machine-labels", type=Path, metavar="MACHINE.csv", help="see --audit (written by label)")
+    parser.add_argument(
+        "--audit",
+        type=Path,
+        metavar="AUDIT.csv",
+        help="certify by audit: the --machine-labels of SCORES choose the ranking and cuts; AUDIT.csv (query,correct "
+        "rows, created when missing) holds a person's labels of --audit-size queries drawn at random (--seed) from "
+        "the most lenient cut; prints the status and the query to label next (append its row and rerun); --out "
+        "writes the certified gate, or a machine-labelled one before. --gt: labelled from the ground truth",
+    )
+    parser.add_argument("--audit-size", type=candidate_count, default=40, help="draws of the audit (default 40)")
     parser.add_argument("--plot", type=output_file, metavar="FILE", help="write the reliability diagram")
     add_figure_width_option(parser)
     parser.set_defaults(handler=_handle)
@@ -110,8 +123,10 @@ def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.calibration.quality import brier_score, expected_calibration_error, reliability_diagram
     from vpr_uncertainty.evaluation import correct_at_n
 
-    if args.sequential is not None:
+    if args.sequential is not None and args.audit is None:
         return _run_sequential(args)
+    if args.audit is not None or args.machine_labels is not None:
+        return _run_audit(args)
     if args.plan and args.target_precision is None:
         raise ValueError("--plan needs --target-precision P: the plan says how many labels certify that precision")
     if not args.plan and args.out is None:
@@ -178,11 +193,17 @@ def _handle(args: argparse.Namespace) -> int:
 
 def _read_unlabelled(path: Path, file_format: str, top_k: int) -> np.ndarray:
     """The top-k scores of unlabelled queries: a retrieval file, or a similarity matrix (no ground truth needed)."""
-    is_retrieval = file_format == "retrieval" or (file_format == "auto" and path.suffix.lower() == ".npz")
-    if is_retrieval or file_format not in ("auto", "matrix", "vprbench"):
-        return read_results(path, file_format=file_format, top_k=top_k).scores
-    scores, _, _ = read_similarity_top_k(path, top_k, file_format=file_format)
-    return scores
+    return read_pool(path, file_format=file_format, top_k=top_k).scores
+
+
+def _pool(args: argparse.Namespace) -> tuple[Retrieval, np.ndarray | None, str]:
+    """SCORES as a pool (read as `label` reads it), with --gt whether each top-1 is correct, and its description."""
+    from vpr_uncertainty.evaluation import correct_at_n
+
+    with command_wording(ground_truth="--gt GT"):
+        pool = read_pool(args.scores, file_format=args.format, top_k=max(DEFAULT_TOP_K, args.k), ground_truth=args.gt)
+    truth = None if args.gt is None else correct_at_n(pool.indices, pool.positives, 1)
+    return pool, truth, f"{' '.join(str(args.scores).split())}: {pool.n_queries} queries, k={args.k}"
 
 
 def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.ndarray | None) -> int:
@@ -218,21 +239,15 @@ def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.nda
 def _run_sequential(args: argparse.Namespace) -> int:
     from vpr_uncertainty.calibration import SequentialCalibration
     from vpr_uncertainty.calibration.labels_file import read_labels, write_labels
-    from vpr_uncertainty.evaluation import correct_at_n
 
     if args.target_precision is None:
         raise ValueError("--sequential needs --target-precision P: it labels until that precision is certified")
-    with command_wording(ground_truth="--gt GT"):
-        if args.gt is None:
-            scores, truth = _read_unlabelled(args.scores, args.format, max(DEFAULT_TOP_K, args.k)), None
-        else:
-            retrieval = read_results(args.scores, ground_truth=args.gt, file_format=args.format, top_k=args.k)
-            scores, truth = retrieval.scores, correct_at_n(retrieval.indices, retrieval.positives, 1)
-    rankings = args.rankings or ("SU", "margin")
+    retrieval, truth, about = _pool(args)
+    scores, rankings = retrieval.scores, args.rankings or ("SU", "margin")
     session = SequentialCalibration(
         scores, target_precision=args.target_precision, delta=args.delta, k=args.k, rankings=rankings
     )
-    pool, about = session.fingerprint, f"{' '.join(str(args.scores).split())}: {len(scores)} queries, k={args.k}"
+    pool = session.fingerprint
     read = read_labels(args.sequential, n_queries=len(scores), pool=pool, about=about)
     for query, correct in read.labels:
         session.add_label(query, correct)
@@ -262,4 +277,49 @@ def _run_sequential(args: argparse.Namespace) -> int:
     if status.certified and args.out is not None:
         session.gate().save(args.out)
         print(f"wrote {args.out}")
+    return 0
+
+
+def _run_audit(args: argparse.Namespace) -> int:
+    from vpr_uncertainty._files import refuse_shared_files
+    from vpr_uncertainty.calibration.audit import AuditCalibration
+    from vpr_uncertainty.calibration.labels_file import read_labels, read_machine_labels, write_labels
+
+    if None in (args.machine_labels, args.audit, args.target_precision) or args.sequential or args.plan:
+        raise ValueError("certify by audit: --machine-labels MACHINE.csv --audit AUDIT.csv --target-precision P")
+    inputs = {"SCORES": args.scores, "--machine-labels": args.machine_labels, "--gt": args.gt}
+    refuse_shared_files(inputs, {"--audit": args.audit})
+    retrieval, truth, about = _pool(args)
+    n, pool = retrieval.n_queries, pool_fingerprint(retrieval.scores, args.k)
+    machine = read_machine_labels(args.machine_labels, n_queries=n, pool=pool, about=about)
+    options = dict(delta=args.delta, k=args.k, seed=args.seed, audit_size=args.audit_size)
+    options |= {"rankings": args.rankings} if args.rankings else {}
+    session = AuditCalibration(retrieval.scores, machine, target_precision=args.target_precision, **options)
+    read = read_labels(args.audit, n_queries=n, pool=pool, about=about)
+    design = f"seed {args.seed}, {args.audit_size} draws, p* {args.target_precision:g}, delta {args.delta:g}, "
+    design += f"rankings {','.join(args.rankings or ['default'])}, machine labels {array_digest(machine.correct)[:16]}"
+    if (found := re.search(r"^# vpr-uncertainty audit: (.*)$", read.text, re.MULTILINE)) and found[1] != design:
+        why = "its draws were fixed before its first label, and drawing again after labelling voids the guarantee"
+        raise ValueError(f"{args.audit} is the audit of {found[1]}, not of {design}: {why}; start another audit file")
+    if not found:  # the design, on a line of its own, before the first label
+        text = read.text + ("\n" if read.text[-1:] not in ("", "\n") else "") + f"# vpr-uncertainty audit: {design}\n"
+        read = read._replace(text=text + ("" if read.text.strip() else "query,correct\n"))
+    for query, correct in [*read.labels, *(new := [])]:
+        session.add_label(query, correct)
+    while truth is not None and (query := session.next_query()) is not None:
+        new.append((query, bool(truth[query])))
+        session.add_label(*new[-1])
+    if new or not found:
+        write_labels(args.audit, read, new, pool=pool, about=about)
+    status, gt = session.status(), f" (labelled from {args.gt}: a simulation)" if truth is not None else ""
+    print(f"{args.scores}: {status.labelled} of the audit's {args.audit_size} draws labelled{gt}; {status.message}")
+    if (query := session.next_query()) is not None:
+        queries, images = retrieval.query_names, retrieval.database_names
+        top = None if images is None else images[retrieval.indices[query, 0]]
+        pair = "" if queries is None or top is None else f" ({queries[query]} -> {top})"
+        answer = f"append '{query},1' if its top-1 answer is correct, else '{query},0', to {args.audit}, and rerun"
+        print(f"label next: query {query}{pair} ({answer})")
+    if args.out is not None:
+        (gate := session.gate()).save(args.out)
+        print(f"{'' if status.certified else gate.info['certificate']['message'] + '; '}wrote {args.out}")
     return 0
