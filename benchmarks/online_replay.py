@@ -61,10 +61,12 @@ def run(argv: list[str] | None = None) -> int:
                 online.add_closure(i, j, pose, information, scores=rows[row_of[tuple(sorted((i, j)))]])
         online.update()
         times.append(time.perf_counter() - start)
+        if keyframe % 1000 == 0:
+            print(f"  {keyframe} keyframes: median {statistics.median(times[-1000:]) * 1e3:.1f} ms", flush=True)
     decisions = np.array([accepted for *_, accepted, _ in online.decisions])
     truth_of = {tuple(sorted(pair)): bool(t) for pair, t in zip(closures.tolist(), is_true, strict=True)}
     wrong_passed = sum(a and not truth_of[tuple(sorted((i, j)))] for i, j, a, _ in online.decisions)
-    all_factors, estimate = online.batch()
+    all_factors, estimate = online.batch(), online.estimate()
     start = time.perf_counter()
     initial = slam.gtsam.Values()
     for key in estimate.keys():

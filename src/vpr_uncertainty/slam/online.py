@@ -39,10 +39,11 @@ class OnlineGraph:
     >>> information = np.diag([100.0, 100.0, 400.0])
     >>> for i in range(1, 4):
     ...     graph.add_odometry(i - 1, i, [1.0, 0.0, np.pi / 2], information)
-    ...     _ = graph.update()
+    ...     graph.update()
     >>> graph.add_closure(3, 0, [1.0, 0.0, np.pi / 2], information, scores=[0.9, 0.2])
     True
-    >>> np.round(graph.update().atPose2(3).translation(), 6).tolist()
+    >>> graph.update()
+    >>> np.round(graph.estimate().atPose2(3).translation(), 6).tolist()
     [0.0, 1.0]
     """
 
@@ -57,7 +58,6 @@ class OnlineGraph:
         self._isam = gtsam.ISAM2(gtsam.ISAM2Params())
         self._new, self._guess = gtsam.NonlinearFactorGraph(), gtsam.Values()
         self._all = gtsam.NonlinearFactorGraph()  # every factor added: the batch problem of the same decisions
-        self._estimate = gtsam.Values()
         first = (gtsam.Pose2() if dimension == 2 else gtsam.Pose3()) if first_pose is None else self._pose(first_pose)
         prior = gtsam.PriorFactorPose2 if dimension == 2 else gtsam.PriorFactorPose3
         self._add(prior(0, first, gtsam.noiseModel.Isotropic.Sigma(3 * dimension - 3, 1e-6)))
@@ -92,10 +92,16 @@ class OnlineGraph:
         """Odometry from keyframe ``i`` (known) to ``j``; a new ``j`` starts at pose i ∘ measurement."""
         factor = self._factor(i, j, measurement, information, robust=False)
         self._add(factor)
-        if not (self._estimate.exists(j) or self._guess.exists(j)):
-            start = self._guess if self._guess.exists(i) else self._estimate
-            at = start.atPose2 if self.dimension == 2 else start.atPose3
-            self._guess.insert(j, at(i).compose(factor.measured()))
+        if not (self._guess.exists(j) or self._isam.valueExists(j)):
+            if self._guess.exists(i):
+                start = self._guess.atPose2(i) if self.dimension == 2 else self._guess.atPose3(i)
+            else:
+                start = (
+                    self._isam.calculateEstimatePose2(i)
+                    if self.dimension == 2
+                    else self._isam.calculateEstimatePose3(i)
+                )
+            self._guess.insert(j, start.compose(factor.measured()))
 
     def add_closure(self, i: int, j: int, measurement: Any, information: Any, *, scores: Any) -> bool:
         """A loop closure between known keyframes, added (with the robust kernel) when the gate accepts its VPR
@@ -108,14 +114,16 @@ class OnlineGraph:
             self._add(self._factor(i, j, measurement, information, robust=True))
         return accepted
 
-    def update(self) -> Any:
-        """One iSAM2 step with what was added since the last; returns the current estimate (``gtsam.Values``)."""
+    def update(self) -> None:
+        """One iSAM2 step with what was added since the last (:meth:`estimate` reads the poses)."""
         self._isam.update(self._new, self._guess)
         self._new, self._guess = self._gtsam.NonlinearFactorGraph(), self._gtsam.Values()
-        self._estimate = self._isam.calculateEstimate()
-        return self._estimate
 
-    def batch(self) -> tuple[Any, Any]:
-        """``(graph, estimate)``: every factor added so far (the same decisions and kernel) and the current
-        estimate, for a batch optimisation to compare with or to label the closures by."""
-        return self._all.clone(), self._estimate
+    def estimate(self) -> Any:
+        """The current poses (``gtsam.Values``): every keyframe's, so call it when needed, not every step."""
+        return self._isam.calculateEstimate()
+
+    def batch(self) -> Any:
+        """Every factor added so far (the same decisions and kernel, the prior included): the batch problem to
+        compare with, or to label the closures by."""
+        return self._all.clone()
