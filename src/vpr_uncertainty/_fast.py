@@ -1,8 +1,6 @@
-"""Optional numba kernels of RS, SD and SU, margin and PA: one pass over each row (order, finiteness, formula).
-
-The numpy path in :mod:`vpr_uncertainty.scores` is the reference: a kernel only speeds up large inputs, never decides
-an error, and is used only when numba is installed (the ``fast`` extra) and the input repays loading it. When it
-gives up and what ``VPR_UNCERTAINTY_NUMBA`` does: see docs/explanation/uncertainty-scores.md.
+"""Optional numba kernels of RS, SD and SU, margin and PA: one pass over each row (order, finiteness, formula). The
+numpy path of :mod:`vpr_uncertainty.scores` is the reference: a kernel only speeds up large inputs and never decides an
+error. When a kernel is loaded, when it gives up, ``VPR_UNCERTAINTY_NUMBA``: see docs/explanation/uncertainty-scores.md.
 """
 
 from __future__ import annotations

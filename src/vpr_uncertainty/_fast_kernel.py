@@ -1,5 +1,4 @@
 """The numba kernels behind :mod:`vpr_uncertainty._fast`; importing this module imports numba (ImportError without).
-
 Why they are fast (unrolled loops per row length, no data-dependent branch): see docs/explanation/uncertainty-scores.md.
 """
 

@@ -1,7 +1,5 @@
 """Files the toolkit writes and trusts: content keys, fingerprints, checksums, atomic writes, checked HDF5 reads.
-
-What each of :func:`content_key`, :func:`array_digest`, :func:`fingerprint` and :func:`payload_checksum` hashes, how
-figures, atomic writes and HDF5 inputs are checked: see docs/explanation/caches.md.
+What each of them hashes or checks: see docs/explanation/caches.md.
 
 Examples
 --------

@@ -1,7 +1,6 @@
 """Where independent work items run: in this process (``local``), as Ray tasks (``ray``), or an executor a plugin
 registers in :data:`EXECUTORS`; :meth:`~BaseExecutor.imap` yields ``(position, result)`` pairs as items complete,
-:meth:`~BaseExecutor.map` returns results in order. What runs there and where its files must live: see
-docs/explanation/architecture.md.
+:meth:`~BaseExecutor.map` returns results in order. See docs/explanation/architecture.md.
 
 Examples
 --------

@@ -1,8 +1,6 @@
-"""One plugin mechanism for every extension point: uncertainty methods, GV presets, descriptor models, dataset
-and results formats, executors, report figures: one :class:`Registry` per kind, filled by the package's own entries,
-entry points and ``--plugin`` (:func:`load_plugins`), with lazy targets (:func:`load_target`), options merged over
-defaults (:func:`merge_options`) and plugins replayed on Ray workers (:class:`Travelling`). How it works: see
-docs/explanation/architecture.md.
+"""One plugin mechanism for every extension point (uncertainty methods, GV presets, descriptor models, dataset and
+results formats, executors, report figures): :class:`Registry`, :func:`load_plugins`, :func:`load_target`,
+:func:`merge_options` and :class:`Travelling` (plugins replayed on Ray workers). See docs/explanation/architecture.md.
 
 Examples
 --------

@@ -1,8 +1,6 @@
 """SUE: spatial uncertainty from how far apart the retrieved database images were taken (Zaffar, Nan, Kooij, CVPR
-2024). Higher means less trustworthy: candidates scattered over the map are doubted, candidates at one place are not.
-
-The method, why the default clip is symmetric (the published code's is one-sided), and hard input: see
-docs/explanation/uncertainty-scores.md.
+2024); higher = less trustworthy. The method, why the default clip is symmetric (the published code's is one-sided),
+and hard input: see docs/explanation/uncertainty-scores.md.
 """
 
 from __future__ import annotations

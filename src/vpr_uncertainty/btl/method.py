@@ -1,8 +1,6 @@
 """The ``BTL`` uncertainty method (registered by :mod:`vpr_uncertainty.btl`), the readers of what it needs, and
-evaluation protocols in which no query is both a training anchor and a test query (:func:`btl_protocol`).
-
-BTL answers with its own retrieval and is judged by its own top-1; how its inputs are resolved and what the
-protocols ``database`` and ``query-split`` train and test: see docs/explanation/btl.md.
+evaluation protocols in which no query is both a training anchor and a test query (:func:`btl_protocol`). How its
+inputs are resolved, what the protocols train and test: see docs/explanation/btl.md.
 """
 
 from __future__ import annotations

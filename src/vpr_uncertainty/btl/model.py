@@ -1,8 +1,7 @@
-r"""The BTL head (frozen global descriptors in, an isotropic Gaussian embedding out: L2-normalised means, one variance
-per image), its file, and the Bayesian triplet loss (Warburg et al., ICCV 2021).
-
-The architecture and its initialisation, and the loss derived: see docs/explanation/btl.md; the head file: see
-docs/reference/file-formats.md. Shapes: means (B, E), variances (B,) or (B, 1), float32 or float64.
+"""The BTL head (frozen global descriptors in, an isotropic Gaussian embedding out: L2-normalised means, one variance
+per image), its file, and the Bayesian triplet loss (Warburg et al., ICCV 2021). The architecture and the loss: see
+docs/explanation/btl.md; the file: docs/reference/file-formats.md. Shapes: means (B, E), variances (B,) or (B, 1),
+float32 or float64.
 """
 
 from __future__ import annotations

@@ -1,7 +1,6 @@
-"""HDF5 descriptor cache: one row per image, resumable per image, following :mod:`vpr_uncertainty.cache`.
-
-The layout (format version 2): see docs/reference/file-formats.md; which rows a rerun computes again, and which files
-it rebuilds or refuses: see docs/explanation/caches.md.
+"""HDF5 descriptor cache: one row per image, resumable per image, following :mod:`vpr_uncertainty.cache`. The layout:
+see docs/reference/file-formats.md; which rows a rerun computes again, which files it rebuilds or refuses: see
+docs/explanation/caches.md.
 """
 
 from __future__ import annotations

@@ -43,9 +43,8 @@ def require_torch(what: str = "descriptor extraction") -> Any:
 
 
 def torch_device(device: Any = None, *, types: tuple[str, ...] | None = None) -> Any:
-    """``device`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"mps"``, a ``torch.device``; None: the CPU) as a torch device;
-    a ValueError names a device torch does not know, one of a type not in ``types`` (any by default), and a GPU or
-    Metal backend that is not there. The one device check of the models, the BTL head and the local features."""
+    """``device`` (``"cpu"``, ``"cuda:1"``, ``"mps"``, a ``torch.device``; None: the CPU) as a torch device, or a
+    ValueError naming an unknown device, a type not in ``types`` (any by default), or a missing GPU or Metal backend."""
     torch = require_torch("a torch device")
     kinds = types or ("cpu", "cuda", "mps")
     expected = "expected " + ", ".join(map(repr, kinds)) + (" or 'cuda:N'" if "cuda" in kinds else "")

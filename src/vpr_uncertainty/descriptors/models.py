@@ -1,10 +1,7 @@
 """Descriptor models: the wrapper every model runs through (:class:`DescriptorModel`: images (B, 3, H, W) in,
 L2-normalised float32 descriptors (B, D) out, with a fingerprint for the cache), the registry, and the registered
-models: the offline default ``efficientnet-lite0-gem`` and the nine VPR methods of the benchmark through
-``torch.hub``. Importing this module does not import torch; loading a model does.
-
-The registered models (repository, backbone, dimension, input size) and how hub models load: see
-docs/explanation/descriptors.md.
+models: ``efficientnet-lite0-gem`` (offline) and nine VPR methods through ``torch.hub``. Importing this module does
+not import torch. The models' repositories, sizes and inputs: see docs/explanation/descriptors.md.
 """
 
 from __future__ import annotations

@@ -1,7 +1,6 @@
-"""Paired bootstrap over queries: confidence intervals of AUC-PR, AP and AURC and paired tests between methods.
-
-Every method is measured on the same resamples (:func:`resample_indices`); :func:`add_bootstrap` attaches intervals,
-p-values (Holm-corrected, :func:`holm`) and leaders to an Evaluation. Conventions: see docs/explanation/evaluation.md.
+"""Paired bootstrap over queries: confidence intervals of AUC-PR, AP and AURC and paired tests between methods, every
+method on the same resamples (:func:`resample_indices`); :func:`add_bootstrap` attaches them to an Evaluation.
+Conventions (skipped resamples, intervals, p-values, Holm): see docs/explanation/evaluation.md.
 """
 
 from __future__ import annotations

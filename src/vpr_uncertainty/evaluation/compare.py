@@ -1,7 +1,6 @@
-"""Is one VPR method, or one uncertainty method, better than another on the same queries? Paired tests.
-
-:func:`compare` gives the paired-bootstrap differences of AUC-PR and AP (two VPR methods, or two uncertainty methods
-of one evaluation) and :func:`mcnemar` the exact test of recall@1. Conventions: see docs/explanation/evaluation.md.
+"""Is one VPR method, or one uncertainty method, better than another on the same queries? Paired tests:
+:func:`compare` (paired-bootstrap differences of AUC-PR and AP) and :func:`mcnemar` (the exact test of recall@1).
+Conventions: see docs/explanation/evaluation.md.
 """
 
 from __future__ import annotations

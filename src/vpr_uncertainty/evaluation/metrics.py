@@ -1,7 +1,6 @@
-"""Metrics of an uncertainty as a predictor of correct answers: AUC-PR, AP, rejection curves, AURC and recall@N.
-
-Plain functions on arrays, in the style of :mod:`sklearn.metrics`, every input validated at the boundary; the threshold
-metrics read one :class:`UncertaintyRanking` (:func:`rank_queries`). Definitions: see docs/explanation/evaluation.md.
+"""Metrics of an uncertainty as a predictor of correct answers: AUC-PR, AP, rejection curves, AURC and recall@N, as
+plain functions on arrays in the style of :mod:`sklearn.metrics`; the threshold metrics read one
+:class:`UncertaintyRanking` (:func:`rank_queries`). Definitions: see docs/explanation/evaluation.md.
 """
 
 from __future__ import annotations

@@ -187,8 +187,8 @@ def load_vprbench_ground_truth(path: str | Path, *, n_database: int | None = Non
 
 
 def read_positions(path: str | Path | None, *, expected: int, name: str) -> np.ndarray | None:
-    """Positions of shape (n, m) or (n,) from a ``.npy`` file (read by :func:`read_npy`: nothing in it runs), with
-    ``expected`` rows, one per image; otherwise a ValueError naming the file and ``name``. None: no file, None."""
+    """Positions (n, m) or (n,) from a ``.npy`` file (by :func:`read_npy`: nothing in it runs) with ``expected`` rows,
+    one per image, or a ValueError naming the file and ``name``; None without a file."""
     if path is None:
         return None
     array = read_npy(path, what=f"{name}, a numeric array with one row per image")

@@ -1,8 +1,6 @@
 """Local-feature files in hloc's HDF5 layout, and the cache that extracts each image once (one file per extractor
-configuration, following :mod:`vpr_uncertainty.cache`; inside :func:`deferred_writes` only the driver writes).
-
-The layout: see docs/reference/file-formats.md; who writes and when an image is extracted again: see
-docs/explanation/caches.md.
+configuration; inside :func:`deferred_writes` only the driver writes). The layout: see docs/reference/file-formats.md;
+who writes and when an image is extracted again: see docs/explanation/caches.md.
 """
 
 from __future__ import annotations

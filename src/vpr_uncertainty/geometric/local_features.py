@@ -1,7 +1,6 @@
 """Local features, the working resolution, the extractor base class and OpenCV SIFT; matchers and RANSAC (OpenCV's
-USAC with MAGSAC++). Keypoints are pixels of the original image; matching and RANSAC run at the working resolution
-(longer side at most ``max_side``). Importing this module imports neither torch nor OpenCV. The conventions and why
-the RANSAC defaults are what they are: see docs/explanation/geometric-verification.md.
+USAC with MAGSAC++). Importing this module imports neither torch nor OpenCV. Keypoint conventions, the working
+resolution and why the RANSAC defaults are what they are: see docs/explanation/geometric-verification.md.
 """
 
 from __future__ import annotations

@@ -1,8 +1,6 @@
 """Uncertainty methods: the names users type (``SU``, ``PA``, ``SUE``, ``GV-SIFT``, ``SU+GV-SIFT``), called alike:
-``get_method("SU")(retrieval, k=10, alpha=0.5)`` returns an ndarray of shape (Q,), higher = less trustworthy.
-
-The built-in score methods are registered here, the cascades in :mod:`~vpr_uncertainty.methods.cascade`, the higher
-layers' methods where they are defined; see docs/explanation/uncertainty-scores.md.
+``get_method("SU")(retrieval, k=10, alpha=0.5)`` returns an ndarray of shape (Q,), higher = less trustworthy. The
+built-in score methods are registered here (see docs/explanation/uncertainty-scores.md).
 """
 
 from vpr_uncertainty import scores as _scores

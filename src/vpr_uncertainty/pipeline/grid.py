@@ -1,7 +1,6 @@
-"""``reproduce``, the grid: VPR methods x datasets x uncertainty methods, then tables, figures and report.html.
-
-One grid cell = one (VPR method, dataset), cached under ``out/cells`` as ``KEY.json`` and ``KEY.npz`` and read back
-only when both hold the expected fingerprint and checksum (what is keyed: see docs/explanation/caches.md).
+"""``reproduce``, the grid: VPR methods x datasets x uncertainty methods, then tables, figures and report.html. One
+cell = one (VPR method, dataset), cached under ``out/cells`` as ``KEY.json`` and ``KEY.npz`` and read back only when
+both hold the expected fingerprint and checksum (what is keyed: see docs/explanation/caches.md).
 """
 
 from __future__ import annotations
