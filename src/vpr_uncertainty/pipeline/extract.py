@@ -1,7 +1,5 @@
-"""Stage 1, ``extract``: the images of both splits -> ``descriptors.h5`` (global descriptors, resumed per image).
-
-The file stores the fingerprint of the model and its preprocessing and, per image, the content key of the file it
-was computed from, so a rerun computes exactly the images that are new or changed.
+"""Stage 1, ``extract``: the images of both splits -> ``descriptors.h5`` (global descriptors, resumed per image: a rerun
+computes exactly the images that are new or changed; what the file stores: see docs/explanation/caches.md).
 """
 
 from __future__ import annotations

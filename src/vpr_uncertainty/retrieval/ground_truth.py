@@ -1,8 +1,6 @@
 """Ground truth from positions: the positives within a radius, the kind of positions, and the ground-truth fields a
-:class:`~vpr_uncertainty.retrieval.Retrieval` carries (positives, names, positions).
-
-Below :mod:`vpr_uncertainty.data` (whose readers build these fields from a dataset) so that
-:func:`vpr_uncertainty.retrieval.retrieve` can attach them in the same call as the search.
+:class:`~vpr_uncertainty.retrieval.Retrieval` carries (positives, names, positions). Why it sits below
+:mod:`vpr_uncertainty.data`: see docs/explanation/architecture.md.
 """
 
 from __future__ import annotations
