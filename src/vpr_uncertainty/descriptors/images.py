@@ -55,7 +55,7 @@ def torch_device(device: Any = None, *, types: tuple[str, ...] | None = None) ->
     if types is not None and resolved.type not in types:
         raise ValueError(f"unsupported device {device!r}: {expected}")
     if resolved.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {str(resolved)!r} was requested but PyTorch sees no CUDA GPU; use device='cpu'")
+        raise ValueError(f"device {str(resolved)!r} was requested but CUDA is not available (no CUDA GPU); use 'cpu'")
     if resolved.type == "cuda" and (resolved.index or 0) >= torch.cuda.device_count():
         raise ValueError(f"device {str(resolved)!r} was requested but only {torch.cuda.device_count()} GPU(s) exist")
     if resolved.type == "mps" and not torch.backends.mps.is_available():
