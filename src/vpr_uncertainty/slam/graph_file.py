@@ -1,28 +1,6 @@
-"""Pose-graph text files (g2o, TORO, the layout of GTSAM's City10000 files), read and written without losing anything.
-
-Every line is kept as it was given. The lines of the tags below become arrays at full double precision, checked
-(integer ids >= 0, finite numbers, unit quaternions, a symmetric positive definite information matrix: a refusal
-names the file and the line); every other line (comments, landmarks, ``FIX``, ``EQUIV``, other tools' tags) is
-kept verbatim and counted in :attr:`GraphFile.other_tags`. :func:`write_graph_file` writes the lines given, minus
-the edges dropped, byte for byte: no number is printed again.
-
-=================  ===========================================  ====================================================
-tag                fields after the tag                         information (upper triangle, row by row)
-=================  ===========================================  ====================================================
-``VERTEX_SE2``     ``id x y θ``
-``VERTEX2``        ``id x y θ`` (TORO)
-``EDGE_SE2``       ``i j x y θ`` + 6                            ``I11 I12 I13 I22 I23 I33`` (g2o)
-``EDGE2``          ``i j x y θ`` + 6 (TORO)                     ``I11 I12 I22 I33 I13 I23`` (TORO's order)
-``EDGE2``          ``i 1 j 0 N x y θ …`` (City10000: N candidate  none: σ = (1/30, 1/30, 1/100), as in GTSAM's example
-                   measurements; the first is read)
-``VERTEX_SE3:QUAT`` ``id x y z qx qy qz qw``
-``VERTEX3``        ``id x y z roll pitch yaw`` (TORO)
-``EDGE_SE3:QUAT``  ``i j x y z qx qy qz qw`` + 21              translation before rotation (g2o)
-``EDGE3``          ``i j x y z roll pitch yaw`` + 21 (TORO)     translation before rotation
-=================  ===========================================  ====================================================
-
-A file is 2-D or 3-D by the tags it holds; one that mixes them is refused. Poses are ``x y θ`` in 2-D and ``x y z
-qx qy qz qw`` in 3-D (roll, pitch, yaw become a quaternion: R = Rz(yaw) Ry(pitch) Rx(roll), GTSAM's ``Rot3.Ypr``).
+"""Pose-graph text files (g2o, TORO, the layout of GTSAM's City10000 files), read and written without losing anything:
+every line kept as given, the lines of known tags read at full precision and checked (a refusal names the line),
+the others passed through; the tags and their fields: docs/reference/file-formats.md, "Pose graphs".
 """
 
 from __future__ import annotations
