@@ -119,7 +119,8 @@ def test_empty_or_truncated_descriptor_npy_is_one_clear_error(tmp_path):
 def test_results_formats_are_a_registry_a_plugin_can_extend(tmp_path):
     from vpr_uncertainty.data import RESULTS_FORMAT_REGISTRY, ResultsFormat, input_formats, register_results_format
 
-    assert input_formats() == ("auto", "vpr-methods-evaluation", "retrieval", "per-query", "matrix", "vprbench")
+    builtin = ("closures", "vpr-methods-evaluation", "retrieval", "per-query", "matrix", "vprbench")
+    assert input_formats() == ("auto", *builtin)
     assert RESULTS_FORMAT_REGISTRY.get("matrix").provides == ("scores",)
 
     def read_pairs(path, *, ground_truth, top_k):  # one "query database score" line per candidate
