@@ -70,3 +70,18 @@ def test_standard_output_only_where_a_command_writes_it(tmp_path, monkeypatch, c
     assert "'-' (standard output) is not supported here: name a file" in capsys.readouterr().err
     assert main(["evaluate", "sim.npy", "--gt", "gt.npy", "--json", "-", "--methods", "SU"]) == 0
     assert '"SU"' in capsys.readouterr().out and sorted(p.name for p in tmp_path.iterdir()) == ["gt.npy", "sim.npy"]
+
+
+def test_evaluate_says_every_file_it_wrote_and_plan_is_not_silently_ignored(tmp_path, monkeypatch, capsys):
+    """Issue 45, item 7: "wrote" for --csv, --latex and --per-query too; --plan with --sequential was ignored."""
+    monkeypatch.chdir(tmp_path)
+    np.save("sim.npy", np.random.default_rng(0).random((6, 6)).astype(np.float32))
+    np.save("gt.npy", np.array([[q, [q]] for q in range(6)], dtype=object), allow_pickle=True)
+    argv = ["evaluate", "sim.npy", "--gt", "gt.npy", "--csv", "t.csv", "--latex", "t.tex", "--per-query", "q.csv"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert all(f"wrote {name}" in out for name in ("t.csv", "t.tex", "q.csv"))
+    argv = ["calibrate", "sim.npy", "--gt", "gt.npy", "--target-precision", "0.9", "--sequential", "l.csv", "--plan"]
+    assert main(argv) == 2
+    assert "--plan simulates labelling before it starts" in capsys.readouterr().err
+    assert not (tmp_path / "l.csv").exists()

@@ -123,6 +123,8 @@ def _handle(args: argparse.Namespace) -> int:
     from vpr_uncertainty.calibration.quality import brier_score, expected_calibration_error, reliability_diagram
     from vpr_uncertainty.evaluation import correct_at_n
 
+    if args.plan and (args.sequential or args.audit or args.machine_labels):
+        raise ValueError("--plan simulates labelling before it starts; --sequential and --audit label: use one")
     if args.sequential is not None and args.audit is None:
         return _run_sequential(args)
     if args.audit is not None or args.machine_labels is not None:

@@ -486,6 +486,8 @@ def _handle(args: argparse.Namespace) -> int:
             evaluation.per_query_frame().to_parquet(handle, index=False)
     elif args.per_query:
         write_output(args.per_query, per_query_csv(evaluation))
+    for written in filter(None, (args.csv, args.latex, args.per_query)):
+        print(f"wrote {written}")
     if args.plot:
         plot_rejection_curves(evaluation, args.plot, title=args.scores.parent.name or None, width=args.figure_width)
         print(f"wrote {args.plot}")
