@@ -177,3 +177,13 @@ def test_datasets_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     assert [record["name"] for record in records["datasets"]] == ["st_lucia", "tokyo247"]
     assert records["datasets"][0]["found"] is True and records["datasets"][1]["found"] is False
     assert records["datasets"][0]["path"] == str(tmp_path / "st_lucia" / "images" / "test")
+
+
+def test_a_missing_corridor_names_the_two_ways_to_give_the_data_root(monkeypatch, tmp_path, capsys):
+    """Issue 45, item 7: ``run --dataset corridor`` without a data root said neither --root nor the variable."""
+    from vpr_uncertainty.cli import main
+
+    monkeypatch.delenv(DATA_ROOT_VARIABLE, raising=False)
+    assert main(["run", "--dataset", "corridor", "--out", str(tmp_path / "r")]) == 2
+    error = capsys.readouterr().err
+    assert f"no data root is set (--root DIR or {DATA_ROOT_VARIABLE}: the folder holding vprbench/corridor)" in error

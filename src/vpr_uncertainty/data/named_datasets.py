@@ -226,7 +226,11 @@ def find_named_dataset(name: str, root: str | Path | None = None, *, split: str 
 
 def _missing_message(entry: NamedDataset, root: Path | None, split: str) -> str:
     if entry.layout == "vprbench":
-        where = f"looked for {root / entry.relative_path}" if root is not None else "no data root is set"
+        where = (
+            f"looked for {root / entry.relative_path}"
+            if root is not None
+            else f"no data root is set (--root DIR or {DATA_ROOT_VARIABLE}: the folder holding {entry.relative_path})"
+        )
         return f"dataset {entry.name!r} ({entry.title}) not found: {where}. Get it: {entry.source}."
     layout = f"{entry.folder}/images/{split}/database/ and {entry.folder}/images/{split}/queries/"
     if root is None:
