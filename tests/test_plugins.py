@@ -172,3 +172,9 @@ def test_a_plugin_module_named_on_the_command_line_gives_the_cli_its_method(tmp_
         METHODS.unregister("ENT")
     assert main(["--plugin", "no_such_plugin_xyz", "datasets"]) == 2
     assert "plugin module 'no_such_plugin_xyz' not found" in capsys.readouterr().err
+
+
+def test_a_doubled_last_letter_gets_the_near_name():
+    """Issue 45, item 7: ``--methods SUU`` listed the valid names without 'SU' (a prefix: one letter too many)."""
+    with pytest.raises(KeyError, match="did you mean 'SU'"):
+        METHODS.get("SUU")

@@ -367,3 +367,12 @@ def test_grid_main_runs_a_config_file_and_returns_results_json(tmp_path, corrido
     assert path == tmp_path / "elsewhere" / "results.json"
     document = json.loads(path.read_text())
     assert document["cells"][0]["vpr_method"] == "NetVLAD"
+
+
+def test_a_misspelt_config_key_gets_the_near_one(tmp_path, capsys):
+    """Issue 45, item 7: the config key ``bootstrp`` listed the valid keys without 'bootstrap'."""
+    from vpr_uncertainty.cli import main
+
+    (tmp_path / "c.toml").write_text('out = "x"\nbootstrp = 200\n[[inputs]]\nscores = "a.npy"\n')
+    assert main(["reproduce", str(tmp_path / "c.toml")]) == 2
+    assert "unknown top-level key 'bootstrp'; did you mean 'bootstrap'?" in capsys.readouterr().err

@@ -298,7 +298,10 @@ class Registry(Generic[_T]):
         close = [
             known
             for known in difflib.get_close_matches(key, [*self._entries, *self._aliases], n=1, cutoff=SUGGESTION_CUTOFF)
-            if len(known) == len(key) or difflib.SequenceMatcher(None, key, known).ratio() > SUGGESTION_CUTOFF
+            if len(known) == len(key)
+            or key.startswith(known)
+            or known.startswith(key)
+            or difflib.SequenceMatcher(None, key, known).ratio() > SUGGESTION_CUTOFF
         ]
         close = close or [known for known in self._entries if known.lower() == key.lower()]
         hint = ""

@@ -28,6 +28,12 @@ from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, u
 from vpr_uncertainty.scores import check_alpha
 
 
+def _unknown(what: str, key: object, expected: list[str]) -> str:
+    """``what 'key'; did you mean 'near'? (expected ...)``: a problem naming the near key when there is one."""
+    close = difflib.get_close_matches(str(key), expected, n=1, cutoff=0.6)
+    return f"{what} {key!r}{f'; did you mean {close[0]!r}?' if close else ''} (expected {', '.join(expected)})"
+
+
 def read_mapping(path: Path) -> dict[str, Any]:
     """The top-level mapping of a TOML or YAML file; a syntax error is one line naming the file and the line."""
     suffix = path.suffix.lower()
@@ -131,7 +137,7 @@ def calibration_option(raw: Any, methods: list[str], problems: list[str]) -> dic
     >>> problems = []
     >>> calibration_option({"fraction": 1.5, "repeat": 3}, ["SU"], problems)
     >>> problems[0]
-    "calibration: unknown key 'repeat' (expected fraction, repeats, seed)"
+    "calibration: unknown key 'repeat'; did you mean 'repeats'? (expected fraction, repeats, seed)"
     """
     if raw is None:
         return None
@@ -140,7 +146,7 @@ def calibration_option(raw: Any, methods: list[str], problems: list[str]) -> dic
         return None
     count = len(problems)
     problems += [
-        f"calibration: unknown key {key!r} (expected {', '.join(CALIBRATION_DEFAULTS)})"
+        _unknown("calibration: unknown key", key, list(CALIBRATION_DEFAULTS))
         for key in raw
         if key not in CALIBRATION_DEFAULTS
     ]
@@ -520,9 +526,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
         candidate = Path(str(value)).expanduser()
         return candidate if candidate.is_absolute() else base / candidate
 
-    problems += [
-        f"unknown top-level key {key!r} (expected {sorted(_TOP_KEYS)})" for key in data if key not in _TOP_KEYS
-    ]
+    problems += [_unknown("unknown top-level key", key, sorted(_TOP_KEYS)) for key in data if key not in _TOP_KEYS]
     methods = _methods(data, problems, base)
     k = _integer(data.get("k", 10), "k", 2, problems)
     alpha = data.get("alpha", 0.5)
@@ -555,7 +559,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
             problems.append(f"{where}: expected a table, got {raw!r}")
             continue
         problems += [
-            f"{where}: unknown key {key!r} (expected {sorted(_INPUT_KEYS)})" for key in raw if key not in _INPUT_KEYS
+            _unknown(f"{where}: unknown key", key, sorted(_INPUT_KEYS)) for key in raw if key not in _INPUT_KEYS
         ]
         ground_truth = resolve(raw["ground_truth"]) if "ground_truth" in raw else None
         if ground_truth is not None and not ground_truth.is_file():
