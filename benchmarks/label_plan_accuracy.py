@@ -2,14 +2,18 @@
 
 Populations
     Each of the ten VPR-Bench corridor matrices (its 111 queries), resampled as ``benchmarks/gate_efficiency.py``
-    does: a draw takes queries i.i.d. **with replacement** from the population.
+    does: a draw takes queries i.i.d. **with replacement** from the population. ``--family`` adds (or names
+    instead) the populations of ``benchmarks/random_labels.py`` built to fail (``contrasting``, ``short``,
+    ``fitted``: one ranking's top clean, short, or missed by the fitted model).
 
 Predicted
     The pool is the population's queries twice over (222 rows, the same distribution, so that 200 labels fit in
-    it). L of them (30 or 50, drawn without replacement; redrawn until they hold 2 correct and 2 wrong answers)
-    are labelled, and ``plan_labels(labelled scores, correct, unlabelled=the other pool rows,
+    it; ``--pool-times 6``: 666 rows, so that 200 labels are 30 % of it, the issue-43 protocol). L of them (30 or
+    50, drawn without replacement; redrawn until they hold 2 correct and 2 wrong answers) are labelled, and
+    ``plan_labels(labelled scores, correct, unlabelled=the other pool rows,
     answerable=..., target_precision=p*, delta=delta, sizes=(50, 100, 200), draws=--plan-draws, seed=rep)``
-    predicts; ``--reps`` labelled draws per population and L.
+    predicts; ``--reps`` labelled draws per population and L (``--labelled``, default 30,50; ``--sizes``, default
+    50,100,200).
 
 Achieved
     ``calibrate_arrays(scores, correct, answerable=..., target_precision=p*, delta=delta)`` (calibrate's defaults)
@@ -27,7 +31,7 @@ summary: the plans binned by predicted P(certified) (< 1/3, 1/3 - 2/3, > 2/3), t
 
 Usage
     VPR_UNCERTAINTY_DATA=/path/to/data python benchmarks/label_plan_accuracy.py [--reps 3] [--plan-draws 100]
-        [--draws 200]
+        [--draws 200] [--family corridor,contrasting,short,fitted] [--jobs 2]
 """
 
 from __future__ import annotations
@@ -35,7 +39,9 @@ from __future__ import annotations
 import argparse
 import itertools
 import os
+import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +52,7 @@ from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n
 
 SIZES = (50, 100, 200)
 LABELLED = (30, 50)
+FAMILIES = ("corridor", "contrasting", "short", "fitted")
 TOLERANCE = 0.15
 BINS = (0.0, 1 / 3, 2 / 3, 1.0)
 
@@ -78,12 +85,69 @@ def achieved(scores, correct, answerable, n, draws, rng, p_star, delta) -> tuple
     return certified / draws, recall / draws
 
 
-def labelled_draw(correct: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarray:
-    """Which rows of the pool (twice the population) are labelled, as a mask."""
+def labelled_draw(correct: np.ndarray, size: int, rng: np.random.Generator, times: int = 2) -> np.ndarray:
+    """Which rows of the pool (the population ``times`` over) are labelled, as a mask."""
     while True:
-        rows = rng.choice(2 * correct.size, size, replace=False)
+        rows = rng.choice(times * correct.size, size, replace=False)
         if min(int(correct[rows % correct.size].sum()), int((~correct[rows % correct.size]).sum())) >= 2:
-            return np.isin(np.arange(2 * correct.size), rows)
+            return np.isin(np.arange(times * correct.size), rows)
+
+
+def family_populations(data: Path, wanted: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The corridor populations (``corridor``) and those of ``benchmarks/random_labels.py``'s other families."""
+    found = populations(data) if "corridor" in wanted else {}
+    others = [family for family in wanted if family != "corridor"]
+    if others:
+        sys.path.insert(0, str(Path(__file__).parent))
+        from random_labels import families, load_populations
+
+        for built in families(load_populations(data, [], 0.9), others).values():
+            found.update({p.name: (p.scores, p.correct, p.answerable) for p in built})
+    return found
+
+
+def plan_population(task: tuple) -> tuple[list[str], dict[tuple[int, int], list[tuple[float, float, float, float]]]]:
+    """Achieved and predicted figures of one population: its table rows and (L, n) -> (predicted, achieved) pairs."""
+    index, name, (scores, correct, answerable), args = task
+    p_star, delta = args.target_precision, args.delta
+    rng = np.random.default_rng([args.seed, index])
+    truth = {n: achieved(scores, correct, answerable, n, args.draws, rng, p_star, delta) for n in args.sizes}
+    lines, pairs = [], {}
+    for labelled in args.labelled:
+        plans = []
+        pool = np.tile(np.arange(correct.size), args.pool_times)
+        for rep in range(args.reps):
+            mask = labelled_draw(correct, labelled, rng, args.pool_times)
+            rows = pool[mask]
+            plans.append(
+                plan_labels(
+                    scores[rows],
+                    correct[rows],
+                    unlabelled=scores[pool[~mask]],
+                    answerable=answerable[rows],
+                    target_precision=p_star,
+                    delta=delta,
+                    sizes=args.sizes,
+                    draws=args.plan_draws,
+                    seed=rep,
+                    progress=False,
+                )
+            )
+        for column, n in enumerate(args.sizes):
+            certified = [plan.certified[column] for plan in plans]
+            recall = [plan.mean_recall[column] for plan in plans]
+            pairs.setdefault((labelled, n), []).extend(
+                (c, truth[n][0], r, truth[n][1]) for c, r in zip(certified, recall, strict=True)
+            )
+            lines.append(
+                f"| {name} | {labelled} | {n} | {np.mean(certified):.2f} | {truth[n][0]:.2f} | "
+                f"{np.mean(recall):.3f} | {truth[n][1]:.3f} |"
+            )
+    return lines, pairs
+
+
+def _integers(text: str) -> list[int]:
+    return sorted({int(part) for part in text.split(",") if part.strip()})
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -94,10 +158,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--target-precision", type=float, default=0.9)
     parser.add_argument("--delta", type=float, default=0.1)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--family", default="corridor", help=f"comma-separated, from {', '.join(FAMILIES)}")
+    parser.add_argument("--labelled", type=_integers, default=list(LABELLED), help="L, comma-separated (30,50)")
+    parser.add_argument("--sizes", type=_integers, default=list(SIZES), help="n, comma-separated (50,100,200)")
+    parser.add_argument("--pool-times", type=int, default=2, help="the pool: the population this many times (2)")
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     args = parser.parse_args(argv)
     data = os.environ.get("VPR_UNCERTAINTY_DATA")
     if not data:
         parser.error("set VPR_UNCERTAINTY_DATA to the data folder (holding vprbench/)")
+    wanted = [family for family in args.family.split(",") if family]
+    if unknown := set(wanted) - set(FAMILIES):
+        parser.error(f"unknown families {sorted(unknown)}; valid: {', '.join(FAMILIES)}")
     started, p_star, delta = time.perf_counter(), args.target_precision, args.delta
     print(f"# Label plan: predicted vs achieved, p* = {p_star:g}, delta = {delta:g}\n")
     print(
@@ -106,40 +178,14 @@ def main(argv: list[str] | None = None) -> None:
     )
     print("| population | L | n | P(certified) predicted | achieved | mean recall predicted | achieved |")
     print("|---|---|---|---|---|---|---|")
+    tasks = [(i, name, found, args) for i, (name, found) in enumerate(family_populations(Path(data), wanted).items())]
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        outputs = list(pool.map(plan_population, tasks))
     pairs: dict[tuple[int, int], list[tuple[float, float, float, float]]] = {}
-    for index, (name, (scores, correct, answerable)) in enumerate(populations(Path(data)).items()):
-        rng = np.random.default_rng([args.seed, index])
-        truth = {n: achieved(scores, correct, answerable, n, args.draws, rng, p_star, delta) for n in SIZES}
-        for labelled in LABELLED:
-            plans = []
-            pool = np.tile(np.arange(correct.size), 2)
-            for rep in range(args.reps):
-                mask = labelled_draw(correct, labelled, rng)
-                rows = pool[mask]
-                plans.append(
-                    plan_labels(
-                        scores[rows],
-                        correct[rows],
-                        unlabelled=scores[pool[~mask]],
-                        answerable=answerable[rows],
-                        target_precision=p_star,
-                        delta=delta,
-                        sizes=SIZES,
-                        draws=args.plan_draws,
-                        seed=rep,
-                        progress=False,
-                    )
-                )
-            for column, n in enumerate(SIZES):
-                certified = [plan.certified[column] for plan in plans]
-                recall = [plan.mean_recall[column] for plan in plans]
-                pairs.setdefault((labelled, n), []).extend(
-                    (c, truth[n][0], r, truth[n][1]) for c, r in zip(certified, recall, strict=True)
-                )
-                print(
-                    f"| {name} | {labelled} | {n} | {np.mean(certified):.2f} | {truth[n][0]:.2f} | "
-                    f"{np.mean(recall):.3f} | {truth[n][1]:.3f} |"
-                )
+    for lines, found in outputs:
+        print("\n".join(lines))
+        for key, rows in found.items():
+            pairs.setdefault(key, []).extend(rows)
     print(
         "\n| L | n | P(certified) predicted / achieved (mean) | abs error: mean / largest | within +-0.15 | "
         "mean recall predicted / achieved | abs error: mean / largest |"

@@ -150,7 +150,7 @@ def calibrate_arrays(
         message += "; " + needed_message(
             calibrator.confidence(columns(labelled_features, calibrator.features)), correct, target_precision, delta
         )
-    info["rankings"] = {name: share * delta for name, share in shares.items()}
+    info["rankings"] = {name: outcome["delta"] for name, outcome in certificate.rankings.items()}
     info.update(
         precision_lower_bound=certificate.precision_lower_bound,
         expected_recall=certificate.expected_recall,

@@ -37,7 +37,8 @@ from vpr_uncertainty.calibration.calibrator import RANKINGS, Calibrator, columns
 DEFAULT_SHARES: dict[str, float] = {"CAL": 0.9, "margin": 0.1}
 #: The share of a ranking's level its chain holds for the fallback count (:func:`cut_chain`).
 FALLBACK = 0.3
-#: From this share of the labelled queries on, a chain tests every count (:func:`cut_chain`).
+#: From this share of the labelled queries on, a chain tests every count (:func:`cut_chain`, the sequential mode's
+#: chains; the batch gate's, :func:`certify_rankings`, test every count from the first).
 DENSE_FROM = 0.25
 
 __all__ = [
@@ -387,14 +388,16 @@ def certify_rankings(
     folds: int,
     seed: int,
     fallback: float = FALLBACK,
-    dense_from: float = DENSE_FROM,
+    dense_from: float = 0.0,
 ) -> tuple[Certificate, Calibrator | None, float]:
     """Each ranking's chain (:func:`cut_chain`) tested at its share of δ on all labelled queries; the winner's rule.
 
     ``labelled`` and ``pool`` hold feature columns of shape (L,) and (N,) (labelled first, then unlabelled: the
     cuts are quantiles over the pool); ``correct`` and ``answerable`` (L,) the labels and the recall denominator;
     ``shares`` each ranking's share of δ (a union bound: all certified rules hold at once with probability
-    ≥ 1 − δ); ``model_features``, ``folds`` and ``seed`` the cross-fitted ``"CAL"``.
+    ≥ 1 − δ); ``model_features``, ``folds`` and ``seed`` the cross-fitted ``"CAL"``. No δ is left where no label
+    can use it: a ranking whose chain starts beyond n gives its share to the others (pro rata), and a chain whose
+    fallback count lies beyond n holds its whole level on its first count; both depend on n, p* and δ alone.
 
     Returns the :class:`Certificate` (the winner: the certified rule accepting the most correct labelled queries;
     every ranking's outcome and δ), the rule (a linear confidence in the winner's order: the fixed score itself, or
@@ -403,8 +406,16 @@ def certify_rankings(
     n = int(correct.size)
     outcomes: dict[str, dict[str, Any]] = {}
     best: tuple[int, str, float, int, float] | None = None
+
+    def chain(level: float) -> tuple[np.ndarray, np.ndarray]:
+        spare = fallback > 0 and tolerant_steps(n, target_precision, fallback * level)[1:2].size
+        return cut_chain(n, target_precision, level, fallback=fallback if spare else 0.0, dense_from=dense_from)
+
+    usable = {name: share for name, share in shares.items() if chain(share * delta)[0].size}
+    scale = sum(shares.values()) / sum(usable.values()) if usable else 1.0
     for name, share in shares.items():
-        counts, levels = cut_chain(n, target_precision, share * delta, fallback=fallback, dense_from=dense_from)
+        share = usable.get(name, 0.0) * scale if usable else share
+        counts, levels = chain(share * delta) if share else (np.zeros(0, int), np.zeros(0))
         outcome = outcomes[name] = {"delta": share * delta, "certified": False, "accepted": 0, "correct_accepted": 0}
         outcome["cuts_tested"] = int(counts.size)
         matrix = columns(labelled, model_features) if name == "CAL" else None
@@ -432,7 +443,7 @@ def certify_rankings(
             outcome.update(certified=True, accepted=int(accepted[chosen]), correct_accepted=int(good[chosen]))
             if best is None or good[chosen] > best[0]:
                 best = (int(good[chosen]), name, float(coverage[chosen]), int(accepted[chosen]), tested_at[chosen])
-    n_needed = min(min_accepted(target_precision, (1 - fallback) * share * delta) for share in shares.values())
+    n_needed = min(min_accepted(target_precision, share * delta) for share in shares.values())
     common = {"n_test": n, "min_accepted": n_needed, "rankings": outcomes}
     given = ", ".join(f"{ranking} {o['delta']:.3g}" for ranking, o in outcomes.items())
     if best is None:
