@@ -325,9 +325,10 @@ def test_the_online_graph_gates_each_closure_and_matches_the_batch(gtsam, gate_f
         online.update()
     estimate = online.estimate()
     assert [(i, j, accepted) for i, j, accepted, _ in online.decisions] == [(4, 0, True), (1, 6, False)]
-    assert 0 < online.decisions[0][3] <= 1 and max(
-        np.linalg.norm(estimate.atPose2(i).translation() - truth[i].translation()) for i in range(8)
-    ) < 1e-6
+    assert (
+        0 < online.decisions[0][3] <= 1
+        and max(np.linalg.norm(estimate.atPose2(i).translation() - truth[i].translation()) for i in range(8)) < 1e-6
+    )
     batch = optimize(online.batch(), estimate)
     assert all(batch.atPose2(i).equals(estimate.atPose2(i), 1e-6) for i in range(8))
     with pytest.raises(ValueError, match="a 2-D pose is x y θ"):
