@@ -229,13 +229,12 @@ def test_agreement_on_the_corridor_matches_the_api_and_the_ground_truth(corridor
 
 @pytest.mark.parametrize("k", [10, 5])
 def test_the_pool_fingerprint_is_calibrates(corridor, tmp_path, capsys, k):
-    """The same pool line with and without --gt, for a matrix and a retrieval file, as calibrate reads each."""
-    from vpr_uncertainty.pipeline.calibrate import _read_unlabelled
-
+    """The same pool line with and without --gt, for a matrix and a retrieval file, as calibrate reads each (its
+    SCORES with --gt through read_results, its --unlabelled through read_pool, as label reads them)."""
     paths, gt = corridor
     npz = save_retrieval(read_results(paths["CALC"], ground_truth=gt, top_k=20), tmp_path / "calc.npz")
     for pool_file in (paths["CALC"], npz):
-        expected = pool_fingerprint(_read_unlabelled(pool_file, "auto", max(50, k)), k)
+        expected = pool_fingerprint(read_results(pool_file, ground_truth=gt, top_k=max(50, k)).scores, k)
         assert pool_fingerprint(read_pool(pool_file, top_k=50).scores, k) == expected
         for truth in ([], ["--gt", gt]):
             out = tmp_path / f"m{len(truth)}.csv"

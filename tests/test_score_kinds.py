@@ -4,6 +4,7 @@ similarities, so every default method gives the numbers it gives on the similari
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -120,3 +121,104 @@ def test_a_retrieval_file_refuses_distance_kinds(netvlad, tmp_path):
     path = save_retrieval(read_results(folder / "similarity.npy", ground_truth=gt), tmp_path / "r.npz")
     with pytest.raises(ValueError, match="whose scores are similarities"):
         read_results(path, scores="l2-distance")
+
+
+# --- issue 45, items 1 and 5: --scores on every command that reads a matrix, and messages that name the mistake ---
+
+
+@pytest.fixture
+def toy(tmp_path, monkeypatch):
+    """120 queries × 400 database images (unit-norm descriptors, float32 as Faiss writes them), each query's positive
+    a list in gt.json; sim.npy, its squared (l2sq.npy) and plain (l2.npy) L2 distances, transposed and top-k files."""
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(0)
+    database = rng.normal(size=(400, 32))
+    database /= np.linalg.norm(database, axis=1, keepdims=True)
+    positive = rng.choice(400, 120, replace=False)
+    noise = np.where(rng.random(120) < 0.7, 0.3, 3.0)[:, None] / np.sqrt(32)  # about 70 % correct top-1
+    queries = database[positive] + rng.normal(size=(120, 32)) * noise
+    queries /= np.linalg.norm(queries, axis=1, keepdims=True)
+    similarity = (queries @ database.T).astype(np.float32)
+    np.save("sim.npy", similarity)
+    np.save("l2sq.npy", (2 - 2 * similarity).astype(np.float32))
+    np.save("l2.npy", np.sqrt(np.maximum(2 - 2 * similarity, 0)).astype(np.float32))
+    np.save("transposed.npy", similarity.T.copy())
+    np.save("topk.npy", -np.sort(-similarity, axis=1)[:, :10])
+    Path("gt.json").write_text(json.dumps([[int(p)] for p in positive]))
+    return similarity
+
+
+@pytest.mark.parametrize("distances", ["l2sq.npy", "l2.npy"])
+def test_calibrate_on_distances_read_as_similarities_says_so_and_names_the_kind(toy, capsys, distances):
+    """Before: "the calibration queries hold only wrong answers ... label more queries"; --scores was refused."""
+    argv = ["calibrate", distances, "--gt", "gt.json", "--out", "g.json", "--target-precision", "0.8"]
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert "the scores rank the ground truth backwards: read as similarities" in error  # evaluate's notice
+    assert "label more queries" not in error and "--scores l2-distance" in error and error.count("\n") == 1
+    squared = "above 2: squared L2 distances" in error  # 2 - 2s reaches 3.25 here; plain ones stay in [0, 2]
+    assert squared == (distances == "l2sq.npy") and ("l2-distance:plain" in error) == (not squared)
+    kind = "l2-distance" if distances == "l2sq.npy" else "l2-distance:plain"
+    assert main([*argv, "--scores", kind]) == 0
+    found = capsys.readouterr().out.splitlines()
+    assert main(["calibrate", "sim.npy", *argv[2:]]) == 0  # the same gate, the same words: from the first figure on
+    assert [line.split(": ", 1)[-1] for line in found] == [
+        line.split(": ", 1)[-1] for line in capsys.readouterr().out.splitlines()
+    ]
+
+
+def test_subset_label_and_a_calibration_pool_read_distances_as_the_similarities(toy, capsys):
+    assert main(["subset", "l2sq.npy", "--gt", "gt.json", "--scores", "l2-distance", "--out", "d.npz"]) == 0
+    assert main(["subset", "sim.npy", "--gt", "gt.json", "--out", "s.npz"]) == 0
+    found, expected = read_results("d.npz"), read_results("s.npz")
+    np.testing.assert_array_equal(found.indices, expected.indices)
+    np.testing.assert_allclose(found.scores, expected.scores, rtol=1e-5, atol=1e-6)
+    by = ["--by", "agreement:min_agree=1", "--with", "l2sq.npy"]
+    assert main(["label", "l2sq.npy", *by, "--scores", "l2-distance", "--out", "m.csv"]) == 0
+    lines = Path("m.csv").read_text().splitlines()
+    assert len([line for line in lines if line[:1].isdigit()]) == 120 and "120 of 120" in capsys.readouterr().out
+    sequential = ["--target-precision", "0.8", "--sequential"]
+    assert main(["calibrate", "sim.npy", *sequential, "s.csv"]) == 0
+    pool = capsys.readouterr().out  # the same query asked for first (another pool: float32 distances round)
+    assert main(["calibrate", "l2sq.npy", "--scores", "l2-distance", *sequential, "d.csv"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == pool.splitlines()[-1].replace("s.csv", "d.csv")
+
+
+def test_a_reproduce_config_says_what_each_input_holds(toy, capsys):
+    from vpr_uncertainty.pipeline.grid_config import load_config
+
+    table = '[[inputs]]\nvpr_method = "{0}"\ndataset = "toy"\nscores = "{1}"\nground_truth = "gt.json"\n'
+    text = 'out = "grid"\nmethods = ["SU", "BM"]\nalphas = []\nks = []\n' + table.format("S", "sim.npy")
+    Path("grid.toml").write_text(text + table.format("D", "l2sq.npy") + 'score_kind = "l2-distance"\n')
+    assert main(["reproduce", "grid.toml"]) == 0
+    cells = {cell["vpr_method"]: cell for cell in json.loads(Path("grid/results.json").read_text())["cells"]}
+    for method in ("SU", "BM"):
+        found, expected = (cells[name]["methods"][method]["auc_pr"] for name in "DS")
+        assert found == pytest.approx(expected, abs=1e-6)
+    Path("bad.toml").write_text(
+        text.replace('ground_truth = "gt.json"\n', 'ground_truth = "gt.json"\nscore_kind = "l2_distance"\n')
+    )
+    with pytest.raises(ValueError, match=r"score_kind .*'l2_distance'; did you mean 'l2-distance'\?"):
+        load_config("bad.toml")
+
+
+@pytest.mark.parametrize(
+    ("name", "diagnosis"),
+    [
+        ("transposed.npy", "transposed.npy is 400 × 120 (queries × database): it looks transposed"),
+        ("topk.npy", "topk.npy is 120 × 10 (queries × database): it looks like top-k scores"),
+    ],
+)
+def test_a_matrix_of_the_wrong_shape_is_named_for_what_it_looks_like(toy, capsys, name, diagnosis):
+    """Before: "positives of query 0 must be database indices (an integer in [0, 120)), got 329" alone."""
+    assert main(["evaluate", name, "--gt", "gt.json"]) == 2
+    error = capsys.readouterr().err
+    assert diagnosis in error and "must be database indices" in error  # the ground truth's own error kept
+    with pytest.raises(ValueError, match=diagnosis.replace("(", r"\(").replace(")", r"\)")):
+        read_results(name, ground_truth="gt.json")
+
+
+def test_a_square_matrix_or_another_mismatch_keeps_the_ground_truths_own_error(toy):
+    np.save("square.npy", toy[:, :120].T.copy())  # 120 × 120: the shape tells nothing
+    with pytest.raises(ValueError, match=r"^gt.json: positives of query 0 must be database indices"):
+        read_results("square.npy", ground_truth="gt.json")

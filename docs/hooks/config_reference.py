@@ -59,6 +59,8 @@ INPUTS = {
     "`.txt`/`.csv`).",
     "images": "A VPR-Bench folder with `query/` and `ref/`: images for GV-* methods and the qualitative figure.",
     "format": "Results file format (default `auto`).",
+    "score_kind": "With `scores` or `precomputed_matches`: what the matrix holds, as `evaluate --scores KIND` reads "
+    "it: `similarity` (default), `l2-distance` (`:squared`, `:plain`), `cosine-distance` or `distance`.",
     "root": "With `model`: where named datasets are looked up.",
     "device": "With `model`: `cpu` or `cuda`.",
     "batch_size": "With `model`: images per extraction batch.",

@@ -133,18 +133,16 @@ def read_results(
     return reader(path, ground_truth=ground_truth, top_k=top_k, scores=scores)
 
 
-def read_pool(
-    path: str | Path, *, file_format: str = "auto", top_k: int = DEFAULT_TOP_K, ground_truth: str | Path | None = None
-) -> Retrieval:
-    """A pool as ``calibrate`` and ``label`` read it: :func:`read_results`, but a matrix without ``ground_truth`` gives
-    its top-k scores and indices (and ``config["n_database"]``); same top-k either way: same pool fingerprint."""
-    path = Path(path)
+def read_pool(path: str | Path, *, ground_truth: str | Path | None = None, **options: Any) -> Retrieval:
+    """A pool as ``calibrate`` and ``label`` read it: :func:`read_results` (``options``: its ``file_format``, ``top_k``
+    and ``scores``), but a matrix without ``ground_truth`` gives its top-k scores and indices (and
+    ``config["n_database"]``); same top-k either way: same pool fingerprint."""
+    path, file_format = Path(path), options.get("file_format", "auto")
     if ground_truth is None and file_format in ("auto", "matrix", "vprbench"):
         registered = (entry.detect and entry.detect(path) for entry in RESULTS_FORMAT_REGISTRY)
         if file_format != "auto" or not any(registered):
-            scores, indices, shape = matrix.read_similarity_top_k(path, top_k, file_format=file_format)
-            return Retrieval(scores, indices, config={"source": str(path), "n_database": shape[1]})
-    return read_results(path, ground_truth=ground_truth, file_format=file_format, top_k=top_k)
+            return matrix.read(path, ground_truth=None, pool=True, **{"top_k": DEFAULT_TOP_K, **options})
+    return read_results(path, ground_truth=ground_truth, **options)
 
 
 def read_closures(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -27,38 +27,61 @@ def read(
     top_k: int,
     file_format: str = "auto",
     scores: str = "similarity",
+    pool: bool = False,
     **_: Any,
 ) -> Retrieval:
-    """The top-k of a matrix file with its ground truth; distances (``scores``, a kind of
+    """The top-k of a matrix file with its ground truth (``pool``: or without, as ``calibrate`` and ``label`` read a
+    pool: no positives, ``config["n_database"]``); distances (``scores``, a kind of
     :data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`) converted by :meth:`Retrieval.from_distances`."""
     from vpr_uncertainty.evaluation.metrics import positives_against_mean
 
-    if ground_truth is None:
+    if ground_truth is None and not pool:
         raise ValueError(
             f"{path} is a similarity matrix without ground truth; give the ground truth (argument ground_truth)"
         )
     higher_is_better = scores == "similarity"
-    read: dict[str, Any] = {"ordering": [0, 0], "largest": 0.0}  # queries whose positives score above / below
+    read: dict[str, Any] = {"ordering": [0, 0], "largest": 0.0, "positives": None}  # positives above / below ...
 
     def measure(block: np.ndarray, first_row: int, shape: tuple[int, int]) -> None:
+        if not higher_is_better and np.isfinite(block).any():
+            read["largest"] = max(read["largest"], float(block[np.isfinite(block)].max()))
+        if ground_truth is None:
+            return
         if first_row == 0:  # sized by the matrix: a positive beyond its columns is an error naming the file
-            read["positives"] = load_ground_truth(ground_truth, n_queries=shape[0], n_database=shape[1])
+            read["positives"] = _fitting_ground_truth(ground_truth, path, block, shape)
         rows, columns = read["positives"][first_row : first_row + len(block)].nonzero()
         for side, count in enumerate(positives_against_mean(block if higher_is_better else -block, rows, columns)):
             read["ordering"][side] += count  # ... their row's mean
-        if not higher_is_better and np.isfinite(block).any():
-            read["largest"] = max(read["largest"], float(block[np.isfinite(block)].max()))
 
     # Memory-mapped and cut to its top-k one block of queries at a time: never the whole matrix in memory.
-    top, indices, _ = read_similarity_top_k(
+    top, indices, shape = read_similarity_top_k(
         path, top_k, file_format=file_format, higher_is_better=higher_is_better, on_block=measure
     )
-    config = {"source": str(path), "ground_truth": str(ground_truth), "top_k": int(top.shape[1])}
-    config["positives_vs_mean"], positives = read["ordering"], read["positives"]
+    config: dict[str, Any] = {"source": str(path), "top_k": int(top.shape[1]), "n_database": shape[1]}
+    if ground_truth is not None:
+        config.update(ground_truth=str(ground_truth), positives_vs_mean=read["ordering"])
     if higher_is_better:
-        return Retrieval(scores=top, indices=indices, positives=positives, config=config)
-    kind, largest = scores, read["largest"]
+        return Retrieval(scores=top, indices=indices, positives=read["positives"], config=config)
+    kind, largest, positives = scores, read["largest"], read["positives"]
     return Retrieval.from_distances(-top, indices, kind=kind, largest=largest, positives=positives, config=config)
+
+
+def _fitting_ground_truth(ground_truth: str | Path, path: Path, block: np.ndarray, shape: tuple[int, int]) -> Any:
+    """The ground truth sized by the (Q, D) matrix of ``path``; when it does not fit, the error says what the shape
+    suggests: a transposed (database × queries) matrix, or a (queries × k) array of top-k scores (sorted rows)."""
+    try:
+        return load_ground_truth(ground_truth, n_queries=shape[0], n_database=shape[1])
+    except ValueError as error:
+        queries, database = load_ground_truth(ground_truth).shape  # its own size (or the error of reading it)
+        steps, shown = np.diff(block, axis=1), f"{path} is {shape[0]} × {shape[1]} (queries × database)"
+        if queries == shape[1] != shape[0] and database <= shape[0]:
+            why = f"looks transposed (database × queries; the ground truth holds {queries} queries): save matrix.T"
+        elif queries == shape[0] and database > shape[1] and ((steps <= 0).all() or (steps >= 0).all()):
+            why = "looks like top-k scores (sorted rows, and the ground truth names database images up to "
+            why += f"{database - 1}): give the whole matrix, or a retrieval file (.npz) with the candidates' indices"
+        else:
+            raise
+        raise ValueError(f"{shown}: it {why} ({error})") from None
 
 
 _MATRIX = "a numeric (queries × database) similarity matrix"

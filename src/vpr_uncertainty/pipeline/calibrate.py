@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import argparse
 import re
+import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from vpr_uncertainty.cache import array_digest
 from vpr_uncertainty.calibration.labels_file import pool_fingerprint
-from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_pool, read_results
+from vpr_uncertainty.data import DEFAULT_TOP_K, read_pool, read_results
 from vpr_uncertainty.pipeline.options import (
     add_figure_width_option,
+    add_results_options,
     candidate_count,
     command_wording,
     open_fraction,
@@ -62,8 +65,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("scores", type=Path, metavar="SCORES", help="labelled calibration results")
-    parser.add_argument("--gt", type=Path, help="ground truth (as in evaluate); required unless SCORES holds it")
-    parser.add_argument("--format", choices=input_formats(), default="auto", help="how to read SCORES")
+    add_results_options(parser, "SCORES (and --unlabelled)")
     parser.add_argument(
         "--out", type=output_file, metavar="GATE.json", help="gate file to write (required unless --plan)"
     )
@@ -134,12 +136,9 @@ def _handle(args: argparse.Namespace) -> int:
     if not args.plan and args.out is None:
         raise ValueError("--out GATE.json is required (unless --plan)")
     with command_wording(ground_truth="--gt GT"):
-        retrieval = read_results(
-            args.scores, ground_truth=args.gt, file_format=args.format, top_k=max(DEFAULT_TOP_K, args.k)
-        )
-        unlabelled = None
-        if args.unlabelled is not None:
-            unlabelled = _read_unlabelled(args.unlabelled, args.format, max(DEFAULT_TOP_K, args.k))
+        retrieval = read_results(args.scores, ground_truth=args.gt, **_reading(args))
+        _explain_no_correct_answer(args.scores, retrieval)
+        unlabelled = None if args.unlabelled is None else read_pool(args.unlabelled, **_reading(args)).scores
         if args.plan:
             return _run_plan(args, retrieval, unlabelled)
         gate = calibrate(
@@ -193,9 +192,28 @@ def _handle(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_unlabelled(path: Path, file_format: str, top_k: int) -> np.ndarray:
-    """The top-k scores of unlabelled queries: a retrieval file, or a similarity matrix (no ground truth needed)."""
-    return read_pool(path, file_format=file_format, top_k=top_k).scores
+def _reading(args: argparse.Namespace) -> dict[str, Any]:
+    """How SCORES (and --unlabelled) are read: --format, --scores and the candidates --k needs."""
+    return {"file_format": args.format, "top_k": max(DEFAULT_TOP_K, args.k), "scores": args.score_kind}
+
+
+def _explain_no_correct_answer(path: Path, retrieval: Retrieval) -> None:
+    """When no labelled top-1 answer is correct, a ValueError with the evaluation's notes on why (distances read as
+    similarities: the scores rank the ground truth backwards) and the kind such distances would be."""
+    from vpr_uncertainty.evaluation import correct_at_n, evaluate
+    from vpr_uncertainty.retrieval.result import distance_kind_hint
+
+    correct = None if retrieval.positives is None else correct_at_n(retrieval.indices, retrieval.positives)
+    if correct is None or not correct.size or correct.any():
+        return
+    with warnings.catch_warnings(record=True) as caught:  # the notes go in the error, not in warnings as well
+        warnings.simplefilter("always")
+        notes = evaluate(retrieval, methods=["BM"], k=2).notes
+    undefined = {str(warning.message) for warning in caught if issubclass(warning.category, RuntimeWarning)}
+    if reasons := [note for note in notes if note not in undefined]:  # not "AUC-PR is undefined": none is computed
+        read = retrieval.score_kind == "similarity" and "score_conversion" not in retrieval.config
+        hint = distance_kind_hint(retrieval.scores) if read else ""
+        raise ValueError(f"{path}: no calibration query's top-1 answer is correct: {'; '.join(reasons)}{hint}")
 
 
 def _pool(args: argparse.Namespace) -> tuple[Retrieval, np.ndarray | None, str]:
@@ -203,7 +221,7 @@ def _pool(args: argparse.Namespace) -> tuple[Retrieval, np.ndarray | None, str]:
     from vpr_uncertainty.evaluation import correct_at_n
 
     with command_wording(ground_truth="--gt GT"):
-        pool = read_pool(args.scores, file_format=args.format, top_k=max(DEFAULT_TOP_K, args.k), ground_truth=args.gt)
+        pool = read_pool(args.scores, ground_truth=args.gt, **_reading(args))
     truth = None if args.gt is None else correct_at_n(pool.indices, pool.positives, 1)
     return pool, truth, f"{' '.join(str(args.scores).split())}: {pool.n_queries} queries, k={args.k}"
 

@@ -16,13 +16,13 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty._validation import check_resamples
-from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
+from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
 from vpr_uncertainty.evaluation import compare
 from vpr_uncertainty.pipeline.evaluate import EvaluateConf, read_inputs
 from vpr_uncertainty.pipeline.evaluate import compute as evaluate_compute
 from vpr_uncertainty.pipeline.options import (
     add_options,
-    add_score_kind_option,
+    add_results_options,
     command_wording,
     conf_from_args,
     integer_at_least,
@@ -188,11 +188,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "b", type=Path, nargs="?", metavar="B", help="results file of the second, same queries (not with --uncertainty)"
     )
-    parser.add_argument(
-        "--gt", type=Path, help="ground truth of both (as in evaluate); required unless the files hold it"
-    )
-    parser.add_argument("--format", choices=input_formats(), default="auto", help="how to read A and B")
-    add_score_kind_option(parser)
+    add_results_options(parser, "A and B")
     add_options(parser, EvaluateConf, only=("methods", "k", "alpha"))
     add_options(parser, CompareConf, only=("resamples", "seed", "uncertainty"))
     parser.add_argument(

@@ -16,7 +16,7 @@ import numpy as np
 
 from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
-from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_results
+from vpr_uncertainty.data import DEFAULT_TOP_K, read_results
 from vpr_uncertainty.data.images import retrieval_image_paths
 from vpr_uncertainty.evaluation import evaluate as evaluate_methods
 from vpr_uncertainty.evaluation.bootstrap import check_bootstrap
@@ -28,7 +28,7 @@ from vpr_uncertainty.pipeline.options import (
     add_executor_options,
     add_figure_width_option,
     add_options,
-    add_score_kind_option,
+    add_results_options,
     candidate_count,
     checked_number,
     command_wording,
@@ -308,16 +308,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("scores", type=Path, metavar="SCORES", help="results file (see above)")
-    parser.add_argument(
-        "--gt",
-        type=Path,
-        help="ground truth: VPR-Bench ground_truth_new.npy, boolean (Q x D) .npy, .json list of lists, "
-        ".txt with one line of positive indices per query, or .npz; required unless SCORES holds it",
-    )
-    parser.add_argument(
-        "--format", choices=input_formats(), default="auto", help="how to read SCORES (default: from its name)"
-    )
-    add_score_kind_option(parser)
+    add_results_options(parser, "SCORES")
     add_options(parser, EvaluateConf, only=("methods", "k", "alpha", "recall_at"))
     parser.add_argument("--verify-fraction", type=fraction, metavar="F", help=VERIFY_FRACTION_HELP)
     group = parser.add_argument_group(

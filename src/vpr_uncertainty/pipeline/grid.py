@@ -215,6 +215,7 @@ def _load_cell_input(
             ground_truth=entry.ground_truth,
             file_format=entry.file_format,
             top_k=max(DEFAULT_TOP_K, candidates_needed(config)),
+            scores=entry.score_kind,
         )
         return retrieval, None
     from vpr_uncertainty.pipeline.run import run

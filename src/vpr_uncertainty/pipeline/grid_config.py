@@ -25,6 +25,7 @@ from vpr_uncertainty.methods import (
 )
 from vpr_uncertainty.plugins import import_or_explain
 from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
+from vpr_uncertainty.retrieval.result import SCORE_KINDS
 from vpr_uncertainty.scores import check_alpha
 
 
@@ -329,6 +330,7 @@ _INPUT_KEYS = {
     "vpr_method",
     "model",
     "format",
+    "score_kind",
     *_RUN_OPTIONS,
 }
 
@@ -346,6 +348,7 @@ class InputEntry:
     dataset_source: str | None = None
     file_format: str = "auto"
     run_options: dict[str, Any] = field(default_factory=dict)
+    score_kind: str = "similarity"  # what a matrix holds: a kind of SCORE_KINDS
 
     @property
     def key(self) -> str:
@@ -369,6 +372,7 @@ class InputEntry:
             "dataset_source": self.dataset_source,
             "format": self.file_format,
             "run_options": {k: str(v) for k, v in self.run_options.items()},
+            **({"score_kind": self.score_kind} if self.score_kind != "similarity" else {}),  # the caches before it
         }
 
 
@@ -567,7 +571,10 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
         images = resolve(raw["images"]) if "images" in raw else None
         if images is not None and not ((images / "query").is_dir() and (images / "ref").is_dir()):
             problems.append(f"{where}: images folder {images} must hold query/ and ref/ (a VPR-Bench dataset)")
-        file_format = raw.get("format", "auto")
+        reading = {"file_format": raw.get("format", "auto"), "score_kind": raw.get("score_kind", "similarity")}
+        if reading["score_kind"] not in SCORE_KINDS or ("model" in raw and "score_kind" in raw):  # a model's: cosine
+            what = f"{where}: score_kind (what the matrix of scores or precomputed_matches holds)"
+            problems.append(_unknown(what, reading["score_kind"], list(SCORE_KINDS)))
         kinds = [key for key in ("precomputed_matches", "scores", "model") if key in raw]
         if len(kinds) != 1:
             problems.append(f"{where}: give exactly one of precomputed_matches, scores or model (with dataset)")
@@ -586,7 +593,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
                 if not matrix.is_file():
                     problems.append(f"{where}: {matrix} not found")
                     continue
-                entries.append(InputEntry(name, dataset, matrix, ground_truth, images, file_format=file_format))
+                entries.append(InputEntry(name, dataset, matrix, ground_truth, images, **reading))
             if not names and raw.get("vpr_methods") is None:
                 problems.append(f"{where}: {folder} has no method subfolder")
         elif "scores" in raw:
@@ -599,9 +606,7 @@ def load_config(path: str | Path, *, out: str | Path | None = None, **overrides:
                 problems.append(f"{where}: scores needs vpr_method and dataset names")
                 continue
             entries.append(
-                InputEntry(
-                    str(raw["vpr_method"]), str(raw["dataset"]), scores, ground_truth, images, file_format=file_format
-                )
+                InputEntry(str(raw["vpr_method"]), str(raw["dataset"]), scores, ground_truth, images, **reading)
             )
         else:
             if "dataset" not in raw:

@@ -5,8 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vpr_uncertainty.data import DEFAULT_TOP_K, input_formats, read_pool
-from vpr_uncertainty.pipeline.options import candidate_count, command_wording, device_name, output_file
+from vpr_uncertainty.data import DEFAULT_TOP_K, read_pool
+from vpr_uncertainty.pipeline.options import (
+    add_results_options,
+    candidate_count,
+    command_wording,
+    device_name,
+    output_file,
+)
 
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
@@ -36,8 +42,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--graph", type=Path, metavar="GRAPH", help="back-end: the pose graph of the closures")
     parser.add_argument("--device", type=device_name, default="cpu", help="cpu, cuda, cuda:N or mps (gv-*)")
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query of the pool (default 10)")
-    parser.add_argument("--format", choices=input_formats(), default="auto", help="how to read RETRIEVAL and --with")
-    parser.add_argument("--gt", type=Path, help="ground truth: print the labels' precision and recall against it")
+    add_results_options(parser, "RETRIEVAL and --with", gt="ground truth: print the labels' precision and recall")
     parser.add_argument("--out", type=output_file, required=True, metavar="MACHINE.csv", help="labels to write")
     parser.set_defaults(handler=_handle)
 
@@ -60,8 +65,9 @@ def _handle(args: argparse.Namespace) -> int:
             raise ValueError(f"--by {entry.name} {'needs' if need in entry.requires else 'does not read'} {flag}")
     wording = {key: f"--{key.replace('_', '-')}" for key in images}
     with command_wording(ground_truth="--gt GT", **wording):
-        retrieval = read_pool(args.retrieval, file_format=args.format, top_k=top_k, ground_truth=args.gt)
-        inputs = {"others": {str(p): read_pool(p, file_format=args.format, top_k=top_k) for p in args.others or ()}}
+        reading = {"file_format": args.format, "top_k": top_k, "scores": args.score_kind}
+        retrieval = read_pool(args.retrieval, ground_truth=args.gt, **reading)
+        inputs = {"others": {str(p): read_pool(p, **reading) for p in args.others or ()}}
         inputs["graph"] = args.graph
         if any(images.values()):
             paths = retrieval_image_paths(retrieval, **images)

@@ -344,10 +344,16 @@ def add_executor_options(
     parser.set_defaults(workers_mean_locally=local_workers is not None)
 
 
-def add_score_kind_option(parser: argparse.ArgumentParser) -> None:
-    """``--scores KIND``: what a matrix file holds (:data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`)."""
+def add_results_options(parser: argparse.ArgumentParser, what: str, *, gt: str | None = None) -> None:
+    """``--gt GT`` (help: ``gt``, else the formats), ``--format`` and ``--scores KIND`` (``args.score_kind``, of
+    :data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`): how a command reads its results ``what``."""
+    from vpr_uncertainty.data import input_formats
     from vpr_uncertainty.retrieval.result import SCORE_KINDS
 
+    formats = "VPR-Bench ground_truth_new.npy, boolean (Q x D) .npy, .json list of lists, .txt with one line of "
+    formats += f"positive indices per query, or .npz; required unless {what} holds it"
+    parser.add_argument("--gt", type=Path, help=gt or f"ground truth: {formats}")
+    parser.add_argument("--format", choices=input_formats(), default="auto", help=f"how to read {what} (default: auto)")
     parser.add_argument(
         "--scores",
         dest="score_kind",
