@@ -262,6 +262,25 @@ def holm(p_values: Sequence[float]) -> list[float]:
     return [float(value) for value in result]
 
 
+def holm_against(distributions: Mapping[str, np.ndarray], one: str, others: Sequence[str]) -> dict[str, float]:
+    """Table 1's and the heatmaps' one rule: the paired p-value of ``one`` against each of ``others`` (arrays of shape
+    (B,), the same resamples), Holm-adjusted over that family (<= level: significant); no common resample: left out."""
+    p_values = {name: paired_p_value(distributions[one], distributions[name]) for name in others}
+    tested = [name for name, p in p_values.items() if p is not None]
+    return dict(zip(tested, holm([p_values[name] for name in tested]), strict=True))
+
+
+def significance_notice(n_resamples: int, comparisons: int, level: float = 0.05) -> str | None:
+    """The notice when Holm over ``comparisons`` leaves no difference significant: the smallest paired p-value,
+    2 / (B + 1) (:func:`paired_p_value`), times ``comparisons`` exceeds ``level``; None when one can be."""
+    if comparisons * (2.0 / (n_resamples + 1)) <= level:
+        return None
+    return (  # B ≥ the smallest B with comparisons × 2 / (B + 1) <= level
+        f"no difference can be significant with B = {n_resamples} resamples over {comparisons} comparisons; "
+        f"use B ≥ {int(np.ceil(2 * comparisons / level - 1e-9)) - 1}"
+    )
+
+
 #: The reference of the paired tests when none is named (and it is evaluated).
 DEFAULT_REFERENCE = "SU"
 TEST_DESCRIPTION = (
@@ -336,12 +355,9 @@ def leaders(
         return [], False
     sign = 1.0 if higher_is_better else -1.0
     top = max(names, key=lambda name: sign * values[name])
-    others = [name for name in names if name != top]
-    p_values = [paired_p_value(sign * distributions[top], sign * distributions[name]) for name in others]
-    tested = [(name, p) for name, p in zip(others, p_values, strict=True) if p is not None]
-    adjusted = dict(zip([name for name, _ in tested], holm([p for _, p in tested]), strict=True)) if tested else {}
+    adjusted = holm_against(distributions, top, [name for name in names if name != top])  # two-sided: any sign
     # A comparison that could not be made (no common resample) is not significant.
-    worse = {name for name in others if name in adjusted and adjusted[name] <= level}
+    worse = {name for name, p in adjusted.items() if p <= level}
     marked = [name for name in names if name not in worse]
     return marked, len(marked) == 1
 
@@ -405,14 +421,12 @@ def add_bootstrap(
         method.vs_reference = None
     base, auc_pr = evaluation.methods[reference], distributions["auc_pr"]
     compared = [name for name in names if name != reference and evaluation.methods[name].auc_pr is not None]
-    p_values = {name: paired_p_value(auc_pr[name], auc_pr[reference]) for name in compared}
-    tested = [name for name in compared if p_values[name] is not None and base.auc_pr is not None]
-    adjusted = dict(zip(tested, holm([p_values[name] for name in tested]), strict=True)) if tested else {}
-    for name in tested:
+    adjusted = holm_against(auc_pr, reference, compared) if base.auc_pr is not None else {}
+    for name in adjusted:
         evaluation.methods[name].vs_reference = {
             "reference": reference,
             "delta_auc_pr": float(evaluation.methods[name].auc_pr - base.auc_pr),
-            "p_value": p_values[name],
+            "p_value": paired_p_value(auc_pr[name], auc_pr[reference]),
             "p_value_holm": adjusted[name],
             "significant": bool(adjusted[name] <= level),
         }
@@ -426,6 +440,8 @@ def add_bootstrap(
         marked, significant = leaders(distributions[metric], values, higher_is_better=higher, level=level)
         best[metric] = {"methods": marked, "significant": significant}
     skipped = {name: int(np.isnan(auc_pr[name]).sum()) for name in names}
+    notice = significance_notice(n_resamples, len(names) - 1, level)
+    evaluation.notes.extend([notice] if notice and notice not in evaluation.notes else [])
     evaluation.bootstrap = {
         "resamples": int(n_resamples),
         "seed": int(seed),

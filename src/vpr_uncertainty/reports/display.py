@@ -215,10 +215,7 @@ class RejectionCurveDisplay:
         *,
         methods: Sequence[str] | None = None,
         ax: Any = None,
-        title: str | None = None,
-        legend: bool = True,
-        number: str = "area",
-        note: bool = False,
+        **options: Any,
     ) -> RejectionCurveDisplay:
         """Draw the curves of an evaluation's methods.
 
@@ -228,10 +225,10 @@ class RejectionCurveDisplay:
             The result of :func:`vpr_uncertainty.evaluate`.
         methods : sequence of str, optional
             The methods to draw, in this order; by default all, in the evaluation's order.
-        ax, title, legend, number, note
-            As in :meth:`plot`.
+        ax, **options
+            As in :meth:`plot` (``title``, ``legend``, ``number``, ``note``).
         """
-        return cls._of_evaluation(evaluation, methods).plot(ax, title=title, legend=legend, number=number, note=note)
+        return cls._of_evaluation(evaluation, methods).plot(ax, **options)
 
     @classmethod
     def _of_evaluation(cls, evaluation: Evaluation, methods: Sequence[str] | None = None) -> RejectionCurveDisplay:
@@ -259,9 +256,7 @@ class RejectionCurveDisplay:
         name: str = "uncertainty",
         n_answerable: int | None = None,
         ax: Any = None,
-        title: str | None = None,
-        legend: bool = True,
-        number: str = "area",
+        **options: Any,
     ) -> RejectionCurveDisplay:
         """Draw the curve of one uncertainty on labelled queries.
 
@@ -275,13 +270,13 @@ class RejectionCurveDisplay:
             Legend label.
         n_answerable : int, optional
             Queries with at least one positive (the recall denominator); by default all.
-        ax, title, legend, number
-            As in :meth:`plot`.
+        ax, **options
+            As in :meth:`plot` (``title``, ``legend``, ``number``, ``note``).
         """
         curve = rejection_curve(correct, uncertainty, n_answerable=n_answerable)
         labels = np.asarray(correct).astype(bool)
         display = cls({name: curve}, accept_all=float(labels.mean()), n_queries=labels.size)
-        return display.plot(ax, title=title, legend=legend, number=number)
+        return display.plot(ax, **options)
 
 
 def rejection_curves_spec(
@@ -500,8 +495,7 @@ class RecallAtNDisplay:
         *,
         name: str = "VPR method",
         ax: Any = None,
-        title: str | None = None,
-        legend: bool = True,
+        **options: Any,
     ) -> RecallAtNDisplay:
         """Draw the recall@N an evaluation stores (or several: ``{VPR method: Evaluation}``).
 
@@ -511,8 +505,8 @@ class RecallAtNDisplay:
             One VPR method's evaluation (labelled ``name``), or one per VPR method.
         name : str, default="VPR method"
             The label of a single evaluation.
-        ax, title, legend
-            As in :meth:`plot`.
+        ax, **options
+            As in :meth:`plot` (``title``, ``legend``).
         """
         evaluations = evaluation if isinstance(evaluation, Mapping) else {name: evaluation}
         recalls = {}
@@ -520,7 +514,7 @@ class RecallAtNDisplay:
             if not hasattr(one, "recall_at_n"):
                 raise TypeError(f"{label!r}: expected an Evaluation (with recall_at_n), got {type(one).__name__}")
             recalls[label] = one.recall_at_n
-        return cls(recalls).plot(ax, title=title, legend=legend)
+        return cls(recalls).plot(ax, **options)
 
 
 # --- file writers ---

@@ -15,7 +15,7 @@ import numpy as np
 
 from vpr_uncertainty.cache import slug
 from vpr_uncertainty.evaluation import auc_pr
-from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, percentile_interval
+from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, holm_against
 from vpr_uncertainty.methods.cascade import combine_cascade, most_uncertain, split_cascade_name
 from vpr_uncertainty.reports.html import averaged_over
 from vpr_uncertainty.reports.style import (
@@ -340,8 +340,8 @@ def delta_matrix(
     cells: Sequence, proposed: str, baseline: str, distributions: dict | None = None
 ) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:
     """(VPR methods, datasets, Δ of shape (V, D), significant of shape (V, D)); Δ is NaN where a cell or an AUC-PR is
-    missing; significant: the 95 % percentile interval of the paired bootstrap Δ excludes 0 (``distributions``:
-    (VPR method, dataset) -> method -> resampled AUC-PR, :func:`heatmap_distributions`; without them, all False)."""
+    missing; significant: Table 1's rule, Holm over ``proposed`` against each other method of its cell (holm_against;
+    ``distributions``: (VPR method, dataset) -> method -> resampled AUC-PR, :func:`heatmap_distributions`)."""
     vpr_methods, datasets = (list(dict.fromkeys(getattr(c, key) for c in cells)) for key in ("vpr_method", "dataset"))
     shape = (len(vpr_methods), len(datasets))
     delta, significant = np.full(shape, np.nan), np.zeros(shape, bool)
@@ -352,8 +352,8 @@ def delta_matrix(
             if a is not None and b is not None:
                 delta[at] = a - b
             resampled = (distributions or {}).get((cell.vpr_method, cell.dataset))
-            interval = resampled and percentile_interval(resampled[proposed] - resampled[baseline])
-            significant[at] = bool(interval) and (interval[0] > 0 or interval[1] < 0)
+            adjusted = holm_against(resampled, proposed, [n for n in resampled if n != proposed]) if resampled else {}
+            significant[at] = adjusted.get(baseline, 1.0) <= 0.05
     return vpr_methods, datasets, delta, significant
 
 
@@ -395,8 +395,8 @@ def heatmap_spec(cells: Sequence, proposed: str, *, bootstrap: int = 0, seed: in
 
 def _marks_note(bootstrap: int, seed: int) -> str:
     return (
-        f"*: the 95 % interval of Δ excludes 0 (paired bootstrap over the cell's queries, {bootstrap} resamples, "
-        f"seed {seed}; not corrected for multiple comparisons)"
+        f"*: significant, as in Table 1: Holm-adjusted p <= 0.05 over the method's comparisons with every other "
+        f"method of its cell (paired bootstrap over the cell's queries, {bootstrap} resamples, seed {seed})"
         if bootstrap
         else "No significance marks (bootstrap = 0)"
     )
@@ -457,8 +457,8 @@ def plot_delta_heatmaps(
     cells: Sequence, out_dir: str | Path, *, width: str = "page", bootstrap: int = 0, seed: int = 0
 ) -> list[Path]:
     """Write ``delta_<RS|SD|SU>.png`` for each proposed method present with at least one baseline; ``width``
-    "page" (7.16 in) or "column" (3.5 in); with ``bootstrap`` resamples, a * after each Δ whose paired 95 %
-    interval excludes 0. Described by :func:`heatmap_spec`."""
+    "page" (7.16 in) or "column" (3.5 in); with ``bootstrap`` resamples, a * after each Δ significant by Table 1's
+    rule (:func:`delta_matrix`). Described by :func:`heatmap_spec`."""
     plt = pyplot()
     figure_width(width)
     out_dir = Path(out_dir)
@@ -491,7 +491,7 @@ def plot_delta_heatmaps(
                     axis.set_xticks(range(len(labels)), labels, rotation=30, ha="right")
                     axis.set_yticks(range(len(vpr_methods)), vpr_methods if position % columns == 0 else [])
                     axis.set_title(title)
-                label = "Δ AUC-PR" + ("   * 95 % interval excludes 0" if bootstrap else "")
+                label = "Δ AUC-PR" + ("   * Holm-adjusted p ≤ 0.05" if bootstrap else "")
                 figure.colorbar(image, ax=axes, shrink=0.8, label=label, location=_colour_bar_side(width))
                 figure.suptitle(_fitted(spec.what.split(" on ")[0], figure))
                 paths.append(_save(figure, out_dir / f"delta_{proposed}.png"))
