@@ -21,7 +21,7 @@ from vpr_uncertainty.calibration import calibrator as cal
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.calibration.guarantee import cuts_at_coverage, min_accepted
 from vpr_uncertainty.calibration.labels_file import MachineLabels, pool_fingerprint
-from vpr_uncertainty.calibration.sequential import SequentialStatus
+from vpr_uncertainty.calibration.sequential import Labelling, SequentialStatus
 
 __all__ = ["AuditCalibration"]
 
@@ -31,7 +31,7 @@ SLACK = 0.03
 START = 0.9
 
 
-class AuditCalibration:
+class AuditCalibration(Labelling):
     """Certify the rule machine labels chose by a random audit of at most ``audit_size`` labels a person gives.
 
     Parameters
@@ -141,15 +141,6 @@ class AuditCalibration:
             return None
         return int(self._order[self._draws[np.argmax(drawn < 0)]])
 
-    def add_label(self, query: int, correct: bool) -> SequentialStatus:
-        """Record a person's label of pool query ``query`` (labels of queries not drawn are kept, never read)."""
-        if isinstance(query, bool) or not 0 <= int(query) < self._labels.size:
-            raise ValueError(f"query must be a pool index in [0, {self._labels.size}), got {query!r}")
-        if self._labels[query] >= 0 and self._labels[query] != bool(correct):
-            raise ValueError(f"query {query} is labelled already ({bool(self._labels[query])}); labels are final")
-        self._labels[query] = bool(correct)
-        return self.status()
-
     def status(self) -> SequentialStatus:
         """Certified or not, and what the next decision needs: ``accepted`` and ``coverage`` are the pool queries
         the certified cut accepts, ``correct_accepted`` its audit draws labelled correct, ``rankings`` the ranking's
@@ -203,11 +194,9 @@ class AuditCalibration:
             labels = f"{', '.join(self.sources)} label {guess:.3f} of the {accepted.sum()} accepted correct"
             message = f"machine-labelled, not certified: {labels}; {message}"
         certificate = dict(certified=status.certified, machine_labelled=guess is not None, message=message)
-        info = dict(target_precision=self.target_precision, delta=self.delta, expected_coverage=float(accepted.mean()))
-        info.update(precision_lower_bound=status.precision_lower_bound, audit={"seed": self.seed, **status.to_dict()})
-        info["certificate"] = {**certificate, "estimated_precision": guess, "machine_labels": self.sources}
-        info["calibration"] = {"size": status.labelled, "min_candidates": self._least, "pool": self.fingerprint}
-        return Gate(calibrator, self.k, cut, info=info, rule=rule)
+        certificate |= {"estimated_precision": guess, "machine_labels": self.sources}
+        info = dict(expected_coverage=float(accepted.mean()), audit={"seed": self.seed, **status.to_dict()})
+        return self._gate(calibrator, cut, rule, status, certificate=certificate, **info)
 
 
 def _log_pmf(size: object, correct: object, drawn: object, wrong: object) -> np.ndarray:

@@ -31,6 +31,7 @@ from vpr_uncertainty._validation import check_k, check_top_k_scores
 from vpr_uncertainty.cache import write_text
 from vpr_uncertainty.calibration.calibrator import (
     FEATURES,
+    RANKINGS,
     Calibrator,
     aliasing_ratio,
     feature_matrix,
@@ -239,6 +240,19 @@ class Gate:
         return float(self.calibrator.probability_from_confidence(np.array([self.cut]))[0]) if same else None
 
     @property
+    def acceptance(self) -> str:
+        """The rule in the user's terms: an uncertainty and the direction it accepts (``accept when SU <= 0.9203``:
+        higher = more doubt), a similarity (BM: the top-1 score, the margin s1 - s2) or P(correct) (a fitted rule's
+        own model's at the cut, named when it is not the calibrator)."""
+        if math.isinf(self.cut):
+            return "accept nothing" if self.cut > 0 else "accept every query"
+        if (name := self.rule.ranking) in RANKINGS and self.rule == ranking_rule(name):  # exact: isotonic P has steps
+            sign = RANKINGS[name][1]
+            return f"accept when {name} {'<=' if sign < 0 else '>='} {sign * self.cut + 0.0:.4g}"
+        by = "" if self.threshold is not None else f" by the {name or 'rule'} model"
+        return f"accept when P(correct) >= {self.rule.probability_from_confidence(np.array([self.cut]))[0]:.4g}{by}"
+
+    @property
     def precision_lower_bound(self) -> float | None:
         return self.info.get("precision_lower_bound")
 
@@ -251,11 +265,10 @@ class Gate:
         return self.info.get("expected_coverage")
 
     def __repr__(self) -> str:
-        bound, threshold = self.precision_lower_bound, self.threshold
+        bound = self.precision_lower_bound
         return (
             f"Gate(model={self.calibrator.model!r}, features={list(self.calibrator.features)}, k={self.k}, "
-            f"rule={self.rule.ranking!r}, threshold={None if threshold is None else round(threshold, 4)}, "
-            f"precision_lower_bound={None if bound is None else round(bound, 4)})"
+            f"rule={self.acceptance!r}, precision_lower_bound={None if bound is None else round(bound, 4)})"
         )
 
     # --- JSON -----------------------------------------------------------------------------------------------------

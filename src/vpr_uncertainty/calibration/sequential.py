@@ -29,7 +29,7 @@ import numpy as np
 from scipy import stats
 
 from vpr_uncertainty._validation import check_top_k_scores
-from vpr_uncertainty.calibration.calibrator import RANKINGS, feature_columns, platt, ranking_rule
+from vpr_uncertainty.calibration.calibrator import RANKINGS, Calibrator, feature_columns, platt, ranking_rule
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.calibration.guarantee import (
     FALLBACK,
@@ -151,7 +151,31 @@ class _Chain:
         return 0.5 * (float(ranked[accepted - 1]) + float(below))
 
 
-class SequentialCalibration:
+class Labelling:
+    """What a labelling session shares: its labels (``_labels``, -1 unlabelled), ``add_label`` and what its gate
+    records, on the ``status()`` each session defines."""
+
+    _labels: np.ndarray
+
+    def add_label(self, query: int, correct: bool) -> SequentialStatus:
+        """Record whether the top-1 answer of pool query ``query`` is correct (labels are final; a label the session
+        did not ask for is kept, and read only where its tests read it); returns the new status."""
+        if isinstance(query, bool) or not 0 <= int(query) < self._labels.size:
+            raise ValueError(f"query must be a pool index in [0, {self._labels.size}), got {query!r}")
+        if self._labels[query] >= 0 and self._labels[query] != bool(correct):
+            raise ValueError(f"query {query} is labelled already ({bool(self._labels[query])}); labels are final")
+        self._labels[query] = bool(correct)
+        return self.status()
+
+    def _gate(self, calibrator: Calibrator, cut: float, rule: Calibrator, state: SequentialStatus, **info: Any) -> Gate:
+        """A gate recording p*, δ, the bound, the labels and the pool (``k``, ``_least``, ``fingerprint``), ``info``."""
+        calibration = {"size": state.labelled, "min_candidates": self._least, "pool": self.fingerprint}
+        info |= dict(target_precision=self.target_precision, delta=self.delta, calibration=calibration)
+        info["precision_lower_bound"] = state.precision_lower_bound
+        return Gate(calibrator, self.k, cut, info=info, rule=rule)
+
+
+class SequentialCalibration(Labelling):
     """Certify a precision target while labelling as few queries as possible, one label at a time.
 
     Parameters
@@ -223,15 +247,6 @@ class SequentialCalibration:
         unlabelled = np.flatnonzero(self._labels[chain.order] < 0)
         return int(chain.order[unlabelled[0]]) if unlabelled.size else None
 
-    def add_label(self, query: int, correct: bool) -> SequentialStatus:
-        """Record whether the top-1 answer of pool query ``query`` is correct; returns the new status."""
-        if isinstance(query, bool) or not 0 <= int(query) < self._labels.size:
-            raise ValueError(f"query must be a pool index in [0, {self._labels.size}), got {query!r}")
-        if self._labels[query] >= 0 and self._labels[query] != bool(correct):
-            raise ValueError(f"query {query} is labelled already ({bool(self._labels[query])}); labels are final")
-        self._labels[query] = bool(correct)
-        return self.status()
-
     def status(self) -> SequentialStatus:
         """Certified or not, by which ranking, and what the next test needs."""
         outcomes = {chain.name: chain.outcome(self._labels) for chain in self.chains}
@@ -294,12 +309,5 @@ class SequentialCalibration:
         calibrator = platt(
             status.ranking, feature, sign, self._features[feature][labelled], self._labels[labelled] == 1
         )
-        info = {
-            "target_precision": self.target_precision,
-            "delta": self.delta,
-            "precision_lower_bound": status.precision_lower_bound,
-            "expected_coverage": status.coverage,
-            "sequential": status.to_dict(),
-            "calibration": {"size": status.labelled, "min_candidates": self._least, "pool": self.fingerprint},
-        }
-        return Gate(calibrator, self.k, status.cut, info=info, rule=ranking_rule(status.ranking))
+        info = {"expected_coverage": status.coverage, "sequential": status.to_dict()}
+        return self._gate(calibrator, status.cut, ranking_rule(status.ranking), status, **info)

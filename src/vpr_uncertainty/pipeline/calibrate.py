@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import copy
+import os
 import re
 import warnings
 from pathlib import Path
@@ -115,6 +117,11 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "writes the certified gate, or a machine-labelled one before. --gt: labelled from the ground truth",
     )
     parser.add_argument("--audit-size", type=candidate_count, default=40, help="draws of the audit (default 40)")
+    parser.add_argument("--images", type=Path, metavar="DIR", help="--sequential, --audit: the dataset folder (query/ "
+                        "and ref/, as in verify): the query to label next is named by its image pair")  # fmt: skip
+    parser.add_argument("--contact-sheet", type=output_file, metavar="FILE.png", help="--sequential, --audit with "
+                        "--images: draw the next --sheet-size queries to label, each beside its top-1")  # fmt: skip
+    parser.add_argument("--sheet-size", type=candidate_count, default=8, help="pairs of --contact-sheet (default 8)")
     parser.add_argument("--plot", type=output_file, metavar="FILE", help="write the reliability diagram")
     add_figure_width_option(parser)
     parser.set_defaults(handler=_handle)
@@ -127,6 +134,9 @@ def _handle(args: argparse.Namespace) -> int:
 
     if args.plan and (args.sequential or args.audit or args.machine_labels):
         raise ValueError("--plan simulates labelling before it starts; --sequential and --audit label: use one")
+    if (args.contact_sheet and not args.images) or (args.images and not (args.sequential or args.audit)):
+        raise ValueError("--images DIR and --contact-sheet FILE show the queries to label (--sequential, --audit); "
+                         "--contact-sheet needs --images")  # fmt: skip
     if args.sequential is not None and args.audit is None:
         return _run_sequential(args)
     if args.audit is not None or args.machine_labels is not None:
@@ -174,13 +184,12 @@ def _handle(args: argparse.Namespace) -> int:
         f"Brier {brier_score(probability, correct):.3f} (held-out figures: evaluate --calibration-fraction)"
     )
     if args.target_precision is None:
-        print(f"threshold P >= {gate.threshold:.3f} (no target precision: nothing certified)")
+        print(f"{gate.acceptance} (no target precision: nothing certified)")
     else:
         print(gate.info["certificate"]["message"])
         if gate.precision_lower_bound is not None:
-            rule = f"{gate.rule.ranking} >= {gate.cut:.4g}" if gate.threshold is None else f"P >= {gate.threshold:.4f}"
             print(
-                f"accept {rule}; certified precision lower bound "
+                f"{gate.acceptance}; certified precision lower bound "
                 f"{gate.precision_lower_bound:.3f}; expected recall {gate.expected_recall:.3f}, "
                 f"coverage {gate.expected_coverage:.3f} (on the labelled queries)"
             )
@@ -216,14 +225,21 @@ def _explain_no_correct_answer(path: Path, retrieval: Retrieval) -> None:
         raise ValueError(f"{path}: no calibration query's top-1 answer is correct: {'; '.join(reasons)}{hint}")
 
 
-def _pool(args: argparse.Namespace) -> tuple[Retrieval, np.ndarray | None, str]:
-    """SCORES as a pool (read as `label` reads it), with --gt whether each top-1 is correct, and its description."""
+def _pool(args: argparse.Namespace) -> tuple[Retrieval, np.ndarray | None, str, tuple[list[Path], list[Path]] | None]:
+    """SCORES as a pool (read as `label` reads it), with --gt whether each top-1 is correct, its description and,
+    with --images, its image files (query i, database image j); an output that is an input is refused first."""
+    from vpr_uncertainty._files import refuse_shared_files
+    from vpr_uncertainty.data.images import retrieval_image_paths
     from vpr_uncertainty.evaluation import correct_at_n
 
+    inputs = {"SCORES": args.scores, "--machine-labels": args.machine_labels, "--gt": args.gt}
+    refuse_shared_files(inputs, {"--sequential": args.sequential, "--audit": args.audit, "--out": args.out,
+                                 "--contact-sheet": args.contact_sheet})  # fmt: skip
     with command_wording(ground_truth="--gt GT"):
         pool = read_pool(args.scores, ground_truth=args.gt, **_reading(args))
     truth = None if args.gt is None else correct_at_n(pool.indices, pool.positives, 1)
-    return pool, truth, f"{' '.join(str(args.scores).split())}: {pool.n_queries} queries, k={args.k}"
+    images = None if args.images is None else retrieval_image_paths(pool, images=args.images)
+    return pool, truth, f"{' '.join(str(args.scores).split())}: {pool.n_queries} queries, k={args.k}", images
 
 
 def _run_plan(args: argparse.Namespace, retrieval: Retrieval, unlabelled: np.ndarray | None) -> int:
@@ -262,7 +278,7 @@ def _run_sequential(args: argparse.Namespace) -> int:
 
     if args.target_precision is None:
         raise ValueError("--sequential needs --target-precision P: it labels until that precision is certified")
-    retrieval, truth, about = _pool(args)
+    retrieval, truth, about, images = _pool(args)
     scores, rankings = retrieval.scores, args.rankings or ("SU", "margin")
     session = SequentialCalibration(
         scores, target_precision=args.target_precision, delta=args.delta, k=args.k, rankings=rankings
@@ -288,28 +304,20 @@ def _run_sequential(args: argparse.Namespace) -> int:
         )
     status = session.status()
     print(f"{args.scores}: {status.labelled} of {len(scores)} queries labelled; {status.message}")
-    query = session.next_query()
-    if query is not None:
-        print(
-            f"label next: query {query} (append '{query},1' if its top-1 answer is correct, else '{query},0', to "
-            f"{args.sequential}, and rerun)"
-        )
+    _ask(args, session, retrieval, images, args.sequential)
     if status.certified and args.out is not None:
-        session.gate().save(args.out)
-        print(f"wrote {args.out}")
+        (gate := session.gate()).save(args.out)
+        print(f"{gate.acceptance}; wrote {args.out}")
     return 0
 
 
 def _run_audit(args: argparse.Namespace) -> int:
-    from vpr_uncertainty._files import refuse_shared_files
     from vpr_uncertainty.calibration.audit import AuditCalibration
     from vpr_uncertainty.calibration.labels_file import read_labels, read_machine_labels, write_labels
 
     if None in (args.machine_labels, args.audit, args.target_precision) or args.sequential or args.plan:
         raise ValueError("certify by audit: --machine-labels MACHINE.csv --audit AUDIT.csv --target-precision P")
-    inputs = {"SCORES": args.scores, "--machine-labels": args.machine_labels, "--gt": args.gt}
-    refuse_shared_files(inputs, {"--audit": args.audit})
-    retrieval, truth, about = _pool(args)
+    retrieval, truth, about, images = _pool(args)
     n, pool = retrieval.n_queries, pool_fingerprint(retrieval.scores, args.k)
     machine = read_machine_labels(args.machine_labels, n_queries=n, pool=pool, about=about)
     options = dict(delta=args.delta, k=args.k, seed=args.seed, audit_size=args.audit_size)
@@ -333,13 +341,45 @@ def _run_audit(args: argparse.Namespace) -> int:
         write_labels(args.audit, read, new, pool=pool, about=about)
     status, gt = session.status(), f" (labelled from {args.gt}: a simulation)" if truth is not None else ""
     print(f"{args.scores}: {status.labelled} of the audit's {args.audit_size} draws labelled{gt}; {status.message}")
-    if (query := session.next_query()) is not None:
-        queries, images = retrieval.query_names, retrieval.database_names
-        top = None if images is None else images[retrieval.indices[query, 0]]
-        pair = "" if queries is None or top is None else f" ({queries[query]} -> {top})"
-        answer = f"append '{query},1' if its top-1 answer is correct, else '{query},0', to {args.audit}, and rerun"
-        print(f"label next: query {query}{pair} ({answer})")
+    _ask(args, session, retrieval, images, args.audit)
     if args.out is not None:
         (gate := session.gate()).save(args.out)
-        print(f"{'' if status.certified else gate.info['certificate']['message'] + '; '}wrote {args.out}")
+        certificate = "" if status.certified else gate.info["certificate"]["message"] + "; "
+        print(f"{certificate}{gate.acceptance}; wrote {args.out}")
     return 0
+
+
+def _ask(args: argparse.Namespace, session: Any, retrieval: Retrieval, images: Any, labels: Path) -> None:
+    """Print the query to label next, named by its image pair where known (the files of --images, else the
+    results' image names), and draw --contact-sheet: the next --sheet-size pairs (query | top-1), in that order."""
+    probe, queries = copy.deepcopy(session), []  # the next ones if each is labelled correct
+    while len(queries) < (args.sheet_size if args.contact_sheet else 1) and (query := probe.next_query()) is not None:
+        queries.append(query)
+        probe.add_label(query, True)
+    if not queries:
+        return print(f"no query is left to label: {args.contact_sheet} not written") if args.contact_sheet else None
+    shown = [[os.path.relpath(path, args.images) for path in side] for side in images] if images else None
+    names = shown or (retrieval.query_names, retrieval.database_names)
+    query, top = queries[0], retrieval.indices[queries[0], 0]
+    pair = "" if names[0] is None or names[1] is None else f" ({names[0][query]} -> {names[1][top]})"
+    answer = f"append '{query},1' if its top-1 answer is correct, else '{query},0', to {labels}, and rerun"
+    print(f"label next: query {query}{pair} ({answer})")
+    if not pair:
+        print("note: the results name no image files: --images DIR (the dataset folder) shows the pair to label")
+    if not args.contact_sheet:
+        return None
+    from vpr_uncertainty.cache import write_figure
+    from vpr_uncertainty.reports.style import pyplot
+
+    plt = pyplot()
+    figure, axes = plt.subplots(len(queries), 2, figsize=(6, 2.4 * len(queries)), squeeze=False, layout="constrained")
+    for row, query, top in zip(axes, queries, retrieval.indices[queries, 0], strict=True):
+        row[0].set_title(f"query {query}\n{names[0][query]}")
+        row[1].set_title(f"its top-1, similarity {retrieval.scores[query, 0]:.3f}\n{names[1][top]}")
+        for axis, file in zip(row, (images[0][query], images[1][top]), strict=True):
+            axis.imshow(plt.imread(file), cmap="gray")
+            axis.set(xticks=[], yticks=[])
+    figure.suptitle(f"the next {len(queries)} queries to label, in order (a wrong answer may change it)")
+    write_figure(figure, args.contact_sheet, dpi=150)
+    plt.close(figure)
+    return print(f"wrote {args.contact_sheet}: the next {len(queries)} queries to label, each beside its top-1")

@@ -137,8 +137,9 @@ def main(
     log(
         f"kept {int(accepted.sum())} of {len(scored)} scored loop closures"
         + (f", {what} {len(unscored)} loop closures without a score row" if unscored else "")
-        + f" and {sum(p not in scored and p not in unscored for p in pairs)} odometry edges ({seconds:.2f} s); "
-        f"wrote {out}"
+        + f" and {sum(p not in scored and p not in unscored for p in pairs)} odometry edges ({seconds:.2f} s"
+        + (f"; the gate: {the_gate.acceptance}" if gate is not None else "")
+        + f"); wrote {out}"
     )
     if others := {tag: n for tag, n in graph_file.other_tags.items() if tag != "#"}:
         described = ", ".join(f"{tag} ×{n}" for tag, n in others.items())
