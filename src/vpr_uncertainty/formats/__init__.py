@@ -1,13 +1,7 @@
-"""What users bring, read in one room: one module per external format, each with a cheap ``sniff(path) -> bool``
-and a ``read(path, ...)`` returning the toolkit's types, and the one dispatch of results formats (:func:`read_results`):
-:mod:`.matrix` (similarity or distance matrices ``.npy``, VPR-Bench's precomputed matches, descriptor files),
-:mod:`.hloc` (HDF5 global descriptors), :mod:`.vpr_methods_evaluation` (log folders), :mod:`.ground_truth`
-(``.npy`` masks and VPR-Bench's, ``.npz``, ``.json``, text) and :mod:`.per_query` (``evaluate --per-query`` tables).
-
-Each reader refuses what is not a regular file (a FIFO or device, :mod:`vpr_uncertainty._files`), HDF5 links or
-storage outside the file (:func:`vpr_uncertainty.cache.hard_links`) and code in ``.npy`` files. The toolkit's own
-artefacts (retrieval ``.npz``, descriptor cache) stay with the cache; dataset formats (``load_dataset``) are another
-registry, :data:`vpr_uncertainty.data.formats.DATASET_FORMAT_REGISTRY`.
+"""What users bring, read in one room: one module per external format (:mod:`.matrix`, :mod:`.hloc`,
+:mod:`.vpr_methods_evaluation`, :mod:`.ground_truth`, :mod:`.per_query`), each with a cheap ``sniff(path) -> bool`` and
+a ``read(path, ...)`` returning the toolkit's types, and the one dispatch of results formats (:func:`read_results`).
+What each module reads, and what every reader refuses: see docs/explanation/architecture.md.
 """
 
 from __future__ import annotations
