@@ -336,8 +336,7 @@ class GeometricVerifier:
         download: bool = True,
         **options: Any,
     ) -> GeometricVerifier:
-        """A verifier for a registered preset (:data:`GV_PRESETS`); ``options``
-        go to :class:`GeometricVerifier`.
+        """A verifier for a registered preset (:data:`GV_PRESETS`); ``options`` go to :class:`GeometricVerifier`.
 
         ``superpoint_weights`` / ``matcher_weights`` are local paths of the official SuperPoint and SuperGlue /
         LightGlue weights (GV-SP-SG, GV-SP-LG); without them the files are looked up or downloaded.
@@ -664,9 +663,8 @@ def _preset_method(name: str, function_name: str) -> Callable[..., np.ndarray]:
     ``cache_dir`` (HDF5 feature caches; none by default), ``max_side`` (working resolution, default
     {DEFAULT_MAX_SIDE}), ``workers`` (threads; default the CPU cores up to 8), ``device`` ("cpu" or "cuda"),
     ``seed`` (RANSAC), ``superpoint_weights`` / ``matcher_weights`` (local weight files, GV-SP-* only),
-    ``executor`` (where the pairs are matched and verified: a
-    :func:`~vpr_uncertainty.executors.get_executor` executor; default this process; the local features are
-    extracted and cached once per image in this process either way; the inliers are the same).
+    ``executor`` (a :func:`~vpr_uncertainty.executors.get_executor` executor that matches and verifies the pairs,
+    with the same inliers: docs/explanation/geometric-verification.md; default this process).
     """
     return method
 
