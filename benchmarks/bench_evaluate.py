@@ -15,7 +15,7 @@ fit in K, and per method AUC-PR (``sklearn.metrics.precision_recall_curve`` + ``
 (``average_precision_score``), the rejection curve (precision, recall, coverage at each distinct uncertainty), AURC,
 recall at 100 % precision, precision at recall 0.25/0.5/0.75 and the number of distinct / tied uncertainty values.
 The two agree to the tolerance policy (float32 scores: 1e-5 relative) or the run stops.
-Target (issue 22): toolkit / reference <= 1.5 at Q = 1e6.
+Targets: toolkit / reference <= 1.5 at Q = 1e6 (issue 22), <= 1.0 (issue 45).
 """
 
 from __future__ import annotations
@@ -95,16 +95,15 @@ def reference(retrieval: Retrieval) -> dict[str, object]:
     scores, indices, positives = retrieval.scores, retrieval.indices, retrieval.positives
     top = scores[:, :K]
     n = top.shape[1]
-    # SU = (0.5 mean(s_2..s_n) + 0.5 median) / s_1 as one weighted sum of the sorted columns, in the scores' dtype
-    # and in the toolkit's arithmetic (one product with the weights and with e_1), so float32 rounds alike and the
-    # tie groups of the curves match.
-    weights = np.zeros((2, n), dtype=top.dtype)
-    weights[0, 1:] += 0.5 / (n - 1)
-    weights[0, (n - 1) // 2] += 0.25
-    weights[0, n // 2] += 0.25
-    weights[1, 0] = 1
-    sums = weights @ top.T
-    uncertainties = {"SU": sums[0] / sums[1], "BM": -top[:, 0]}
+    # SU = (0.5 mean(s_2..s_n) + 0.5 median) / s_1 in the toolkit's arithmetic (float64, s_2 + s_3 + ... left to
+    # right, then the weights, then / s_1, rounded to the scores' dtype), so float32 rounds alike and the tie groups
+    # of the curves match.
+    columns = top.T.astype(np.float64)
+    total = columns[1].copy()
+    for j in range(2, n):
+        total += columns[j]
+    su = (0.5 / (n - 1) * total + 0.25 * (columns[(n - 1) // 2] + columns[n // 2])) / columns[0]
+    uncertainties = {"SU": su.astype(top.dtype), "BM": -top[:, 0]}
     answerable = np.diff(positives.indptr) > 0
     n_answerable = int(answerable.sum())
     hits = np.asarray(positives[np.repeat(np.arange(len(indices)), n), indices[:, :n].ravel()]).reshape(-1, n)

@@ -21,7 +21,6 @@ from vpr_uncertainty._validation import (
     check_fraction,
     check_k,
     check_rows,
-    check_top_k_scores,
     raise_for_short_rows,
     scan,
 )
@@ -38,27 +37,25 @@ def check_alpha(alpha: object, *, name: str = "alpha") -> float:
     return check_fraction(alpha, name)
 
 
-def _ratio_values(top: np.ndarray, rs_weight: float, sd_weight: float) -> np.ndarray:
-    """(rs_weight·mean(s_2..s_n) + sd_weight·median(s_1..s_n)) / s_1 of each sorted row of ``top`` (R, n), in float64
-    (or wider); not finite for a row with ±inf or s_1 <= 0.
+def _ratio_values(top: np.ndarray, rs_weight: float, sd_weight: float, out: np.ndarray, columns=None) -> np.ndarray:
+    """Write (rs_weight·mean(s_2..s_n) + sd_weight·median(s_1..s_n)) / s_1 of each sorted row of ``top`` (R, n) into
+    ``out`` (R,) and return it: computed in float64 (or wider), rounded once to ``out``'s dtype.
 
     In the numba kernels' order of operations (:mod:`vpr_uncertainty._fast_kernel`), so that both paths give the same
     bits, and so the same ties: s_2 + s_3 + ... left to right, then (rs_weight / (n − 1))·sum + (sd_weight / 2)·(the
-    middle two), divided by s_1. Each column is made contiguous once (a transposed copy), as numpy is slow on strides.
+    middle two), divided by s_1. ``columns`` (n + 1, >= R), a buffer reused between calls, receives the columns
+    transposed (contiguous: numpy is slow on strides) and a row of scratch.
     """
-    n = top.shape[1]
-    columns = np.empty((n, top.shape[0]), dtype=np.result_type(top.dtype, np.float64))
-    np.copyto(columns, top.T)
-    middle = columns[(n - 1) // 2] + columns[n // 2]
+    n, m = top.shape[1], top.shape[0]
+    columns = np.empty((n + 1, m), np.result_type(top.dtype, np.float64)) if columns is None else columns[:, :m]
+    np.copyto(columns[:n], top.T)
+    middle = np.add(columns[(n - 1) // 2], columns[n // 2], out=columns[n])
+    middle *= sd_weight * 0.5
     total = columns[1]  # summed in place: the middle columns are read already
     for j in range(2, n):
         total += columns[j]
     total *= rs_weight / (n - 1)
-    middle *= sd_weight * 0.5
-    total += middle
-    best = columns[0]
-    total /= np.where((best > 0) & (best < np.inf), best, np.nan)  # NaN flags s_1 <= 0 and +inf for a closer look
-    return total
+    return np.divide(np.add(total, middle, out=total), columns[0], out=out)
 
 
 def _check_policy(on_nonpositive: str) -> None:
@@ -92,44 +89,50 @@ def _ratio_metric(
     fast = _fast.ratio_metric(scores, n, rs_weight, sd_weight, on_nonpositive == "most_uncertain")
     if fast is not None:
         return fast
+    dtype = np.result_type(scores.dtype, np.float64)
+    buffer: list[np.ndarray] = []  # the columns of the first (largest) block, reused for the others
 
-    def compute(block: np.ndarray, out: np.ndarray) -> None:  # rows with ±inf or s_1 <= 0 are redone below
-        out[:] = _ratio_values(block[:, :n], rs_weight, sd_weight)
+    def compute(block: np.ndarray, out: np.ndarray) -> np.ndarray:
+        if not buffer:
+            buffer.append(np.empty((n + 1, len(block)), dtype))
+        _ratio_values(block[:, :n], rs_weight, sd_weight, out, buffer[0])
+        return buffer[0][0, : len(block)]  # s_1: its extremes flag +inf and s_1 <= 0
 
-    values = scan(scores, compute, np.result_type(scores.dtype, np.float64))[0]
-    best, unusual = scores[:, 0], np.flatnonzero(~np.isfinite(values))
-    if unusual.size:
+    values, low, high = scan(scores, compute)
+    best = scores[:, 0]
+    if high == _INF:
         check_best_scores(best)
-        top = scores[unusual, :n]
-        n_candidates = np.isfinite(top).sum(axis=1)  # rows with missing candidates (-inf): scored on those they have
-        if (n_candidates < 2).any():
-            every_row = np.full(n_queries, n)
-            every_row[unusual] = n_candidates
-            raise_for_short_rows(every_row)
-        first = top[:, 0].astype(values.dtype)
-        nonpositive = first <= 0
-        if nonpositive.any() and on_nonpositive == "raise":
-            row = int(unusual[nonpositive][0])
-            raise ValueError(
-                f"scores has {int(nonpositive.sum())} row(s) whose best similarity is <= 0 (first: row {row}, "
-                f"s_1 = {float(best[row]):g}); the ratios s_i / s_1 need s_1 > 0. Use on_nonpositive='most_uncertain' "
-                "to rank such queries as the most uncertain"
-            )
-        with np.errstate(all="ignore"):  # overflow is reported below
-            for count in np.unique(n_candidates):
-                group = top[n_candidates == count, :count]
-                # the ratios are those of the row scaled by a power of two, exactly: s_1 in [0.5, 1) sums no overflow
-                group = np.ldexp(group, -np.frexp(group[:, :1])[1])
-                values[unusual[n_candidates == count]] = _ratio_values(group, rs_weight, sd_weight)
-            values[unusual[nonpositive]] = 1.0 - first[nonpositive]
-    with np.errstate(over="ignore"):
-        result = values.astype(scores.dtype)
-    if not np.isfinite(result).all():
-        row = int(np.flatnonzero(~np.isfinite(result))[0])
+    if low > 0 and np.isfinite(values).all():  # the common case: no row to redo
+        return values
+    unusual = np.flatnonzero(~np.isfinite(values) | (best <= 0))  # missing candidates, s_1 <= 0 or overflow
+    top = scores[unusual, :n]
+    n_candidates = np.isfinite(top).sum(axis=1)  # rows with missing candidates (-inf): scored on those they have
+    if (n_candidates < 2).any():
+        every_row = np.full(n_queries, n)
+        every_row[unusual] = n_candidates
+        raise_for_short_rows(every_row)
+    first = top[:, 0].astype(dtype)
+    nonpositive = first <= 0
+    if nonpositive.any() and on_nonpositive == "raise":
+        row = int(unusual[nonpositive][0])
         raise ValueError(
-            f"scores overflow {result.dtype} in row {row} (s_1 = {float(best[row]):g}); cast the scores to float64"
+            f"scores has {int(nonpositive.sum())} row(s) whose best similarity is <= 0 (first: row {row}, "
+            f"s_1 = {float(best[row]):g}); the ratios s_i / s_1 need s_1 > 0. Use on_nonpositive='most_uncertain' "
+            "to rank such queries as the most uncertain"
         )
-    return result
+    with np.errstate(all="ignore"):  # overflow is reported below
+        for count in np.unique(n_candidates):
+            rows = unusual[n_candidates == count]
+            # the ratios are those of the row scaled by a power of two, exactly: s_1 in [0.5, 1) sums no overflow
+            group = np.ldexp(top[n_candidates == count, :count], -np.frexp(top[n_candidates == count, :1])[1])
+            values[rows] = _ratio_values(group, rs_weight, sd_weight, np.empty(len(rows), dtype))  # rounded once
+        values[unusual[nonpositive]] = 1.0 - first[nonpositive]
+    if not np.isfinite(values).all():
+        row = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise ValueError(
+            f"scores overflow {values.dtype} in row {row} (s_1 = {float(best[row]):g}); cast the scores to float64"
+        )
+    return values
 
 
 def ratio_spread(
@@ -433,76 +436,50 @@ def _top_distances(scores: np.ndarray, distances: object, n: int, method: str, s
     return np.sqrt(squared)
 
 
-def _prepare(scores: object, k: object, sort: bool, columns: int) -> np.ndarray:
-    """The reference validation of the baselines: every row sorted, NaN-free, its first ``columns`` finite."""
+def _baseline(scores: object, k: object, sort: bool, columns: int, formula, **options) -> np.ndarray:
+    """``formula(top, out)`` of every row into ``out`` (Q,): ``top`` the first ``columns`` similarities or, for L2 and
+    PA (``method`` in ``options``), their distances d (not squared), from ``distances`` or from d² = 2 − 2s.
+
+    Fast first, without ``distances``: the numba kernel ``kernel`` (:func:`vpr_uncertainty._fast.two_column`), else
+    one pass over the scores (:func:`~vpr_uncertainty._validation.scan`) that checks the order and computes each
+    block in cache. That result is returned only if it is finite and the values 2 − 2s read are clearly those of
+    cosine similarities (a margin of half :data:`COSINE_TOLERANCE` inside the accepted range, so that rounding never
+    lets through what the reference rejects). Otherwise (±inf, a short row, a range error, values at the edge of
+    the range, or nothing wrong but an overflow) the reference: every row validated, raising its message.
+    """
+    method, distances, kernel = options.get("method"), options.get("distances"), options.get("kernel")
     check_k(k)
-    scores = check_top_k_scores(scores, sort=sort)
+    scores = as_score_array(scores, sort=sort)
+    if distances is None and scores.shape[0] and scores.shape[1] >= max(columns, 2):
+        fast = None if kernel is None else _fast.two_column(kernel, scores, COSINE_TOLERANCE)
+        if fast is not None:
+            return fast
+
+        def compute(block: np.ndarray, out: np.ndarray) -> np.ndarray | None:
+            if method is None:
+                formula(block, out)
+                return None
+            squared = np.multiply(block[:, :columns].T, -2, out=np.empty((columns, len(block)), block.dtype))
+            squared += 2  # 2 - 2s, each column contiguous (numpy is slow on rows of 2)
+            formula(np.sqrt(np.maximum(squared, 0)).T, out)
+            return squared
+
+        out, low, high = scan(scores, compute)
+        if (low > high or -COSINE_TOLERANCE <= low <= high <= 4 + COSINE_TOLERANCE) and np.isfinite(out).all():
+            return out
+    check_rows(scores)  # the reference
     if scores.shape[0] and scores.shape[1] < columns:
         raise ValueError(f"scores must have at least {columns} columns, got shape {scores.shape}")
     if scores.shape[0] and not np.isfinite(scores[:, :columns]).all():
         raise_for_short_rows(np.isfinite(scores[:, :columns]).sum(axis=1), needed=columns)
-    return scores
-
-
-def _baseline(scores: object, k: object, sort: bool, columns: int, reference, compute=None, kernel=None) -> np.ndarray:
-    """A baseline's result: from the fused pass (:func:`_fused_baseline`, with ``compute``) when it gives one, else
-    ``reference(top)`` of the scores that :func:`_prepare` validated."""
-    fast = None if compute is None else _fused_baseline(scores, k, sort, columns, compute, kernel)
-    return fast if fast is not None else reference(_prepare(scores, k, sort, columns))
-
-
-def _fused_baseline(
-    scores: object, k: object, sort: bool, columns: int, compute, kernel: str | None
-) -> np.ndarray | None:
-    """A baseline's result in one pass over the scores (:func:`~vpr_uncertainty._validation.scan`), or None (reference).
-
-    ``compute(block, out_block)`` writes the result of a block of sorted, NaN-free rows and returns None or, for
-    the baselines that convert similarities to distances, the values 2 − 2s of the columns it read. The result is
-    returned only if it is finite and those values are clearly those of cosine similarities (a margin of half
-    :data:`COSINE_TOLERANCE` inside the accepted range, so that rounding never lets through what the reference
-    rejects); otherwise (±inf, a short row, a range error, values at the edge of the range, or nothing wrong but an
-    overflow) None sends the caller to the reference path, which raises its message or returns what it always
-    returned. ``kernel`` names the numba kernel (:func:`vpr_uncertainty._fast.two_column`) tried first, which gives
-    up on the same inputs (the same range of the squared distances).
-    """
-    check_k(k)
-    scores = as_score_array(scores, sort=sort)
-    if scores.shape[0] == 0 or scores.shape[1] < max(columns, 2):
-        return None
-    if kernel is not None:
-        fast = _fast.two_column(kernel, scores, COSINE_TOLERANCE)
-        if fast is not None:
-            return fast
-    out, low, high = scan(scores, compute)
-    if low <= high and not (-COSINE_TOLERANCE <= low and high <= 4 + COSINE_TOLERANCE):  # s in [-1, 1] ± tol / 2
-        return None
-    return out if np.isfinite(out).all() else None
-
-
-def _negated_first(block: np.ndarray, out: np.ndarray) -> None:
-    np.negative(block[:, 0], out=out)
-
-
-def _distance_first(block: np.ndarray, out: np.ndarray) -> np.ndarray:
-    squared = 2 - 2 * block[:, 0]
-    np.sqrt(np.maximum(squared, 0), out=out)
-    return squared
-
-
-def _distance_ratio(block: np.ndarray, out: np.ndarray) -> np.ndarray:
-    squared = 2 - 2 * block[:, :2]
-    _first_over_second(np.sqrt(np.maximum(squared, 0)), out)
-    return squared
+    top = scores if method is None else _top_distances(scores, distances, columns, method, sort)
+    return formula(top, np.empty(len(scores), dtype=scores.dtype))
 
 
 def _first_over_second(top2: np.ndarray, out: np.ndarray) -> np.ndarray:
     """d_1 / d_2 of each row of ``top2`` into ``out``; 1 where d_2 = 0 (two candidates at distance 0)."""
     out[:] = 1
     return np.divide(top2[:, 0], top2[:, 1], out=out, where=top2[:, 1] != 0)
-
-
-def _difference_of_first_two(block: np.ndarray, out: np.ndarray) -> None:
-    np.subtract(block[:, 1], block[:, 0], out=out)
 
 
 def best_match(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
@@ -527,7 +504,7 @@ def best_match(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray
     >>> best_match(np.array([[0.8, 0.4], [0.3, 0.1]]))
     array([-0.8, -0.3])
     """
-    return _baseline(scores, k, sort, 1, lambda top: -top[:, 0], _negated_first)
+    return _baseline(scores, k, sort, 1, lambda top, out: np.negative(top[:, 0], out=out))
 
 
 def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
@@ -556,11 +533,9 @@ def l2_distance(scores: object, k: int = 10, *, distances: object = None, sort: 
     >>> l2_distance(np.array([[0.5, 0.0]]))
     array([1.])
     """
-
-    def reference(top: np.ndarray) -> np.ndarray:
-        return _top_distances(top, distances, 1, "L2", sort)[:, 0]
-
-    return _baseline(scores, k, sort, 1, reference, _distance_first if distances is None else None)
+    return _baseline(
+        scores, k, sort, 1, lambda top, out: np.positive(top[:, 0], out=out), method="L2", distances=distances
+    )
 
 
 def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None, sort: bool = False) -> np.ndarray:
@@ -590,12 +565,7 @@ def perceptual_aliasing(scores: object, k: int = 10, *, distances: object = None
     >>> perceptual_aliasing(np.array([[0.5, -1.0], [1.0, 1.0]]))
     array([0.5, 1. ])
     """
-
-    def reference(top: np.ndarray) -> np.ndarray:
-        top2 = _top_distances(top, distances, 2, "PA", sort)
-        return _first_over_second(top2, np.empty_like(top2[:, 0]))
-
-    return _baseline(scores, k, sort, 2, reference, _distance_ratio if distances is None else None, "PA")
+    return _baseline(scores, k, sort, 2, _first_over_second, method="PA", distances=distances, kernel="PA")
 
 
 def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
@@ -620,7 +590,7 @@ def margin(scores: object, k: int = 10, *, sort: bool = False) -> np.ndarray:
     >>> margin(np.array([[0.9, 0.5], [0.6, 0.6]]))
     array([-0.4,  0. ])
     """
-    return _baseline(scores, k, sort, 2, lambda top: top[:, 1] - top[:, 0], _difference_of_first_two, "margin")
+    return _baseline(scores, k, sort, 2, lambda top, out: np.subtract(top[:, 1], top[:, 0], out=out), kernel="margin")
 
 
 #: α of a row whose runners-up have no spread (or a single runner-up): the paper's default.
