@@ -205,6 +205,10 @@ TURNED = {
 }
 
 
+#: The kind each turned matrix is told to be read as (retrieval.result.distance_kind_hint).
+KIND = {"negated": "distance (values in [", "one minus": "l2-distance (of unit-norm", "L2 distance": "l2-distance (of"}
+
+
 @pytest.mark.parametrize("turn", list(TURNED))
 def test_each_corridor_matrix_turned_into_distances_gets_the_notice(turn, corridor_dir, corridor_matches_dir, tmp_path):
     from vpr_uncertainty.data import read_results
@@ -218,7 +222,9 @@ def test_each_corridor_matrix_turned_into_distances_gets_the_notice(turn, corrid
             evaluation = evaluate(retrieval, ["BM"], timing_repeats=1)
         assert len([w for w in caught if "backwards" in str(w.message)]) == 1
         (note,) = _backwards_notes(evaluation)
-        assert "read as similarities" in note and note.endswith("read them as distances: --scores distance"), path
+        advice = note.split("read them as distances (--scores, or score_kind in a reproduce config): ")[1]
+        # negated similarities are negative: no distance of unit-norm descriptors; the others lie in [0, 2]
+        assert "read as similarities" in note and advice.startswith(KIND[turn]), (path, advice)
 
 
 def test_the_command_line_suggests_scores_distance_once(corridor_dir, corridor_matches_dir, tmp_path, capsys):
@@ -234,7 +240,7 @@ def test_the_command_line_suggests_scores_distance_once(corridor_dir, corridor_m
             )
             == 0
         )
-    assert len([w for w in caught if "--scores distance" in str(w.message)]) == 1
+    assert len([w for w in caught if "read them as distances (--scores" in str(w.message)]) == 1
     assert len(_backwards_notes(SimpleNamespace(**json.loads((tmp_path / "r.json").read_text())))) == 1
     # read as distances, as suggested: no notice, and the numbers of the similarity matrix
     with warnings.catch_warnings():

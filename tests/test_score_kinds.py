@@ -155,7 +155,8 @@ def test_calibrate_on_distances_read_as_similarities_says_so_and_names_the_kind(
     assert main(argv) == 2
     error = capsys.readouterr().err
     assert "the scores rank the ground truth backwards: read as similarities" in error  # evaluate's notice
-    assert "label more queries" not in error and "--scores l2-distance" in error and error.count("\n") == 1
+    assert "label more queries" not in error and error.count("\n") == 1
+    assert "read them as distances (--scores, or score_kind in a reproduce config): l2-distance (" in error
     squared = "above 2: squared L2 distances" in error  # 2 - 2s reaches 3.25 here; plain ones stay in [0, 2]
     assert squared == (distances == "l2sq.npy") and ("l2-distance:plain" in error) == (not squared)
     kind = "l2-distance" if distances == "l2sq.npy" else "l2-distance:plain"

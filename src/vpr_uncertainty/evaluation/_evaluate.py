@@ -40,6 +40,7 @@ from vpr_uncertainty.methods import (
     get_method,
 )
 from vpr_uncertainty.retrieval import Retrieval
+from vpr_uncertainty.retrieval.result import distance_kind_hint
 
 RECALL_LEVELS: tuple[float, ...] = (0.25, 0.5, 0.75)
 #: Seconds of calls after which the timings stop repeating a call.
@@ -291,7 +292,8 @@ def _direction_note(retrieval: Retrieval, top_1_correct: float) -> str | None:
     above, below = (int(count) for count in counts)
     if below - above < 3 * np.sqrt(above + below) or below == 0:
         return None
-    reading, advice = ("similarities", "if lower means more similar, read them as distances: --scores distance")
+    reading, advice = "similarities", "if lower means more similar, read them as distances (--scores, or score_kind "
+    advice += f"in a reproduce config): {distance_kind_hint(retrieval.scores)}"
     if retrieval.score_kind == "distance" or "score_conversion" in retrieval.config:
         reading, advice = "distances (--scores)", "if higher means more similar, drop --scores"
     return (

@@ -208,9 +208,8 @@ def _reading(args: argparse.Namespace) -> dict[str, Any]:
 
 def _explain_no_correct_answer(path: Path, retrieval: Retrieval) -> None:
     """When no labelled top-1 answer is correct, a ValueError with the evaluation's notes on why (distances read as
-    similarities: the scores rank the ground truth backwards) and the kind such distances would be."""
+    similarities: the scores rank the ground truth backwards, and the kind such distances would be)."""
     from vpr_uncertainty.evaluation import correct_at_n, evaluate
-    from vpr_uncertainty.retrieval.result import distance_kind_hint
 
     correct = None if retrieval.positives is None else correct_at_n(retrieval.indices, retrieval.positives)
     if correct is None or not correct.size or correct.any():
@@ -220,9 +219,7 @@ def _explain_no_correct_answer(path: Path, retrieval: Retrieval) -> None:
         notes = evaluate(retrieval, methods=["BM"], k=2).notes
     undefined = {str(warning.message) for warning in caught if issubclass(warning.category, RuntimeWarning)}
     if reasons := [note for note in notes if note not in undefined]:  # not "AUC-PR is undefined": none is computed
-        read = retrieval.score_kind == "similarity" and "score_conversion" not in retrieval.config
-        hint = distance_kind_hint(retrieval.scores) if read else ""
-        raise ValueError(f"{path}: no calibration query's top-1 answer is correct: {'; '.join(reasons)}{hint}")
+        raise ValueError(f"{path}: no calibration query's top-1 answer is correct: {'; '.join(reasons)}")
 
 
 def _pool(args: argparse.Namespace) -> tuple[Retrieval, np.ndarray | None, str, tuple[list[Path], list[Path]] | None]:

@@ -27,8 +27,8 @@ _UNIT_TOLERANCE = 1e-3  # rounding of distances between unit-norm descriptors (F
 
 
 def distance_kind_hint(values: np.ndarray) -> str:
-    """``"; if these are distances: --scores KIND (why)"`` for scores ``values`` (Q, K) read as similarities (a matrix's
-    largest values), from their range as :meth:`Retrieval.from_distances` reads the kinds."""
+    """``"KIND (why)"``, the ``--scores`` kind that scores ``values`` (Q, K) read as similarities (a matrix's largest
+    values) would be if they are distances, from their range as :meth:`Retrieval.from_distances` reads the kinds."""
     finite = np.asarray(values, dtype=np.float64)[np.isfinite(values)]
     low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
     if low < -_UNIT_TOLERANCE or high > 4 + _UNIT_TOLERANCE:
@@ -38,7 +38,7 @@ def distance_kind_hint(values: np.ndarray) -> str:
     else:  # squared and plain L2 distances, and cosine distances, all lie in [0, 2] here
         kind = "l2-distance (of unit-norm descriptors; values in [0, 2] do not tell squared, as Faiss returns them, "
         kind += "from plain: say l2-distance:plain), cosine-distance (1 - cos) or distance (any other)"
-    return f"; if these are distances: --scores {kind}"
+    return kind
 
 
 @dataclass(repr=False)
