@@ -50,12 +50,35 @@ def _retrieval(n_queries: int = 60) -> Retrieval:
 def test_a_bootstrap_too_small_for_holm_says_so_with_the_size_that_would_allow_it():
     # smallest paired p = 2 / (B + 1); Holm over m comparisons multiplies it by m: 6 × 2/201 = 0.0597 > 0.05
     assert significance_notice(200, 6) == (
-        "no difference can be significant with B = 200 resamples over 6 comparisons; use B ≥ 239"
+        "no difference can be significant with B = 200 resamples over 6 comparisons; use B >= 239"
     )
     assert 6 * 2 / (239 + 1) <= 0.05 < 6 * 2 / (238 + 1)  # 239 is the smallest that allows it
     assert significance_notice(239, 6) is None and significance_notice(200, 5) is None  # 5 × 2/201 = 0.0498
-    assert significance_notice(200, 10).endswith("use B ≥ 399")
+    assert significance_notice(200, 10).endswith("use B >= 399")
     seven = evaluate(_retrieval(), METHODS, bootstrap=200, seed=0, timing_repeats=1)
     assert [note for note in seven.notes if "no difference can be significant" in note] == [significance_notice(200, 6)]
     six = evaluate(_retrieval(), METHODS[:6], bootstrap=200, seed=0, timing_repeats=1)
     assert not any("no difference can be significant" in note for note in six.notes)
+
+
+def test_table1_and_compare_state_the_rule_and_the_notice():
+    """Table 1 said "Holm-corrected at 0.05" and bolded tied leaders where no difference could be significant, without
+    a word; ``compare`` gave Holm p-values without saying what is called significant, nor that B = 40 over 5 methods
+    leaves nothing significant."""
+    from vpr_uncertainty.evaluation.compare import compare
+    from vpr_uncertainty.reports.latex import latex_escape
+    from vpr_uncertainty.reports.tables import build_table1, marks_note, table1_latex, table1_markdown
+
+    cells = [SimpleNamespace(vpr_method="A", dataset="d", evaluation=evaluate(_retrieval(), METHODS, timing_repeats=1))]
+    table = build_table1(cells, bootstrap=200, seed=0)
+    note = marks_note(table)
+    assert "significant: Holm-adjusted p <= 0.05" in note and f"Note: {significance_notice(200, 6)}." in note
+    latex = table1_latex(table)  # the paper's caption too, with < and > as LaTeX text (OT1 prints ¡ and ¿)
+    assert note in table1_markdown(table) and latex_escape(significance_notice(200, 6)) in latex
+    assert r"Holm-adjusted p \textless{}= 0.05" in latex and r"B \textgreater{}= 239" in latex
+    assert "Note:" not in marks_note(build_table1(cells, bootstrap=239, seed=0))
+    evaluation = evaluate(_retrieval(), ["SU", "RS", "SD", "BM", "PA"], timing_repeats=1)
+    text = str(compare(evaluation, evaluation, n_resamples=40, labels=("X", "Y")))
+    assert "significant: Holm-adjusted p <= 0.05 (Holm over the methods compared, per metric)" in text
+    assert f"note: {significance_notice(40, 5)}" in text and "use B >= 199" in text
+    assert "note: no difference" not in str(compare(evaluation, evaluation, n_resamples=199, labels=("X", "Y")))

@@ -275,9 +275,9 @@ def significance_notice(n_resamples: int, comparisons: int, level: float = 0.05)
     2 / (B + 1) (:func:`paired_p_value`), times ``comparisons`` exceeds ``level``; None when one can be."""
     if comparisons * (2.0 / (n_resamples + 1)) <= level:
         return None
-    return (  # B ≥ the smallest B with comparisons × 2 / (B + 1) <= level
+    return (  # B >= the smallest B with comparisons × 2 / (B + 1) <= level
         f"no difference can be significant with B = {n_resamples} resamples over {comparisons} comparisons; "
-        f"use B ≥ {int(np.ceil(2 * comparisons / level - 1e-9)) - 1}"
+        f"use B >= {int(np.ceil(2 * comparisons / level - 1e-9)) - 1}"
     )
 
 

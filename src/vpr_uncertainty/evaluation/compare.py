@@ -12,7 +12,13 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty._validation import check_count, check_resamples
-from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, holm, paired_p_value, percentile_interval
+from vpr_uncertainty.evaluation.bootstrap import (
+    evaluation_distributions,
+    holm,
+    paired_p_value,
+    percentile_interval,
+    significance_notice,
+)
 from vpr_uncertainty.evaluation.results import Evaluation, MethodEvaluation
 
 #: The metrics compared, and how they are named in tables.
@@ -158,6 +164,7 @@ class Comparison:
         lines = [
             f"A = {self.label_a}, B = {self.label_b}: {self.n_queries} queries, k = {self.k}, paired bootstrap "
             f"({self.n_resamples} resamples, seed {self.seed})",
+            "significant: Holm-adjusted p <= 0.05 (Holm over the methods compared, per metric)",
             f"{'metric':<7} {'method':<14} {'A':>7} {'B':>7} {'A - B':>8} {percent:>19} {'p':>7} {'Holm p':>7}",
         ]
         for row in self.differences:
@@ -380,6 +387,6 @@ def compare(
         n_resamples=n_resamples,
         seed=seed,
         confidence=confidence,
-        notes=notes,
+        notes=[*notes, *filter(None, [significance_notice(n_resamples, len(pairs))])],
         k=evaluation_a.k,
     )

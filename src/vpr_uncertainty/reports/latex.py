@@ -19,18 +19,20 @@ _LATEX_SPECIAL = {
     "}": r"\}",
     "~": r"\textasciitilde{}",
     "^": r"\textasciicircum{}",
+    "<": r"\textless{}",  # in text, < and > are ¡ and ¿ in the default (OT1) font encoding
+    ">": r"\textgreater{}",
 }
 
 
 def latex_escape(text: str) -> str:
-    """``text`` with LaTeX's ten special characters escaped, in one pass (so no escape is escaped again).
+    """``text`` with LaTeX's ten special characters and ``<``, ``>`` escaped, in one pass (no escape escaped again).
 
     Examples
     --------
     >>> print(latex_escape("SU$^2$ ~ {50%} & A_b"))
     SU\\$\\textasciicircum{}2\\$ \\textasciitilde{} \\{50\\%\\} \\& A\\_b
     """
-    return re.sub(r"[\\&%$#_{}~^]", lambda match: _LATEX_SPECIAL[match.group()], text)
+    return re.sub(r"[\\&%$#_{}~^<>]", lambda match: _LATEX_SPECIAL[match.group()], text)
 
 
 #: What a document needs for the LaTeX tables: booktabs rules, and graphicx's \\resizebox that fits the width.

@@ -14,7 +14,12 @@ from typing import Any
 import numpy as np
 
 from vpr_uncertainty.evaluation import Evaluation
-from vpr_uncertainty.evaluation.bootstrap import evaluation_distributions, leaders, percentile_interval
+from vpr_uncertainty.evaluation.bootstrap import (
+    evaluation_distributions,
+    leaders,
+    percentile_interval,
+    significance_notice,
+)
 from vpr_uncertainty.methods import METHODS
 from vpr_uncertainty.reports.latex import latex_escape, latex_float
 
@@ -335,11 +340,12 @@ def marks_note(table: Table1) -> str:
     direction = "highest" if table.higher_is_better else "lowest"
     if table.bootstrap is None:
         return f"Bold: the best ({direction}) value of each column; no significance test (bootstrap = 0)."
-    return (
+    notice = significance_notice(table.bootstrap["resamples"], len(table.rows) - 1, table.bootstrap["level"])
+    return (  # the notice before "[low", where the LaTeX caption ends
         f"Bold alone: the best ({direction}) of its column and significantly better than every other method; "
         "several in bold: tied leaders, none significantly worse than the best (paired bootstrap over queries, "
-        f"{table.bootstrap['resamples']} resamples, seed {table.bootstrap['seed']}, Holm-corrected at "
-        f"{table.bootstrap['level']:g}). [low, high]: 95 % percentile interval."
+        f"{table.bootstrap['resamples']} resamples, seed {table.bootstrap['seed']}; significant: Holm-adjusted p <= "
+        f"{table.bootstrap['level']:g}).{f' Note: {notice}.' if notice else ''} [low, high]: 95 % percentile interval."
     )
 
 
