@@ -24,12 +24,19 @@ def test_calibrate_command(corridor_dir, corridor_matches_dir, tmp_path, capsys)
 
 
 @pytest.mark.filterwarnings("ignore:reading the legacy")
-def test_held_out_evaluate_json(corridor_dir, corridor_matches_dir, tmp_path, capsys):
+def test_held_out_evaluate_json(corridor_dir, corridor_matches_dir, tmp_path, capsys, monkeypatch):
+    """One ECE, named: the terminal and the JSON gave the mean over the splits (0.105), the diagram's legend the
+    ECE of the pooled bins (0.056), neither saying which."""
+    from vpr_uncertainty.reports.display import ReliabilityDisplay
+
+    legends, plot = [], ReliabilityDisplay.plot
+    monkeypatch.setattr(ReliabilityDisplay, "plot", lambda self, *a, **k: legends.append(plot(self, *a, **k)) or self)
     matches = corridor_matches_dir / "CALC" / "precomputed_data_corrected.npy"
     out = tmp_path / "held_out.json"
     status = main(
         ["evaluate", str(matches), "--gt", str(corridor_dir / "ground_truth_new.npy"), "--methods", "SU,margin,CAL",
-         "--calibration-fraction", "0.3", "--repeats", "5", "--seed", "0", "--json", str(out)]
+         "--calibration-fraction", "0.3", "--repeats", "5", "--seed", "0", "--json", str(out),
+         "--plot", str(tmp_path / "rel.png")]
     )  # fmt: skip
     assert status == 0
     data = json.loads(out.read_text())
@@ -40,7 +47,9 @@ def test_held_out_evaluate_json(corridor_dir, corridor_matches_dir, tmp_path, ca
         per_repeat = data["methods"][name]["auc_pr_per_repeat"]
         assert len(per_repeat) == 5 and data["methods"][name]["auc_pr"] == pytest.approx(sum(per_repeat) / 5)
     assert sum(data["calibration_quality"]["CAL"]["reliability"]["counts"]) == 5 * data["calibration"]["n_held_out"]
-    assert "CAL" in capsys.readouterr().out
+    ece = f"ECE {data['calibration_quality']['CAL']['ece']:.3f}, mean over the 5 splits"
+    assert f"CAL calibration on held-out queries: {ece}; Brier" in capsys.readouterr().out
+    assert [drawn.line_.get_label() for drawn in legends] == [f"CAL ({ece})"]
 
 
 @pytest.mark.filterwarnings("ignore:reading the legacy")

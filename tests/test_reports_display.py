@@ -40,7 +40,8 @@ def test_rejection_curves_on_a_given_axis(retrieval):
     curve = evaluation.methods["SU"].curve
     assert display.lines_["SU"].get_label() == f"SU (area {np.trapezoid(curve.precision, curve.recall):.3f})"
     other = RejectionCurveDisplay.from_evaluation(evaluation, methods=["SU"], number="auc_pr")
-    assert other.lines_["SU"].get_label() == f"SU (AUC-PR of the uncertainty {evaluation.methods['SU'].auc_pr:.3f})"
+    assert other.lines_["SU"].get_label() == f"SU {evaluation.methods['SU'].auc_pr:.3f}"  # named by the title:
+    assert other.ax_.get_legend().get_title().get_text() == "uncertainty method (AUC-PR, Table 1)"
     assert right.get_title() == "mine"
     again = display.plot(left)  # the same data drawn again elsewhere
     assert again is display and display.ax_ is left and len(left.lines) == 3  # two curves + accept-all line

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from matplotlib.text import Text
 
-from vpr_uncertainty import Retrieval, evaluate
+from vpr_uncertainty import Retrieval, evaluate, register_method
+from vpr_uncertainty.methods import METHODS
 from vpr_uncertainty.reports import display, plots, style
 from vpr_uncertainty.reports.display import RecallAtNDisplay, draw_rejection_curves, rejection_curves_spec
 from vpr_uncertainty.reports.style import FIGURE_WIDTHS, MAX_HEIGHTS
@@ -179,7 +180,9 @@ def test_heatmaps_print_no_negative_zero_and_mark_significant_deltas(tmp_path, f
 
 
 @pytest.mark.parametrize("width", WIDTHS)
-def test_pr_curves_at_paper_width_legend_the_area_of_the_curve_drawn(tmp_path, width):
+def test_pr_curves_at_paper_width_legend_table1s_auc_pr_and_say_so(tmp_path, width):
+    """The legend gave the area of the curve drawn (0.491 beside Table 1's 0.828, unnamed): now Table 1's AUC-PR,
+    named by the legend's title; the caption says it is not the area drawn."""
     evaluation = evaluate(_retrieval(), ["SU", "BM", "L2", "PA"], k=5)
     figure = draw_rejection_curves(evaluation, title="t", width=width)
     try:
@@ -188,12 +191,42 @@ def test_pr_curves_at_paper_width_legend_the_area_of_the_curve_drawn(tmp_path, w
         spec = rejection_curves_spec(evaluation, title="t")
         caption = spec.caption()
         _check_caption(figure, spec, caption)
-        su = evaluation.methods["SU"].curve
-        assert f"SU (area {np.trapezoid(su.precision, su.recall):.3f})" in spec.labels
+        auc_pr = {name: evaluation.methods[name].auc_pr for name in ("SU", "BM", "PA")}
+        assert [f"SU {auc_pr['SU']:.3f}", f"BM = L2 {auc_pr['BM']:.3f}", f"PA {auc_pr['PA']:.3f}"] == spec.labels[:3]
+        assert figure.legends[0].get_title().get_text() == "uncertainty method (AUC-PR, Table 1)"
         recall_at_1 = max(float(m.curve.recall.max()) for m in evaluation.methods.values())
         assert figure.axes[0].get_xlim() == (0, recall_at_1)  # the x axis ends where the curves do
-        assert "area under the curve drawn" in caption and "not the AUC-PR of the uncertainty" in caption
+        assert "the AUC-PR of the uncertainty (Table 1), not the area of the curve drawn" in caption
         assert not figure.axes[0].texts  # no footnote inside the figure
+    finally:
+        plt.close(figure)
+
+
+def _column_score(column: int):
+    def uncertainty(retrieval, *, k=10):
+        return retrieval.scores[:, column]
+
+    return uncertainty
+
+
+def test_pr_legend_of_eleven_methods_is_compact_at_column_width():
+    """At column width the legend of eleven methods, one per row, took 40 % of the figure's height."""
+    register = {f"X{j}": _column_score(j) for j in range(1, 6)}  # five more rankings
+    for name, function in register.items():
+        register_method(name, function, description="a stand-in")
+    try:
+        evaluation = evaluate(_retrieval(), ["RS", "SD", "SU", "BM", "PA", "margin", *register], k=5)
+    finally:
+        for name in register:
+            METHODS.unregister(name)
+    figure = draw_rejection_curves(evaluation, title="t", width="column")
+    try:
+        figure.canvas.draw()
+        (legend,) = figure.legends
+        assert len(legend.get_texts()) >= 11
+        share = legend.get_window_extent().height / figure.bbox.height
+        assert share < 0.3, f"the legend takes {share:.0%} of the height"
+        assert legend.get_window_extent().y1 <= figure.axes[0].get_window_extent().y0  # below the axes
     finally:
         plt.close(figure)
 

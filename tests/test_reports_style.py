@@ -60,8 +60,9 @@ def test_pr_curves_say_that_bm_and_l2_coincide_with_the_legend_outside_the_axes(
         (axis,) = figure.axes
         (legend,) = figure.legends
         labels = [text.get_text() for text in legend.get_texts()]
-        assert any(label.startswith("BM = L2 (area") for label in labels)
-        assert not any(label.startswith(("BM (", "L2 (")) for label in labels)  # no line hidden under another
+        assert any(label.startswith("BM = L2 0.") for label in labels)  # Table 1's AUC-PR, named by the title
+        assert not any(label.startswith(("BM 0", "L2 0")) for label in labels)  # no line hidden under another
+        assert legend.get_title().get_text() == "uncertainty method (AUC-PR, Table 1)"
         figure.canvas.draw()
         box, frame = legend.get_window_extent(), axis.get_window_extent()
         assert box.y1 <= frame.y0  # outside the data, below
@@ -95,7 +96,7 @@ def test_one_style_per_method_name_in_every_figure_of_every_command(tmp_path):
     for evaluation in (as_evaluate, as_reproduce):
         figure = draw_rejection_curves(evaluation)
         try:
-            lines = {line.get_label().split(" (")[0]: line for line in figure.axes[0].get_lines()}
+            lines = {line.get_label().rsplit(" ", 1)[0]: line for line in figure.axes[0].get_lines()}
             colours.append({name: (line.get_color(), line.get_marker()) for name, line in lines.items()})
         finally:
             pyplot().close(figure)

@@ -510,9 +510,10 @@ def _held_out(args: argparse.Namespace, conf: EvaluateConf, retrieval: Any, inpu
 
     for name in result.values:
         print(f"{name:<10} {cell(name, 'auc_pr'):>16} {cell(name, 'average_precision'):>16} {cell(name, 'aurc'):>16}")
-    if "CAL" in result.quality:
-        quality = result.quality["CAL"]
-        print(f"CAL calibration on held-out queries: ECE {quality['ece']:.3f}, Brier {quality['brier']:.3f}")
+    quality = result.quality.get("CAL", {})
+    ece = f"ECE {quality.get('ece', 0.0):.3f}, mean over the {result.repeats} splits"  # JSON's ece, --plot's legend
+    if quality:
+        print(f"CAL calibration on held-out queries: {ece}; Brier {quality['brier']:.3f}, mean")
     if args.json:
         write_json(args.json, result.to_dict())
     if args.plot:
@@ -526,6 +527,7 @@ def _held_out(args: argparse.Namespace, conf: EvaluateConf, retrieval: Any, inpu
             args.plot,
             title="held-out reliability",
             width=args.figure_width,
+            label=f"CAL ({ece})",
         )
         print(f"wrote {args.plot}")
     return 0

@@ -19,7 +19,7 @@ from vpr_uncertainty.pipeline.grid_config import GridConfig
 from vpr_uncertainty.reports.figures import REPORT_FIGURES, parse_figure_spec, unmet_figure_needs
 from vpr_uncertainty.reports.html import Section, averaged_over, settings_table, write_report
 from vpr_uncertainty.reports.plots import cascades
-from vpr_uncertainty.reports.style import figure_width
+from vpr_uncertainty.reports.style import figure_width, study_styles
 from vpr_uncertainty.reports.tables import csv_cell
 
 CSV_FIELDS = (
@@ -274,29 +274,30 @@ def write_reports(
     available = _available_needs(cells)
     paths: dict[str, Any] = {}
     sections = []
-    for name, options in selected:
-        entry = REPORT_FIGURES.get(name)
-        if width is not None and "width" in entry.options and "width" not in options:
-            options = {**options, "width": width}
-        note = unmet_figure_needs(entry, available)
-        written = [] if note else entry.write(cells, config, out, **options)
-        paths[name] = written
-        suffixes = [path.suffix for path in written]
-        for path in written:
-            if path.suffix not in (".png", ".pdf", ".svg") and suffixes.count(path.suffix) == 1:
-                paths[f"{name}_{path.suffix.lstrip('.')}"] = path
-        body = "" if note else entry.section_html(cells, config, written, **options)
-        if entry.title and entry.description:
-            body = f'<p class="note">{escape(entry.description)}</p>' + body
-        if note:
-            body += f'<p class="note">Not written: {escape(note)}.</p>'
-        pngs = [
-            (entry.caption_of(cells, config, path, **options), path)
-            for path in written
-            if path.suffix.lower() == ".png"
-        ]
-        heading = entry.heading.replace("{where}", averaged_over(cells) if cells else "")  # "on corridor", ...
-        sections.append(Section(heading, body, figures=pngs))
+    with study_styles([name for cell in cells for name in cell.evaluation.methods], [c.vpr_method for c in cells]):
+        for name, options in selected:
+            entry = REPORT_FIGURES.get(name)
+            if width is not None and "width" in entry.options and "width" not in options:
+                options = {**options, "width": width}
+            note = unmet_figure_needs(entry, available)
+            written = [] if note else entry.write(cells, config, out, **options)
+            paths[name] = written
+            suffixes = [path.suffix for path in written]
+            for path in written:
+                if path.suffix not in (".png", ".pdf", ".svg") and suffixes.count(path.suffix) == 1:
+                    paths[f"{name}_{path.suffix.lstrip('.')}"] = path
+            body = "" if note else entry.section_html(cells, config, written, **options)
+            if entry.title and entry.description:
+                body = f'<p class="note">{escape(entry.description)}</p>' + body
+            if note:
+                body += f'<p class="note">Not written: {escape(note)}.</p>'
+            pngs = [
+                (entry.caption_of(cells, config, path, **options), path)
+                for path in written
+                if path.suffix.lower() == ".png"
+            ]
+            heading = entry.heading.replace("{where}", averaged_over(cells) if cells else "")  # "on corridor", ...
+            sections.append(Section(heading, body, figures=pngs))
     if html:
         intro = settings_table(cells, config)
         paths["report_html"] = write_report(

@@ -47,6 +47,8 @@ LEGEND_NUMBERS: dict[str, str] = {
     "auc_pr": "the number in the legend is the AUC-PR of the uncertainty (Table 1), not the area of the curve drawn",
     "none": "",
 }
+#: The PR legend's title, by ``number``: it names the number when the labels do not.
+_LEGEND_TITLES = {"auc_pr": "uncertainty method (AUC-PR, Table 1)"}
 _RECALL_LABEL = "recall (correct accepted / answerable)"
 _PRECISION_LABEL = "precision (correct / accepted)"
 
@@ -82,13 +84,12 @@ def _curve_entries(
         raise ValueError(f"number must be one of {', '.join(LEGEND_NUMBERS)}, got {number!r}")
     entries = []
     for group in coinciding({name: (curve.recall, curve.precision) for name, curve in curves.items()}):
-        key = " = ".join(group)
-        label = key
-        if number == "area":
-            label = f"{key} (area {curve_area(curves[group[0]]):.3f})"
-        elif number == "auc_pr" and auc_pr.get(group[0]) is not None:
-            label = f"{key} (AUC-PR of the uncertainty {auc_pr[group[0]]:.3f})"
-        entries.append((label, key, group))
+        key, auc = " = ".join(group), auc_pr.get(group[0])
+        numbers = {
+            "area": f" (area {curve_area(curves[group[0]]):.3f})",
+            "auc_pr": "" if auc is None else f" {auc:.3f}",
+        }
+        entries.append((key + numbers.get(number, ""), key, group))  # auc_pr: named by the legend's title
     return entries
 
 
@@ -168,7 +169,7 @@ class RejectionCurveDisplay:
             Draw the legend, to the right of the axes (outside the data).
         number : {"area", "auc_pr", "none"}, default="area"
             The number after each method in the legend: the area under the curve drawn, the AUC-PR of the
-            uncertainty (a different number: see :data:`AREA_NOTE`), or none.
+            uncertainty (a different number: see :data:`AREA_NOTE`; the legend's title names it), or none.
         note : bool, default=False
             Write :data:`AREA_NOTE` under the axes (needs ``recall_at_1``); a paper says it in the caption instead.
         """
@@ -199,7 +200,7 @@ class RejectionCurveDisplay:
         ax.set(xlabel=_RECALL_LABEL, ylabel=_PRECISION_LABEL, xlim=(0, end or 1.0), ylim=ylim)  # ends at recall@1
         ax.grid(alpha=0.3)
         if legend:
-            legend_outside(ax, title="uncertainty method")
+            legend_outside(ax, title=_LEGEND_TITLES.get(number, "uncertainty method"))
         queries = f" ({self.n_queries} queries)" if self.n_queries is not None else ""
         ax.set_title(title or f"Rejecting uncertain answers{queries}")
         if note and self.recall_at_1 is not None:
@@ -280,7 +281,7 @@ class RejectionCurveDisplay:
 
 
 def rejection_curves_spec(
-    evaluation: Evaluation, *, title: str | None = None, number: str = "area", what: str | None = None
+    evaluation: Evaluation, *, title: str | None = None, number: str = "auc_pr", what: str | None = None
 ) -> FigureSpec:
     """The :class:`FigureSpec` of :func:`draw_rejection_curves`: one axis, one legend entry per drawn line."""
     display = RejectionCurveDisplay._of_evaluation(evaluation)
@@ -343,11 +344,13 @@ class ReliabilityDisplay:
         self.reliability = reliability
         self.name = name
 
-    def plot(self, ax: Any = None, *, title: str | None = None, threshold: float | None = None) -> ReliabilityDisplay:
+    def plot(
+        self, ax: Any = None, *, title: str | None = None, threshold: float | None = None, label: str | None = None
+    ) -> ReliabilityDisplay:
         """Draw on ``ax`` (a new figure when None); returns ``self`` with ``ax_``, ``figure_`` and ``line_``.
 
-        The legend gives the ECE of the bins drawn; ``threshold`` (a gate's P threshold) is drawn as a vertical
-        line. The counts are written above and below their points in turn, inside the axes.
+        The legend gives ``label`` (default: the name and the ECE of the bins drawn); ``threshold`` (a gate's P
+        threshold) is drawn as a vertical line. The counts alternate above and below their points, inside the axes.
         """
         ax = _axis(ax)
         ax.plot([0, 1], [0, 1], ":", color="grey", label="perfect calibration")
@@ -355,7 +358,7 @@ class ReliabilityDisplay:
         counted = zip(reliability.mean_probability, reliability.accuracy, reliability.counts, strict=True)
         bins = [(mean, accuracy, count) for mean, accuracy, count in counted if count]
         ece = sum(count * abs(accuracy - mean) for mean, accuracy, count in bins) / max(sum(reliability.counts), 1)
-        label = f"{self.name} (ECE {ece:.3f})"
+        label = label or f"{self.name} (ECE {ece:.3f})"
         (self.line_,) = ax.plot([b[0] for b in bins], [b[1] for b in bins], "o-", label=label)
         for i, (mean, accuracy, count) in enumerate(bins):  # above and below in turn: neighbours never overlap
             ha = "left" if mean < 0.05 else "right" if mean > 0.95 else "center"
@@ -520,27 +523,25 @@ class RecallAtNDisplay:
 # --- file writers ---
 
 
-def _pr_figure_size(width: str, n_entries: int) -> tuple[float, float]:
-    """One axis with the legend below it: ``n_entries`` legend entries in rows of one (column) or two (page)."""
-    columns = 1 if width == "column" else 2
-    axis_height = 2.4 if width == "column" else 3.2
-    rows = -(-max(n_entries, 1) // columns)
-    return figure_width(width), capped_height(axis_height + 0.75 + 0.19 * rows, width)
+#: Legend columns of a PR figure by width (short labels: the number is named by the legend's title).
+_PR_LEGEND_COLUMNS = {"column": 2, "page": 3}
 
 
 def draw_rejection_curves(
-    evaluation: Evaluation, *, title: str | None = None, width: str = "page", number: str = "area"
+    evaluation: Evaluation, *, title: str | None = None, width: str = "page", number: str = "auc_pr"
 ) -> Any:
     """The figure of :func:`plot_rejection_curves` at a paper ``width`` (the caller closes it, outside any rc block:
-    its fonts are set when drawn). The legend is below the axis; :func:`rejection_curves_spec` describes it."""
+    its fonts are set when drawn). The legend is below the axis, in :data:`_PR_LEGEND_COLUMNS` columns, its number
+    by default Table 1's AUC-PR; :func:`rejection_curves_spec` describes it."""
     plt = pyplot()
     display = RejectionCurveDisplay._of_evaluation(evaluation)
-    labels = display.labels(number)
+    rows = -(-len(display.labels(number)) // _PR_LEGEND_COLUMNS[width])
+    size = figure_width(width), capped_height((2.4 if width == "column" else 3.2) + 0.95 + 0.19 * rows, width)
     with figure_rc(width):
-        figure, axes = plt.subplots(figsize=_pr_figure_size(width, len(labels)), layout="constrained")
+        figure, axes = plt.subplots(figsize=size, layout="constrained")
         display.plot(axes, title=title, legend=False, number=number)
-        handles, texts = axes.get_legend_handles_labels()
-        figure.legend(handles, texts, loc="outside lower center", ncol=1 if width == "column" else 2, frameon=False)
+        heading = _LEGEND_TITLES.get(number, "uncertainty method")
+        figure.legend(loc="outside lower center", ncol=_PR_LEGEND_COLUMNS[width], frameon=False, title=heading)
     return figure
 
 
@@ -582,7 +583,7 @@ def plot_rejection_curves(
     """Draw the end-to-end precision-recall curves of all methods in one figure and save it.
 
     Each curve is the VPR system's precision and recall as the uncertainty threshold for accepting an answer is
-    relaxed; the legend gives the area under each curve drawn. To draw on your own axis:
+    relaxed; the legend gives each method's AUC-PR (Table 1's). To draw on your own axis:
     :class:`RejectionCurveDisplay`; its caption: :func:`rejection_curves_spec`.
 
     Parameters
@@ -635,9 +636,10 @@ def plot_reliability(
     title: str | None = None,
     width: str = "page",
     threshold: float | None = None,
+    label: str | None = None,
 ) -> Path:
-    """Draw observed accuracy against mean P per bin (with the count of each bin and the ECE of the bins) and save
-    it (:class:`ReliabilityDisplay` draws on your own axis).
+    """Draw observed accuracy against mean P per bin (with the count of each bin and the ECE of the bins, or
+    ``label`` in the legend) and save it (:class:`ReliabilityDisplay` draws on your own axis).
 
     Parameters
     ----------
@@ -651,13 +653,15 @@ def plot_reliability(
         3.5 or 7.16 inches wide (a square-ish diagram, at most 4.5 in tall), 8-pt fonts.
     threshold : float, optional
         A gate's threshold on P, drawn as a vertical line.
+    label : str, optional
+        The legend entry (default: ``"observed (ECE x)"``, the ECE of the bins drawn).
     """
     plt = pyplot()
     size = (figure_width(width), 3.4 if width == "column" else 4.5)
     with figure_rc(width):
         figure, axes = plt.subplots(figsize=size, dpi=DPI, layout="constrained")
         try:
-            ReliabilityDisplay(reliability).plot(axes, title=title, threshold=threshold)
+            ReliabilityDisplay(reliability).plot(axes, title=title, threshold=threshold, label=label)
             return write_figure(figure, path, dpi=DPI)
         finally:
             plt.close(figure)

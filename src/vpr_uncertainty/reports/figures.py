@@ -372,20 +372,19 @@ def qualitative_caption(cells: Sequence[Any], config: Any, path: Path, *, rank_b
     return "" if spec is None else spec.caption()
 
 
-def _quality(cell: Any) -> dict[str, Any] | None:
-    return (cell.held_out or {}).get("calibration_quality", {}).get("CAL")
+def _calibrated(cells: Sequence[Any]) -> list[tuple[Any, dict[str, Any]]]:
+    """(cell, CAL's held-out quality) of each cell that has one."""
+    return [(cell, q) for cell in cells if (q := (cell.held_out or {}).get("calibration_quality", {}).get("CAL"))]
 
 
 def write_reliability(cells: Sequence[Any], config: Any, out_dir: Path, *, width: str = "page") -> list[Path]:
     """``figures/reliability/<vpr method>__<dataset>.png``: CAL's held-out reliability diagram of each cell."""
     paths = []
-    for cell in cells:
-        quality = _quality(cell)
-        if quality is None:
-            continue
+    for cell, quality in _calibrated(cells):
         title = f"{cell.vpr_method} on {cell.dataset}: mean Brier {quality['brier']:.3f}"
         path = out_dir / "figures" / "reliability" / f"{cell_stem(cell)}.png"
-        paths.append(plot_reliability(Reliability(**quality["reliability"]), path, title=title, width=width))
+        ece = f"CAL (ECE {quality['ece']:.3f}, mean over the {cell.held_out['calibration']['repeats']} splits)"
+        paths.append(plot_reliability(Reliability(**quality["reliability"]), path, title=title, width=width, label=ece))
     return paths
 
 
@@ -398,10 +397,7 @@ def _mean_std(mean: float | None, std: float | None) -> str:
 def reliability_section(cells: Sequence[Any], config: Any, written: list[Path], **options: Any) -> str:
     """An HTML table: per cell, CAL's held-out AUC-PR, ECE and Brier (mean ± std over the splits) and the split."""
     rows = []
-    for cell in cells:
-        quality = _quality(cell)
-        if quality is None:
-            continue
+    for cell, quality in _calibrated(cells):
         cal = cell.held_out["methods"].get("CAL", {})
         split = cell.held_out["calibration"]
         rows.append(
@@ -417,82 +413,83 @@ def reliability_section(cells: Sequence[Any], config: Any, written: list[Path], 
     head = ["VPR method", "dataset", "AUC-PR of CAL", "ECE", "Brier", "calibration / held-out queries"]
     note = (
         '<p class="note">Mean ± standard deviation over the random splits; each diagram pools the held-out '
-        "predictions of all splits, with the number of queries in each bin (its legend: the ECE of those bins).</p>"
+        "predictions of all splits, with the number of queries in each bin (its legend: the ECE of this table).</p>"
     )
     return html_table(head, rows, "reliability") + note
 
 
-register_report_figure(
+def _register_table(metric: str, stem: str, title: str, description: str) -> None:
+    """Register a Table 1 by ``metric`` (md, csv, tex), with its HTML section."""
+    write = partial(_write_table1, metric=metric, stem=stem)
+    register_report_figure(
+        stem, write, title=title, description=description, section=_section(metric), requires=("evaluation",)
+    )
+
+
+def _register_figure(name: str, target: FigureWriter, title: str, description: str, **hooks: Any) -> None:
+    """Register a figure drawn at a paper width (a page by default), needing the evaluations unless ``requires``."""
+    hooks = {"requires": ("evaluation",), "options": {"width": "page"}, **hooks}
+    register_report_figure(name, target, title=title, description=description, **hooks)
+
+
+_register_table(
+    "auc_pr",
     "table1",
-    partial(_write_table1, metric="auc_pr", stem="table1"),
-    title="Table 1: AUC-PR {where}",
-    description="AUC-PR of each uncertainty method for each VPR method (md, csv, tex)",
-    requires=("evaluation",),
-    section=_section("auc_pr"),
+    "Table 1: AUC-PR {where}",
+    "AUC-PR of each uncertainty method for each VPR method (md, csv, tex)",
 )
-register_report_figure(
+_register_figure(
     "heatmaps",
     write_heatmaps,
-    title="ΔAUC-PR of RS, SD and SU against each baseline",
-    description="AUC-PR of RS, SD and SU minus that of each baseline, per VPR method and dataset",
-    requires=("evaluation",),
-    options={"width": "page"},
+    "ΔAUC-PR of RS, SD and SU against each baseline",
+    "AUC-PR of RS, SD and SU minus that of each baseline, per VPR method and dataset",
     caption=heatmaps_caption,
 )
-register_report_figure(
+_register_figure(
     "ablations",
     write_ablations,
-    title="Ablations",
-    description="mean AUC-PR of SU for each α, and of RS and SD for each k",
+    "Ablations",
+    "mean AUC-PR of SU for each α, and of RS and SD for each k",
     requires=("ablations",),
-    options={"width": "page"},
     caption=ablations_caption,
 )
-register_report_figure(
+_register_figure(
     "pr_curves",
     write_pr_curves,
-    title="End-to-end precision-recall with rejection",
-    description="precision against recall when the most uncertain answers are rejected, one figure per cell",
-    requires=("evaluation",),
-    options={"width": "page"},
+    "End-to-end precision-recall with rejection",
+    "precision against recall when the most uncertain answers are rejected, one figure per cell",
     caption=pr_curves_caption,
 )
-register_report_figure(
+_register_figure(
     "cascade",
     write_cascade,
-    title="Cascade: geometric verification of the most uncertain queries only",
-    description="AUC-PR of each cascade SCORE+GV against the fraction of queries verified (0: SCORE alone, 1: GV "
-    "on every query)",
+    "Cascade: geometric verification of the most uncertain queries only",
+    "AUC-PR of each cascade SCORE+GV against the fraction of queries verified (0: SCORE alone, 1: GV on every query)",
     requires=("evaluation", "uncertainties", "cascade"),
-    options={"width": "page"},
     section=cascade_section,
     caption=cascade_caption,
 )
-register_report_figure(
+_register_figure(
     "qualitative",
     write_qualitative,
-    title="Qualitative examples",
-    description="confident/uncertain × correct/wrong queries with their top-4 answers and RS/SD/SU "
+    "Qualitative examples",
+    "confident/uncertain × correct/wrong queries with their top-4 answers and RS/SD/SU "
     "(cells of config.qualitative, default: the first cell with images)",
     requires=("images", "uncertainties"),
     options={"rank_by": "SU", "width": "page"},
     caption=qualitative_caption,
 )
-register_report_figure(
+_register_table(
+    "average_precision",
     "table1_ap",
-    partial(_write_table1, metric="average_precision", stem="table1_ap"),
-    title="Table 1 by average precision {where}",
-    description="average precision (step-wise area, no interpolation between tied groups), as Table 1 (md, csv, tex)",
-    requires=("evaluation",),
-    section=_section("average_precision"),
+    "Table 1 by average precision {where}",
+    "average precision (step-wise area, no interpolation between tied groups), as Table 1 (md, csv, tex)",
 )
-register_report_figure(
+_register_table(
+    "aurc",
     "table1_aurc",
-    partial(_write_table1, metric="aurc", stem="table1_aurc"),
-    title="Table 1 by AURC {where} (lower is better)",
-    description="area under the risk-coverage curve, as Table 1 (md, csv, tex)",
-    requires=("evaluation",),
-    section=_section("aurc"),
+    "Table 1 by AURC {where} (lower is better)",
+    "area under the risk-coverage curve, as Table 1 (md, csv, tex)",
 )
 register_report_figure(
     "ties",
@@ -502,13 +499,11 @@ register_report_figure(
     requires=("uncertainties",),
     section=ties_section,
 )
-register_report_figure(
+_register_figure(
     "reliability",
     write_reliability,
-    title="Calibration of CAL on held-out queries",
-    description="reliability diagram of CAL (held-out predictions of all splits, count per bin), ECE and Brier, "
-    "per cell",
+    "Calibration of CAL on held-out queries",
+    "reliability diagram of CAL (held-out predictions of all splits, count per bin), ECE and Brier, per cell",
     requires=("calibration",),
-    options={"width": "page"},
     section=reliability_section,
 )

@@ -6,6 +6,7 @@ series (:func:`method_styles`, :func:`figure_rc`), the figure specs that caption
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import zlib
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -23,8 +24,10 @@ VECTOR_SUFFIX = ".pdf"
 #: Okabe and Ito's colour-blind-safe palette without its yellow (faint on white): blue, vermillion, bluish green,
 #: reddish purple, orange, sky blue, black.
 OKABE_ITO: tuple[str, ...] = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000")
+#: The series colours: Okabe-Ito, then Paul Tol's wine, olive, indigo, brown and purple: 12 colours, as many markers.
+PALETTE: tuple[str, ...] = (*OKABE_ITO, "#882255", "#999933", "#332288", "#661100", "#AA4499")
 _DASHES: tuple[Any, ...] = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)))
-_MARKERS = ("o", "s", "^", "v", "D", "P", "X")
+_MARKERS = ("o", "s", "^", "v", "D", "P", "X", "d", "<", ">", "h", "p")  # no "*": the best-α mark
 #: Names with a fixed style, by position (the toolkit's uncertainty methods, then VPR-Bench's VPR methods); any
 #: other name starts at a slot chosen by a hash of the name.
 STYLED_NAMES: tuple[str, ...] = (
@@ -34,7 +37,8 @@ STYLED_NAMES: tuple[str, ...] = (
 )
 #: How a caption names a marker and a dash.
 _MARKER_WORDS = {"o": "circles", "s": "squares", "^": "triangles up", "v": "triangles down", "D": "diamonds"}
-_MARKER_WORDS |= {"P": "plus signs", "X": "crosses", "*": "stars"}
+_MARKER_WORDS |= {"P": "plus signs", "X": "crosses", "*": "stars", "<": "triangles left", ">": "triangles right"}
+_MARKER_WORDS |= {"h": "hexagons", "p": "pentagons", "d": "thin diamonds"}
 _DASH_WORDS = {"-": "solid", "--": "dashed", "-.": "dash-dot", ":": "dotted", "None": "no line", "none": "no line"}
 
 #: Figure widths in inches: one column of a two-column paper, and the text width of a page.
@@ -169,17 +173,33 @@ def pyplot() -> Any:
 
 
 def _slot_style(slot: int) -> dict[str, Any]:
-    """Slot ``i``: colour ``i % 7``, marker ``(i + i // 7) % 7`` (no two of 49 slots share both), dash ``i % 5``."""
-    colours = len(OKABE_ITO)
+    """Slot ``i``: colour ``i % 12``, marker ``(i + i // 12) % 12`` (no two of 144 slots share both), dash ``i % 5``."""
+    colours = len(PALETTE)
     marker = _MARKERS[(slot + slot // colours) % len(_MARKERS)]
-    return {"color": OKABE_ITO[slot % colours], "linestyle": _DASHES[slot % len(_DASHES)], "marker": marker}
+    return {"color": PALETTE[slot % colours], "linestyle": _DASHES[slot % len(_DASHES)], "marker": marker}
+
+
+#: The names of the study being drawn (:func:`study_styles`), one tuple per kind (uncertainty, VPR methods).
+_STUDY: contextvars.ContextVar[tuple[tuple[str, ...], ...]] = contextvars.ContextVar("study", default=())
+
+
+@contextlib.contextmanager
+def study_styles(*kinds: Sequence[str]) -> Iterator[None]:
+    """Inside this block, :func:`method_styles` styles a name as among all ``kinds`` names of the study (those of
+    the figure if one kind does not hold them all), so a name keeps its colour and marker in every figure."""
+    token = _STUDY.set(tuple(tuple(names) for names in kinds))
+    try:
+        yield
+    finally:
+        _STUDY.reset(token)
 
 
 def method_styles(names: Sequence[str]) -> dict[str, dict[str, Any]]:
-    """``{name: {"color", "linestyle", "marker"}}``, the same for a name in every figure: a colour-blind-safe colour
-    (:data:`OKABE_ITO`), a dash and a marker from the name's slot (its place in :data:`STYLED_NAMES`, else a hash of
-    it); a name whose (colour, marker) or (marker, dash) another name of ``names`` already has takes the next free
-    slot. Coinciding methods ``"BM = L2"`` take the style of the first of them in :data:`STYLED_NAMES`.
+    """``{name: {"color", "linestyle", "marker"}}``, the same for a name in every figure: a colour (:data:`PALETTE`),
+    a dash and a marker from the name's slot (its place in :data:`STYLED_NAMES`, else a hash of it); in slot order,
+    a name whose colour or marker another name of ``names`` (or of the study, :func:`study_styles`) already has
+    takes the next free slot (past 12 names, one whose (colour, marker) or (marker, dash) is taken). Coinciding methods
+    ``"BM = L2"`` take the style of the first of them in :data:`STYLED_NAMES`.
 
     Examples
     --------
@@ -187,21 +207,24 @@ def method_styles(names: Sequence[str]) -> dict[str, dict[str, Any]]:
     >>> styles["SD"], styles["SU"]["color"] == method_styles(["BM", "L2", "SU"])["SU"]["color"]
     ({'color': '#D55E00', 'linestyle': '--', 'marker': 's'}, True)
     """
+    first = {name: min(name.split(" = "), key=_slot) for name in names}
+    pool = next((kind for kind in _STUDY.get() if set(first.values()) <= set(kind)), first.values())
     styles: dict[str, dict[str, Any]] = {}
-    for name in names:
-        first = slot = min(_slot(part) for part in name.split(" = "))
-        while any(_clashes(_slot_style(slot), taken) for taken in styles.values()) and slot < first + 245:
+    for name in sorted(set(pool), key=lambda name: (_slot(name), name)):
+        slot = _slot(name)
+        while any(_clashes(_slot_style(slot), taken, len(styles)) for taken in styles.values()) and slot < 300:
             slot += 1
         styles[name] = _slot_style(slot)
-    return styles
+    return {name: styles[part] for name, part in first.items()}
 
 
 def _slot(name: str) -> int:
     return STYLED_NAMES.index(name) if name in STYLED_NAMES else 23 + zlib.crc32(name.encode()) % 26
 
 
-def _clashes(a: Mapping[str, Any], b: Mapping[str, Any]) -> bool:
-    return a["marker"] == b["marker"] and (a["color"] == b["color"] or a["linestyle"] == b["linestyle"])
+def _clashes(a: Mapping[str, Any], b: Mapping[str, Any], taken: int) -> bool:
+    same, marker = a["color"] == b["color"], a["marker"] == b["marker"]
+    return (same or marker) if taken < len(PALETTE) else marker and (same or a["linestyle"] == b["linestyle"])
 
 
 def coinciding(curves: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> list[list[str]]:
