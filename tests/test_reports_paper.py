@@ -16,6 +16,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 from matplotlib.text import Text
+from matplotlib.transforms import Bbox
 
 from vpr_uncertainty import Retrieval, evaluate, register_method
 from vpr_uncertainty.methods import METHODS
@@ -91,7 +92,8 @@ def _check_paper_figure(figure, png: Path, width: str) -> None:
     assert _png_size(png) == (round(inches[0] * style.DPI), round(inches[1] * style.DPI))
     small = [(t.get_text(), t.get_fontsize()) for t in _texts(figure) if t.get_fontsize() < 8]
     assert not small, f"texts under 8 pt: {small[:5]}"
-    shapes = [(h.get_marker(), str(h.get_linestyle())) for _, h in _legend_entries(figure)]
+    handles = [handle for _, handle in _legend_entries(figure)]  # a bar (no marker) is told apart by its shape
+    shapes = [(getattr(h, "get_marker", type(h).__name__.lower)(), str(h.get_linestyle())) for h in handles]
     assert len(set(shapes)) == len(shapes), f"legend entries told apart by colour only: {shapes}"
 
 
@@ -231,6 +233,41 @@ def test_pr_legend_of_eleven_methods_is_compact_at_column_width():
         plt.close(figure)
 
 
+#: CAL's held-out reliability on the corridor (CALC, 20 splits of 0.3): n=266/n=277 and n=56/n=11 overlapped.
+CORRIDOR_BINS = {
+    "counts": [266, 277, 276, 251, 138, 99, 109, 77, 56, 11],
+    "mean_probability": [0.0482, 0.1515, 0.2493, 0.3465, 0.4477, 0.5523, 0.6382, 0.7412, 0.8468, 0.9233],
+    "accuracy": [0.0113, 0.1047, 0.2283, 0.2749, 0.5, 0.6465, 0.7798, 0.8182, 0.8036, 0.9091],
+}
+
+
+@pytest.mark.parametrize("width", WIDTHS)
+@pytest.mark.parametrize("n_bins", [10, 20])
+def test_reliability_counts_overlap_nothing_and_the_legend_covers_no_point(tmp_path, figures, width, n_bins):
+    from vpr_uncertainty.calibration.quality import Reliability
+
+    bins = {key: [v for v in values for _ in range(n_bins // 10)] for key, values in CORRIDOR_BINS.items()}
+    edges = np.linspace(0, 1, n_bins + 1)
+    mean = edges[:-1] + np.asarray(bins["mean_probability"]) % 0.1 * 10 / n_bins  # the corridor's, inside its bin
+    reliability = Reliability(edges.tolist(), bins["counts"], mean.tolist(), bins["accuracy"])
+    path = display.plot_reliability(reliability, tmp_path / "r.png", width=width, label="CAL (ECE 0.105, mean ...)")
+    figure = figures[-1]
+    _check_paper_figure(figure, path, width)
+    figure.draw_without_rendering()
+    (axis,) = figure.axes
+    counts = [text.get_window_extent() for text in axis.texts]
+    assert [text.get_text().removeprefix("n=") for text in axis.texts] == [str(n) for n in bins["counts"]]
+    assert not [(a, b) for i, a in enumerate(counts) for b in counts[i + 1 :] if a.overlaps(b)]
+    ticks = [label.get_window_extent() for label in axis.get_xticklabels() + axis.get_yticklabels()]
+    points = axis.transData.transform(np.column_stack([mean, bins["accuracy"]]))
+    radius = axis.get_lines()[1].get_markersize() / 72 * figure.dpi / 2
+    dots = [Bbox.from_extents(x - radius, y - radius, x + radius, y + radius) for x, y in points]
+    assert not [(c, other) for c in counts for other in ticks + dots if c.overlaps(other)]
+    assert all(axis.bbox.contains(c.x0, c.y0) and axis.bbox.contains(c.x1, c.y1) for c in counts)
+    legend = (figure.legends or [axis.get_legend()])[0].get_window_extent()
+    assert not legend.overlaps(axis.bbox) and not any(legend.overlaps(dot) for dot in dots)
+
+
 def test_reliability_and_cascade_at_column_width(tmp_path, figures):
     from vpr_uncertainty.calibration.quality import expected_calibration_error, reliability_diagram
 
@@ -241,20 +278,11 @@ def test_reliability_and_cascade_at_column_width(tmp_path, figures):
     path = display.plot_reliability(reliability, tmp_path / "r.png", width="column", threshold=0.8)
     _check_paper_figure(figures[-1], path, "column")
     axis = figures[-1].axes[0]
-    labels = [text.get_text() for text in axis.get_legend().get_texts()]
+    labels = [text.get_text() for text in figures[-1].legends[0].get_texts()]
     assert f"observed (ECE {expected_calibration_error(p, correct):.3f})" in labels
     assert "gate threshold P ≥ 0.800" in labels
     (threshold,) = [line for line in axis.get_lines() if line.get_label().startswith("gate threshold")]
     assert list(threshold.get_xdata()) == [0.8, 0.8]
-    figure = figures[-1]
-    figure.canvas.draw()
-    ticks = [label.get_window_extent() for label in axis.get_xticklabels() + axis.get_yticklabels()]
-    counts = [text.get_window_extent() for text in axis.texts if text.get_text().startswith("n=")]
-    assert len(counts) == sum(count > 0 for count in reliability.counts)
-    assert not any(count.overlaps(tick) for count in counts for tick in ticks)  # no count on a tick label
-    assert all(
-        axis.get_window_extent().contains(c.x0, c.y0) and axis.get_window_extent().contains(c.x1, c.y1) for c in counts
-    )
     cells = []
     for i, dataset in enumerate(("corridor", "CALC", "corridor")):
         cell = _cell(f"M{i}", dataset, i)
@@ -284,10 +312,15 @@ def test_qualitative_marks_answers_by_symbol_and_dash_not_colour_only(tmp_path, 
     path = plots.plot_qualitative(cell, tmp_path / "q.png", width=width)
     figure = figures[-1]
     _check_paper_figure(figure, path, width)
-    spec = plots.qualitative_spec(cell)
-    query_axes = [row[0] for row in np.array(figure.axes).reshape(-1, plots.TOP + 1)]
-    assert [a.get_title() for a in query_axes] == list(spec.panels)
-    answers = [a for row in np.array(figure.axes).reshape(-1, plots.TOP + 1) for a in row[1:]]
+    spec = plots.qualitative_spec(cell, width=width)
+    rows = np.array(figure.axes).reshape(-1, len(plots.COLUMNS[width]))
+    assert [a.get_title() for a in rows[:, 0]] == list(spec.panels)
+    answers = list(rows[:, 1:].ravel())
+    figure.draw_without_rendering()  # every image at least 1 in wide (0.65 in with the top 4 at column width)
+    assert min(axis.get_window_extent().width for axis in figure.axes) / figure.dpi >= 1.0
+    boxes = [(t.get_text(), t.get_window_extent()) for t in _texts(figure)] + [("", a.bbox) for a in figure.axes]
+    overlaps = [(a, b) for i, (a, one) in enumerate(boxes) for b, two in boxes[i + 1 :] if one.overlaps(two)]
+    assert not [pair for pair in overlaps if any(pair)]  # no text on another or on an image (images may touch)
     for axis in answers:
         hit = "✓" in axis.get_title()
         assert hit != ("✗" in axis.get_title())

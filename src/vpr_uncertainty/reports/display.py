@@ -326,7 +326,9 @@ class ReliabilityDisplay:
     ax_, figure_ : matplotlib Axes and Figure
         Where the diagram was drawn (after :meth:`plot`).
     line_ : matplotlib Line2D
-        The observed curve (one marker per non-empty bin, annotated with its count).
+        The observed curve (one marker per non-empty bin).
+    counts_ : list of matplotlib Text
+        The count of each non-empty bin, above its bar in the strip under the diagram.
 
     Examples
     --------
@@ -349,8 +351,9 @@ class ReliabilityDisplay:
     ) -> ReliabilityDisplay:
         """Draw on ``ax`` (a new figure when None); returns ``self`` with ``ax_``, ``figure_`` and ``line_``.
 
-        The legend gives ``label`` (default: the name and the ECE of the bins drawn); ``threshold`` (a gate's P
-        threshold) is drawn as a vertical line. The counts alternate above and below their points, inside the axes.
+        The legend (where it covers the fewest points) gives ``label`` (default: the name and the ECE of the bins
+        drawn); ``threshold`` (a gate's P threshold) is a vertical line. Under y = 0, bars show how many queries each
+        bin holds, the count above each (upright beyond 10 bins): one bin apart, no count overlaps another or a point.
         """
         ax = _axis(ax)
         ax.plot([0, 1], [0, 1], ":", color="grey", label="perfect calibration")
@@ -360,15 +363,18 @@ class ReliabilityDisplay:
         ece = sum(count * abs(accuracy - mean) for mean, accuracy, count in bins) / max(sum(reliability.counts), 1)
         label = label or f"{self.name} (ECE {ece:.3f})"
         (self.line_,) = ax.plot([b[0] for b in bins], [b[1] for b in bins], "o-", label=label)
-        for i, (mean, accuracy, count) in enumerate(bins):  # above and below in turn: neighbours never overlap
-            ha = "left" if mean < 0.05 else "right" if mean > 0.95 else "center"
-            offset, va = ((0, 4), "bottom") if i % 2 == 0 else ((0, -4), "top")
-            ax.annotate(f"n={count}", (mean, accuracy), textcoords="offset points", xytext=offset, ha=ha, va=va)
+        edges, counts = np.asarray(reliability.edges), np.asarray(reliability.counts)
+        centres, tops = (edges[:-1] + edges[1:]) / 2, 0.2 * counts / max(counts.max(initial=0), 1) - 0.45
+        ax.bar(centres, tops + 0.45, 0.9 * np.diff(edges), -0.45, color="0.8", label="queries per bin")  # y < -0.25
+        ax.axhline(-0.08, color="0.6", linewidth=0.6)
+        upright = 90 if counts.size > 10 else 0  # side by side, more counts than 10 would touch at column width
+        where = zip(centres, tops + 0.01, counts, strict=True)
+        self.counts_ = [ax.text(x, y, f"{n}", ha="center", va="bottom", rotation=upright) for x, y, n in where if n]
         if threshold is not None:
             ax.axvline(threshold, color="0.3", linestyle="--", linewidth=1, label=f"gate threshold P ≥ {threshold:.3f}")
-        ax.set(xlim=(-0.02, 1.02), ylim=(-0.1, 1.1), yticks=np.linspace(0, 1, 6))
+        ax.set(xlim=(-0.02, 1.02), ylim=(-0.47, 1.05), yticks=np.linspace(0, 1, 6))
         ax.set(xlabel="predicted P(correct top-1), mean of the bin", ylabel="share of correct top-1 answers")
-        ax.legend(loc="upper left")
+        ax.legend(loc="best")
         if title:
             ax.set_title(title)
         self.ax_, self.figure_ = ax, ax.figure
@@ -662,6 +668,8 @@ def plot_reliability(
         figure, axes = plt.subplots(figsize=size, dpi=DPI, layout="constrained")
         try:
             ReliabilityDisplay(reliability).plot(axes, title=title, threshold=threshold, label=label)
+            axes.get_legend().remove()  # under the axes, where it covers no point
+            figure.legend(loc="outside lower center", ncol=1 if width == "column" else 3, frameon=False)
             return write_figure(figure, path, dpi=DPI)
         finally:
             plt.close(figure)

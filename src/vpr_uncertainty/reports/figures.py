@@ -366,9 +366,9 @@ def write_qualitative(
     return _with_vectors(paths)
 
 
-def qualitative_caption(cells: Sequence[Any], config: Any, path: Path, *, rank_by: str = "SU", **options: Any) -> str:
+def qualitative_caption(cells: Sequence[Any], config: Any, path: Path, **options: Any) -> str:
     cell = next((c for c in cells if path.stem == f"qualitative__{cell_stem(c)}"), None)
-    spec = None if cell is None else qualitative_spec(cell, rank_by=rank_by, alpha=config.alpha)
+    spec = None if cell is None else qualitative_spec(cell, alpha=config.alpha, **options)  # rank_by, width
     return "" if spec is None else spec.caption()
 
 
@@ -473,7 +473,7 @@ _register_figure(
     "qualitative",
     write_qualitative,
     "Qualitative examples",
-    "confident/uncertain × correct/wrong queries with their top-4 answers and RS/SD/SU "
+    "confident/uncertain × correct/wrong queries with their top-4 answers (top-2 at column width) and RS/SD/SU "
     "(cells of config.qualitative, default: the first cell with images)",
     requires=("images", "uncertainties"),
     options={"rank_by": "SU", "width": "page"},

@@ -126,25 +126,17 @@ def _finish(plt, figure, axes, spec: FigureSpec, width: str, title: str | None =
     """Label the y axes of the first column, draw the legend of ``spec``'s series below the panels and the title."""
     for axis in axes[:, 0]:
         axis.set_ylabel(spec.y)
-    handles = {
-        s.label: plt.Line2D([], [], **{"markersize": 8 if s.style is _STAR else 4, **s.style}) for s in spec.series
-    }
-    if handles:  # one legend for the whole figure, below the panels (outside the data)
-        figure.legend(
-            list(handles.values()),
-            list(handles),
-            loc="outside lower center",
-            ncol=_legend_columns(len(handles), width, labels=list(handles)),
-            frameon=False,
-            title=legend or None,
-        )
+    styles = {s.label: {"markersize": 8 if s.style is _STAR else 4, **s.style} for s in spec.series}
+    if styles:  # one legend for the whole figure, below the panels (outside the data)
+        _legend(plt, figure, styles, width, title=legend or None)
     figure.suptitle(_fitted(title or spec.what, figure))
 
 
-def _save(figure, path: Path) -> Path:
-    """The PNG and a PDF beside it, uncropped (the constrained layout keeps the legend inside); the PNG's path."""
-    save_figure(figure, path, tight=False)
-    return path
+def _legend(plt, target, styles: dict[str, dict], width: str, title: str | None = None) -> None:
+    """A legend of ``styles`` (label -> line style) below ``target``'s panels, as many entries a row as fit."""
+    handles = [plt.Line2D([], [], **style) for style in styles.values()]
+    ncol = _legend_columns(len(styles), width, list(styles))
+    target.legend(handles, list(styles), loc="outside lower center", ncol=ncol, frameon=False, title=title)
 
 
 _STAR = {"marker": "*", "linestyle": "none", "color": "0.3"}
@@ -200,7 +192,7 @@ def plot_alpha_ablation(cells: Sequence, path: str | Path, *, width: str = "page
             axis.set_xticks([0, 0.25, 0.5, 0.75, 1], ["0\nSD", "0.25", "0.5", "0.75", "1\nRS"])
             axis.grid(alpha=0.3)
             _finish(plt, figure, axes, spec, width, legend="VPR method (best α)")
-            return _save(figure, Path(path))
+            return save_figure(figure, path, tight=False)[0]  # and a PDF beside it
         finally:
             plt.close(figure)
 
@@ -283,11 +275,9 @@ def plot_k_ablation(cells: Sequence, path: str | Path, *, width: str = "page") -
                 for axis in axes[2 * len(groups) :]:
                     axis.set_visible(False)
                 axes[0].set_ylabel(spec.y)
-                handles = [plt.Line2D([], [], **styles[m]) for m in entries]
-                ncol = _legend_columns(len(entries), width, entries)
-                row.legend(handles, entries, loc="outside lower center", frameon=False, ncol=ncol)
+                _legend(plt, row, {m: styles[m] for m in entries}, width)
             figure.suptitle(_fitted(spec.what, figure))
-            return _save(figure, Path(path))
+            return save_figure(figure, path, tight=False)[0]  # and a PDF beside it
         finally:
             plt.close(figure)
 
@@ -494,7 +484,7 @@ def plot_delta_heatmaps(
                 label = "Δ AUC-PR" + ("   * Holm-adjusted p ≤ 0.05" if bootstrap else "")
                 figure.colorbar(image, ax=axes, shrink=0.8, label=label, location=_colour_bar_side(width))
                 figure.suptitle(_fitted(spec.what.split(" on ")[0], figure))
-                paths.append(_save(figure, out_dir / f"delta_{proposed}.png"))
+                paths.append(save_figure(figure, out_dir / f"delta_{proposed}.png", tight=False)[0])
             finally:
                 plt.close(figure)
     return paths
@@ -602,7 +592,8 @@ def plot_cascade(cells: Sequence[Any], out_dir: str | Path, *, width: str = "pag
 # --- qualitative examples ---
 
 CATEGORIES: tuple[str, ...] = ("confident correct", "confident wrong", "uncertain correct", "uncertain wrong")
-TOP = 4
+#: Relative widths of the query's column, then of its top answers', by figure width (each image ≥ 1 in wide).
+COLUMNS: dict[str, tuple[float, ...]] = {"page": (1.4, 1, 1, 1, 1), "column": (1, 1, 1)}
 #: The uncertainty methods shown under each query, when the cell has them.
 SHOWN: tuple[str, ...] = ("RS", "SD", "SU")
 
@@ -614,11 +605,11 @@ def qualitative_figsize(n_rows: int, *, width: str = "page") -> tuple[float, flo
     Examples
     --------
     >>> qualitative_figsize(4), qualitative_figsize(4, width="column")
-    ((7.16, 9.0), (3.5, 6.37))
+    ((7.16, 9.0), (3.5, 7.0))
     """
     inches = figure_width(width)
-    image = inches / (TOP + 1.4)  # the query's column, 1.4 times wider (a longer label), sets the row's height (4:3)
-    return inches, capped_height(n_rows * (0.75 * 1.4 * image + 0.8) + 0.45, width)
+    query = COLUMNS[width][0] * inches / sum(COLUMNS[width])  # the query's image sets the row's height (4:3)
+    return inches, capped_height(n_rows * (0.75 * query + 0.8) + 0.45, width)
 
 
 def choose_queries(correct: np.ndarray, uncertainty: np.ndarray) -> dict[str, int]:
@@ -654,10 +645,10 @@ def _qualitative_rank_by(cell: Any, rank_by: str, shown: Sequence[str]) -> tuple
 
 
 def qualitative_spec(
-    cell: Any, *, rank_by: str = "SU", shown: Sequence[str] = SHOWN, alpha: float | None = None
+    cell: Any, *, rank_by: str = "SU", shown: Sequence[str] = SHOWN, alpha: float | None = None, width: str = "page"
 ) -> FigureSpec | None:
-    """What :func:`plot_qualitative` draws for ``cell``: one row per category (its panels are the query images),
-    or None when it draws nothing."""
+    """What :func:`plot_qualitative` draws for ``cell`` at ``width``: one row per category (panels: the query
+    images), or None when it draws nothing."""
     rank_by, labels = _qualitative_rank_by(cell, rank_by, shown)
     if rank_by is None:
         return None
@@ -671,7 +662,7 @@ def qualitative_spec(
         what=f"{cell.vpr_method} on {cell.dataset}: answers ranked by {rank_by}{suffix}",
         panels=tuple(f"{category.replace(' ', chr(10), 1)}, q{query}" for category, query in chosen.items()),
         panel_rule=f"one row per query: the most confident and the most uncertain by {rank_by}, with a correct and "
-        f"with a wrong top-1 answer; the query, then its top-{TOP} answers",
+        f"with a wrong top-1 answer; the query, then its top-{len(COLUMNS[width]) - 1} answers",
         series=(
             SeriesSpec("✓", "a positive: solid green frame", {"linestyle": "-"}),
             SeriesSpec("✗", "not a positive: dashed red frame", {"linestyle": "--"}),
@@ -708,7 +699,7 @@ def plot_qualitative(
     alpha : float, optional
         The α of SU, for the title.
     width : {"page", "column"}, default="page"
-        7.16 or 3.5 inches wide, 8-pt fonts.
+        7.16 or 3.5 inches wide (the top 4 or the top 2 answers, :data:`COLUMNS`), 8-pt fonts.
 
     Returns
     -------
@@ -717,7 +708,7 @@ def plot_qualitative(
     """
     if not cell.query_paths or not cell.database_paths:
         return None
-    spec = qualitative_spec(cell, rank_by=rank_by, shown=shown, alpha=alpha)
+    spec = qualitative_spec(cell, rank_by=rank_by, shown=shown, alpha=alpha, width=width)
     if spec is None:
         return None
     rank_by, labels = _qualitative_rank_by(cell, rank_by, shown)
@@ -729,12 +720,12 @@ def plot_qualitative(
     with figure_rc(width):
         figure, axes = plt.subplots(
             len(chosen),
-            TOP + 1,
+            len(COLUMNS[width]),
             figsize=qualitative_figsize(len(chosen), width=width),
             dpi=DPI,
             squeeze=False,
             layout="constrained",
-            gridspec_kw={"width_ratios": [1.4] + [1] * TOP},
+            gridspec_kw={"width_ratios": COLUMNS[width]},
         )
         try:
             for row, (title, query) in enumerate(zip(spec.panels, chosen.values(), strict=True)):
@@ -742,7 +733,7 @@ def plot_qualitative(
                 axis.imshow(plt.imread(cell.query_paths[query]))
                 axis.set_title(title)
                 axis.set_xlabel("\n".join(f"{name} {uncertainties[name][query]:.3f}" for name in labels))
-                for column in range(1, TOP + 1):
+                for column in range(1, len(COLUMNS[width])):
                     axis = axes[row][column]
                     rank = column - 1
                     index = int(cell.indices[query, rank]) if rank < cell.indices.shape[1] else -1
@@ -757,6 +748,6 @@ def plot_qualitative(
                 for axis in axes[row]:
                     axis.set(xticks=[], yticks=[])
             figure.suptitle(_fitted(spec.what, figure))
-            return _save(figure, path)
+            return save_figure(figure, path, tight=False)[0]
         finally:
             plt.close(figure)
