@@ -35,31 +35,6 @@ import loop_closure_slam as slam
 from vpr_uncertainty.calibration.audit import AuditCalibration
 from vpr_uncertainty.slam.pose_graph import graph_edges, optimize
 
-GROUP = (5, 20)
-
-
-def grouped_wrong_closures(problem: slam.Problem, rate: float, rng: np.random.Generator):
-    """The graph with runs of 5-20 mutually consistent wrong closures: (a + t, b + t) for t < run length, each with
-    the measurement of one random true closure (two stretches of the trajectory taken for one place)."""
-    edges = graph_edges(problem.graph)
-    true_index = np.flatnonzero(np.abs(edges[:, 1] - edges[:, 0]) != 1)
-    n_wrong, n_poses = round(len(true_index) * rate / (1 - rate)), problem.truth.shape[0]
-    existing = {tuple(sorted(e)) for e in edges.tolist()}
-    graph, wrong = problem.graph.clone(), []
-    while len(wrong) < n_wrong:
-        length = int(rng.integers(GROUP[0], GROUP[1] + 1))
-        a, b = sorted(rng.integers(0, n_poses - length, 2).tolist())
-        run = [(a + t, b + t) for t in range(min(length, n_wrong - len(wrong)))]
-        if b - a <= GROUP[1] or any(pair in existing for pair in run):
-            continue
-        model = graph.at(int(rng.choice(true_index)))
-        for pair in run:
-            graph.add(type(model)(*pair, model.measured(), model.noiseModel()))
-            existing.add(pair)
-        wrong += run
-    closures = np.concatenate([edges[true_index], np.array(wrong, dtype=np.int64).reshape(-1, 2)])
-    return graph, closures, np.r_[np.ones(len(true_index), bool), np.zeros(len(wrong), bool)]
-
 
 def prefix_graph(graph, last: int):
     """The factors of ``graph`` between vertices up to ``last`` (the part of the trajectory seen so far)."""
@@ -72,10 +47,7 @@ def prefix_graph(graph, last: int):
 
 def one_seed(problem, rate, kind, seed, pop, labelled, target):
     rng = np.random.default_rng(seed)
-    if kind == "grouped":
-        graph, closures, is_true = grouped_wrong_closures(problem, rate, rng)
-    else:
-        graph, closures, is_true = slam.with_wrong_closures(problem, rate, rng, kind)
+    graph, closures, is_true = slam.with_wrong_closures(problem, rate, rng, kind)  # "grouped": slam's grouped runs
     rows = slam.score_rows(pop, is_true, rng)
     order = np.argsort(closures.max(axis=1), kind="stable")  # trajectory order
     first, rest = order[: round(labelled * len(order))], order[round(labelled * len(order)) :]

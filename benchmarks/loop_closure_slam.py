@@ -19,7 +19,9 @@ Wrong closures
     ``rate`` = wrong / (true + wrong) closures; wrong closures join random vertex pairs (|i - j| > 1, not already an
     edge; Sünderhauf and Protzel's protocol) with the measurement and noise model of a random true closure.
     ``--wrong-closures aliasing``: each moves the earlier end of a random true closure by 5-20 poses (perceptual
-    aliasing near an earlier revisit), keeping its measurement.
+    aliasing near an earlier revisit), keeping its measurement. ``--wrong-closures grouped``: Sünderhauf's "grouped"
+    policy, runs of 5-20 mutually consistent wrong closures (a + t, b + t), t < the run's length, all with the
+    measurement of one random true closure: two stretches of the trajectory taken for one place.
 
 Configurations (same graph, same seed, LM = GTSAM's Levenberg–Marquardt with default parameters from the odometry
 guess, the first pose held by a prior)
@@ -47,8 +49,10 @@ Metrics
 Usage
     nice python benchmarks/loop_closure_slam.py [--quick] [--graphs fourlap,sphere2500,city10000]
         [--rates 0.3,0.5,0.7] [--method AMOSNet] [--seed 0] [--rankings margin,SU,CAL] [--json out.jsonl]
-        [--rows native|absent] [--labels 200] [--wrong-closures random|aliasing]
+        [--rows native|absent] [--labels 200] [--wrong-closures random|aliasing|grouped] [--p-star 0.5,0.7,0.9]
     nice python benchmarks/loop_closure_slam.py --gates 10: what the gates of seeds 0-9 accept of the method's rows.
+    ``--p-star 0.5,0.7,0.9``: the gate's configurations once per target precision, every gate calibrated on the same
+    labels (issue 44: which p* before GNC); ``--p-star-summary FILE`` tabulates them against GNC alone over the seeds.
     ``--quick``: the four-lap graph at 0.3, 0.5, 0.7 and 0.85 only (about a minute). Results are appended one JSON line
     per configuration as they finish, so a cut run keeps what it measured.
 """
@@ -142,6 +146,33 @@ PROBLEMS = {"fourlap": four_lap, "city10000": city10000, "sphere2500": sphere250
 
 #: Poses an "aliasing" wrong closure is shifted from a true closure's earlier end (either way, uniformly).
 ALIASING_SHIFT = (5, 20)
+#: Wrong closures in one "grouped" run (Sünderhauf and Protzel's grouped outliers).
+GROUP = (5, 20)
+
+
+def grouped_wrong_closures(
+    problem: Problem, rate: float, rng: np.random.Generator
+) -> tuple[Any, np.ndarray, np.ndarray]:
+    """The graph with runs of 5-20 mutually consistent wrong closures: (a + t, b + t) for t < run length, each with
+    the measurement of one random true closure (two stretches of the trajectory taken for one place)."""
+    edges = graph_edges(problem.graph)
+    true_index = np.flatnonzero(np.abs(edges[:, 1] - edges[:, 0]) != 1)
+    n_wrong, n_poses = round(len(true_index) * rate / (1 - rate)), problem.truth.shape[0]
+    existing = {tuple(sorted(e)) for e in edges.tolist()}
+    graph, wrong = problem.graph.clone(), []
+    while len(wrong) < n_wrong:
+        length = int(rng.integers(GROUP[0], GROUP[1] + 1))
+        a, b = sorted(rng.integers(0, n_poses - length, 2).tolist())
+        run = [(a + t, b + t) for t in range(min(length, n_wrong - len(wrong)))]
+        if b - a <= GROUP[1] or any(pair in existing for pair in run):
+            continue
+        model = graph.at(int(rng.choice(true_index)))
+        for pair in run:
+            graph.add(type(model)(*pair, model.measured(), model.noiseModel()))
+            existing.add(pair)
+        wrong += run
+    closures = np.concatenate([edges[true_index], np.array(wrong, dtype=np.int64).reshape(-1, 2)])
+    return graph, closures, np.r_[np.ones(len(true_index), bool), np.zeros(len(wrong), bool)]
 
 
 def with_wrong_closures(
@@ -151,7 +182,9 @@ def with_wrong_closures(
 
     ``kind="random"``: between random vertex pairs, with the measurement of a random true closure (Sünderhauf and
     Protzel). ``"aliasing"``: a random true closure (a, b) moved to (a ± 5…20 poses, b) with its own measurement: the
-    front end matched b to a place near an earlier revisit."""
+    front end matched b to a place near an earlier revisit. ``"grouped"``: ``grouped_wrong_closures``."""
+    if kind == "grouped":
+        return grouped_wrong_closures(problem, rate, rng)
     edges = graph_edges(problem.graph)
     closure = np.abs(edges[:, 1] - edges[:, 0]) != 1
     true_index = np.flatnonzero(closure)
@@ -359,13 +392,20 @@ def drawn_case(
     kind: str = "random",
     labels: int = 200,
     rankings: Any = None,
+    target: float = 0.9,
 ) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray, Any]:
     """One seed's graph with wrong closures, its closures (E, 2), whether each is true (E,), their score rows (E, K)
-    and the gate calibrated on ``labels`` rows drawn from ``pop``."""
+    and the gate calibrated at p* = ``target`` on ``labels`` rows drawn from ``pop``."""
     rng = np.random.default_rng(seed)
     graph, closures, is_true = with_wrong_closures(problem, rate, rng, kind)
     rows = score_rows(pop, is_true, rng)
-    return graph, closures, is_true, rows, calibrated_gate(pop, seed, n=labels, rankings=rankings)
+    return graph, closures, is_true, rows, calibrated_gate(pop, seed, n=labels, target=target, rankings=rankings)
+
+
+def true_closures_name(p_star: float) -> str:
+    """The configuration "the true closures among the gate's, LM" of the gate at ``p_star`` (the first evidence
+    tables' name at 0.9)."""
+    return "gate's true closures, LM" if p_star == 0.9 else f"gate p*={p_star:g}'s true closures, LM"
 
 
 def elimination_fill(edges: np.ndarray) -> tuple[int, int]:
@@ -429,36 +469,48 @@ def run_one(
     kind: str = "random",
     labels: int = 200,
     verbose: bool = False,
+    p_stars: tuple[float, ...] = (0.9,),
 ) -> None:
-    graph, closures, is_true, rows, gate = drawn_case(problem, rate, pop, seed, kind, labels, rankings)
+    """Every configuration (or those named in ``only``) on one seed's case, one JSON record each; the gate's
+    configurations once per target precision in ``p_stars``, every gate calibrated on the same labels."""
+    graph, closures, is_true, rows, first = drawn_case(problem, rate, pop, seed, kind, labels, rankings, p_stars[0])
+    gates = {p: calibrated_gate(pop, seed, n=labels, target=p, rankings=rankings) for p in p_stars[1:]}
+    gates[p_stars[0]] = first
     edges = graph_edges(graph)
-    filters = {
+    filters: dict[str, Any] = {
         "all": Everything(),
         "true only (floor)": TruthOracle(rows, is_true),
         "fixed SU (median)": SUThreshold(pop),
-        "gate p*=0.9": gate,
-        "gate's true": TrueAccepted(gate, is_true),
     }
-    configs = [
+    for p, gate in gates.items():
+        filters[f"gate p*={p:g}"], filters[true_closures_name(p)] = gate, TrueAccepted(gate, is_true)
+    configs = [  # "{gate}": once per p* (named "gate p*=0.9" at 0.9, as the first evidence tables were)
         ("all closures, LM", "all", "none"),
         ("true only, LM (floor)", "true only (floor)", "none"),
         ("fixed SU, LM", "fixed SU (median)", "none"),
-        ("gate p*=0.9, LM", "gate p*=0.9", "none"),
-        ("gate's true closures, LM", "gate's true", "none"),
+        ("{gate}, LM", "{gate}", "none"),
+        ("{true}", "{true}", "none"),
         ("all, Huber", "all", "huber"),
         ("all, Cauchy", "all", "cauchy"),
         ("all, DCS", "all", "dcs"),
-        ("gate p*=0.9 + GNC", "gate p*=0.9", "gnc"),
+        ("{gate} + GNC", "{gate}", "gnc"),
         ("all, GNC (TLS)", "all", "gnc"),
-        ("gate p*=0.9 + GNC-GN", "gate p*=0.9", "gnc-gn"),
+        ("{gate} + GNC-GN", "{gate}", "gnc-gn"),
         ("all, GNC-GN (TLS)", "all", "gnc-gn"),
-        ("gate p*=0.9 + GNC warm", "gate p*=0.9", "gnc-warm"),
+        ("{gate} + GNC warm", "{gate}", "gnc-warm"),
         ("all, GNC warm (TLS)", "all", "gnc-warm"),
         ("all, PCM + LM", "all", "pcm"),
-        ("gate p*=0.9 + PCM + LM", "gate p*=0.9", "pcm"),
+        ("{gate} + PCM + LM", "{gate}", "pcm"),
     ]
-    certificate = gate.precision_lower_bound
+    expanded = []
     for name, filter_name, robust in configs:
+        for p in p_stars if "{" in name else (None,):
+            names = {"gate": f"gate p*={p:g}", "true": true_closures_name(p)} if p is not None else {}
+            expanded.append((name.format(**names), filter_name.format(**names), robust, p))
+    for name, filter_name, robust, p_star in expanded:
+        certificate = gates[
+            p_star if p_star is not None else (0.9 if 0.9 in gates else p_stars[-1])
+        ].precision_lower_bound
         if only and name not in only:
             continue
         passed = closure_mask(closures, closures, rows, filters[filter_name])
@@ -497,6 +549,7 @@ def run_one(
             "wrong_fit": wrong_fit, "true_fit": true_fit, "ate_rmse": rmse, "ate_max": worst,
             "seconds": round(seconds, 3), "gate_lower_bound": certificate, "error": error, "timeout": timeout,
             "wrong_closures": kind, "rows": "absent" if (~pop.answerable).any() else "native", "labels": labels,
+            "p_star": p_star,
         }  # fmt: skip
         if robust == "pcm":
             record["pcm_seconds"] = None if pcm_seconds is None else round(pcm_seconds, 3)
@@ -627,6 +680,59 @@ def pcm_summary(path: Path) -> str:
     return "\n".join(lines)
 
 
+def p_star_summary(path: Path, within: float = 1.5) -> str:
+    """Per variant and rate, over the seeds of a results file: all closures + LM, GNC alone and gate + GNC at each
+    p* found, in two markdown tables. Accuracy: APE ÷ the same seed's floor (true closures only + LM), median
+    [range] over the seeds that finished, then how many seeds are within ``within``x the floor (a seed beyond it, or
+    one that did not finish, is where the configuration breaks). Cost: the closures it passed (median wrong / true)
+    and its time (median over the seeds; a run stopped at the time limit counts its limit)."""
+    runs = runs_by_case(path)
+    floor_name = "true only, LM (floor)"
+    gated = sorted(
+        {n for c in runs.values() for n in c if n.startswith("gate p*=") and n.endswith(" + GNC")},
+        key=lambda n: float(n.split("=")[1].split()[0]),
+    )
+    names = ("all closures, LM", "all, GNC (TLS)", *gated)
+    head = "| graph | wrong closures, rows, labels | wrong | seeds | floor (m) | " + " | ".join(names) + " |"
+    rule = "|---" * (5 + len(names)) + "|"
+    accuracy, cost = [head, rule], [head, rule]
+    for variant in dict.fromkeys(key[:6] for key in sorted(runs)):
+        cases = [c for k, c in runs.items() if k[:6] == variant and c.get(floor_name, {}).get("ate_rmse")]
+        if not cases:
+            continue
+        floor = np.array([c[floor_name]["ate_rmse"] for c in cases])
+        row = (
+            f"| {variant[0]} | {', '.join(map(str, variant[2:5]))} | {variant[5]:.0%} | {len(cases)} | "
+            f"{np.median(floor):.3f} |"
+        )
+        right, spent = [row], [row]
+        for name in names:
+            found = [c for c in cases if name in c]
+            done = [c for c in found if c[name]["ate_rmse"] is not None]
+            ratio = np.array([c[name]["ate_rmse"] / c[floor_name]["ate_rmse"] for c in done])
+            stopped = len(found) - len(done)
+            if not found:
+                right.append(" – |")
+                spent.append(" – |")
+                continue
+            cell = "not finished" if not done else f"{np.median(ratio):.2f} [{ratio.min():.2f}, {ratio.max():.2f}]"
+            cell += f" {(ratio <= within).sum()}/{len(found)}" + (
+                f" ({stopped} not finished)" if stopped and done else ""
+            )
+            passed = np.median([[c[name]["wrong_passed"], c[name]["true_passed"]] for c in found], axis=0)
+            seconds = np.median([c[name]["seconds"] for c in found])
+            right.append(f" {cell} |")
+            spent.append(f" {passed[0]:.0f} / {passed[1]:.0f}, {seconds:.2f} s |")
+        accuracy.append("".join(right))
+        cost.append("".join(spent))
+    return (
+        f"APE ÷ floor, median [range] over the seeds that finished, and the seeds within {within}× the floor:\n\n"
+        + "\n".join(accuracy)
+        + "\n\nClosures passed (median wrong / true) and time (median; a stopped run counts its limit):\n\n"
+        + "\n".join(cost)
+    )
+
+
 METHODS = "AMOSNet,AlexNet_VPR,CALC,CoHOG,HOG,HybridNet,NetVLAD,RegionVLAD,ap-gem-r101,denseVLAD"
 
 
@@ -700,8 +806,19 @@ def main(argv: list[str] | None = None) -> int:
         "the first evidence tables",
     )
     parser.add_argument(
-        "--wrong-closures", choices=("random", "aliasing"), default="random",
-        help="random vertex pairs (default), or a true closure's earlier end moved by 5-20 poses",
+        "--wrong-closures", choices=("random", "aliasing", "grouped"), default="random",
+        help="random vertex pairs (default), a true closure's earlier end moved by 5-20 poses, or grouped: runs of "
+        "5-20 mutually consistent wrong closures (Sünderhauf's grouped outliers)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--p-star", default="0.9", metavar="P[,P...]",
+        help="target precisions of the gate, comma-separated (default 0.9): its configurations run once per p*, every "
+        "gate calibrated on the same labels (as `calibrate --target-precision P` would)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--p-star-summary", type=Path, default=None, metavar="JSONL",
+        help="print, per variant and rate over the seeds of a --json file, all + LM, the floor, GNC alone and gate + "
+        "GNC at each p* (APE, ratio to the floor, where each breaks, what the gate passed, time), and stop",
     )  # fmt: skip
     parser.add_argument(
         "--rows", choices=("native", "absent"), default="native",
@@ -729,6 +846,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.report:
         print(report(args.report))
         return 0
+    if args.p_star_summary:
+        print(p_star_summary(args.p_star_summary))
+        return 0
     if args.summary:
         print(summary(args.summary))
         if len(pcm_table := pcm_summary(args.summary).splitlines()) > 2:
@@ -741,6 +861,9 @@ def main(argv: list[str] | None = None) -> int:
         pop.name = f"own run ({args.results})"
     only = set(args.only.split(";")) if args.only else None
     rankings = args.rankings.split(",") if args.rankings else None
+    p_stars = tuple(float(p) for p in args.p_star.split(","))
+    if not all(0 < p < 1 for p in p_stars):
+        parser.error(f"--p-star takes target precisions in (0, 1), got {args.p_star}")
     if args.gates:
         print(gate_table(args.method, range(args.gates), rankings=rankings))
         return 0
@@ -756,7 +879,7 @@ def main(argv: list[str] | None = None) -> int:
         for rate in graph_rates:
             run_one(
                 problem, rate, pop, args.seed, out, only, args.timeout, rankings, args.wrong_closures, args.labels,
-                args.verbose,
+                args.verbose, p_stars,
             )  # fmt: skip
     return 0
 

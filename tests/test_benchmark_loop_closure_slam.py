@@ -3,6 +3,8 @@ graphs and the mode on the four-lap graph; an optimiser's child process that rai
 
 from __future__ import annotations
 
+import itertools
+import json
 import time
 
 import numpy as np
@@ -49,3 +51,66 @@ def test_an_optimiser_that_raises_is_reported_at_once(bench):
         bench.in_child(_raises, timeout=60)
     assert time.perf_counter() - start < 10
     assert bench.in_child(lambda: 42, timeout=60) == 42
+
+
+def test_grouped_wrong_closures_are_mutually_consistent_runs(bench):
+    """Sünderhauf's grouped policy: runs of 5-20 closures (a + t, b + t), one measurement per run, none an edge."""
+    problem = bench.four_lap(0)
+    graph, closures, is_true = bench.with_wrong_closures(problem, 0.5, np.random.default_rng(3), "grouped")
+    wrong = closures[~is_true]
+    assert is_true.sum() == 60 and len(wrong) == 60  # 50 %: as many wrong as true
+    factors = {tuple(sorted(graph.at(i).keys())): graph.at(i) for i in range(graph.size())}
+    starts = [0] + [k for k in range(1, len(wrong)) if tuple(wrong[k] - wrong[k - 1]) != (1, 1)] + [len(wrong)]
+    lengths = np.diff(starts)
+    assert (lengths <= 20).all() and (lengths[:-1] >= 5).all()  # the last run is cut to the count
+    for begin, end in itertools.pairwise(starts):
+        run = [factors[tuple(pair)].measured() for pair in wrong[begin:end].tolist()]
+        assert all(m.equals(run[0], 0.0) for m in run)  # one claim: the two stretches are one place
+    assert (wrong[:, 1] - wrong[:, 0] > 20).all()
+    assert len({tuple(p) for p in closures.tolist()}) == len(closures)
+
+
+def test_p_star_runs_the_gate_once_per_target_on_the_same_labels(bench, corridor_dir, tmp_path):
+    out = tmp_path / "r.jsonl"
+    only = "true only, LM (floor);gate p*=0.5, LM;gate p*=0.9, LM;gate p*=0.9 + GNC"
+    argv = ["--graphs", "fourlap", "--rates", "0.5", "--p-star", "0.5,0.9", "--only", only, "--json", str(out)]
+    assert bench.main(argv) == 0
+    records = {r["config"]: r for r in map(json.loads, out.read_text().splitlines())}
+    assert list(records) == only.split(";")
+    assert records["gate p*=0.5, LM"]["p_star"] == 0.5 and records["gate p*=0.9 + GNC"]["p_star"] == 0.9
+    assert records["true only, LM (floor)"]["p_star"] is None
+    # the same 200 labels: the looser target certifies a lower bound and passes at least as many wrong closures
+    assert records["gate p*=0.5, LM"]["gate_lower_bound"] < records["gate p*=0.9, LM"]["gate_lower_bound"]
+    assert records["gate p*=0.5, LM"]["wrong_passed"] >= records["gate p*=0.9, LM"]["wrong_passed"]
+    with pytest.raises(SystemExit):
+        bench.main(["--graphs", "fourlap", "--p-star", "0.9,1.5"])
+
+
+def test_p_star_summary_against_a_hand_made_results_file(bench, tmp_path):
+    """Two seeds: ratios to each seed's own floor, a run that did not finish counted apart, medians by hand."""
+
+    def record(seed: int, config: str, ate: float | None, seconds: float, passed: tuple) -> dict:
+        return {
+            "graph": "g", "method": "M", "rate": 0.7, "seed": seed, "config": config, "ate_rmse": ate,
+            "wrong_passed": passed[0], "true_passed": passed[1], "seconds": seconds,
+        }  # fmt: skip
+
+    records = [
+        record(0, "true only, LM (floor)", 0.1, 1.0, (0, 60)),
+        record(1, "true only, LM (floor)", 0.2, 3.0, (0, 60)),
+        record(0, "all, GNC (TLS)", 0.1, 10.0, (140, 60)),
+        record(1, "all, GNC (TLS)", None, 180.0, (140, 60)),  # stopped at the time limit
+        record(0, "gate p*=0.7 + GNC", 0.105, 2.0, (3, 50)),
+        record(1, "gate p*=0.7 + GNC", 0.4, 4.0, (5, 40)),
+    ]
+    path = tmp_path / "r.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    accuracy, cost = (part.split(":\n\n")[1].splitlines() for part in bench.p_star_summary(path).split("\n\nClosures"))
+    assert accuracy[0].split(" | ")[5:] == ["all closures, LM", "all, GNC (TLS)", "gate p*=0.7 + GNC |"]
+    # floor median 0.15 m; GNC alone: 1.0 on seed 0, seed 1 stopped; the gate: ratios 1.05 and 2.0 (median 1.525)
+    row = accuracy[2].split(" | ")
+    assert row[:5] == ["| g", "random, native, 200", "70%", "2", "0.150"]
+    assert row[5] == "–" and row[6] == "1.00 [1.00, 1.00] 1/2 (1 not finished)"
+    assert row[7] in ("1.52 [1.05, 2.00] 1/2 |", "1.53 [1.05, 2.00] 1/2 |")
+    # medians of (3, 5) wrong and (50, 40) true passed; of 2 s and 4 s; a stopped run counts its limit
+    assert cost[2].split(" | ")[6:] == ["140 / 60, 95.00 s", "4 / 45, 3.00 s |"]
