@@ -21,13 +21,13 @@ from vpr_uncertainty.evaluation import compare
 from vpr_uncertainty.pipeline.evaluate import EvaluateConf, read_inputs
 from vpr_uncertainty.pipeline.evaluate import compute as evaluate_compute
 from vpr_uncertainty.pipeline.options import (
+    add_json_option,
     add_options,
     add_results_options,
     command_wording,
     conf_from_args,
     integer_at_least,
     option,
-    output_file_or_stdout,
     write_json,
     write_output,
 )
@@ -191,12 +191,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     add_results_options(parser, "A and B")
     add_options(parser, EvaluateConf, only=("methods", "k", "alpha"))
     add_options(parser, CompareConf, only=("resamples", "seed", "uncertainty"))
-    parser.add_argument(
-        "--json",
-        type=output_file_or_stdout,
-        metavar="FILE",
-        help="write the comparison as JSON to FILE ('-': standard output)",
-    )
+    add_json_option(parser, "the comparison")
     parser.set_defaults(handler=_handle)
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vpr_uncertainty.pipeline.options import output_file_or_stdout, write_json
+from vpr_uncertainty.pipeline.options import add_json_option, write_json
 
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
@@ -24,12 +24,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("names", nargs="*", metavar="NAME", help="only these datasets (default: all)")
     parser.add_argument("--root", type=Path, help="data root (default: $VPR_UNCERTAINTY_DATA)")
-    parser.add_argument(
-        "--json",
-        type=output_file_or_stdout,
-        metavar="FILE",
-        help="write the list as JSON to FILE ('-': standard output)",
-    )
+    add_json_option(parser, "the list")
     parser.set_defaults(handler=_handle)
 
 

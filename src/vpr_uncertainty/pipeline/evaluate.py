@@ -27,6 +27,7 @@ from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
     add_figure_width_option,
+    add_json_option,
     add_options,
     add_results_options,
     candidate_count,
@@ -41,7 +42,6 @@ from vpr_uncertainty.pipeline.options import (
     open_fraction,
     option,
     output_file,
-    output_file_or_stdout,
     positive_int,
     write_json,
     write_output,
@@ -330,12 +330,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         help="VPR-methods-evaluation log folders: positives within this many metres (default: the run's "
         "positive_dist_threshold, else 25)",
     )
-    parser.add_argument(
-        "--json",
-        type=output_file_or_stdout,
-        metavar="FILE",
-        help="write the results as JSON to FILE ('-': standard output)",
-    )
+    add_json_option(parser, "the results")
     parser.add_argument(
         "--plot", type=output_file, metavar="FILE", help="write the end-to-end PR curves (.png/.pdf/.svg)"
     )

@@ -183,6 +183,12 @@ def write_json(path: Path, document: Any) -> None:
     print(f"wrote {path}")
 
 
+def add_json_option(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--json FILE`` (:func:`output_file_or_stdout`), which :func:`write_json` writes: ``what`` as JSON."""
+    help_text = f"write {what} as JSON to FILE ('-': standard output)"
+    parser.add_argument("--json", type=output_file_or_stdout, metavar="FILE", help=help_text)
+
+
 # --- options declared once, on the configuration -------------------------------------------------------------
 
 
