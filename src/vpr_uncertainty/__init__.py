@@ -19,8 +19,7 @@ so a robot that needs the scores or a gate does not pay for scikit-learn, h5py, 
 array([0.528, 0.979])
 """
 
-import importlib
-from typing import Any
+from vpr_uncertainty.plugins import lazy_exports
 
 __version__ = "0.1.0"
 
@@ -68,15 +67,4 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'vpr_uncertainty' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value  # the next access is a plain attribute
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports("vpr_uncertainty", _EXPORTS, globals())

@@ -199,6 +199,24 @@ def import_or_explain(module: str, message: str) -> Any:
         raise ImportError(message) from error
 
 
+def lazy_exports(package: str, exports: Mapping[str, str], namespace: dict[str, Any]) -> tuple[Callable, Callable]:
+    """A package's PEP 562 ``__getattr__`` and ``__dir__``: each name of ``exports`` (name -> module) is imported
+    from its module on first use and kept in ``namespace`` (the package's ``globals()``), so the next access is a
+    plain attribute; any other name is an AttributeError."""
+
+    def __getattr__(name: str) -> Any:
+        if name not in exports:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        value = getattr(importlib.import_module(exports[name]), name)
+        namespace[name] = value
+        return value
+
+    def __dir__() -> list[str]:
+        return sorted({*namespace, *exports})
+
+    return __getattr__, __dir__
+
+
 def load_target(target: Any, *, what: str, extra: str | None = None) -> Any:
     """``target`` itself, or the attribute a dotted path ``"package.module:attribute"`` names (imported now).
 

@@ -5,8 +5,7 @@ numpy and the gate only. The uncertainty method ``CAL`` registers in :mod:`~vpr_
 (an entry point of the package, loaded on the method registry's first lookup).
 """
 
-import importlib
-from typing import Any
+from vpr_uncertainty.plugins import lazy_exports
 
 _EXPORTS: dict[str, str] = {
     **dict.fromkeys(
@@ -24,15 +23,4 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = sorted(_EXPORTS)
 
-
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'vpr_uncertainty.calibration' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_EXPORTS})
+__getattr__, __dir__ = lazy_exports("vpr_uncertainty.calibration", _EXPORTS, globals())
