@@ -27,6 +27,7 @@ from vpr_uncertainty.pipeline.options import (
     VERIFY_FRACTION_HELP,
     add_executor_options,
     add_figure_width_option,
+    add_image_options,
     add_json_option,
     add_options,
     add_results_options,
@@ -316,14 +317,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "images of their folder, sorted by path (VPR-Bench, VPR-datasets-downloader), or the names a retrieval "
         "file holds"
     )
-    group.add_argument(
-        "--images",
-        type=Path,
-        metavar="DIR",
-        help="dataset folder with query/ and ref/ (VPR-Bench) or queries/ and database/ image subfolders",
-    )
-    group.add_argument("--query-images", type=Path, metavar="DIR", help="folder of the query images")
-    group.add_argument("--database-images", type=Path, metavar="DIR", help="folder of the database images")
+    add_image_options(group)
     parser.add_argument(
         "--radius",
         type=non_negative_float,

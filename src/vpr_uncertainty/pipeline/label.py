@@ -7,6 +7,7 @@ from pathlib import Path
 
 from vpr_uncertainty.data import DEFAULT_TOP_K, read_pool
 from vpr_uncertainty.pipeline.options import (
+    add_image_options,
     add_results_options,
     candidate_count,
     command_wording,
@@ -36,9 +37,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("retrieval", type=Path, metavar="RETRIEVAL", help="the pool's results")
     parser.add_argument("--by", required=True, metavar="LABELER", help=f"{', '.join(LABELERS.names())}[:option=v]")
     parser.add_argument("--with", dest="others", nargs="+", type=Path, metavar="RESULTS", help="other methods' results")
-    parser.add_argument("--images", type=Path, metavar="DIR", help="dataset folder (query/ and ref/, as in verify)")
-    parser.add_argument("--query-images", type=Path, metavar="DIR", help="folder of the query images")
-    parser.add_argument("--database-images", type=Path, metavar="DIR", help="folder of the database images")
+    add_image_options(parser, "dataset folder (query/ and ref/, as in verify)")
     parser.add_argument("--graph", type=Path, metavar="GRAPH", help="back-end: the pose graph of the closures")
     parser.add_argument("--device", type=device_name, default="cpu", help="cpu, cuda, cuda:N or mps (gv-*)")
     parser.add_argument("--k", type=candidate_count, default=10, help="candidates per query of the pool (default 10)")

@@ -350,6 +350,16 @@ def add_executor_options(
     parser.set_defaults(workers_mean_locally=local_workers is not None)
 
 
+def add_image_options(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    images: str = "dataset folder with query/ and ref/ (VPR-Bench) or queries/ and database/ image subfolders",
+) -> None:
+    """``--images DIR`` (help: ``images``), ``--query-images DIR`` and ``--database-images DIR``: the image folders."""
+    parser.add_argument("--images", type=Path, metavar="DIR", help=images)
+    parser.add_argument("--query-images", type=Path, metavar="DIR", help="folder of the query images")
+    parser.add_argument("--database-images", type=Path, metavar="DIR", help="folder of the database images")
+
+
 def add_results_options(parser: argparse.ArgumentParser, what: str, *, gt: str | None = None) -> None:
     """``--gt GT`` (help: ``gt``, else the formats), ``--format`` and ``--scores KIND`` (``args.score_kind``, of
     :data:`~vpr_uncertainty.retrieval.result.SCORE_KINDS`): how a command reads its results ``what``."""

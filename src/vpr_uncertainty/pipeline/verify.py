@@ -15,6 +15,7 @@ from vpr_uncertainty import cache
 from vpr_uncertainty._repr import compact_repr
 from vpr_uncertainty.pipeline.options import (
     add_executor_options,
+    add_image_options,
     add_options,
     command_wording,
     conf_from_args,
@@ -142,14 +143,7 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("retrieval", type=Path, metavar="RETRIEVAL", help="retrieval file (.npz, from retrieve or run)")
-    parser.add_argument(
-        "--images",
-        type=Path,
-        metavar="DIR",
-        help="dataset folder with query/ and ref/ (VPR-Bench) or queries/ and database/ image subfolders",
-    )
-    parser.add_argument("--query-images", type=Path, metavar="DIR", help="folder of the query images")
-    parser.add_argument("--database-images", type=Path, metavar="DIR", help="folder of the database images")
+    add_image_options(parser)
     parser.add_argument("--out", type=output_file, required=True, metavar="FILE", help="file to write (.npz)")
     add_options(parser, VerifyConf)
     add_executor_options(parser, ray_workers="the verification tasks in flight (default: the cluster's CPUs)")
