@@ -50,24 +50,6 @@ def corridor_matches_dir(data_dir: Path) -> Path:
     return _require(data_dir / "vprbench" / "precomputed_matches" / "corridor", "the corridor matches")
 
 
-# --- parallel runs (pytest-xdist, `make test`) ---------------------------------------------------------------
-
-#: Tests of these modules start Ray (a local cluster, or two nodes on a fixed port with ``ray start``): they run on
-#: one worker, one after another, so that two clusters never start at once.
-RAY_MODULES = frozenset(
-    """test_adversarial_ray test_attacks_ray test_attacks_ray_address test_cli_workers test_descriptors_distributed
-    test_executors test_executors_cluster test_executors_worker_killed test_geometric_distributed
-    test_gv_executor""".split()
-)
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        uses_ray = {"ray_cluster", "ray_executor"} & set(getattr(item, "fixturenames", ()))
-        if uses_ray or Path(str(item.fspath)).stem in RAY_MODULES:
-            item.add_marker(pytest.mark.xdist_group("ray"))
-
-
 def load_benchmark(name: str):
     """The script ``benchmarks/<name>.py`` as a module (benchmarks/ on sys.path, as the scripts import each other)."""
     folder = str(Path(__file__).parents[1] / "benchmarks")
