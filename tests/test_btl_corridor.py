@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import warnings
 from pathlib import Path
@@ -46,11 +47,26 @@ def _one_thread():
     torch.set_num_threads(threads)
 
 
+def _descriptor_cache(config: pytest.Config, tmp_path_factory) -> Path:
+    """The corridor descriptors' file, kept in pytest's cache folder between runs: one per pytest-xdist worker, since
+    two workers filling one HDF5 file at once fail on its lock (a fresh clone's `make test` did)."""
+    pytest_cache = getattr(config, "cache", None)  # absent with -p no:cacheprovider
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    cache_root = pytest_cache.mkdir(f"vpr-uncertainty-corridor-{worker}") if pytest_cache is not None else None
+    return Path(cache_root or tmp_path_factory.mktemp("corridor")) / "efficientnet-lite0-gem.h5"
+
+
+def test_each_worker_fills_its_own_descriptor_file(request, tmp_path_factory, monkeypatch):
+    paths = set()
+    for worker in ("gw0", "gw1"):
+        monkeypatch.setenv("PYTEST_XDIST_WORKER", worker)
+        paths.add(_descriptor_cache(request.config, tmp_path_factory))
+    assert len(paths) == 2
+
+
 @pytest.fixture(scope="module")
 def corridor(corridor_dir: Path, request, tmp_path_factory):
-    pytest_cache = getattr(request.config, "cache", None)  # absent with -p no:cacheprovider
-    cache_root = pytest_cache.mkdir("vpr-uncertainty-corridor") if pytest_cache is not None else None
-    cache = Path(cache_root or tmp_path_factory.mktemp("corridor")) / "efficientnet-lite0-gem.h5"
+    cache = _descriptor_cache(request.config, tmp_path_factory)
     model = load_model("efficientnet-lite0-gem")
     result: dict = {"h5": cache, "gt_path": corridor_dir / "ground_truth_new.npy"}
     for split, folder in (("queries", "query"), ("database", "ref")):
