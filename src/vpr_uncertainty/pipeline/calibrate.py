@@ -117,10 +117,19 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
         "writes the certified gate, or a machine-labelled one before. --gt: labelled from the ground truth",
     )
     parser.add_argument("--audit-size", type=candidate_count, default=40, help="draws of the audit (default 40)")
-    parser.add_argument("--images", type=Path, metavar="DIR", help="--sequential, --audit: the dataset folder (query/ "
-                        "and ref/, as in verify): the query to label next is named by its image pair")  # fmt: skip
-    parser.add_argument("--contact-sheet", type=output_file, metavar="FILE.png", help="--sequential, --audit with "
-                        "--images: draw the next --sheet-size queries to label, each beside its top-1")  # fmt: skip
+    parser.add_argument(
+        "--images",
+        type=Path,
+        metavar="DIR",
+        help="--sequential, --audit: the dataset folder (query/ "
+        "and ref/, as in verify): the query to label next is named by its image pair",
+    )
+    parser.add_argument(
+        "--contact-sheet",
+        type=output_file,
+        metavar="FILE.png",
+        help="--sequential, --audit with --images: draw the next --sheet-size queries to label, each beside its top-1",
+    )
     parser.add_argument("--sheet-size", type=candidate_count, default=8, help="pairs of --contact-sheet (default 8)")
     parser.add_argument("--plot", type=output_file, metavar="FILE", help="write the reliability diagram")
     add_figure_width_option(parser)
@@ -135,8 +144,10 @@ def _handle(args: argparse.Namespace) -> int:
     if args.plan and (args.sequential or args.audit or args.machine_labels):
         raise ValueError("--plan simulates labelling before it starts; --sequential and --audit label: use one")
     if (args.contact_sheet and not args.images) or (args.images and not (args.sequential or args.audit)):
-        raise ValueError("--images DIR and --contact-sheet FILE show the queries to label (--sequential, --audit); "
-                         "--contact-sheet needs --images")  # fmt: skip
+        raise ValueError(
+            "--images DIR and --contact-sheet FILE show the queries to label (--sequential, --audit); "
+            "--contact-sheet needs --images"
+        )
     if args.sequential is not None and args.audit is None:
         return _run_sequential(args)
     if args.audit is not None or args.machine_labels is not None:
@@ -230,8 +241,15 @@ def _pool(args: argparse.Namespace) -> tuple[Retrieval, np.ndarray | None, str, 
     from vpr_uncertainty.evaluation import correct_at_n
 
     inputs = {"SCORES": args.scores, "--machine-labels": args.machine_labels, "--gt": args.gt}
-    refuse_shared_files(inputs, {"--sequential": args.sequential, "--audit": args.audit, "--out": args.out,
-                                 "--contact-sheet": args.contact_sheet})  # fmt: skip
+    refuse_shared_files(
+        inputs,
+        {
+            "--sequential": args.sequential,
+            "--audit": args.audit,
+            "--out": args.out,
+            "--contact-sheet": args.contact_sheet,
+        },
+    )
     with command_wording(ground_truth="--gt GT"):
         pool = read_pool(args.scores, ground_truth=args.gt, **_reading(args))
     truth = None if args.gt is None else correct_at_n(pool.indices, pool.positives, 1)
