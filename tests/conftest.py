@@ -27,6 +27,28 @@ def _require(path: Path, what: str) -> Path:
     return path
 
 
+@pytest.fixture(autouse=True)
+def _user_plugins_forgotten():
+    """A user's plugin a test loads (a module in its tmp_path) is forgotten after the test: ``plugins._loaded`` is
+    what a later Ray run ships to its workers, which are long-lived and had registered its names already ("ENT
+    already registered" in a Ray test that followed tests/test_plugins.py on one xdist worker). The package's own
+    entry points (no folder) stay, as loading them again would change nothing."""
+    from vpr_uncertainty import plugins
+
+    before = set(plugins._loaded)
+    yield
+    forget_user_plugins(before)
+
+
+def forget_user_plugins(before: set[str]) -> None:
+    """Drop from ``plugins._loaded`` the user plugins (those with a folder) loaded since ``before``."""
+    from vpr_uncertainty import plugins
+
+    for target in set(plugins._loaded) - before:
+        if plugins._loaded[target][0] is not None:
+            del plugins._loaded[target]
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     """The real data directory (holds vprbench/ and poses/)."""

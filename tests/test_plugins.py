@@ -178,3 +178,20 @@ def test_a_doubled_last_letter_gets_the_near_name():
     """Issue 45, item 7: ``--methods SUU`` listed the valid names without 'SU' (a prefix: one letter too many)."""
     with pytest.raises(KeyError, match="did you mean 'SU'"):
         METHODS.get("SUU")
+
+
+
+def test_a_plugin_a_test_loads_is_forgotten_after_it_and_the_entry_points_stay(tmp_path, monkeypatch):
+    """What the autouse fixture of conftest.py runs after every test."""
+    from conftest import forget_user_plugins
+    from vpr_uncertainty import plugins
+
+    plugins.load_plugins()
+    before = set(plugins._loaded)
+    (tmp_path / "forgotten_plugin.py").write_text("X = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    load_plugins(["forgotten_plugin"])
+    assert "forgotten_plugin" in [target for target, _, _ in plugins.loaded_plugins()]
+    forget_user_plugins(before)
+    shipped = [target for target, _, _ in plugins.loaded_plugins()]
+    assert "forgotten_plugin" not in shipped and "vpr_uncertainty.geometric" in " ".join(shipped)
