@@ -42,7 +42,7 @@ Absent places (``--absent F``)
     closures to places the map does not hold (they are not answerable).
 
 The gate (cross-fitted, nothing tuned)
-    The queries are split in two random halves (``--seed``). ``calibrate_arrays`` with its defaults at p* = 0.9,
+    The queries are split in two random halves (``--seed``). ``calibrate_arrays`` (CAL 0.9 δ, margin 0.1 δ) at p* = 0.9,
     δ = 0.1 is fitted on the labelled rows of one half (every query of it: top-1 row, correct, answerable) and
     judges the closures of the other half, and vice versa; a half whose gate certifies nothing accepts nothing (that
     is the gate's answer with ~55 labels). The filtering goes through the toolkit's ``filter_loop_closures``;
@@ -260,9 +260,11 @@ def cross_fitted_gates(props: Proposals, seed: int, folds: int = 2) -> tuple[lis
     for h in range(folds):
         train = fold != h
         try:
+            # the shares the evidence page was measured with: calibrate's default from 176 labels (a half holds ~55,
+            # where the default is now SU alone at the whole δ)
             gate = calibrate_arrays(
                 props.top1_rows[train], props.top1_correct[train], answerable=props.answerable[train],
-                target_precision=0.9, delta=0.1, seed=seed,
+                target_precision=0.9, delta=0.1, seed=seed, rankings={"CAL": 0.9, "margin": 0.1},
             )  # fmt: skip
             notes.append(gate.precision_lower_bound)
             gates.append(gate)

@@ -137,7 +137,9 @@ def calibrate_rule(population: Population, rows: np.ndarray, draw: int, p_star: 
     shares = None
     if spec is not None:
         shares, fallback, dense = spec
-        fit.certify_rankings = functools.partial(original, fallback=fallback, dense_from=dense)
+        fit.certify_rankings = lambda *args, **options: original(
+            *args, **{**options, "fallback": fallback, "dense_from": dense}
+        )
     try:
         gate = fit.calibrate_arrays(
             population.scores[rows],

@@ -47,7 +47,7 @@ def test_one_query_path_agrees_with_batch(method, model, target, corridor_dir, c
 @pytest.mark.filterwarnings("ignore:reading the legacy")
 def test_gate_file_records_what_made_it(corridor_dir, corridor_matches_dir, tmp_path):
     retrieval = _corridor("AMOSNet", corridor_dir, corridor_matches_dir)
-    gate = calibrate(retrieval, target_precision=0.9, delta=0.1, seed=0)
+    gate = calibrate(retrieval, target_precision=0.9, delta=0.1, seed=0, rankings={"CAL": 0.9, "margin": 0.1})
     data = json.loads(gate.save(tmp_path / "gate.json").read_text())
     assert data["format"] == "vpr-uncertainty gate" and data["k"] == 10
     # the cross-fitted model at 0.9 δ and the margin at 0.1 δ, each one's outcome and δ recorded; P is the selection's

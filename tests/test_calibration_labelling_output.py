@@ -82,7 +82,8 @@ def test_the_corridor_gates_print_their_rules(corridor_dir, corridor_matches_dir
     assert (gate.accept(retrieval.scores[:, :10]) == (su <= -gate.cut)).all()
     assert Gate.load(gate.save(tmp_path / "su.json")).acceptance == gate.acceptance  # the file: the same decisions
     arguments = ["calibrate", str(matches), "--gt", str(corridor_dir / "ground_truth_new.npy")]
-    assert main([*arguments, "--out", str(tmp_path / "g.json"), "--target-precision", "0.9"]) == 0
+    wide = ["--rankings", "CAL=0.9,margin=0.1"]  # the shares of 176 labels or more: a refitted CAL rule
+    assert main([*arguments, "--out", str(tmp_path / "g.json"), "--target-precision", "0.9", *wide]) == 0
     printed, cal = capsys.readouterr().out, Gate.load(tmp_path / "g.json")
     p = 1 / (1 + math.exp(-cal.cut))  # the CAL model's P at its cut (the gate's P is the RS calibrator's)
     assert cal.rule.ranking == "CAL" and cal.calibrator != cal.rule and round(p, 4) == 0.8784
@@ -225,3 +226,22 @@ def test_a_sheet_write_that_fails_half_way_leaves_the_previous_sheet(pool, corri
     assert sheet.read_bytes() == b"the previous sheet" and [
         p.name for p in tmp_path.iterdir() if "sheet" in p.name
     ] == ["sheet.png"]
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [("SU, CAL", ("SU", "CAL")), ("CAL=0.9,margin=0.1", {"CAL": 0.9, "margin": 0.1}), ("SU=1", {"SU": 1.0})],
+)
+def test_rankings_option_takes_names_or_shares(text, expected):
+    from vpr_uncertainty.pipeline.calibrate import _rankings
+
+    assert _rankings(text) == expected
+
+
+@pytest.mark.parametrize("text", ["CAL=0.9,margin", "CAL=x", "CAL=0.5=0.5", ","])
+def test_a_rankings_option_mixing_names_and_shares_is_one_line_exit_2(text, capsys, tmp_path):
+    scores = tmp_path / "s.npy"
+    np.save(scores, np.eye(4, dtype=np.float32))
+    with pytest.raises(SystemExit) as stopped:
+        main(["calibrate", str(scores), "--out", str(tmp_path / "g.json"), "--rankings", text])
+    assert stopped.value.code == 2 and "--rankings" in capsys.readouterr().err

@@ -39,8 +39,10 @@ from vpr_uncertainty.calibration.calibrator import (
 from vpr_uncertainty.calibration.gate import Gate
 from vpr_uncertainty.calibration.guarantee import (
     DEFAULT_SHARES,
+    FALLBACK,
     certify_rankings,
     check_rankings,
+    default_rankings,
     needed_message,
 )
 from vpr_uncertainty.evaluation.metrics import answerable_queries, correct_at_n
@@ -96,7 +98,10 @@ def calibrate_arrays(
     pool_features = feature_columns(pool_scores, k, model_features if features is not None else ())
     labelled_features = {name: column[: correct.size] for name, column in pool_features.items()}
     model_features = tuple(name for name in model_features if name in pool_features)
-    shares = check_rankings(DEFAULT_SHARES if rankings is None else rankings, labelled_features)
+    shares, fallback_share = DEFAULT_SHARES, FALLBACK
+    if rankings is None and target_precision is not None:
+        shares, fallback_share = default_rankings(correct.size, target_precision, delta)
+    shares = check_rankings(shares if rankings is None else rankings, labelled_features)
     info: dict[str, Any] = {
         "toolkit_version": __version__,
         "target_precision": target_precision,
@@ -144,6 +149,7 @@ def calibrate_arrays(
         delta=delta,
         folds=folds,
         seed=seed,
+        fallback=fallback_share,
     )
     message = certificate.message
     if rule is None:  # nothing certified: the gate accepts nothing
@@ -209,7 +215,9 @@ def calibrate(
         Default :data:`~vpr_uncertainty.calibration.calibrator.DEFAULT_FEATURES`.
     rankings : sequence of str or dict of str to float, optional
         Candidate rankings of the certified rule, from :data:`RANKINGS` and ``"CAL"`` (the cross-fitted model): a
-        list shares δ evenly, a dict gives each name its share. Default
+        list shares δ evenly, a dict gives each name its share. Default: by the number of labelled queries
+        (:func:`~vpr_uncertainty.calibration.guarantee.default_rankings`): SU alone at the whole δ below
+        6 × ⌈log δ / log p*⌉ (132 for p* = 0.9, δ = 0.1), SU and CAL at δ/2 each below 8 ×, then
         :data:`~vpr_uncertainty.calibration.guarantee.DEFAULT_SHARES`.
     unlabelled : Retrieval or ndarray of shape (U, K), optional
         Further queries without labels (e.g. the rest of the traversal): the candidate cuts are quantiles over

@@ -33,15 +33,25 @@ from scipy import stats
 from vpr_uncertainty._validation import check_count
 from vpr_uncertainty.calibration.calibrator import RANKINGS, Calibrator, columns, cross_fitted, fit_model, ranking_rule
 
-#: The candidate rankings of the default gate and the share of δ each is given (docs/evidence/calibration.md).
+#: The candidate rankings of the default gate and the share of δ each is given, from 8 × :func:`min_accepted`
+#: labelled queries on (:data:`DEFAULT_SCHEDULE`; docs/evidence/calibration.md).
 DEFAULT_SHARES: dict[str, float] = {"CAL": 0.9, "margin": 0.1}
 #: The share of a ranking's level its chain holds for the fallback count (:func:`cut_chain`).
 FALLBACK = 0.3
+#: The default rankings by the number of labelled queries: from ``multiple`` × :func:`min_accepted` labelled queries
+#: on (22 for p* = 0.9, δ = 0.1), these shares of δ and this fallback share. With few labels the whole δ on SU (the
+#: textbook fixed sequence): a cross-fitted model is noisy and a split δ misses short clean tops.
+DEFAULT_SCHEDULE: tuple[tuple[int, dict[str, float], float], ...] = (
+    (0, {"SU": 1.0}, 0.0),
+    (6, {"SU": 0.5, "CAL": 0.5}, 0.0),
+    (8, DEFAULT_SHARES, FALLBACK),
+)
 #: From this share of the labelled queries on, a chain tests every count (:func:`cut_chain`, the sequential mode's
 #: chains; the batch gate's, :func:`certify_rankings`, test every count from the first).
 DENSE_FROM = 0.25
 
 __all__ = [
+    "DEFAULT_SCHEDULE",
     "DEFAULT_SHARES",
     "Certificate",
     "certify_rankings",
@@ -50,6 +60,7 @@ __all__ = [
     "clopper_pearson_lower",
     "cut_chain",
     "cuts_at_coverage",
+    "default_rankings",
     "fallback_test",
     "fixed_sequence",
     "min_accepted",
@@ -75,6 +86,20 @@ def min_accepted(target_precision: float, delta: float) -> int:
     """
     _check_target(target_precision, delta)
     return math.ceil(math.log(delta) / math.log(target_precision) - 1e-12)
+
+
+def default_rankings(n_labelled: int, target_precision: float, delta: float) -> tuple[dict[str, float], float]:
+    """The default rankings' shares of δ and their chains' fallback share for ``n_labelled`` labelled queries
+    (:data:`DEFAULT_SCHEDULE`): fixed by n, p* and δ alone, never by a label, so the union bound holds.
+
+    Examples
+    --------
+    >>> default_rankings(111, 0.9, 0.1), default_rankings(176, 0.9, 0.1)[0]
+    (({'SU': 1.0}, 0.0), {'CAL': 0.9, 'margin': 0.1})
+    """
+    needed = min_accepted(target_precision, delta)
+    _, shares, fallback = [step for step in DEFAULT_SCHEDULE if n_labelled >= step[0] * needed][-1]
+    return dict(shares), fallback
 
 
 def clopper_pearson_lower(correct: np.ndarray | int, accepted: np.ndarray | int, delta: float) -> np.ndarray:

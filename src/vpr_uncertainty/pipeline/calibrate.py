@@ -26,11 +26,19 @@ from vpr_uncertainty.pipeline.options import (
 from vpr_uncertainty.retrieval import Retrieval
 
 
-def _names(text: str) -> tuple[str, ...]:
-    names = tuple(name.strip() for name in text.split(",") if name.strip())
-    if not names:
+def _rankings(text: str) -> tuple[str, ...] | dict[str, float]:
+    """``SU,CAL`` (δ shared evenly) or ``CAL=0.9,margin=0.1`` (each name's share of δ)."""
+    parts = [part.strip() for part in text.split(",") if part.strip()]
+    if not parts:
         raise argparse.ArgumentTypeError(f"expected comma-separated names, got {text!r}")
-    return names
+    if not any("=" in part for part in parts):
+        return tuple(parts)
+    try:
+        return {name.strip(): float(share) for name, share in (part.split("=") for part in parts)}
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected NAME,NAME,... or NAME=SHARE,NAME=SHARE,... (every name with its share), got {text!r}"
+        ) from None
 
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
@@ -45,8 +53,10 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
             "least 1 - delta over the draw of the calibration queries, the precision of accepted answers on new\n"
             "queries from the same distribution is at least p*. The gate is written as JSON (no pickle); use it\n"
             "with Gate.load in Python, or as the uncertainty method CAL:gate=GATE.json in evaluate.\n\n"
-            "Every label is used: each candidate ranking (--rankings; default the cross-fitted model CAL at 0.9\n"
-            "delta, the margin at 0.1 delta) is tested on all labelled queries, at cuts fixed from the scores alone\n"
+            "Every label is used: each candidate ranking (--rankings; by default, by the number n of labelled\n"
+            "queries: SU alone at the whole delta below 132 (6 x the 22 that p* 0.9, delta 0.1 need at least),\n"
+            "SU and the cross-fitted model CAL at delta/2 each below 176, then CAL at 0.9 delta and the margin at\n"
+            "0.1 delta) is tested on all labelled queries, at cuts fixed from the scores alone\n"
             "(quantiles over the labelled and --unlabelled queries), by a chain that one early wrong answer cannot\n"
             "end. Without --target-precision the gate accepts P >= 0.5 and certifies nothing.\n\n"
             "--plan answers, before more labelling, how many labelled queries would certify the target: SCORES holds\n"
@@ -85,10 +95,11 @@ def add_cli(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--rankings",
-        type=_names,
+        type=_rankings,
         metavar="NAMES",
-        help="candidate rankings of the certified threshold, comma-separated, from SU, RS, SD, BM, margin, PA, CAL "
-        "(delta shared evenly; default CAL at 0.9 delta, margin at 0.1 delta; --sequential: SU, margin at delta/2)",
+        help="candidate rankings of the certified threshold, comma-separated, from SU, RS, SD, BM, margin, PA, CAL: "
+        "names share delta evenly, NAME=SHARE,... gives each its share (default: by the number of labels, see above; "
+        "--sequential: SU, margin at delta/2)",
     )
     parser.add_argument(
         "--plan",
@@ -340,7 +351,9 @@ def _run_audit(args: argparse.Namespace) -> int:
     session = AuditCalibration(retrieval.scores, machine, target_precision=args.target_precision, **options)
     read = read_labels(args.audit, n_queries=n, pool=pool, about=about)
     design = f"seed {args.seed}, {args.audit_size} draws, p* {args.target_precision:g}, delta {args.delta:g}, "
-    design += f"rankings {','.join(args.rankings or ['default'])}, machine labels {array_digest(machine.correct)[:16]}"
+    named = args.rankings.items() if isinstance(args.rankings, dict) else ()
+    shown = [f"{name}={share:g}" for name, share in named] or args.rankings or ["default"]
+    design += f"rankings {','.join(shown)}, machine labels {array_digest(machine.correct)[:16]}"
     if (found := re.search(r"^# vpr-uncertainty audit: (.*)$", read.text, re.MULTILINE)) and found[1] != design:
         why = "its draws were fixed before its first label, and drawing again after labelling voids the guarantee"
         raise ValueError(f"{args.audit} is the audit of {found[1]}, not of {design}: {why}; start another audit file")
