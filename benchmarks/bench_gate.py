@@ -3,8 +3,8 @@
 Target (issue 19): at most 1.5 microseconds per ``gate(row)`` call, for a gate fresh from ``calibrate()`` and the
 same gate after ``Gate.save``/``Gate.load`` (they must not differ: the fresh gate once kept numpy float weights,
 27 % slower). The gates are calibrated on a real corridor matrix (AMOSNet, p* = 0.9) when VPR_UNCERTAINTY_DATA is
-set, else on synthetic scores. Each figure is the median over ``--repeats`` timings of ``--number`` calls, per call,
-for a Python list and a (K,) float32 array of K = 10.
+set, else on synthetic scores. Each figure is the median over ``--repeats`` rounds, interleaved (every gate and input
+timed once per round), of ``--number`` calls, per call, for a Python list and a (K,) float32 array of K = 10.
 
     python benchmarks/bench_gate.py [--repeats 15] [--number 20000]
 """
@@ -12,6 +12,7 @@ for a Python list and a (K,) float32 array of K = 10.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import statistics
 import tempfile
@@ -39,10 +40,17 @@ def _retrieval() -> tuple[Retrieval, str]:
     return Retrieval(scores, np.tile(np.arange(10), (400, 1)), positives), "synthetic"
 
 
-def per_call_us(function, argument, repeats: int, number: int) -> float:
-    function(argument)
-    timings = timeit.repeat(lambda: function(argument), number=number, repeat=repeats)
-    return statistics.median(timings) / number * 1e6
+def per_call_us(functions: dict, arguments: dict, repeats: int, number: int) -> dict[tuple[str, str], float]:
+    """Median µs per call of each function on each argument, timed in interleaved rounds (one timing of every pair
+    per round), so that a slow spell of a shared machine falls on all of them alike."""
+    timings: dict[tuple[str, str], list[float]] = {(f, a): [] for f in functions for a in arguments}
+    for function, argument in timings:
+        functions[function](arguments[argument])
+    for _ in range(repeats):
+        for function, argument in timings:
+            call = functools.partial(functions[function], arguments[argument])
+            timings[function, argument].append(timeit.timeit(call, number=number))
+    return {pair: statistics.median(times) / number * 1e6 for pair, times in timings.items()}
 
 
 def main() -> None:
@@ -63,12 +71,13 @@ def main() -> None:
             gates[f"{name}, loaded"] = Gate.load(gate.save(Path(folder) / "gate.json"))
     su = StatisticalUncertainty(k=10)
     row = retrieval.scores[0, :10].astype(np.float32)
-    print(f"calibrated on {source}; median of {args.repeats} x {args.number} calls, microseconds per call")
-    print(f"{'':34s} {'list':>8s} {'ndarray':>8s}")
-    for name, function in {"StatisticalUncertainty": su, **gates}.items():
-        as_list = per_call_us(function, row.tolist(), args.repeats, args.number)
-        as_array = per_call_us(function, row, args.repeats, args.number)
-        print(f"{name:34s} {as_list:8.2f} {as_array:8.2f}")
+    functions = {"StatisticalUncertainty": su, **gates}
+    found = per_call_us(functions, {"list": row.tolist(), "ndarray": row}, args.repeats, args.number)
+    print(f"calibrated on {source}; median of {args.repeats} interleaved rounds x {args.number} calls, µs per call")
+    print(f"{'':34s} {'list':>8s} {'ndarray':>8s} {'list ÷ StatisticalUncertainty':>30s}")
+    for name in functions:
+        ratio = found[name, "list"] / found["StatisticalUncertainty", "list"]
+        print(f"{name:34s} {found[name, 'list']:8.2f} {found[name, 'ndarray']:8.2f} {ratio:30.2f}")
 
 
 if __name__ == "__main__":
