@@ -98,26 +98,25 @@ def make_two_column(n_columns: int, distance_ratio: bool):
         bad = 0
         for q in range(scores.shape[0]):
             row = q * m
-            first, second = flat[row], flat[row + 1]
-            # each value read once, compared with the one before it; integer flags, no branch
-            previous = first
-            unsorted = 0
+            # one boolean and-ed with every comparison, counted once per row: no branch, and LLVM vectorises it
+            # (an integer flag or'ed with `not` comparisons took 1.3-1.8x the time)
+            ok = True
             for j in range(1, m):
-                value = flat[row + j]
-                unsorted |= not (value <= previous)  # also for NaN
-                previous = value
-            wrong = unsorted | (not (first < math.inf)) | (not (second > -math.inf))
+                ok &= flat[row + j] <= flat[row + j - 1]  # False for NaN
+            first, second = flat[row], flat[row + 1]
+            ok &= (first < math.inf) & (second > -math.inf)
             if distance_ratio:
                 squared_first = 2.0 - 2.0 * np.float64(first)
                 squared_second = 2.0 - 2.0 * np.float64(second)
-                wrong |= not ((squared_first >= -tolerance) & (squared_second <= 4.0 + tolerance))  # the extremes
+                ok &= (squared_first >= -tolerance) & (squared_second <= 4.0 + tolerance)  # the extremes
                 d_first = math.sqrt(max(squared_first, 0.0))
                 d_second = math.sqrt(max(squared_second, 0.0))
                 result = d_first / d_second if d_second != 0 else 1.0
             else:
                 result = second - first
             out[q] = result
-            bad += wrong | (not (abs(result) <= limit))
+            ok &= abs(result) <= limit
+            bad += not ok
         return bad
 
     return kernel
