@@ -238,10 +238,19 @@ def test_rankings_option_takes_names_or_shares(text, expected):
     assert _rankings(text) == expected
 
 
-@pytest.mark.parametrize("text", ["CAL=0.9,margin", "CAL=x", "CAL=0.5=0.5", ","])
+@pytest.mark.parametrize("text", ["CAL=0.9,margin", "CAL=x", "CAL=0.5=0.5", ",", "SU=1,SU=0.5"])
 def test_a_rankings_option_mixing_names_and_shares_is_one_line_exit_2(text, capsys, tmp_path):
     scores = tmp_path / "s.npy"
     np.save(scores, np.eye(4, dtype=np.float32))
     with pytest.raises(SystemExit) as stopped:
         main(["calibrate", str(scores), "--out", str(tmp_path / "g.json"), "--rankings", text])
     assert stopped.value.code == 2 and "--rankings" in capsys.readouterr().err
+
+
+def test_an_unknown_ranking_gets_the_near_name():
+    from vpr_uncertainty.calibration.guarantee import check_rankings
+
+    with pytest.raises(ValueError, match="unknown ranking\\(s\\) \\['su'\\]; did you mean 'SU'\\?"):
+        check_rankings({"su": 1.0}, {"SU": np.zeros(3)})
+    with pytest.raises(ValueError, match="did you mean 'margin'"):
+        check_rankings(["margn"], {"gap": np.zeros(3)})

@@ -180,7 +180,6 @@ def test_a_doubled_last_letter_gets_the_near_name():
         METHODS.get("SUU")
 
 
-
 def test_a_plugin_a_test_loads_is_forgotten_after_it_and_the_entry_points_stay(tmp_path, monkeypatch):
     """What the autouse fixture of conftest.py runs after every test."""
     from conftest import forget_user_plugins

@@ -22,6 +22,7 @@ correct, the p-value p*^n stays above δ): :func:`min_accepted`.
 
 from __future__ import annotations
 
+import difflib
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -386,7 +387,10 @@ def check_rankings(rankings: Sequence[str] | dict[str, float], available: dict[s
     names = tuple(rankings)
     unknown = [name for name in names if name != "CAL" and name not in RANKINGS]
     if unknown:
-        raise ValueError(f"unknown ranking(s) {unknown}; valid: {', '.join([*RANKINGS, 'CAL'])}")
+        valid = {name.lower(): name for name in [*RANKINGS, "CAL"]}
+        near = difflib.get_close_matches(str(unknown[0]).lower(), list(valid), n=1, cutoff=0.6)
+        hint = f"did you mean {valid[near[0]]!r}? " if near else ""
+        raise ValueError(f"unknown ranking(s) {unknown}; {hint}valid: {', '.join(valid.values())}")
     if len(set(names)) != len(names):
         raise ValueError(f"rankings lists a name twice: {list(names)}")
     missing = [name for name in names if name != "CAL" and RANKINGS[name][0] not in available]

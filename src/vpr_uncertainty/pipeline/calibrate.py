@@ -34,11 +34,14 @@ def _rankings(text: str) -> tuple[str, ...] | dict[str, float]:
     if not any("=" in part for part in parts):
         return tuple(parts)
     try:
-        return {name.strip(): float(share) for name, share in (part.split("=") for part in parts)}
+        pairs = [(name.strip(), float(share)) for name, share in (part.split("=") for part in parts)]
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected NAME,NAME,... or NAME=SHARE,NAME=SHARE,... (every name with its share), got {text!r}"
         ) from None
+    if len(shares := dict(pairs)) < len(pairs):
+        raise argparse.ArgumentTypeError(f"a ranking is named twice in {text!r}; give each name one share")
+    return shares
 
 
 def add_cli(subparsers: argparse._SubParsersAction) -> None:
