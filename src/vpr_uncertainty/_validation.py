@@ -2,10 +2,19 @@
 
 from __future__ import annotations
 
+import difflib
 import math
 import numbers
+from collections.abc import Iterable
 
 import numpy as np
+
+
+def did_you_mean(name: object, valid: Iterable[str]) -> str:
+    """``"did you mean 'X'? "`` for the valid name nearest to ``name``, case aside, or ``""`` when none is near."""
+    lower = {known.lower(): known for known in valid}
+    close = difflib.get_close_matches(str(name).lower(), list(lower), n=1, cutoff=0.6)
+    return f"did you mean {lower[close[0]]!r}? " if close else ""
 
 
 def check_k(k: object, *, name: str = "k") -> int:

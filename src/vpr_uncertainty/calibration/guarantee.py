@@ -22,7 +22,6 @@ correct, the p-value p*^n stays above δ): :func:`min_accepted`.
 
 from __future__ import annotations
 
-import difflib
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -31,7 +30,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from vpr_uncertainty._validation import check_count
+from vpr_uncertainty._validation import check_count, did_you_mean
 from vpr_uncertainty.calibration.calibrator import RANKINGS, Calibrator, columns, cross_fitted, fit_model, ranking_rule
 
 #: The candidate rankings of the default gate and the share of δ each is given, from 8 × :func:`min_accepted`
@@ -387,10 +386,8 @@ def check_rankings(rankings: Sequence[str] | dict[str, float], available: dict[s
     names = tuple(rankings)
     unknown = [name for name in names if name != "CAL" and name not in RANKINGS]
     if unknown:
-        valid = {name.lower(): name for name in [*RANKINGS, "CAL"]}
-        near = difflib.get_close_matches(str(unknown[0]).lower(), list(valid), n=1, cutoff=0.6)
-        hint = f"did you mean {valid[near[0]]!r}? " if near else ""
-        raise ValueError(f"unknown ranking(s) {unknown}; {hint}valid: {', '.join(valid.values())}")
+        valid = [*RANKINGS, "CAL"]
+        raise ValueError(f"unknown ranking(s) {unknown}; {did_you_mean(unknown[0], valid)}valid: {', '.join(valid)}")
     if len(set(names)) != len(names):
         raise ValueError(f"rankings lists a name twice: {list(names)}")
     missing = [name for name in names if name != "CAL" and RANKINGS[name][0] not in available]

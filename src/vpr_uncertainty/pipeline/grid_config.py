@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from vpr_uncertainty._files import is_regular_file
+from vpr_uncertainty._validation import did_you_mean
 from vpr_uncertainty.cache import content_key, slug
 from vpr_uncertainty.methods import (
     PATH_OPTIONS,
@@ -251,13 +252,12 @@ def qualitative_methods(raw: Any, entries: list[InputEntry], problems: list[str]
         return None
     known = sorted({entry.vpr_method for entry in entries})
     with_images = {entry.vpr_method for entry in entries if entry.images is not None or entry.model is not None}
-    lower = {name.lower(): name for name in known}
     for name in names:
         if name not in known:
-            close = difflib.get_close_matches(name.lower(), list(lower), n=1, cutoff=0.6)
-            hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
+            hint = did_you_mean(name, known)
             problems.append(
-                f"qualitative names {name!r}, which is no VPR method of the grid{hint} VPR methods: {', '.join(known)}"
+                f"qualitative names {name!r}, which is no VPR method of the grid{'; ' + hint if hint else ' '}"
+                f"VPR methods: {', '.join(known)}"
             )
         elif name not in with_images:
             problems.append(f"qualitative names {name!r}, but no input of that VPR method has images (images = ...)")
@@ -476,13 +476,11 @@ def _vpr_method_folders(folder: Path, wanted: Any, where: str, problems: list[st
     if not isinstance(wanted, list) or not all(isinstance(name, str) for name in wanted):
         problems.append(f"{where}: vpr_methods must be a list of subfolder names of {folder}, got {wanted!r}")
         return []
-    lower = {name.lower(): name for name in found}
     for name in wanted:
         if name not in found:
-            close = difflib.get_close_matches(name.lower(), list(lower), n=1, cutoff=0.6)
-            hint = f"; did you mean {lower[close[0]]!r}?" if close else ""
+            hint = did_you_mean(name, found)
             problems.append(
-                f"{where}: vpr_methods has {name!r}, which is not a folder of {folder}{hint} "
+                f"{where}: vpr_methods has {name!r}, which is not a folder of {folder}{'; ' + hint if hint else ' '}"
                 f"Folders there: {', '.join(found) or 'none'}"
             )
     return [name for name in wanted if name in found]
