@@ -40,6 +40,24 @@ def test_fill_in_mode_on_the_four_lap_graph(bench, capsys, corridor_dir):
     assert blocks["true only"] == 708 and blocks["all"] > 5 * blocks["true only"]
 
 
+def test_sphere2500_has_its_poses_and_a_fitted_noise_model(bench):
+    """Neither Sphere2500 file has vertices: the initial guess and the ground truth are their odometry composed
+    (GTSAM's readG2o returned no poses there, so every Sphere2500 run failed in the APE); the fitted variant's σ are
+    the RMS errors of the edges at the ground truth, so each component's mean squared whitened error is 1."""
+    problem = bench.sphere2500()
+    assert problem.truth.shape == (2500, 8) and problem.initial.size() == 2500
+    start, end = problem.truth[[0, -1], 1:4]
+    assert np.allclose(start, 0) and np.linalg.norm(end) > 10  # the truth is a sphere, not the origin repeated
+    fitted = bench.sphere2500_fitted()
+    truth = gtsam.Values()
+    for row in problem.truth:
+        truth.insert(int(row[0]), gtsam.Pose3(gtsam.Rot3.Quaternion(row[7], *row[4:7]), row[1:4]))
+    whitened = np.array([fitted.graph.at(i).whitenedError(truth) for i in range(fitted.graph.size())])
+    np.testing.assert_allclose(np.mean(whitened**2, axis=0), 1.0, rtol=1e-6)
+    sigmas = fitted.graph.at(0).noiseModel().sigmas()
+    assert sigmas[:3].max() < 0.05 < 0.09 < sigmas[3:].min()  # rotation about 0.01-0.04 rad, translation 0.1 m
+
+
 def _raises() -> None:
     raise ValueError("boom")
 
