@@ -24,6 +24,7 @@ Targets (issue 44): kept >= 85 % of the true closures, realised precision >= p* 
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import time
 from pathlib import Path
@@ -58,13 +59,49 @@ def oracle_kept(rows: np.ndarray, is_true: np.ndarray, target: float) -> float:
     return float(true_kept[reaching].max() / max(is_true.sum(), 1)) if reaching.any() else 0.0
 
 
-def one_seed(problem, rate, kind, seed, pop, labelled, target):
-    rng = np.random.default_rng(seed)
-    graph, closures, is_true = slam.with_wrong_closures(problem, rate, rng, kind)  # "grouped": slam's grouped runs
-    rows = slam.score_rows(pop, is_true, rng)
-    order = np.argsort(closures.max(axis=1), kind="stable")  # trajectory order
-    first, rest = order[: round(labelled * len(order))], order[round(labelled * len(order)) :]
-    seen = prefix_graph(graph, int(closures[first].max()))
+def population_ceiling(pop, wrong_rate: float, target: float) -> float:
+    """The share of the true closures kept by the most lenient SU cut whose expected precision is >= ``target``
+    when true closures draw the method's correct rows and a ``wrong_rate`` share of the closures its wrong rows (the
+    pairing of ``loop_closure_slam.score_rows``): (1 - w) F_true(c) / ((1 - w) F_true(c) + w F_wrong(c)), with F the
+    empirical distributions of SU. No SU gate keeps more at that precision, whatever its labels."""
+    su = statistical_uncertainty(pop.scores[:, :10])
+    cuts = np.unique(su)
+    true_share = (su[pop.correct][:, None] <= cuts).mean(axis=0)
+    wrong_share = (su[~pop.correct][:, None] <= cuts).mean(axis=0)
+    accepted_true, accepted_wrong = (1 - wrong_rate) * true_share, wrong_rate * wrong_share
+    reaching = accepted_true >= target * (accepted_true + accepted_wrong)
+    return float(true_share[reaching & (true_share > 0)].max(initial=0.0))
+
+
+def print_ceilings(rates: list[float], targets: list[float]) -> None:
+    """``population_ceiling`` of every corridor method, its native rows and with absent-place rows."""
+    methods = sorted(p.name for p in (slam.data_root() / "precomputed_matches/corridor").iterdir())
+    cells = [(w, t) for w in rates for t in targets]
+    print("| method | rows | " + " | ".join(f"{w:.0%} wrong, p*={t}" for w, t in cells) + " |")
+    print("|---|---|" + "---|" * len(cells))
+    for method in methods:
+        for absent in (False, True):
+            pop = slam.population(method, absent=absent)
+            shares = " | ".join(f"{population_ceiling(pop, w, t):.2f}" for w, t in cells)
+            print(f"| {method} | {'absent' if absent else 'native'} | {shares} |", flush=True)
+
+
+def subgraph(graph, closures: np.ndarray, keep: np.ndarray):
+    """The factors of ``graph`` but the closures (E, 2) whose ``keep`` (E,) is False."""
+    kept, closure_of = slam.gtsam.NonlinearFactorGraph(), {tuple(sorted(p)): n for n, p in enumerate(closures.tolist())}
+    for index, (a, b) in enumerate(graph_edges(graph).tolist()):
+        n = closure_of.get(tuple(sorted((a, b))))
+        if n is None or keep[n]:
+            kept.add(graph.at(index))
+    return kept
+
+
+def certified_gate(problem, graph, closures, rows, is_true, pool, target, seed, audit_size):
+    """GNC on the graph seen up to the last closure of ``pool`` (indices into ``closures``, trajectory order)
+    labels the pool's closures by their final weight; the audit of at most ``audit_size`` of them (the ground truth
+    standing in for the person) certifies p*. Returns the gate (None when nothing is certified), the machine
+    labels' error rate and the number of audit labels."""
+    seen = prefix_graph(graph, int(closures[pool].max()))
     initial = slam.gtsam.Values()
     for key in sorted({k for i in range(seen.size()) for k in seen.at(i).keys()}):
         initial.insert(key, problem.initial.atPose2(key))
@@ -72,36 +109,62 @@ def one_seed(problem, rate, kind, seed, pop, labelled, target):
     closing = np.flatnonzero(np.abs(edges[:, 1] - edges[:, 0]) != 1)
     _, weights = optimize(seen, initial, robust="gnc", closures=closing, weights=True)
     weight_of = {tuple(sorted(edges[i].tolist())): weights[i] for i in closing}
-    machine = np.array([weight_of[tuple(sorted(pair))] > 0.5 for pair in closures[first].tolist()])
-    audit = AuditCalibration(rows[first], machine, target_precision=target, delta=0.1, seed=seed)
+    machine = np.array([weight_of[tuple(sorted(pair))] > 0.5 for pair in closures[pool].tolist()])
+    audit = AuditCalibration(rows[pool], machine, target_precision=target, delta=0.1, seed=seed, audit_size=audit_size)
     while (query := audit.next_query()) is not None:  # the ground truth stands in for the person
-        audit.add_label(query, bool(is_true[first][query]))
-    status, gate = audit.status(), audit.gate() if audit.status().certified else None
-    accept = gate.accept(rows) if gate is not None else np.zeros(len(rows), bool)
+        audit.add_label(query, bool(is_true[pool][query]))
+    status = audit.status()
+    return (audit.gate() if status.certified else None), float(np.mean(machine != is_true[pool])), status
+
+
+def one_seed(problem, rate, kind, seed, pop, labelled, target, stages=1, window=None, step_aside=False):
+    """One seed; with ``stages`` > 1 the remaining closures are decided in that many chunks (trajectory order),
+    each by a gate certified again before it on the closures seen so far (the last ``window`` share of all closures
+    when given), the 40 audit labels split evenly among the stages. With ``step_aside``, also the APE when the
+    closures decided while no gate is certified all go to GNC (the gate steps aside instead of accepting none)."""
+    rng = np.random.default_rng(seed)
+    graph, closures, is_true = slam.with_wrong_closures(problem, rate, rng, kind)  # "grouped": slam's grouped runs
+    rows = slam.score_rows(pop, is_true, rng)
+    order = np.argsort(closures.max(axis=1), kind="stable")  # trajectory order
+    start = round(labelled * len(order))
+    rest = order[start:]
+    accept, labels, certified, machine_wrong, kept = np.zeros(len(rows), bool), 0, [], [], None
+    aside = np.zeros(len(rows), bool)  # decided while no gate was certified
+    bounds = np.linspace(start, len(order), stages + 1).round().astype(int)
+    for stage, (begin, end) in enumerate(itertools.pairwise(bounds)):
+        pool = order[:begin] if window is None else order[max(0, begin - round(window * len(order))) : begin]
+        gate, wrong, status = certified_gate(
+            problem, graph, closures, rows, is_true, pool, target, seed + 1000 * stage, 40 // stages
+        )
+        labels, machine_wrong = labels + status.labelled, [*machine_wrong, wrong]
+        certified.append(status.certified)
+        decided = order[:end] if stage == 0 else order[begin:end]  # the first gate also decides its own pool
+        kept = gate if gate is not None else kept  # a stage that certifies nothing keeps the last certified gate
+        if kept is not None:
+            accept[decided] = kept.accept(rows[decided])
+        else:
+            aside[decided] = True
     kept_true = accept[rest][is_true[rest]].mean() if is_true[rest].any() else np.nan
     precision = is_true[rest][accept[rest]].mean() if accept[rest].any() else np.nan
-    gated = slam.gtsam.NonlinearFactorGraph()
-    all_edges, closure_set = graph_edges(graph), {tuple(sorted(p)): n for n, p in enumerate(closures.tolist())}
-    floor = slam.gtsam.NonlinearFactorGraph()
-    for index, (a, b) in enumerate(all_edges.tolist()):
-        n = closure_set.get(tuple(sorted((a, b))))
-        if n is None or accept[n]:
-            gated.add(graph.at(index))
-        if n is None or is_true[n]:
-            floor.add(graph.at(index))
     start = time.perf_counter()
-    gate_gnc = slam.ate(optimize(gated, problem.initial, robust="gnc"), problem.truth)[0]
+    gate_gnc = slam.ate(optimize(subgraph(graph, closures, accept), problem.initial, robust="gnc"), problem.truth)[0]
     seconds = time.perf_counter() - start
-    floor_ape = slam.ate(optimize(floor, problem.initial), problem.truth)[0]
+    floor_ape = slam.ate(optimize(subgraph(graph, closures, is_true), problem.initial), problem.truth)[0]
+    aside_gnc = gate_gnc
+    if step_aside and aside.any():
+        aside_gnc = slam.ate(
+            optimize(subgraph(graph, closures, accept | aside), problem.initial, robust="gnc"), problem.truth
+        )[0]
     return {
         "oracle_kept": oracle_kept(rows[rest], is_true[rest], target),
-        "machine_wrong": float(np.mean(machine != is_true[first])),
-        "labels": status.labelled,
-        "certified": status.certified,
+        "machine_wrong": float(np.mean(machine_wrong)),
+        "labels": labels,
+        "certified": float(np.mean(certified)),
         "kept_true": kept_true,
         "precision": precision,
-        "precise": bool(precision >= target) if status.certified and not np.isnan(precision) else False,
+        "precise": bool(precision >= target) if any(certified) and not np.isnan(precision) else False,
         "ratio": gate_gnc / floor_ape,
+        "aside_ratio": aside_gnc / floor_ape,
         "seconds": seconds,
     }
 
@@ -115,26 +178,57 @@ def run(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", default="AMOSNet", help="the corridor method whose rows are paired")
     parser.add_argument("--labelled", type=float, default=0.3, help="share of the closures the back end labels")
     parser.add_argument("--target", type=float, default=0.9)
+    parser.add_argument("--stages", type=int, default=1, help="gates certified again along the remaining closures")
+    parser.add_argument(
+        "--step-aside",
+        action="store_true",
+        help="also report gate + GNC with every closure decided while no gate is certified passed to GNC",
+    )
+    parser.add_argument("--window", type=float, help="each stage's pool: the last WINDOW share of the closures")
+    parser.add_argument(
+        "--ceilings",
+        action="store_true",
+        help="print population_ceiling of every corridor method (at --rates, p* 0.5, 0.7, 0.9) and stop",
+    )
     args = parser.parse_args(argv)
+    if args.ceilings:
+        print_ceilings([float(r) for r in args.rates.split(",")], [0.5, 0.7, 0.9])
+        return 0
     pop = slam.population(args.method)
     print("| graph | wrong | kind | back end wrong | audit labels | P(certified) | true kept (rest) | SU oracle kept "
-          "(rest) | precision (rest) | precision >= p* | gate + GNC / floor (median, max) |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
+          "(rest) | precision (rest) | precision >= p* | gate + GNC / floor (median, max) |"
+          + (" stepping aside when uncertified (median, max) |" if args.step_aside else ""))  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + "---|" * args.step_aside, flush=True)
     for name in args.graphs.split(","):
         problem = slam.PROBLEMS[name]() if name != "fourlap" else slam.four_lap(0)
         for rate in map(float, args.rates.split(",")):
             for kind in args.kinds.split(","):
-                found = [one_seed(problem, rate, kind, s, pop, args.labelled, args.target) for s in range(args.seeds)]
+                found = [
+                    one_seed(
+                        problem,
+                        rate,
+                        kind,
+                        s,
+                        pop,
+                        args.labelled,
+                        args.target,
+                        args.stages,
+                        args.window,
+                        args.step_aside,
+                    )
+                    for s in range(args.seeds)
+                ]
 
                 def mean(key: str, found: list = found) -> float:
                     return float(np.nanmean([f[key] for f in found]))
 
-                ratios = [f["ratio"] for f in found]
+                ratios, aside = [f["ratio"] for f in found], [f["aside_ratio"] for f in found]
                 print(
                     f"| {name} | {rate:.0%} | {kind} | {mean('machine_wrong'):.1%} | {mean('labels'):.1f} | "
                     f"{mean('certified'):.2f} | {mean('kept_true'):.2f} | {mean('oracle_kept'):.2f} | "
                     f"{mean('precision'):.3f} | "
-                    f"{mean('precise'):.2f} | {np.median(ratios):.2f}, {max(ratios):.2f} |",
+                    f"{mean('precise'):.2f} | {np.median(ratios):.2f}, {max(ratios):.2f} |"
+                    + (f" {np.median(aside):.2f}, {max(aside):.2f} |" if args.step_aside else ""),
                     flush=True,
                 )
     return 0
