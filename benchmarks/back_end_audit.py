@@ -96,11 +96,9 @@ def subgraph(graph, closures: np.ndarray, keep: np.ndarray):
     return kept
 
 
-def certified_gate(problem, graph, closures, rows, is_true, pool, target, seed, audit_size):
-    """GNC on the graph seen up to the last closure of ``pool`` (indices into ``closures``, trajectory order)
-    labels the pool's closures by their final weight; the audit of at most ``audit_size`` of them (the ground truth
-    standing in for the person) certifies p*. Returns the gate (None when nothing is certified), the machine
-    labels' error rate and the number of audit labels."""
+def machine_labels(problem, graph, closures, pool) -> np.ndarray:
+    """GNC on the graph seen up to the last closure of ``pool`` (indices into ``closures``, trajectory order):
+    whether each of the pool's closures ends with weight > 0.5 (``label --by back-end``)."""
     seen = prefix_graph(graph, int(closures[pool].max()))
     initial = slam.gtsam.Values()
     for key in sorted({k for i in range(seen.size()) for k in seen.at(i).keys()}):
@@ -109,7 +107,14 @@ def certified_gate(problem, graph, closures, rows, is_true, pool, target, seed, 
     closing = np.flatnonzero(np.abs(edges[:, 1] - edges[:, 0]) != 1)
     _, weights = optimize(seen, initial, robust="gnc", closures=closing, weights=True)
     weight_of = {tuple(sorted(edges[i].tolist())): weights[i] for i in closing}
-    machine = np.array([weight_of[tuple(sorted(pair))] > 0.5 for pair in closures[pool].tolist()])
+    return np.array([weight_of[tuple(sorted(pair))] > 0.5 for pair in closures[pool].tolist()])
+
+
+def certified_gate(problem, graph, closures, rows, is_true, pool, target, seed, audit_size):
+    """The back end labels the pool (``machine_labels``); the audit of at most ``audit_size`` of them (the ground
+    truth standing in for the person) certifies p*. Returns the gate (None when nothing is certified), the machine
+    labels' error rate and the audit's status."""
+    machine = machine_labels(problem, graph, closures, pool)
     audit = AuditCalibration(rows[pool], machine, target_precision=target, delta=0.1, seed=seed, audit_size=audit_size)
     while (query := audit.next_query()) is not None:  # the ground truth stands in for the person
         audit.add_label(query, bool(is_true[pool][query]))
@@ -117,11 +122,33 @@ def certified_gate(problem, graph, closures, rows, is_true, pool, target, seed, 
     return (audit.gate() if status.certified else None), float(np.mean(machine != is_true[pool])), status
 
 
-def one_seed(problem, rate, kind, seed, pop, labelled, target, stages=1, window=None, step_aside=False):
+class ShiftedCut:
+    """An SU cut re-chosen for the wrong-closure rate of the latest closures (no new human label): the most lenient
+    cut whose precision, predicted from the machine labels as (1 - w) F_true(c) / ((1 - w) F_true(c) + w F_wrong(c))
+    with w the machine-labelled wrong share of ``recent`` and F the SU distributions of every machine-labelled
+    closure, is >= ``target``. An estimate, not a certificate."""
+
+    def __init__(self, rows: np.ndarray, machine: np.ndarray, recent: np.ndarray, target: float) -> None:
+        su, wrong_rate = statistical_uncertainty(rows[:, :10]), 1 - float(machine[recent].mean())
+        cuts = np.unique(su)
+        true_share = (su[machine][:, None] <= cuts).mean(axis=0) if machine.any() else np.zeros(cuts.size)
+        wrong_share = (su[~machine][:, None] <= cuts).mean(axis=0) if (~machine).any() else np.zeros(cuts.size)
+        accepted_true, accepted_wrong = (1 - wrong_rate) * true_share, wrong_rate * wrong_share
+        reaching = (accepted_true > 0) & (accepted_true >= target * (accepted_true + accepted_wrong))
+        self.cut = float(cuts[reaching].max()) if reaching.any() else -np.inf
+
+    def accept(self, rows: np.ndarray) -> np.ndarray:
+        return statistical_uncertainty(rows[:, :10]) <= self.cut
+
+
+def one_seed(problem, rate, kind, seed, pop, labelled, target, stages=1, window=None, step_aside=False, follow=False):
     """One seed; with ``stages`` > 1 the remaining closures are decided in that many chunks (trajectory order),
     each by a gate certified again before it on the closures seen so far (the last ``window`` share of all closures
     when given), the 40 audit labels split evenly among the stages. With ``step_aside``, also the APE when the
-    closures decided while no gate is certified all go to GNC (the gate steps aside instead of accepting none)."""
+    closures decided while no gate is certified all go to GNC (the gate steps aside instead of accepting none).
+    With ``follow``, only the first stage is audited (all 40 labels); once it certifies, each later stage's gate is
+    a ``ShiftedCut`` from the back end's labels of every closure seen so far, its wrong rate read on the last
+    ``window`` share of the closures (default: the last stage's)."""
     rng = np.random.default_rng(seed)
     graph, closures, is_true = slam.with_wrong_closures(problem, rate, rng, kind)  # "grouped": slam's grouped runs
     rows = slam.score_rows(pop, is_true, rng)
@@ -133,11 +160,25 @@ def one_seed(problem, rate, kind, seed, pop, labelled, target, stages=1, window=
     bounds = np.linspace(start, len(order), stages + 1).round().astype(int)
     for stage, (begin, end) in enumerate(itertools.pairwise(bounds)):
         pool = order[:begin] if window is None else order[max(0, begin - round(window * len(order))) : begin]
-        gate, wrong, status = certified_gate(
-            problem, graph, closures, rows, is_true, pool, target, seed + 1000 * stage, 40 // stages
-        )
-        labels, machine_wrong = labels + status.labelled, [*machine_wrong, wrong]
-        certified.append(status.certified)
+        if follow and stage:
+            seen, recent = order[:begin], max(1, round(window * len(order)) if window else begin - bounds[stage - 1])
+            machine = machine_labels(problem, graph, closures, seen)
+            machine_wrong.append(float(np.mean(machine != is_true[seen])))
+            gate = ShiftedCut(rows[seen], machine, np.arange(len(seen))[-recent:], target) if kept is not None else None
+        else:
+            gate, wrong, status = certified_gate(
+                problem,
+                graph,
+                closures,
+                rows,
+                is_true,
+                pool,
+                target,
+                seed + 1000 * stage,
+                40 // (1 if follow else stages),
+            )
+            labels, machine_wrong = labels + status.labelled, [*machine_wrong, wrong]
+            certified.append(status.certified)
         decided = order[:end] if stage == 0 else order[begin:end]  # the first gate also decides its own pool
         kept = gate if gate is not None else kept  # a stage that certifies nothing keeps the last certified gate
         if kept is not None:
@@ -184,6 +225,12 @@ def run(argv: list[str] | None = None) -> int:
         action="store_true",
         help="also report gate + GNC with every closure decided while no gate is certified passed to GNC",
     )
+    parser.add_argument(
+        "--follow",
+        action="store_true",
+        help="audit once (40 labels), then re-choose an SU cut per stage for the "
+        "latest wrong-closure rate from the back end's labels (ShiftedCut: an estimate, not a certificate)",
+    )
     parser.add_argument("--window", type=float, help="each stage's pool: the last WINDOW share of the closures")
     parser.add_argument(
         "--ceilings",
@@ -212,9 +259,10 @@ def run(argv: list[str] | None = None) -> int:
                         pop,
                         args.labelled,
                         args.target,
-                        args.stages,
-                        args.window,
-                        args.step_aside,
+                        stages=args.stages,
+                        window=args.window,
+                        step_aside=args.step_aside,
+                        follow=args.follow,
                     )
                     for s in range(args.seeds)
                 ]

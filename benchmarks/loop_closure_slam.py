@@ -815,7 +815,11 @@ def gate_table(method: str, seeds: range, labels: tuple[int, ...] = (200, 400), 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="the four-lap graph only")
-    parser.add_argument("--graphs", default="fourlap,sphere2500,city10000")
+    parser.add_argument(
+        "--graphs",
+        default="fourlap,sphere2500,city10000",
+        help="comma-separated: fourlap, sphere2500, sphere2500-fitted (its edges' real noise), city10000",
+    )
     parser.add_argument("--rates", default="0.3,0.5,0.7")
     parser.add_argument("--sphere-rates", default=None, help="rates for sphere2500 (default: --rates)")
     parser.add_argument("--method", default="AMOSNet", help="the corridor VPR-Bench method whose rows are used")
@@ -904,7 +908,9 @@ def main(argv: list[str] | None = None) -> int:
     for name in graphs:
         problem = PROBLEMS[name]()
         graph_rates = (
-            [float(r) for r in args.sphere_rates.split(",")] if name == "sphere2500" and args.sphere_rates else rates
+            [float(r) for r in args.sphere_rates.split(",")]
+            if name.startswith("sphere2500") and args.sphere_rates
+            else rates
         )
         for rate in graph_rates:
             run_one(
