@@ -59,18 +59,24 @@ def oracle_kept(rows: np.ndarray, is_true: np.ndarray, target: float) -> float:
     return float(true_kept[reaching].max() / max(is_true.sum(), 1)) if reaching.any() else 0.0
 
 
+def lenient_cut(su: np.ndarray, positive: np.ndarray, wrong_rate: float, target: float) -> tuple[float, float]:
+    """The most lenient cut on ``su`` (N,) whose precision at a ``wrong_rate`` share of negatives, (1 - w) F_pos(c) /
+    ((1 - w) F_pos(c) + w F_neg(c)) with F the SU distributions of the ``positive`` (N,) rows and of the others, is
+    >= ``target``, and the share of the positive rows it keeps; (-inf, 0.0) when no cut keeps one at that precision."""
+    cuts = np.unique(su)
+    true_share = (su[positive][:, None] <= cuts).mean(axis=0) if positive.any() else np.zeros(cuts.size)
+    wrong_share = (su[~positive][:, None] <= cuts).mean(axis=0) if (~positive).any() else np.zeros(cuts.size)
+    accepted_true, accepted_wrong = (1 - wrong_rate) * true_share, wrong_rate * wrong_share
+    reaching = np.flatnonzero((accepted_true > 0) & (accepted_true >= target * (accepted_true + accepted_wrong)))
+    return (float(cuts[reaching[-1]]), float(true_share[reaching[-1]])) if reaching.size else (-np.inf, 0.0)
+
+
 def population_ceiling(pop, wrong_rate: float, target: float) -> float:
     """The share of the true closures kept by the most lenient SU cut whose expected precision is >= ``target``
     when true closures draw the method's correct rows and a ``wrong_rate`` share of the closures its wrong rows (the
-    pairing of ``loop_closure_slam.score_rows``): (1 - w) F_true(c) / ((1 - w) F_true(c) + w F_wrong(c)), with F the
-    empirical distributions of SU. No SU gate keeps more at that precision, whatever its labels."""
-    su = statistical_uncertainty(pop.scores[:, :10])
-    cuts = np.unique(su)
-    true_share = (su[pop.correct][:, None] <= cuts).mean(axis=0)
-    wrong_share = (su[~pop.correct][:, None] <= cuts).mean(axis=0)
-    accepted_true, accepted_wrong = (1 - wrong_rate) * true_share, wrong_rate * wrong_share
-    reaching = accepted_true >= target * (accepted_true + accepted_wrong)
-    return float(true_share[reaching & (true_share > 0)].max(initial=0.0))
+    pairing of ``loop_closure_slam.score_rows``; ``lenient_cut``). No SU gate keeps more at that precision, whatever
+    its labels."""
+    return lenient_cut(statistical_uncertainty(pop.scores[:, :10]), pop.correct, wrong_rate, target)[1]
 
 
 def print_ceilings(rates: list[float], targets: list[float]) -> None:
@@ -123,19 +129,13 @@ def certified_gate(problem, graph, closures, rows, is_true, pool, target, seed, 
 
 
 class ShiftedCut:
-    """An SU cut re-chosen for the wrong-closure rate of the latest closures (no new human label): the most lenient
-    cut whose precision, predicted from the machine labels as (1 - w) F_true(c) / ((1 - w) F_true(c) + w F_wrong(c))
+    """An SU cut re-chosen for the wrong-closure rate of the latest closures (no new human label): ``lenient_cut``
     with w the machine-labelled wrong share of ``recent`` and F the SU distributions of every machine-labelled
-    closure, is >= ``target``. An estimate, not a certificate."""
+    closure. An estimate, not a certificate."""
 
     def __init__(self, rows: np.ndarray, machine: np.ndarray, recent: np.ndarray, target: float) -> None:
         su, wrong_rate = statistical_uncertainty(rows[:, :10]), 1 - float(machine[recent].mean())
-        cuts = np.unique(su)
-        true_share = (su[machine][:, None] <= cuts).mean(axis=0) if machine.any() else np.zeros(cuts.size)
-        wrong_share = (su[~machine][:, None] <= cuts).mean(axis=0) if (~machine).any() else np.zeros(cuts.size)
-        accepted_true, accepted_wrong = (1 - wrong_rate) * true_share, wrong_rate * wrong_share
-        reaching = (accepted_true > 0) & (accepted_true >= target * (accepted_true + accepted_wrong))
-        self.cut = float(cuts[reaching].max()) if reaching.any() else -np.inf
+        self.cut = lenient_cut(su, machine, wrong_rate, target)[0]
 
     def accept(self, rows: np.ndarray) -> np.ndarray:
         return statistical_uncertainty(rows[:, :10]) <= self.cut
