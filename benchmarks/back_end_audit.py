@@ -79,17 +79,19 @@ def population_ceiling(pop, wrong_rate: float, target: float) -> float:
     return lenient_cut(statistical_uncertainty(pop.scores[:, :10]), pop.correct, wrong_rate, target)[1]
 
 
-def print_ceilings(rates: list[float], targets: list[float]) -> None:
-    """``population_ceiling`` of every corridor method, its native rows and with absent-place rows."""
+def print_ceilings(rates: list[float], targets: list[float], results: Path | None = None) -> None:
+    """``population_ceiling`` of every corridor method, its native rows and with absent-place rows, and of a
+    retrieval file with its positives (``results``: e.g. the toolkit's own ``run``)."""
     methods = sorted(p.name for p in (slam.data_root() / "precomputed_matches/corridor").iterdir())
     cells = [(w, t) for w in rates for t in targets]
     print("| method | rows | " + " | ".join(f"{w:.0%} wrong, p*={t}" for w, t in cells) + " |")
     print("|---|---|" + "---|" * len(cells))
-    for method in methods:
-        for absent in (False, True):
-            pop = slam.population(method, absent=absent)
-            shares = " | ".join(f"{population_ceiling(pop, w, t):.2f}" for w, t in cells)
-            print(f"| {method} | {'absent' if absent else 'native'} | {shares} |", flush=True)
+    populations = [(m, absent, None) for m in methods for absent in (False, True)]
+    for method, absent, path in populations + ([("own run", False, results)] if results else []):
+        pop = slam.population(method, absent=absent, results=path)
+        shares = " | ".join(f"{population_ceiling(pop, w, t):.2f}" for w, t in cells)
+        rows = f"native ({pop.correct.sum()} right, {(~pop.correct).sum()} wrong)" if not absent else "absent"
+        print(f"| {method if path is None else f'own run ({path})'} | {rows} | {shares} |", flush=True)
 
 
 def subgraph(graph, closures: np.ndarray, keep: np.ndarray):
@@ -217,6 +219,7 @@ def run(argv: list[str] | None = None) -> int:
     parser.add_argument("--kinds", default="random,grouped")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--method", default="AMOSNet", help="the corridor method whose rows are paired")
+    parser.add_argument("--results", type=Path, help="with --ceilings: also a retrieval file with its positives")
     parser.add_argument("--labelled", type=float, default=0.3, help="share of the closures the back end labels")
     parser.add_argument("--target", type=float, default=0.9)
     parser.add_argument("--stages", type=int, default=1, help="gates certified again along the remaining closures")
@@ -239,7 +242,7 @@ def run(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     if args.ceilings:
-        print_ceilings([float(r) for r in args.rates.split(",")], [0.5, 0.7, 0.9])
+        print_ceilings([float(r) for r in args.rates.split(",")], [0.5, 0.7, 0.9], args.results)
         return 0
     pop = slam.population(args.method)
     print("| graph | wrong | kind | back end wrong | audit labels | P(certified) | true kept (rest) | SU oracle kept "
