@@ -218,6 +218,7 @@ def run(argv: list[str] | None = None) -> int:
     parser.add_argument("--rates", default="0.3,0.5,0.7")
     parser.add_argument("--kinds", default="random,grouped")
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--first-seed", type=int, default=0, help="seeds FIRST_SEED .. FIRST_SEED + SEEDS - 1")
     parser.add_argument("--method", default="AMOSNet", help="the corridor method whose rows are paired")
     parser.add_argument("--results", type=Path, help="with --ceilings: also a retrieval file with its positives")
     parser.add_argument("--labelled", type=float, default=0.3, help="share of the closures the back end labels")
@@ -267,7 +268,7 @@ def run(argv: list[str] | None = None) -> int:
                         step_aside=args.step_aside,
                         follow=args.follow,
                     )
-                    for s in range(args.seeds)
+                    for s in range(args.first_seed, args.first_seed + args.seeds)
                 ]
 
                 def mean(key: str, found: list = found) -> float:
