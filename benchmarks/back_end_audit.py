@@ -34,6 +34,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # its sibling script builds the cases
 
 import loop_closure_slam as slam
+from pairwise_consistency import pcm
 from vpr_uncertainty import statistical_uncertainty
 from vpr_uncertainty.calibration.audit import AuditCalibration
 from vpr_uncertainty.slam.pose_graph import graph_edges, optimize
@@ -104,10 +105,13 @@ def subgraph(graph, closures: np.ndarray, keep: np.ndarray):
     return kept
 
 
-def machine_labels(problem, graph, closures, pool) -> np.ndarray:
-    """GNC on the graph seen up to the last closure of ``pool`` (indices into ``closures``, trajectory order):
-    whether each of the pool's closures ends with weight > 0.5 (``label --by back-end``)."""
+def machine_labels(problem, graph, closures, pool, labeler: str = "gnc") -> np.ndarray:
+    """The back end on the graph seen up to the last closure of ``pool`` (indices into ``closures``, trajectory
+    order) labels each of the pool's closures: ``"gnc"``, its final GNC weight > 0.5 (``label --by back-end``);
+    ``"pcm"``, in the maximum clique of PCM's pairwise consistency graph (``pairwise_consistency.pcm``)."""
     seen = prefix_graph(graph, int(closures[pool].max()))
+    if labeler == "pcm":
+        return pcm(seen, closures[pool], np.ones(len(pool), bool))
     initial = slam.gtsam.Values()
     for key in sorted({k for i in range(seen.size()) for k in seen.at(i).keys()}):
         initial.insert(key, problem.initial.atPose2(key))
@@ -118,11 +122,11 @@ def machine_labels(problem, graph, closures, pool) -> np.ndarray:
     return np.array([weight_of[tuple(sorted(pair))] > 0.5 for pair in closures[pool].tolist()])
 
 
-def certified_gate(problem, graph, closures, rows, is_true, pool, target, seed, audit_size):
+def certified_gate(problem, graph, closures, rows, is_true, pool, target, seed, audit_size, labeler="gnc"):
     """The back end labels the pool (``machine_labels``); the audit of at most ``audit_size`` of them (the ground
     truth standing in for the person) certifies p*. Returns the gate (None when nothing is certified), the machine
     labels' error rate and the audit's status."""
-    machine = machine_labels(problem, graph, closures, pool)
+    machine = machine_labels(problem, graph, closures, pool, labeler)
     audit = AuditCalibration(rows[pool], machine, target_precision=target, delta=0.1, seed=seed, audit_size=audit_size)
     while (query := audit.next_query()) is not None:  # the ground truth stands in for the person
         audit.add_label(query, bool(is_true[pool][query]))
@@ -143,7 +147,20 @@ class ShiftedCut:
         return statistical_uncertainty(rows[:, :10]) <= self.cut
 
 
-def one_seed(problem, rate, kind, seed, pop, labelled, target, stages=1, window=None, step_aside=False, follow=False):
+def one_seed(
+    problem,
+    rate,
+    kind,
+    seed,
+    pop,
+    labelled,
+    target,
+    stages=1,
+    window=None,
+    step_aside=False,
+    follow=False,
+    labeler="gnc",
+):
     """One seed; with ``stages`` > 1 the remaining closures are decided in that many chunks (trajectory order),
     each by a gate certified again before it on the closures seen so far (the last ``window`` share of all closures
     when given), the 40 audit labels split evenly among the stages. With ``step_aside``, also the APE when the
@@ -164,7 +181,7 @@ def one_seed(problem, rate, kind, seed, pop, labelled, target, stages=1, window=
         pool = order[:begin] if window is None else order[max(0, begin - round(window * len(order))) : begin]
         if follow and stage:
             seen, recent = order[:begin], max(1, round(window * len(order)) if window else begin - bounds[stage - 1])
-            machine = machine_labels(problem, graph, closures, seen)
+            machine = machine_labels(problem, graph, closures, seen, labeler)
             machine_wrong.append(float(np.mean(machine != is_true[seen])))
             gate = ShiftedCut(rows[seen], machine, np.arange(len(seen))[-recent:], target) if kept is not None else None
         else:
@@ -178,6 +195,7 @@ def one_seed(problem, rate, kind, seed, pop, labelled, target, stages=1, window=
                 target,
                 seed + 1000 * stage,
                 40 // (1 if follow else stages),
+                labeler,
             )
             labels, machine_wrong = labels + status.labelled, [*machine_wrong, wrong]
             certified.append(status.certified)
@@ -221,6 +239,7 @@ def run(argv: list[str] | None = None) -> int:
     parser.add_argument("--first-seed", type=int, default=0, help="seeds FIRST_SEED .. FIRST_SEED + SEEDS - 1")
     parser.add_argument("--method", default="AMOSNet", help="the corridor method whose rows are paired")
     parser.add_argument("--results", type=Path, help="with --ceilings: also a retrieval file with its positives")
+    parser.add_argument("--labeler", choices=("gnc", "pcm"), default="gnc", help="the back end that labels")
     parser.add_argument("--labelled", type=float, default=0.3, help="share of the closures the back end labels")
     parser.add_argument("--target", type=float, default=0.9)
     parser.add_argument("--stages", type=int, default=1, help="gates certified again along the remaining closures")
@@ -267,6 +286,7 @@ def run(argv: list[str] | None = None) -> int:
                         window=args.window,
                         step_aside=args.step_aside,
                         follow=args.follow,
+                        labeler=args.labeler,
                     )
                     for s in range(args.first_seed, args.first_seed + args.seeds)
                 ]
