@@ -149,10 +149,7 @@ def sphere2500_fitted() -> Problem:
     Gaussian whose σ per component are the RMS of the edges' errors at the ground truth (``unwhitenedError``, in
     GTSAM's order: rotation, then translation). The file's model overstates the rotation noise about 10×, which
     leaves PCM's consistency test nothing to reject."""
-    problem = sphere2500()
-    truth = gtsam.Values()
-    for row in problem.truth:
-        truth.insert(int(row[0]), gtsam.Pose3(gtsam.Rot3.Quaternion(row[7], *row[4:7]), row[1:4]))
+    problem, (_, truth) = sphere2500(), read_graph(GTSAM_DATA / "sphere2500_groundtruth.txt")
     errors = np.array([problem.graph.at(i).unwhitenedError(truth) for i in range(problem.graph.size())])
     sigmas = np.sqrt(np.mean(errors**2, axis=0))
     model = gtsam.noiseModel.Diagonal.Sigmas(sigmas)

@@ -49,9 +49,8 @@ def test_sphere2500_has_its_poses_and_a_fitted_noise_model(bench):
     start, end = problem.truth[[0, -1], 1:4]
     assert np.allclose(start, 0) and np.linalg.norm(end) > 10  # the truth is a sphere, not the origin repeated
     fitted = bench.sphere2500_fitted()
-    truth = gtsam.Values()
-    for row in problem.truth:
-        truth.insert(int(row[0]), gtsam.Pose3(gtsam.Rot3.Quaternion(row[7], *row[4:7]), row[1:4]))
+    _, truth = bench.read_graph(bench.GTSAM_DATA / "sphere2500_groundtruth.txt")
+    np.testing.assert_array_equal(bench.pose_rows(truth), problem.truth)
     whitened = np.array([fitted.graph.at(i).whitenedError(truth) for i in range(fitted.graph.size())])
     np.testing.assert_allclose(np.mean(whitened**2, axis=0), 1.0, rtol=1e-6)
     sigmas = fitted.graph.at(0).noiseModel().sigmas()
